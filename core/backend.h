@@ -1,0 +1,151 @@
+// The three backend interfaces (codec, denoiser, predictor) and the registry that creates
+// them by name. A backend is one .cpp in backends/<kind>/ that defines a function returning
+// its BackendEntry; backends/register_all.cpp holds one explicit line per backend (no static
+// constructors, which a linker may drop from a static library).
+#pragma once
+
+#include "core/error.h"
+#include "core/gbuffer.h"
+#include "core/image.h"
+#include "core/params.h"
+#include "core/pass_buffer.h"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+namespace dhr {
+
+// ---- Codec: compresses one pass of one frame. Stateful codecs (video) keep state between
+// frames; reset() returns them to their initial state.
+struct EncodeOptions {
+  bool force_keyframe = false;
+};
+
+class Codec {
+ public:
+  virtual ~Codec() = default;
+  virtual bool lossless() const = 0;
+  // Empty when this codec can carry buffers of `desc` (bit-exactly if lossless()); else the
+  // reason it refuses them (a lossy codec refuses a bitmask).
+  virtual std::string refuses(const PassDesc& desc) const {
+    (void)desc;
+    return {};
+  }
+  virtual void encode(const PassBuffer& in, const EncodeOptions& options, std::vector<uint8_t>& out) = 0;
+  // Expected failures (corrupt or foreign bytes) return false with `error` set; `out` is then
+  // unspecified. Never crashes, never returns true with wrong-sized output.
+  virtual bool decode(std::span<const uint8_t> in, const PassDesc& desc, PassBuffer& out,
+                      std::string& error) = 0;
+  virtual void reset() {}
+};
+
+// ---- Denoiser: server-side filtering of a noisy 8-bit signal (AO counts, or one light's
+// soft visibility), guided by the server's G-buffer of the same frame.
+struct DenoiseInput {
+  const GBuffer& gbuf;      // the G-buffer the noisy values were traced for
+  const ImageU8& noisy;     // values 0..full_scale
+  int full_scale = 255;     // the value that means 1.0 (N rays for raw AO counts)
+  uint32_t frame = 0;       // server frame index
+  bool history_valid = true;  // false on a camera cut or after skipped/lost frames: reset history
+};
+
+class Denoiser {
+ public:
+  virtual ~Denoiser() = default;
+  // Writes `out` at the input's size with values 0..255 (255 = 1.0).
+  virtual void denoise(const DenoiseInput& in, ImageU8& out) = 0;
+  virtual void reset() = 0;
+};
+
+// ---- Predictor: turns the newest received server buffer (computed for an older client frame)
+// into a buffer for the frame being displayed.
+struct PredictInput {
+  const PassBuffer& received;  // decoded server buffer for frame `src`
+  const GBuffer& src;          // the client's G-buffer of the frame the server traced
+  const GBuffer& dst;          // the client's G-buffer of the frame being displayed
+};
+
+struct PredictStats {
+  uint64_t pixels = 0;       // covered pixels predicted
+  uint64_t disoccluded = 0;  // pixels with no valid source sample (filled by the stated rule)
+};
+
+class Predictor {
+ public:
+  virtual ~Predictor() = default;
+  virtual PredictStats predict(const PredictInput& in, PassBuffer& out) = 0;
+  virtual void reset() {}
+};
+
+// ---- Registry
+template <class Interface>
+struct BackendEntry {
+  std::string name;
+  std::string description;  // one line
+  std::vector<ParamSpec> params;
+  std::function<std::unique_ptr<Interface>(const Params&)> create;
+};
+
+using CodecEntry = BackendEntry<Codec>;
+using DenoiserEntry = BackendEntry<Denoiser>;
+using PredictorEntry = BackendEntry<Predictor>;
+
+template <class Interface>
+class Registry {
+ public:
+  explicit Registry(std::string kind) : kind_(std::move(kind)) {}
+  const std::string& kind() const { return kind_; }
+
+  void add(BackendEntry<Interface> entry) {
+    if (find(entry.name)) fail("{} backend '{}' is registered twice", kind_, entry.name);
+    entries_.push_back(std::move(entry));
+  }
+  const BackendEntry<Interface>* find(const std::string& name) const {
+    for (const auto& e : entries_)
+      if (e.name == name) return &e;
+    return nullptr;
+  }
+  // Throws dhr::Error naming the valid backends when `name` is unknown.
+  const BackendEntry<Interface>& get(const std::string& name) const {
+    if (const auto* e = find(name)) return *e;
+    fail("unknown {} '{}' (valid: {})", kind_, name, names_text());
+  }
+  // Validates parameters, then creates. Throws dhr::Error on any problem.
+  std::unique_ptr<Interface> create(const std::string& name, const nlohmann::json& params,
+                                    Params* effective = nullptr) const {
+    const auto& e = get(name);
+    Params p(kind_ + " '" + name + "'", e.params, params);
+    if (effective) *effective = p;
+    return e.create(p);
+  }
+  const std::vector<BackendEntry<Interface>>& entries() const { return entries_; }
+  std::string names_text() const {
+    std::string s;
+    for (const auto& e : entries_) s += (s.empty() ? "" : ", ") + e.name;
+    return s;
+  }
+
+ private:
+  std::string kind_;
+  std::vector<BackendEntry<Interface>> entries_;
+};
+
+struct Registries {
+  Registry<Codec> codecs{"codec"};
+  Registry<Denoiser> denoisers{"denoiser"};
+  Registry<Predictor> predictors{"predictor"};
+};
+
+// Defined in backends/register_all.cpp: one line per backend.
+void register_all_backends(Registries& r);
+
+// All backends, registered on first use (thread-safe).
+const Registries& registries();
+
+}  // namespace dhr

@@ -1,0 +1,87 @@
+#include "core/image_io.h"
+
+#include "core/error.h"
+
+#include <OpenImageIO/imageio.h>
+
+#include <filesystem>
+
+namespace dhr {
+
+namespace {
+
+template <class T>
+void write_image(const std::string& path, int width, int height, int channels, OIIO::TypeDesc type,
+                 const T* data) {
+  if (width <= 0 || height <= 0) fail("{}: cannot write an empty {}x{} image", path, width, height);
+  const auto parent = std::filesystem::path(path).parent_path();
+  if (!parent.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(parent, ec);
+    if (ec) fail("{}: cannot create folder {}: {}", path, parent.string(), ec.message());
+  }
+  auto out = OIIO::ImageOutput::create(path);
+  if (!out) fail("{}: no image writer for this file name ({})", path, OIIO::geterror());
+  OIIO::ImageSpec spec(width, height, channels, type);
+  if (!out->open(path, spec)) fail("{}: cannot open for writing: {}", path, out->geterror());
+  if (!out->write_image(type, data)) fail("{}: write failed: {}", path, out->geterror());
+  if (!out->close()) fail("{}: close failed: {}", path, out->geterror());
+}
+
+}  // namespace
+
+void write_png(const std::string& path, const ImageU8& image) {
+  write_image(path, image.width(), image.height(), 1, OIIO::TypeDesc::UINT8, image.data());
+}
+void write_png(const std::string& path, const ImageRGB8& image) {
+  write_image(path, image.width(), image.height(), 3, OIIO::TypeDesc::UINT8, image.data());
+}
+void write_exr(const std::string& path, const ImageF& image) {
+  write_image(path, image.width(), image.height(), 1, OIIO::TypeDesc::FLOAT, image.data());
+}
+void write_exr(const std::string& path, const ImageVec3& image) {
+  write_image(path, image.width(), image.height(), 3, OIIO::TypeDesc::FLOAT, image.data());
+}
+
+Rgba8Image read_rgba8(const std::string& path) {
+  if (!std::filesystem::is_regular_file(path)) fail("{}: image file not found", path);
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) fail("{}: cannot read image: {}", path, OIIO::geterror());
+  const OIIO::ImageSpec& spec = in->spec();
+  if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth != 1)
+    fail("{}: unsupported image shape {}x{}x{} with {} channels", path, spec.width, spec.height,
+         spec.depth, spec.nchannels);
+  check_image_size(spec.width, spec.height);
+  const int nc = spec.nchannels;
+  std::vector<uint8_t> raw(size_t(spec.width) * spec.height * nc);
+  if (!in->read_image(0, 0, 0, nc, OIIO::TypeDesc::UINT8, raw.data()))
+    fail("{}: read failed: {}", path, in->geterror());
+  in->close();
+  Rgba8Image img;
+  img.width = spec.width;
+  img.height = spec.height;
+  img.has_alpha = spec.alpha_channel >= 0 || nc == 4 || nc == 2;
+  img.rgba.resize(size_t(img.width) * img.height * 4);
+  const size_t n = size_t(img.width) * img.height;
+  for (size_t i = 0; i < n; ++i) {
+    const uint8_t* s = &raw[i * nc];
+    uint8_t* d = &img.rgba[i * 4];
+    if (nc >= 3) {
+      d[0] = s[0]; d[1] = s[1]; d[2] = s[2];
+      d[3] = nc >= 4 ? s[3] : 255;
+    } else {
+      d[0] = d[1] = d[2] = s[0];
+      d[3] = nc == 2 ? s[1] : 255;
+    }
+  }
+  return img;
+}
+
+ImageRGB8 read_rgb8(const std::string& path) {
+  Rgba8Image src = read_rgba8(path);
+  ImageRGB8 out(src.width, src.height);
+  for (size_t i = 0; i < out.size(); ++i) out[i] = {src.rgba[i * 4], src.rgba[i * 4 + 1], src.rgba[i * 4 + 2]};
+  return out;
+}
+
+}  // namespace dhr

@@ -1,0 +1,52 @@
+#include "core/pass_buffer.h"
+
+#include "core/image.h"
+
+#include <fmt/format.h>
+
+namespace dhr {
+
+const char* pass_kind_name(PassKind kind) {
+  switch (kind) {
+    case PassKind::Visibility: return "visibility";
+    case PassKind::SoftVisibility: return "soft_visibility";
+    case PassKind::Ao: return "ao";
+    case PassKind::Colour: return "colour";
+  }
+  return "unknown";
+}
+
+size_t PassDesc::byte_size() const {
+  const size_t px = size_t(width) * size_t(height);
+  switch (kind) {
+    case PassKind::Visibility: return px * size_t((channels + 7) / 8);
+    case PassKind::SoftVisibility: return px * size_t(channels);
+    case PassKind::Ao: return px;
+    case PassKind::Colour: return px * 3;
+  }
+  return 0;
+}
+
+std::string PassDesc::validate() const {
+  if (width < 0 || height < 0 || width > kMaxImageSide || height > kMaxImageSide ||
+      int64_t(width) * height > kMaxImagePixels)
+    return fmt::format("size {}x{} out of range (each side 0..{})", width, height, kMaxImageSide);
+  switch (kind) {
+    case PassKind::Visibility:
+    case PassKind::SoftVisibility:
+      if (channels < 1 || channels > 64) return fmt::format("{} lights out of range 1..64", channels);
+      break;
+    case PassKind::Ao:
+      if (channels != 1) return fmt::format("ao has 1 channel, not {}", channels);
+      break;
+    case PassKind::Colour:
+      if (channels != 3) return fmt::format("colour has 3 channels, not {}", channels);
+      break;
+    default: return "unknown pass kind";
+  }
+  if ((kind == PassKind::Ao || kind == PassKind::SoftVisibility) && (full_scale < 1 || full_scale > 255))
+    return fmt::format("full_scale {} out of range 1..255", full_scale);
+  return {};
+}
+
+}  // namespace dhr

@@ -1,0 +1,38 @@
+// What a server pass produces and a codec carries. Canonical layouts (row-major, top row first):
+// - Visibility: the paper's bitmask, interleaved per pixel: ceil(channels/8) bytes per pixel,
+//   bit l (little-endian across the pixel's bytes) = light l visible. channels = lights, 1..64.
+// - SoftVisibility: one 8-bit plane per light (planar), values 0..full_scale = visible fraction.
+// - Ao: one byte per pixel, 0..full_scale; O = value / full_scale (full_scale = N rays before
+//   denoising, 255 after).
+// - Colour: RGB8 interleaved, sRGB encoded (the remote-rendering baseline's frame).
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace dhr {
+
+enum class PassKind : uint8_t { Visibility = 1, SoftVisibility = 2, Ao = 3, Colour = 4 };
+
+const char* pass_kind_name(PassKind kind);
+
+struct PassDesc {
+  PassKind kind = PassKind::Ao;
+  int width = 0;
+  int height = 0;
+  int channels = 1;      // lights for (Soft)Visibility, 1 for Ao, 3 for Colour
+  int full_scale = 255;  // Ao and SoftVisibility: the value that means 1.0
+  size_t byte_size() const;  // exact size of a buffer with this description
+  // Empty when valid; else what is wrong (channels out of range, sizes out of range).
+  std::string validate() const;
+  friend bool operator==(const PassDesc&, const PassDesc&) = default;
+};
+
+struct PassBuffer {
+  PassDesc desc;
+  std::vector<uint8_t> bytes;  // desc.byte_size() bytes
+};
+
+}  // namespace dhr

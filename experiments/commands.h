@@ -1,0 +1,18 @@
+// Each subcommand of `dhrbench` lives in its own cmd_<name>.cpp and adds itself to the
+// command line in main.cpp through one add_<name>_command line.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <functional>
+
+namespace dhr::cli {
+
+// A subcommand registers its options on `app` and returns the function that runs it
+// (returning the process exit code).
+using Runner = std::function<int()>;
+
+Runner add_list_command(CLI::App& app);
+Runner add_render_command(CLI::App& app);
+
+}  // namespace dhr::cli

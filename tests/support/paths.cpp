@@ -1,0 +1,17 @@
+#include "tests/support.h"
+
+#include <cstdlib>
+
+namespace dhr::test {
+
+std::string source_dir() { return DHR_SOURCE_DIR; }
+
+std::string shared_scenes_dir() {
+  if (const char* p = std::getenv("DHR_SCENE_PATH"); p && *p) {
+    std::string s = p;
+    return s.substr(0, s.find(':'));
+  }
+  return DHR_SHARED_SCENES_DEFAULT;
+}
+
+}  // namespace dhr::test
