@@ -14,5 +14,6 @@ using Runner = std::function<int()>;
 
 Runner add_list_command(CLI::App& app);
 Runner add_render_command(CLI::App& app);
+Runner add_compare_command(CLI::App& app);
 
 }  // namespace dhr::cli

@@ -23,6 +23,7 @@ int main(int argc, char** argv) {
   };
   add(dhr::cli::add_list_command);
   add(dhr::cli::add_render_command);
+  add(dhr::cli::add_compare_command);
 
   try {
     app.parse(argc, argv);

@@ -1,0 +1,185 @@
+#include "core/metrics.h"
+
+#include "core/error.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+namespace dhr {
+
+namespace {
+
+constexpr int kRadius = 5;  // 11x11 window
+constexpr double kC1 = (0.01 * 255) * (0.01 * 255);
+constexpr double kC2 = (0.03 * 255) * (0.03 * 255);
+
+std::array<float, 2 * kRadius + 1> gaussian_weights() {
+  std::array<float, 2 * kRadius + 1> w{};
+  double sum = 0;
+  for (int i = -kRadius; i <= kRadius; ++i) sum += std::exp(-(i * i) / (2.0 * 1.5 * 1.5));
+  for (int i = -kRadius; i <= kRadius; ++i) w[i + kRadius] = float(std::exp(-(i * i) / (2.0 * 1.5 * 1.5)) / sum);
+  return w;
+}
+
+// Reflect-101 index (…2 1 | 0 1 2 … n-1 | n-2 …) for any size >= 1.
+inline int reflect101(int i, int n) {
+  if (n == 1) return 0;
+  while (i < 0 || i >= n) {
+    if (i < 0) i = -i;
+    if (i >= n) i = 2 * n - 2 - i;
+  }
+  return i;
+}
+
+// SSIM map of two float planes (values in 0..255), returns the mean. The five local moments
+// are blurred separably: a horizontal pass into row buffers, then a vertical pass per row.
+double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map) {
+  static const auto g = gaussian_weights();
+  // Horizontal pass: 5 planes (a, b, a^2, b^2, ab).
+  std::vector<float> hz(size_t(w) * h * 5);
+  tbb::parallel_for(0, h, [&](int y) {
+    const float* ra = a + size_t(y) * w;
+    const float* rb = b + size_t(y) * w;
+    float* out = &hz[size_t(y) * w * 5];
+    for (int x = 0; x < w; ++x) {
+      float s[5] = {0, 0, 0, 0, 0};
+      for (int k = -kRadius; k <= kRadius; ++k) {
+        const int xx = reflect101(x + k, w);
+        const float wa = ra[xx], wb = rb[xx], gk = g[k + kRadius];
+        s[0] += gk * wa;
+        s[1] += gk * wb;
+        s[2] += gk * wa * wa;
+        s[3] += gk * wb * wb;
+        s[4] += gk * wa * wb;
+      }
+      for (int c = 0; c < 5; ++c) out[x * 5 + c] = s[c];
+    }
+  });
+  std::vector<double> row_sums(size_t(h), 0.0);
+  if (map) map->resize(w, h);
+  tbb::parallel_for(0, h, [&](int y) {
+    double row = 0;
+    for (int x = 0; x < w; ++x) {
+      double s[5] = {0, 0, 0, 0, 0};
+      for (int k = -kRadius; k <= kRadius; ++k) {
+        const float* p = &hz[(size_t(reflect101(y + k, h)) * w + x) * 5];
+        const double gk = g[k + kRadius];
+        for (int c = 0; c < 5; ++c) s[c] += gk * p[c];
+      }
+      const double mu_a = s[0], mu_b = s[1];
+      const double var_a = std::max(0.0, s[2] - mu_a * mu_a);
+      const double var_b = std::max(0.0, s[3] - mu_b * mu_b);
+      const double cov = s[4] - mu_a * mu_b;
+      const double v = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
+                       ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a + var_b + kC2));
+      if (map) (*map)(x, y) = float(v);
+      row += v;
+    }
+    row_sums[size_t(y)] = row;
+  });
+  double total = 0;
+  for (double r : row_sums) total += r;  // fixed order: independent of thread count
+  return total / (double(w) * h);
+}
+
+void check_pair(int wa, int ha, int wb, int hb) {
+  if (wa != wb || ha != hb) fail("images differ in size: {}x{} against {}x{}", wa, ha, wb, hb);
+  if (wa <= 0 || ha <= 0) fail("cannot compare empty images");
+}
+
+}  // namespace
+
+ImageU8 luma(const ImageRGB8& image) {
+  ImageU8 out(image.width(), image.height());
+  for (size_t i = 0; i < image.size(); ++i) {
+    const Rgb8 p = image[i];
+    out[i] = uint8_t(std::lround(0.299 * p.r + 0.587 * p.g + 0.114 * p.b));
+  }
+  return out;
+}
+
+double ssim_u8(const ImageU8& a, const ImageU8& b, ImageF* ssim_map) {
+  check_pair(a.width(), a.height(), b.width(), b.height());
+  std::vector<float> fa(a.pixels().begin(), a.pixels().end()), fb(b.pixels().begin(), b.pixels().end());
+  return ssim_plane(fa.data(), fb.data(), a.width(), a.height(), ssim_map);
+}
+
+double psnr_db(const ImageRGB8& a, const ImageRGB8& b) {
+  check_pair(a.width(), a.height(), b.width(), b.height());
+  double se = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const int dr = a[i].r - b[i].r, dg = a[i].g - b[i].g, db = a[i].b - b[i].b;
+    se += dr * dr + dg * dg + db * db;
+  }
+  if (se == 0) return std::numeric_limits<double>::infinity();
+  const double mse = se / (3.0 * double(a.size()));
+  return 10.0 * std::log10(255.0 * 255.0 / mse);
+}
+
+QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel channel, ImageF* ssim_map) {
+  check_pair(a.width(), a.height(), b.width(), b.height());
+  QualityScores q;
+  if (channel == SsimChannel::Luma) {
+    q.ssim = ssim_u8(luma(a), luma(b), ssim_map);
+  } else {
+    const size_t n = a.size();
+    std::vector<float> pa(n), pb(n);
+    double sum = 0;
+    ImageF channel_map;
+    if (ssim_map) ssim_map->resize(a.width(), a.height(), 0.0f);
+    for (int c = 0; c < 3; ++c) {
+      for (size_t i = 0; i < n; ++i) {
+        pa[i] = c == 0 ? a[i].r : c == 1 ? a[i].g : a[i].b;
+        pb[i] = c == 0 ? b[i].r : c == 1 ? b[i].g : b[i].b;
+      }
+      sum += ssim_plane(pa.data(), pb.data(), a.width(), a.height(), ssim_map ? &channel_map : nullptr);
+      if (ssim_map)
+        for (size_t i = 0; i < n; ++i) (*ssim_map)[i] += channel_map[i] / 3.0f;
+    }
+    q.ssim = sum / 3.0;
+  }
+  q.psnr_db = psnr_db(a, b);
+  double abs_sum = 0;
+  for (size_t i = 0; i < a.size(); ++i)
+    abs_sum += std::abs(a[i].r - b[i].r) + std::abs(a[i].g - b[i].g) + std::abs(a[i].b - b[i].b);
+  q.mean_abs_error = abs_sum / (3.0 * double(a.size()));
+  return q;
+}
+
+ImageF abs_luma_difference(const ImageRGB8& a, const ImageRGB8& b) {
+  check_pair(a.width(), a.height(), b.width(), b.height());
+  const ImageU8 la = luma(a), lb = luma(b);
+  ImageF out(a.width(), a.height());
+  for (size_t i = 0; i < out.size(); ++i) out[i] = float(std::abs(int(la[i]) - int(lb[i])));
+  return out;
+}
+
+ImageRGB8 error_map(const ImageF& error, float max_value, bool with_colour_bar) {
+  // Control points of a perceptually ordered ramp (approximating viridis).
+  static const std::array<glm::vec3, 5> ramp = {glm::vec3(0.267f, 0.005f, 0.329f), glm::vec3(0.231f, 0.322f, 0.545f),
+                                                glm::vec3(0.129f, 0.569f, 0.549f), glm::vec3(0.369f, 0.788f, 0.384f),
+                                                glm::vec3(0.993f, 0.906f, 0.144f)};
+  auto colour = [&](float t) -> Rgb8 {
+    if (!std::isfinite(t)) t = 1.0f;
+    t = std::clamp(t, 0.0f, 1.0f) * 4.0f;
+    const int i = std::min(int(t), 3);
+    const glm::vec3 c = glm::mix(ramp[size_t(i)], ramp[size_t(i) + 1], t - float(i));
+    return {uint8_t(c.x * 255), uint8_t(c.y * 255), uint8_t(c.z * 255)};
+  };
+  const int w = error.width(), h = error.height();
+  const int bar = with_colour_bar ? std::max(4, h / 24) : 0;
+  ImageRGB8 out(w, h + bar);
+  const float scale = max_value > 0 ? 1.0f / max_value : 0.0f;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) out(x, y) = colour(error(x, y) * scale);
+  for (int y = h; y < h + bar; ++y)
+    for (int x = 0; x < w; ++x) out(x, y) = colour(w > 1 ? float(x) / float(w - 1) : 0.0f);
+  return out;
+}
+
+}  // namespace dhr

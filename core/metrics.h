@@ -1,0 +1,39 @@
+// Image quality metrics, the way the benchmark scores every displayed frame.
+//
+// SSIM after Wang et al. 2004 ("Image quality assessment: from error visibility to structural
+// similarity"): Gaussian window 11x11, sigma 1.5, K1 = 0.01, K2 = 0.03, dynamic range L = 255,
+// computed on the 8-bit sRGB-encoded values. Default channel: luma Y' = 0.299 R' + 0.587 G' +
+// 0.114 B' (BT.601, as Wang's reference code applies SSIM to colour through rgb2gray);
+// SsimChannel::RgbMean averages the SSIM of R, G and B instead. Borders: the window is
+// evaluated at every pixel with reflect-101 padding (OpenCV's default, so the value equals
+// cv::quality::QualitySSIM on the same plane); the mean over all pixels is reported.
+// PSNR: 10 log10(255^2 / MSE) over all three channels; +inf for identical images.
+#pragma once
+
+#include "core/image.h"
+
+namespace dhr {
+
+enum class SsimChannel { Luma, RgbMean };
+
+struct QualityScores {
+  double ssim = 1.0;
+  double psnr_db = 0.0;       // +inf when identical
+  double mean_abs_error = 0.0;  // mean |a - b| over all channels, in 8-bit levels
+};
+
+// Throws dhr::Error when sizes differ or an image is empty.
+QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel channel = SsimChannel::Luma,
+                             ImageF* ssim_map = nullptr);
+// SSIM of two single-channel 8-bit images (same conventions).
+double ssim_u8(const ImageU8& a, const ImageU8& b, ImageF* ssim_map = nullptr);
+double psnr_db(const ImageRGB8& a, const ImageRGB8& b);
+ImageU8 luma(const ImageRGB8& image);
+
+// An error map on a fixed colour scale: value 0 -> dark blue ... max_value -> yellow (a
+// perceptually ordered ramp), saturating above. With a colour bar strip at the bottom.
+ImageRGB8 error_map(const ImageF& error, float max_value, bool with_colour_bar = true);
+// Per-pixel absolute luma difference in 8-bit levels.
+ImageF abs_luma_difference(const ImageRGB8& a, const ImageRGB8& b);
+
+}  // namespace dhr
