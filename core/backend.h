@@ -31,6 +31,9 @@ class Codec {
  public:
   virtual ~Codec() = default;
   virtual bool lossless() const = 0;
+  // True when decoding a frame needs the frames before it (P-frames): after a lost frame the
+  // receiver resets its decoder and asks the sender for a keyframe.
+  virtual bool stateful() const { return false; }
   // Empty when this codec can carry buffers of `desc` (bit-exactly if lossless()); else the
   // reason it refuses them (a lossy codec refuses a bitmask).
   virtual std::string refuses(const PassDesc& desc) const {

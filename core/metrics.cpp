@@ -74,7 +74,11 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map) {
       const double mu_a = s[0], mu_b = s[1];
       const double var_a = std::max(0.0, s[2] - mu_a * mu_a);
       const double var_b = std::max(0.0, s[3] - mu_b * mu_b);
-      const double cov = s[4] - mu_a * mu_b;
+      // Rounding can push the moments slightly outside what they can be: clamp the variances
+      // at 0 and the covariance to |cov| <= sqrt(var_a var_b) (Cauchy-Schwarz), so that
+      // identical images score exactly 1 and flat regions never go negative.
+      const double bound = std::sqrt(var_a * var_b);
+      const double cov = std::clamp(s[4] - mu_a * mu_b, -bound, bound);
       const double v = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
                        ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a + var_b + kC2));
       if (map) (*map)(x, y) = float(v);

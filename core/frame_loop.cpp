@@ -1,0 +1,822 @@
+#include "core/frame_loop.h"
+
+#include "core/assembler.h"
+#include "core/composite.h"
+#include "core/error.h"
+#include "core/metrics.h"
+#include "core/packet.h"
+#include "core/raster.h"
+#include "core/rt_scene.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+#include <cmath>
+#include <deque>
+#include <queue>
+
+namespace dhr {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+enum PassSlot { kSlotVisibility = 0, kSlotAo = 1 };
+constexpr const char* kSlotName[2] = {"visibility", "ao"};
+
+// The camera uplink: one small datagram per client frame.
+constexpr uint64_t kCameraMessageBytes = 96;  // frame id, time, position, orientation, fov, flags
+
+struct CameraMessage {
+  int frame = 0;
+  double arrival_ms = 0.0;
+  bool keyframe_request = false;
+};
+
+struct Datagram {
+  double arrival_ms = 0.0;
+  uint64_t order = 0;  // send order, breaks ties deterministically
+  std::vector<uint8_t> bytes;
+  bool operator>(const Datagram& o) const {
+    return arrival_ms != o.arrival_ms ? arrival_ms > o.arrival_ms : order > o.order;
+  }
+};
+
+std::string trace_key(const std::string& scene_key, const SimConfig& c, int frame) {
+  const TraceSettings& t = c.trace;
+  return fmt::format("trace|{}|{}x{}|f{}|s{}|ao{}:{}|soft{}|spl{}|hz{}|t0{}", scene_key, c.width, c.height, frame,
+                     c.seed, t.ao_rays, t.ao_radius_m, t.soft_shadows, t.samples_per_light, c.display_hz,
+                     c.start_time_s);
+}
+
+std::string truth_key(const std::string& scene_key, const SimConfig& c, int frame) {
+  return fmt::format("truth|{}|{}x{}|f{}|s{}|ao{}:{}|gt{}:{}|hz{}|t0{}", scene_key, c.width, c.height, frame, c.seed,
+                     c.trace.ao_rays, c.trace.ao_radius_m, c.ground_truth_ao_rays, c.ground_truth_samples_per_light,
+                     c.display_hz, c.start_time_s);
+}
+
+ImageU8 plane_of(const PassBuffer& b, int plane) {
+  ImageU8 img(b.desc.width, b.desc.height);
+  const size_t n = img.size();
+  std::copy_n(b.bytes.begin() + std::ptrdiff_t(size_t(plane) * n), n, img.data());
+  return img;
+}
+
+// Denoises the AO counts (and soft-visibility planes) of one frame. The "none" denoiser sends
+// the raw counts (full_scale = N rays), as the paper does; any other sends 0..255.
+struct PassDenoisers {
+  std::unique_ptr<Denoiser> ao;
+  std::vector<std::unique_ptr<Denoiser>> soft;  // one per light (each keeps its own history)
+  bool ao_is_none = true, soft_is_none = true;
+  BackendChoice soft_choice;
+
+  PassDenoisers(const SimConfig& c) {
+    ao_is_none = c.ao_denoiser.name == "none";
+    soft_is_none = c.visibility_denoiser.name == "none";
+    if (!ao_is_none) ao = registries().denoisers.create(c.ao_denoiser.name, c.ao_denoiser.params);
+    soft_choice = c.visibility_denoiser;
+  }
+
+  void run(const GBuffer& gbuf, uint32_t frame, std::optional<PassBuffer>& vis, std::optional<PassBuffer>& ao_buf) {
+    if (ao_buf && !ao_is_none) {
+      ImageU8 out;
+      const ImageU8 noisy = plane_of(*ao_buf, 0);
+      ao->denoise({gbuf, noisy, ao_buf->desc.full_scale, frame, true}, out);
+      ao_buf->bytes.assign(out.pixels().begin(), out.pixels().end());
+      ao_buf->desc.full_scale = 255;
+    }
+    if (vis && vis->desc.kind == PassKind::SoftVisibility && !soft_is_none) {
+      const int lights = vis->desc.channels;
+      while (int(soft.size()) < lights) soft.push_back(registries().denoisers.create(soft_choice.name, soft_choice.params));
+      const size_t n = size_t(vis->desc.width) * size_t(vis->desc.height);
+      for (int l = 0; l < lights; ++l) {
+        ImageU8 out;
+        const ImageU8 noisy = plane_of(*vis, l);
+        soft[size_t(l)]->denoise({gbuf, noisy, vis->desc.full_scale, frame, true}, out);
+        std::copy(out.pixels().begin(), out.pixels().end(), vis->bytes.begin() + std::ptrdiff_t(size_t(l) * n));
+      }
+      vis->desc.full_scale = 255;
+    }
+  }
+};
+
+}  // namespace
+
+// ---- small pieces ---------------------------------------------------------------------------
+
+double StageStats::median() const {
+  if (samples_ms.empty()) return 0.0;
+  std::vector<double> s = samples_ms;
+  std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
+  return s[s.size() / 2];
+}
+
+double StageStats::p95() const {
+  if (samples_ms.empty()) return 0.0;
+  std::vector<double> s = samples_ms;
+  std::sort(s.begin(), s.end());
+  return s[std::min(s.size() - 1, size_t(std::ceil(0.95 * double(s.size()))) - 1)];
+}
+
+double StageStats::total() const {
+  double t = 0;
+  for (double v : samples_ms) t += v;
+  return t;
+}
+
+nlohmann::json SimConfig::to_json() const {
+  auto backend = [](const BackendChoice& b) { return nlohmann::json{{"name", b.name}, {"params", b.params}}; };
+  return {{"mode", mode},
+          {"width", width},
+          {"height", height},
+          {"frames", frames},
+          {"warmup_frames", warmup_frames},
+          {"display_hz", display_hz},
+          {"start_time_s", start_time_s},
+          {"seed", seed},
+          {"trace",
+           {{"ao_rays", trace.ao_rays},
+            {"ao_radius_m", trace.ao_radius_m},
+            {"soft_shadows", trace.soft_shadows},
+            {"samples_per_light", trace.samples_per_light}}},
+          {"visibility_codec", backend(visibility_codec)},
+          {"ao_codec", backend(ao_codec)},
+          {"colour_codec", backend(colour_codec)},
+          {"ao_denoiser", backend(ao_denoiser)},
+          {"visibility_denoiser", backend(visibility_denoiser)},
+          {"predictor", backend(predictor)},
+          {"colour_predictor", backend(colour_predictor)},
+          {"server_timing", server_timing == ServerTiming::Fixed ? "fixed" : "measured"},
+          {"server_fixed_ms", server_fixed_ms},
+          {"uplink", uplink.to_json()},
+          {"downlink", downlink.to_json()},
+          {"max_payload_bytes", max_payload_bytes},
+          {"history_frames", history_frames},
+          {"score_every", score_every},
+          {"ground_truth_every", ground_truth_every},
+          {"ground_truth_ao_rays", ground_truth_ao_rays},
+          {"ground_truth_samples_per_light", ground_truth_samples_per_light}};
+}
+
+std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key) {
+  std::lock_guard lock(mutex_);
+  auto it = entries_.find(key);
+  if (it == entries_.end()) return nullptr;
+  it->second.first = ++tick_;
+  return it->second.second;
+}
+
+std::shared_ptr<const ImageRGB8> TraceCache::find_image(const std::string& key) {
+  std::lock_guard lock(mutex_);
+  auto it = images_.find(key);
+  if (it == images_.end()) return nullptr;
+  it->second.first = ++tick_;
+  return it->second.second;
+}
+
+void TraceCache::insert(const std::string& key, std::shared_ptr<const Entry> entry) {
+  std::lock_guard lock(mutex_);
+  if (entries_.count(key)) return;
+  if (entry->visibility) bytes_ += entry->visibility->bytes.size();
+  if (entry->ao) bytes_ += entry->ao->bytes.size();
+  entries_[key] = {++tick_, std::move(entry)};
+  evict_locked();
+}
+
+void TraceCache::insert_image(const std::string& key, std::shared_ptr<const ImageRGB8> image) {
+  std::lock_guard lock(mutex_);
+  if (images_.count(key)) return;
+  bytes_ += image->size() * sizeof(Rgb8);
+  images_[key] = {++tick_, std::move(image)};
+  evict_locked();
+}
+
+void TraceCache::evict_locked() {
+  while (bytes_ > max_bytes_ && (!entries_.empty() || !images_.empty())) {
+    // Least recently used of both maps.
+    auto e = std::min_element(entries_.begin(), entries_.end(),
+                              [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
+    auto i = std::min_element(images_.begin(), images_.end(),
+                              [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
+    const bool take_entry = i == images_.end() || (e != entries_.end() && e->second.first < i->second.first);
+    if (take_entry) {
+      const Entry& x = *e->second.second;
+      bytes_ -= (x.visibility ? x.visibility->bytes.size() : 0) + (x.ao ? x.ao->bytes.size() : 0);
+      entries_.erase(e);
+    } else {
+      bytes_ -= i->second.second->size() * sizeof(Rgb8);
+      images_.erase(i);
+    }
+  }
+}
+
+nlohmann::json RunResult::metrics() const {
+  nlohmann::json m;
+  auto mean_of = [&](auto field, auto pred) {
+    double s = 0;
+    int n = 0;
+    for (const auto& f : frames)
+      if (pred(f)) {
+        s += field(f);
+        ++n;
+      }
+    return n ? s / n : std::nan("");
+  };
+  auto finite_or_null = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
+  m["ssim_local_mean"] = finite_or_null(mean_of([](const FrameRecord& f) { return f.ssim_local; },
+                                                [](const FrameRecord& f) { return f.scored; }));
+  m["psnr_local_mean_db"] = finite_or_null(mean_of([](const FrameRecord& f) { return std::min(f.psnr_local, 100.0); },
+                                                   [](const FrameRecord& f) { return f.scored; }));
+  m["ssim_ground_truth_mean"] = finite_or_null(mean_of([](const FrameRecord& f) { return f.ssim_gt; },
+                                                       [](const FrameRecord& f) { return f.scored_ground_truth; }));
+  m["psnr_ground_truth_mean_db"] = finite_or_null(mean_of([](const FrameRecord& f) { return std::min(f.psnr_gt, 100.0); },
+                                                          [](const FrameRecord& f) { return f.scored_ground_truth; }));
+  m["psnr_note"] = "PSNR of identical frames is counted as 100 dB in the means";
+  const double seconds = duration_ms / 1000.0;
+  uint64_t wire = 0;
+  nlohmann::json passes = nlohmann::json::array();
+  for (const auto& t : traffic) {
+    wire += t.wire_bytes;
+    passes.push_back({{"pass", t.pass},
+                      {"server_frames", t.server_frames},
+                      {"bytes_per_frame", t.bytes_per_frame()},
+                      {"encoded_bytes", t.encoded_bytes},
+                      {"wire_bytes", t.wire_bytes},
+                      {"packets", t.packets},
+                      {"bandwidth_mbps", seconds > 0 ? double(t.wire_bytes) * 8 / 1e6 / seconds : 0.0},
+                      {"frames_completed", t.frames_completed},
+                      {"frames_lost", t.frames_lost},
+                      {"frames_given_up_by_receiver", t.frames_given_up},
+                      {"decode_errors", t.decode_errors},
+                      {"keyframe_requests", t.keyframe_requests}});
+  }
+  m["passes"] = passes;
+  m["bandwidth_mbps"] = seconds > 0 ? double(wire) * 8 / 1e6 / seconds : 0.0;
+  m["server_fps_virtual"] = seconds > 0 ? double(server_frames) / seconds : 0.0;
+  m["server_frames"] = server_frames;
+  m["cameras_dropped"] = cameras_dropped;
+  m["cameras_lost"] = cameras_lost;
+  m["frames_without_data"] = frames_without_data;
+  m["receiver_packets_lost"] = receiver_packets_lost;
+  StageStats client;
+  for (const auto& f : frames) client.samples_ms.push_back(f.client_wall_ms);
+  m["client_frame_ms_median"] = client.median();
+  m["client_frame_ms_p95"] = client.p95();
+  m["client_fps_wall"] = client.median() > 0 ? 1000.0 / client.median() : 0.0;
+  for (int slot = 0; slot < 2; ++slot) {
+    StageStats age;
+    for (const auto& f : frames)
+      if (f.source_frame[slot] >= 0) age.samples_ms.push_back(f.age_ms[slot]);
+    if (!age.samples_ms.empty())
+      m[fmt::format("buffer_age_ms_{}", config.value("mode", "hybrid") == "remote" && slot == 0 ? "colour" : kSlotName[slot])] =
+          {{"median", age.median()}, {"p95", age.p95()}};
+  }
+  nlohmann::json st = nlohmann::json::object();
+  for (const auto& [name, s] : stages) st[name] = {{"median_ms", s.median()}, {"p95_ms", s.p95()}, {"count", s.samples_ms.size()}};
+  m["stages_wall"] = st;
+  m["rays"] = {{"shadow", trace_stats.shadow_rays}, {"ao", trace_stats.ao_rays}, {"invalid", trace_stats.invalid_rays}};
+  m["passes_planned"] = plan.describe();
+  return m;
+}
+
+// ---- validation ----------------------------------------------------------------------------
+
+void validate_sim_config(const SimConfig& c, const Scene& scene) {
+  std::vector<std::string> problems;
+  auto check = [&](bool ok, std::string what) {
+    if (!ok) problems.push_back(std::move(what));
+  };
+  check(c.mode == "hybrid" || c.mode == "remote", fmt::format("mode '{}': must be hybrid or remote", c.mode));
+  check(c.width >= 8 && c.width <= 7680 && c.height >= 8 && c.height <= 4320,
+        fmt::format("resolution {}x{}: each side must be 8..7680 x 8..4320", c.width, c.height));
+  check(c.frames >= 1 && c.frames <= 100000, fmt::format("frames {}: must be 1..100000", c.frames));
+  check(c.warmup_frames >= 0 && c.warmup_frames <= 100000, fmt::format("warmup_frames {}: must be 0..100000", c.warmup_frames));
+  check(c.display_hz > 0 && c.display_hz <= 1000, fmt::format("display_hz {}: must be in (0, 1000]", c.display_hz));
+  check(c.server_fixed_ms >= 0 && c.server_fixed_ms <= 1e5, fmt::format("server_fixed_ms {}: must be 0..100000", c.server_fixed_ms));
+  check(c.max_payload_bytes >= 1 && c.max_payload_bytes <= kMaxPayloadLimitBytes,
+        fmt::format("max_payload_bytes {}: must be 1..{}", c.max_payload_bytes, kMaxPayloadLimitBytes));
+  check(c.max_payload_bytes + kPacketHeaderBytes + kIpUdpOverheadBytes <= size_t(c.downlink.mtu_bytes),
+        fmt::format("max_payload_bytes {} + {} header + {} IP/UDP exceeds the downlink MTU {}", c.max_payload_bytes,
+                    kPacketHeaderBytes, kIpUdpOverheadBytes, c.downlink.mtu_bytes));
+  check(c.history_frames >= 1 && c.history_frames <= 1024, fmt::format("history_frames {}: must be 1..1024", c.history_frames));
+  check(c.score_every >= 1, fmt::format("score_every {}: must be >= 1", c.score_every));
+  check(c.ground_truth_every >= 0, fmt::format("ground_truth_every {}: must be >= 0", c.ground_truth_every));
+  check(c.ground_truth_ao_rays >= 1 && c.ground_truth_ao_rays <= 65535, "ground_truth_ao_rays: must be 1..65535");
+  check(c.ground_truth_samples_per_light >= 1 && c.ground_truth_samples_per_light <= 65535,
+        "ground_truth_samples_per_light: must be 1..65535");
+  try {
+    plan_passes(scene, c.trace);
+  } catch (const Error& e) {
+    problems.push_back(e.what());
+  }
+  auto backend = [&](const auto& registry, const BackendChoice& b, const char* role) {
+    try {
+      registry.create(b.name, b.params);
+    } catch (const Error& e) {
+      problems.push_back(fmt::format("{}: {}", role, e.what()));
+    }
+  };
+  const Registries& r = registries();
+  backend(r.codecs, c.visibility_codec, "visibility_codec");
+  backend(r.codecs, c.ao_codec, "ao_codec");
+  backend(r.codecs, c.colour_codec, "colour_codec");
+  backend(r.denoisers, c.ao_denoiser, "ao_denoiser");
+  backend(r.denoisers, c.visibility_denoiser, "visibility_denoiser");
+  backend(r.predictors, c.predictor, "predictor");
+  backend(r.predictors, c.colour_predictor, "colour_predictor");
+  if (problems.empty()) {
+    // A lossy codec must not be asked to carry a bitmask.
+    const PassPlan plan = plan_passes(scene, c.trace);
+    auto refuses = [&](const BackendChoice& b, const PassDesc& d, const char* role) {
+      auto codec = r.codecs.create(b.name, b.params);
+      if (std::string why = codec->refuses(d); !why.empty())
+        problems.push_back(fmt::format("{} '{}' cannot carry the {} pass: {}", role, b.name, pass_kind_name(d.kind), why));
+    };
+    if (c.mode == "hybrid") {
+      if (plan.visibility()) refuses(c.visibility_codec, plan.visibility_desc(c.width, c.height), "visibility_codec");
+      if (plan.ao) refuses(c.ao_codec, plan.ao_desc(c.width, c.height), "ao_codec");
+    } else {
+      refuses(c.colour_codec, {PassKind::Colour, c.width, c.height, 3, 255}, "colour_codec");
+    }
+  }
+  if (!problems.empty()) {
+    std::string msg = problems.front();
+    for (size_t i = 1; i < problems.size(); ++i) msg += "\n" + problems[i];
+    throw Error(msg);
+  }
+}
+
+// ---- the loop -----------------------------------------------------------------------------
+
+namespace {
+
+class Simulation {
+ public:
+  Simulation(const SimConfig& c, const Scene& scene, const std::string& scene_key, TraceCache& cache)
+      : c_(c), scene_(scene), scene_key_(scene_key), cache_(cache), remote_(c.mode == "remote"),
+        plan_(plan_passes(scene, c.trace)), uplink_(c.uplink, c.seed, 0), downlink_(c.downlink, c.seed, 1),
+        server_denoise_(c), local_denoise_(c) {
+    const Registries& r = registries();
+    AssemblerConfig ac;
+    ac.max_payload_bytes = c.max_payload_bytes;
+    ac.timeout_ms = 500;
+    assembler_ = Assembler(ac);
+    if (remote_) {
+      server_codec_[0] = r.codecs.create(c.colour_codec.name, c.colour_codec.params);
+      client_codec_[0] = r.codecs.create(c.colour_codec.name, c.colour_codec.params);
+      predictor_[0] = r.predictors.create(c.colour_predictor.name, c.colour_predictor.params);
+      traffic_.push_back({"colour"});
+      codec_name_[0] = c.colour_codec.name;
+    } else {
+      if (plan_.visibility()) {
+        server_codec_[0] = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
+        client_codec_[0] = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
+        predictor_[0] = r.predictors.create(c.predictor.name, c.predictor.params);
+        codec_name_[0] = c.visibility_codec.name;
+      }
+      if (plan_.ao) {
+        server_codec_[1] = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
+        client_codec_[1] = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
+        predictor_[1] = r.predictors.create(c.predictor.name, c.predictor.params);
+        codec_name_[1] = c.ao_codec.name;
+      }
+      traffic_.push_back({"visibility"});
+      traffic_.push_back({"ao"});
+    }
+    result_.config = c.to_json();
+    result_.plan = plan_;
+  }
+
+  RunResult run(const ProgressFn& progress) {
+    const int total = c_.warmup_frames + c_.frames;
+    first_scored_ms_ = frame_ms(c_.warmup_frames);
+    for (int a = 0; a < total; ++a) {
+      client_frame(a);
+      if (progress) progress(a + 1, total);
+    }
+    result_.duration_ms = double(c_.frames) * 1000.0 / c_.display_hz;
+    result_.traffic = traffic_;
+    result_.receiver_packets_lost = assembler_.stats().packets_lost;
+    for (auto& [name, s] : stages_) result_.stages[name] = s;
+    return std::move(result_);
+  }
+
+ private:
+  double frame_ms(int a) const { return double(a) * 1000.0 / c_.display_hz; }
+  double frame_time_s(int a) const { return c_.start_time_s + double(a) / c_.display_hz; }
+  Camera camera(int a) const { return scene_.camera.at(frame_time_s(a), c_.width, c_.height); }
+  bool scored(int a) const { return a >= c_.warmup_frames; }
+  void stage(const char* name, double ms, bool count) {
+    if (count) stages_[name].samples_ms.push_back(ms);
+  }
+
+  RtScene& rt() {
+    if (!rt_) rt_ = std::make_unique<RtScene>(scene_);
+    return *rt_;
+  }
+
+  TraceSettings trace_settings(int a) const {
+    TraceSettings t = c_.trace;
+    t.seed = c_.seed;
+    t.frame = uint32_t(a);
+    return t;
+  }
+
+  // The traced passes of client frame a (cached: they depend on nothing but the scene, the
+  // frame's camera and the settings).
+  std::shared_ptr<const TraceCache::Entry> traced(int a, const GBuffer& gbuf) {
+    const std::string key = trace_key(scene_key_, c_, a);
+    if (auto hit = cache_.find(key)) return hit;
+    auto entry = std::make_shared<TraceCache::Entry>();
+    TraceResult r = trace_passes(rt(), gbuf, trace_settings(a));
+    entry->visibility = std::move(r.visibility);
+    entry->ao = std::move(r.ao);
+    entry->stats = r.stats;
+    cache_.insert(key, entry);
+    return entry;
+  }
+
+  GBuffer raster(int a, const Camera& cam, const Camera& prev_cam, double prev_time, RasterStats* stats = nullptr) {
+    GBuffer g;
+    RasterStats s = rasterize({&scene_, cam, frame_time_s(a), prev_cam, prev_time}, g);
+    if (stats) *stats = s;
+    return g;
+  }
+
+  // Ground truth: converged visibility and AO (no denoiser), composited. Cached.
+  std::shared_ptr<const ImageRGB8> ground_truth(int a, const GBuffer& gbuf) {
+    const std::string key = truth_key(scene_key_, c_, a);
+    if (auto hit = cache_.find_image(key)) return hit;
+    TraceSettings t = trace_settings(a);
+    t.samples_per_light = c_.ground_truth_samples_per_light;
+    TraceStats stats;
+    const size_t n = size_t(gbuf.width()) * size_t(gbuf.height());
+    std::vector<float> vis, ao;
+    if (plan_.visibility()) {
+      PassPlan p = plan_;
+      p.samples_per_light = c_.ground_truth_samples_per_light;
+      VisibilityCounts counts = trace_visibility_counts(rt(), gbuf, p, t, stats);
+      vis.resize(n * size_t(counts.lights));
+      for (int l = 0; l < counts.lights; ++l)
+        for (size_t i = 0; i < n; ++i) vis[size_t(l) * n + i] = counts.fraction(l, i);
+    }
+    if (plan_.ao) {
+      AoCounts counts = trace_ao_counts(rt(), gbuf, c_.ground_truth_ao_rays, plan_.ao_radius_m, t, stats);
+      ao.resize(n);
+      for (size_t i = 0; i < n; ++i) ao[i] = float(counts.unoccluded[i]) / float(counts.rays);
+    }
+    auto img = std::make_shared<ImageRGB8>(composite_fractions(gbuf, scene_, vis, ao));
+    cache_.insert_image(key, img);
+    return img;
+  }
+
+  // ---- server ----
+
+  void server_advance(double until_ms) {
+    for (;;) {
+      double earliest = INFINITY;
+      for (const auto& m : inbox_)
+        if (m.frame > server_last_frame_) earliest = std::min(earliest, m.arrival_ms);
+      if (!std::isfinite(earliest)) return;
+      const double start = std::max(server_free_ms_, earliest);
+      if (start > until_ms) return;
+      int newest = -1;
+      bool keyframe = false;
+      for (const auto& m : inbox_)
+        if (m.arrival_ms <= start && m.frame > server_last_frame_) {
+          newest = std::max(newest, m.frame);
+          keyframe = keyframe || m.keyframe_request;
+        }
+      for (const auto& m : inbox_)
+        if (m.arrival_ms <= start && m.frame > server_last_frame_ && m.frame < newest && scored(newest))
+          ++result_.cameras_dropped;
+      std::erase_if(inbox_, [&](const CameraMessage& m) { return m.arrival_ms <= start && m.frame <= newest; });
+      server_job(newest, start, keyframe);
+    }
+  }
+
+  void server_job(int j, double start_ms, bool keyframe) {
+    const bool count = scored(j);
+    const Camera cam = camera(j);
+    double compute_ms = 0.0;
+    auto t0 = Clock::now();
+    GBuffer gbuf = raster(j, cam, server_has_prev_ ? server_prev_camera_ : cam,
+                          server_has_prev_ ? server_prev_time_ : frame_time_s(j));
+    double ms = ms_since(t0);
+    stage("server_rasterize", ms, count);
+    compute_ms += ms;
+    server_prev_camera_ = cam;
+    server_prev_time_ = frame_time_s(j);
+    server_has_prev_ = true;
+
+    auto entry = traced(j, gbuf);
+    stage("trace_shadows", entry->stats.shadow_ms, count && plan_.visibility());
+    stage("trace_ao", entry->stats.ao_ms, count && plan_.ao);
+    compute_ms += entry->stats.shadow_ms + entry->stats.ao_ms;
+    if (count) result_.trace_stats.add(entry->stats);
+
+    std::optional<PassBuffer> vis = entry->visibility, ao = entry->ao;
+    t0 = Clock::now();
+    server_denoise_.run(gbuf, uint32_t(j), vis, ao);
+    ms = ms_since(t0);
+    if (!server_denoise_.ao_is_none || !server_denoise_.soft_is_none) stage("denoise", ms, count);
+    compute_ms += ms;
+
+    std::vector<std::pair<int, PassBuffer>> outgoing;
+    if (remote_) {
+      t0 = Clock::now();
+      PassBuffer colour;
+      colour.desc = {PassKind::Colour, c_.width, c_.height, 3, 255};
+      const ImageRGB8 img = composite(gbuf, scene_, vis ? &*vis : nullptr, ao ? &*ao : nullptr);
+      colour.bytes.resize(colour.desc.byte_size());
+      std::memcpy(colour.bytes.data(), img.data(), colour.bytes.size());
+      ms = ms_since(t0);
+      stage("server_composite", ms, count);
+      compute_ms += ms;
+      outgoing.emplace_back(0, std::move(colour));
+    } else {
+      if (vis) outgoing.emplace_back(kSlotVisibility, std::move(*vis));
+      if (ao) outgoing.emplace_back(kSlotAo, std::move(*ao));
+    }
+
+    // Encode and packetize every pass; all packets leave when the server finishes.
+    std::vector<std::pair<int, std::vector<std::vector<uint8_t>>>> datagrams;
+    for (auto& [slot, buf] : outgoing) {
+      std::vector<uint8_t> encoded;
+      t0 = Clock::now();
+      server_codec_[slot]->encode(buf, {keyframe}, encoded);
+      ms = ms_since(t0);
+      stage("encode", ms, count);
+      compute_ms += ms;
+      PacketMeta meta;
+      meta.stream_id = 0;
+      meta.desc = buf.desc;
+      meta.frame_id = uint32_t(j);
+      meta.codec_id = codec_id(codec_name_[slot]);
+      meta.first_sequence = sequence_[slot];
+      auto packets = packetize(meta, encoded, c_.max_payload_bytes);
+      sequence_[slot] += uint32_t(packets.size());
+      PassTraffic& t = traffic_[size_t(slot)];
+      if (count) {
+        ++t.server_frames;
+        t.encoded_bytes += encoded.size();
+      }
+      datagrams.emplace_back(slot, std::move(packets));
+    }
+    const double finish = start_ms + (c_.server_timing == SimConfig::ServerTiming::Fixed ? c_.server_fixed_ms : compute_ms);
+    for (auto& [slot, packets] : datagrams) {
+      PassTraffic& t = traffic_[size_t(slot)];
+      bool dropped = false;
+      for (auto& p : packets) {
+        const uint64_t wire = p.size() + kIpUdpOverheadBytes;
+        if (count) {
+          t.wire_bytes += wire;
+          ++t.packets;
+        }
+        const Delivery d = downlink_.send(wire, finish);
+        if (d.delivered) in_flight_.push({d.arrival_ms, send_order_++, std::move(p)});
+        dropped = dropped || !d.delivered;
+      }
+      // The simulator knows which datagrams the link dropped: a frame with any of them lost
+      // can never complete. (The receiver sees it as a gap in the sequence numbers.)
+      if (count && dropped) ++t.frames_lost;
+    }
+    server_free_ms_ = finish;
+    server_last_frame_ = j;
+    if (count) ++result_.server_frames;
+  }
+
+  // ---- client ----
+
+  struct Received {
+    int frame = -1;
+    PassBuffer buffer;
+  };
+
+  void receive(double now_ms, bool count) {
+    while (!in_flight_.empty() && in_flight_.top().arrival_ms <= now_ms) {
+      const Datagram& d = in_flight_.top();
+      assembler_.push(d.bytes, int64_t(std::floor(d.arrival_ms)));
+      in_flight_.pop();
+    }
+    AssemblerEvents events = assembler_.poll(int64_t(std::floor(now_ms)));
+    for (const LostFrame& lost : events.lost) {
+      const int slot = slot_of(lost.meta.desc.kind);
+      if (slot >= 0 && count) ++traffic_[size_t(slot)].frames_given_up;
+    }
+    for (AssembledFrame& f : events.completed) {
+      const int slot = slot_of(f.meta.desc.kind);
+      if (slot < 0 || !client_codec_[slot]) continue;
+      PassTraffic& t = traffic_[size_t(slot)];
+      if (count) ++t.frames_completed;
+      Codec& codec = *client_codec_[slot];
+      // A gap in the sequence numbers before this frame means a frame of this stream was lost:
+      // a stateful decoder cannot go on from it.
+      const bool gap = expected_sequence_[slot] != f.meta.first_sequence;
+      expected_sequence_[slot] = f.meta.first_sequence + f.packet_count;
+      if (gap && codec.stateful() && received_[slot].frame >= 0) {
+        codec.reset();
+        keyframe_request_ = true;
+        if (count) ++t.keyframe_requests;
+      }
+      PassBuffer out;
+      std::string error;
+      auto t0 = Clock::now();
+      const bool ok = codec.decode(f.encoded, f.meta.desc, out, error);
+      client_decode_ms_ += ms_since(t0);
+      if (!ok) {
+        if (count) ++t.decode_errors;
+        if (codec.stateful()) {
+          codec.reset();
+          keyframe_request_ = true;
+        }
+        continue;
+      }
+      if (int(f.meta.frame_id) > received_[slot].frame) received_[slot] = {int(f.meta.frame_id), std::move(out)};
+    }
+  }
+
+  int slot_of(PassKind kind) const {
+    if (remote_) return kind == PassKind::Colour ? 0 : -1;
+    if (kind == PassKind::Visibility || kind == PassKind::SoftVisibility) return kSlotVisibility;
+    if (kind == PassKind::Ao) return kSlotAo;
+    return -1;
+  }
+
+  const GBuffer* history(int frame) const {
+    for (const auto& [f, g] : history_)
+      if (f == frame) return &g;
+    return nullptr;
+  }
+
+  void client_frame(int a) {
+    const bool count = scored(a);
+    const double now = frame_ms(a);
+    const Camera cam = camera(a);
+    const Camera prev = a > 0 ? camera(a - 1) : cam;
+    FrameRecord rec;
+    rec.frame = a - c_.warmup_frames;
+    rec.t_ms = now;
+    double client_ms = 0;
+
+    auto t0 = Clock::now();
+    GBuffer rastered = raster(a, cam, prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a));
+    double ms = ms_since(t0);
+    // The hybrid client keeps its G-buffers for predicting later frames (this one included:
+    // with zero latency the server's frame for this very camera may arrive now).
+    if (!remote_) {
+      history_.emplace_back(a, std::move(rastered));
+      while (int(history_.size()) > c_.history_frames) history_.pop_front();
+    }
+    const GBuffer& gbuf = remote_ ? rastered : history_.back().second;
+    stage("rasterize", ms, count);
+    if (!remote_) client_ms += ms;  // the remote client does not rasterize
+
+    // Uplink: this frame's camera (and a keyframe request after a loss).
+    const Delivery up = uplink_.send(kCameraMessageBytes + kIpUdpOverheadBytes, now);
+    if (up.delivered) {
+      inbox_.push_back({a, up.arrival_ms, keyframe_request_});
+      keyframe_request_ = false;
+    } else if (count) {
+      ++result_.cameras_lost;
+    }
+
+    server_advance(now);
+    client_decode_ms_ = 0;
+    receive(now, count);
+    stage("decode", client_decode_ms_, count);
+    client_ms += client_decode_ms_;
+
+    // Local reference: this frame's own passes, denoised by the client-side sequence.
+    std::shared_ptr<const TraceCache::Entry> local_entry;
+    ImageRGB8 local_image;
+    const bool score_now = count && (rec.frame % c_.score_every == 0);
+    if (!server_denoise_.ao_is_none || !server_denoise_.soft_is_none || score_now) {
+      local_entry = traced(a, gbuf);
+      std::optional<PassBuffer> vis = local_entry->visibility, ao = local_entry->ao;
+      local_denoise_.run(gbuf, uint32_t(a), vis, ao);
+      if (score_now) local_image = composite(gbuf, scene_, vis ? &*vis : nullptr, ao ? &*ao : nullptr);
+    }
+
+    // Predict each pass and composite.
+    ImageRGB8 image;
+    if (remote_) {
+      t0 = Clock::now();
+      if (received_[0].frame >= 0) {
+        GBuffer src_cams, dst_cams;  // the remote client knows cameras only
+        src_cams.camera = camera(received_[0].frame);
+        dst_cams.camera = cam;
+        PassBuffer out;
+        predictor_[0]->predict({received_[0].buffer, src_cams, dst_cams}, out);
+        image = ImageRGB8(c_.width, c_.height);
+        std::memcpy(image.data(), out.bytes.data(), std::min(out.bytes.size(), image.size() * sizeof(Rgb8)));
+        rec.source_frame[0] = received_[0].frame;
+        rec.age_ms[0] = now - frame_ms(received_[0].frame);
+      } else {
+        image = ImageRGB8(c_.width, c_.height);  // nothing received yet: black
+        if (count) ++result_.frames_without_data;
+      }
+      ms = ms_since(t0);
+      stage("predict", ms, count);
+      client_ms += ms;
+    } else {
+      std::optional<PassBuffer> predicted[2];
+      t0 = Clock::now();
+      for (int slot = 0; slot < 2; ++slot) {
+        const bool planned = slot == kSlotVisibility ? plan_.visibility() : plan_.ao;
+        if (!planned) continue;
+        const GBuffer* src = received_[slot].frame >= 0 ? history(received_[slot].frame) : nullptr;
+        if (!src) {
+          if (count) ++result_.frames_without_data;  // local fallback: fully lit / AO 1
+          continue;
+        }
+        PassBuffer out;
+        const PredictStats ps = predictor_[slot]->predict({received_[slot].buffer, *src, gbuf}, out);
+        rec.source_frame[slot] = received_[slot].frame;
+        rec.age_ms[slot] = now - frame_ms(received_[slot].frame);
+        rec.disoccluded[slot] = ps.disoccluded;
+        predicted[slot] = std::move(out);
+      }
+      ms = ms_since(t0);
+      stage("predict", ms, count);
+      client_ms += ms;
+      t0 = Clock::now();
+      image = composite(gbuf, scene_, predicted[0] ? &*predicted[0] : nullptr, predicted[1] ? &*predicted[1] : nullptr);
+      ms = ms_since(t0);
+      stage("composite", ms, count);
+      client_ms += ms;
+    }
+    rec.client_wall_ms = client_ms;
+
+    if (score_now) {
+      const QualityScores q = compare_images(local_image, image);
+      rec.scored = true;
+      rec.ssim_local = q.ssim;
+      rec.psnr_local = q.psnr_db;
+      if (c_.ground_truth_every > 0 && rec.frame % c_.ground_truth_every == 0) {
+        auto truth = ground_truth(a, gbuf);
+        const QualityScores g = compare_images(*truth, image);
+        rec.scored_ground_truth = true;
+        rec.ssim_gt = g.ssim;
+        rec.psnr_gt = g.psnr_db;
+        if (c_.keep_images) result_.ground_truth_images.push_back(*truth);
+      }
+      if (c_.keep_images) {
+        result_.images.push_back(image);
+        result_.local_images.push_back(local_image);
+      }
+    }
+    if (count) result_.frames.push_back(rec);
+  }
+
+  const SimConfig& c_;
+  const Scene& scene_;
+  std::string scene_key_;
+  TraceCache& cache_;
+  bool remote_;
+  PassPlan plan_;
+  Link uplink_, downlink_;
+  PassDenoisers server_denoise_, local_denoise_;
+  std::unique_ptr<RtScene> rt_;
+  std::unique_ptr<Codec> server_codec_[2], client_codec_[2];
+  std::unique_ptr<Predictor> predictor_[2];
+  std::string codec_name_[2];
+  std::vector<PassTraffic> traffic_;
+  Assembler assembler_;
+  RunResult result_;
+  std::map<std::string, StageStats> stages_;
+  double first_scored_ms_ = 0;
+
+  // server state
+  std::vector<CameraMessage> inbox_;
+  double server_free_ms_ = 0.0;
+  int server_last_frame_ = -1;
+  Camera server_prev_camera_;
+  double server_prev_time_ = 0.0;
+  bool server_has_prev_ = false;
+  uint32_t sequence_[2] = {0, 0};
+  std::priority_queue<Datagram, std::vector<Datagram>, std::greater<Datagram>> in_flight_;
+  uint64_t send_order_ = 0;
+
+  // client state
+  Received received_[2];
+  uint32_t expected_sequence_[2] = {0, 0};
+  bool keyframe_request_ = false;
+  double client_decode_ms_ = 0.0;
+  std::deque<std::pair<int, GBuffer>> history_;
+};
+
+}  // namespace
+
+RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key, TraceCache& cache,
+                         const ProgressFn& progress) {
+  validate_sim_config(config, scene);
+  Simulation sim(config, scene, scene_key, cache);
+  return sim.run(progress);
+}
+
+}  // namespace dhr

@@ -1,0 +1,174 @@
+// The DHR frame loop on a virtual clock (design.md section 1): a client that rasterizes every
+// frame, a server that traces, denoises, encodes and packetizes the passes for the newest
+// camera it has, and a simulated network between them (core/network.h). Every displayed frame
+// is composited and scored against the local reference and, every n-th frame, the ground truth.
+//
+// Virtual time (ms) drives the display rate, the network and the server schedule; wall time
+// measures what each stage costs on this machine. They are kept apart: a FrameRecord's *_ms
+// fields named "age" or "t" are virtual, StageTimes are wall time.
+//
+// Client frame k, at t_k = (warmup + k) * 1000 / display_hz:
+//   gbuf_k = rasterize(scene, camera(t_k))
+//   uplink  <- CameraMessage{k} (one datagram; carries a keyframe request after a loss)
+//   server catches up to t_k (below); datagrams that arrived by t_k go to the assembler
+//   each completed pass frame is decoded in order (stateful codecs: a lost frame resets the
+//   decoder, which then waits for the keyframe it asked for)
+//   for each pass: predictor(newest decoded buffer of frame j, gbuf_j, gbuf_k); none yet or
+//   gbuf_j no longer in the history: the local fallback (fully lit, AO 1), counted
+//   image_k = composite(gbuf_k, passes) -> scored
+// Server: when free, takes the newest camera that has arrived (older ones are dropped), and
+// spends its compute time (fixed, or the measured wall time of its stages) on it; its packets
+// leave when it finishes. Traced buffers depend only on (scene, frame j, trace settings), so
+// they are cached across runs (TraceCache): sweeps over codecs, denoisers, predictors and
+// networks trace each frame once.
+//
+// Remote baseline (mode "remote"): the server also composites and streams only the colour
+// frame; the client shows the newest one it has, warped by its colour predictor (none or
+// rotation_warp). It has no scene, so nothing else is possible.
+#pragma once
+
+#include "core/backend.h"
+#include "core/gbuffer.h"
+#include "core/network.h"
+#include "core/scene.h"
+#include "core/trace.h"
+
+#include <nlohmann/json.hpp>
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace dhr {
+
+class RtScene;
+
+struct BackendChoice {
+  std::string name;
+  nlohmann::json params = nlohmann::json::object();
+};
+
+struct SimConfig {
+  std::string mode = "hybrid";  // hybrid | remote
+  int width = 320;
+  int height = 180;
+  int frames = 60;           // displayed and scored frames
+  int warmup_frames = 0;     // run before them, not scored, not counted
+  double display_hz = 60.0;
+  double start_time_s = 0.0;  // scene time of the first (warm-up) frame
+  uint64_t seed = 1;
+
+  TraceSettings trace;  // seed and frame are set per frame from `seed` and the frame index
+  // Per pass: codec, denoiser (AO and soft visibility; bitmasks are never denoised) and
+  // predictor. Remote mode uses `colour` (codec and predictor) and the AO denoiser.
+  BackendChoice visibility_codec{"lz4"}, ao_codec{"lz4"}, colour_codec{"h264"};
+  BackendChoice ao_denoiser{"none"}, visibility_denoiser{"none"};
+  BackendChoice predictor{"reprojection"}, colour_predictor{"none"};
+
+  enum class ServerTiming { Fixed, Measured };
+  ServerTiming server_timing = ServerTiming::Fixed;
+  double server_fixed_ms = 10.0;  // Fixed: the server's compute time per frame (virtual)
+
+  LinkConfig uplink, downlink;
+  size_t max_payload_bytes = 1200;
+  int history_frames = 64;     // client G-buffers kept for prediction
+  int score_every = 1;         // quality against the local reference on every n-th frame
+  int ground_truth_every = 0;  // against the ground truth on every n-th frame (0: never)
+  int ground_truth_ao_rays = 256;
+  int ground_truth_samples_per_light = 64;
+  bool keep_images = false;    // keep the displayed images (for image grids)
+
+  nlohmann::json to_json() const;
+};
+
+// Per displayed frame (virtual times in ms).
+struct FrameRecord {
+  int frame = 0;
+  double t_ms = 0.0;
+  bool scored = false, scored_ground_truth = false;
+  double ssim_local = 0, psnr_local = 0, ssim_gt = 0, psnr_gt = 0;
+  // Per pass (visibility, ao; remote: colour in slot 0): source client frame (-1: none) and
+  // its age at composite.
+  int source_frame[2] = {-1, -1};
+  double age_ms[2] = {0, 0};
+  uint64_t disoccluded[2] = {0, 0};
+  double client_wall_ms = 0.0;  // rasterize + decode + predict + composite
+};
+
+struct StageStats {
+  std::vector<double> samples_ms;
+  double median() const;
+  double p95() const;
+  double total() const;
+};
+
+struct PassTraffic {
+  std::string pass;  // visibility | ao | colour
+  uint64_t server_frames = 0;
+  uint64_t encoded_bytes = 0;   // codec output
+  uint64_t wire_bytes = 0;      // packets incl. dhrbench header + 28 IP/UDP
+  uint64_t packets = 0;
+  uint64_t frames_completed = 0;   // assembled and handed to the decoder
+  uint64_t frames_lost = 0;        // server frames with a datagram dropped on the link
+  uint64_t frames_given_up = 0;    // partial frames the receiver's assembler gave up
+  uint64_t decode_errors = 0, keyframe_requests = 0;
+  double bytes_per_frame() const { return server_frames ? double(encoded_bytes) / double(server_frames) : 0.0; }
+};
+
+struct RunResult {
+  nlohmann::json config;  // SimConfig::to_json with backends' effective parameters
+  PassPlan plan;
+  std::vector<FrameRecord> frames;
+  std::vector<PassTraffic> traffic;
+  std::map<std::string, StageStats> stages;  // wall time per stage
+  uint64_t server_frames = 0, cameras_dropped = 0, cameras_lost = 0;
+  uint64_t frames_without_data = 0;
+  uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps  // (frame, pass) pairs composited with the local fallback
+  TraceStats trace_stats;            // rays of the server frames
+  double duration_ms = 0.0;          // virtual time of the scored frames
+  std::vector<ImageRGB8> images;     // displayed frames (keep_images)
+  std::vector<ImageRGB8> local_images, ground_truth_images;  // same frames
+
+  nlohmann::json metrics() const;  // the per-run summary written to results.json
+};
+
+// Traced buffers and ground truths shared across runs of one process. Thread-safe.
+class TraceCache {
+ public:
+  struct Entry {
+    std::optional<PassBuffer> visibility, ao;
+    TraceStats stats;  // with the wall time of the original trace
+  };
+  explicit TraceCache(size_t max_bytes = size_t(4) << 30) : max_bytes_(max_bytes) {}
+  std::shared_ptr<const Entry> find(const std::string& key);
+  void insert(const std::string& key, std::shared_ptr<const Entry> entry);
+  std::shared_ptr<const ImageRGB8> find_image(const std::string& key);
+  void insert_image(const std::string& key, std::shared_ptr<const ImageRGB8> image);
+  size_t bytes() const { return bytes_; }
+
+ private:
+  void evict_locked();
+  std::mutex mutex_;
+  size_t max_bytes_;
+  size_t bytes_ = 0;
+  uint64_t tick_ = 0;
+  std::map<std::string, std::pair<uint64_t, std::shared_ptr<const Entry>>> entries_;
+  std::map<std::string, std::pair<uint64_t, std::shared_ptr<const ImageRGB8>>> images_;
+};
+
+// Progress callback: (frame index among warm-up + scored, total).
+using ProgressFn = std::function<void(int, int)>;
+
+// Validates the configuration against the scene and the registry (every problem at once),
+// then runs. `scene_key` identifies the scene's content for the cache (e.g. a hash of its file).
+RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key,
+                         TraceCache& cache, const ProgressFn& progress = {});
+
+// The checks run_simulation does first: throws dhr::Error listing every problem.
+void validate_sim_config(const SimConfig& config, const Scene& scene);
+
+}  // namespace dhr

@@ -1,0 +1,168 @@
+// The frame loop end to end on the built-in scenes at small sizes: bit-exactness without a
+// network, the paper's latency claim (prediction beats none), determinism across runs and
+// thread counts, and survival under loss.
+#include "core/frame_loop.h"
+#include "core/scene_load.h"
+
+#include <gtest/gtest.h>
+#include <tbb/global_control.h>
+
+#include <cmath>
+
+namespace dhr {
+namespace {
+
+const Scene& scene(const std::string& name) {
+  static std::map<std::string, Scene> scenes;
+  auto it = scenes.find(name);
+  if (it == scenes.end())
+    it = scenes.emplace(name, load_scene(std::string(DHR_SOURCE_DIR) + "/scenes/" + name + ".json",
+                                         SceneSearchPath::standard())).first;
+  return it->second;
+}
+
+TraceCache& cache() {
+  static TraceCache c;
+  return c;
+}
+
+SimConfig small_config(int frames) {
+  SimConfig c;
+  c.width = 64;
+  c.height = 36;
+  c.frames = frames;
+  c.trace.ao_rays = 4;
+  c.server_fixed_ms = 0.0;
+  return c;
+}
+
+TEST(FrameLoop, ZeroLatencyLosslessEqualsLocalReferenceBitForBit) {
+  for (const char* denoiser : {"none", "svgf_ao"}) {
+    SimConfig c = small_config(8);
+    c.ao_denoiser = {denoiser};
+    c.visibility_codec = {"lz4"};
+    c.ao_codec = {"zstd"};
+    RunResult r = run_simulation(c, scene("room"), "room", cache());
+    ASSERT_EQ(r.frames.size(), 8u);
+    for (const FrameRecord& f : r.frames) {
+      ASSERT_TRUE(f.scored);
+      EXPECT_EQ(f.ssim_local, 1.0) << denoiser << " frame " << f.frame;
+      EXPECT_TRUE(std::isinf(f.psnr_local)) << denoiser << " frame " << f.frame;
+      EXPECT_EQ(f.source_frame[1], f.frame) << "the server's AO of this very frame is shown";
+      EXPECT_EQ(f.age_ms[1], 0.0);
+    }
+    EXPECT_EQ(r.frames_without_data, 0u);
+  }
+}
+
+// The paper's Fig. 5/6 claim: with latency on a moving camera, reprojection beats showing the
+// newest buffer as it is.
+TEST(FrameLoop, ReprojectionBeatsNoneUnderLatencyOnEveryBuiltinScene) {
+  for (const char* name : {"room", "temple", "street"}) {
+    for (double latency : {50.0, 100.0, 200.0}) {
+      double ssim[2];
+      int i = 0;
+      for (const char* predictor : {"none", "reprojection"}) {
+        SimConfig c = small_config(12);
+        c.width = 96;
+        c.height = 54;
+        c.warmup_frames = int(latency / 1000.0 * 60.0) + 3;
+        c.start_time_s = 2.0;
+        c.uplink.latency_ms = latency / 2;
+        c.downlink.latency_ms = latency / 2;
+        c.predictor = {predictor};
+        RunResult r = run_simulation(c, scene(name), name, cache());
+        ssim[i++] = r.metrics()["ssim_local_mean"].get<double>();
+      }
+      EXPECT_GT(ssim[1], ssim[0]) << name << " at " << latency << " ms: reprojection " << ssim[1] << " none " << ssim[0];
+    }
+  }
+}
+
+TEST(FrameLoop, DeterministicAcrossRunsAndThreadCounts) {
+  SimConfig c = small_config(10);
+  c.uplink.latency_ms = 20;
+  c.downlink.latency_model = LinkConfig::Latency::Normal;
+  c.downlink.latency_ms = 30;
+  c.downlink.jitter_ms = 10;
+  c.downlink.loss_model = LinkConfig::Loss::Independent;
+  c.downlink.loss_rate = 0.05;
+  c.ao_denoiser = {"svgf_ao"};
+  c.ground_truth_every = 5;
+  auto run = [&](int threads) {
+    tbb::global_control g(tbb::global_control::max_allowed_parallelism, size_t(threads));
+    TraceCache fresh;  // no sharing: each run traces for itself
+    RunResult r = run_simulation(c, scene("street"), "street", fresh);
+    nlohmann::json m = r.metrics();
+    m.erase("stages_wall");
+    m.erase("client_frame_ms_median");
+    m.erase("client_frame_ms_p95");
+    m.erase("client_fps_wall");
+    nlohmann::json frames = nlohmann::json::array();
+    for (const auto& f : r.frames)
+      frames.push_back({f.ssim_local, f.ssim_gt, f.source_frame[0], f.source_frame[1], f.age_ms[0], f.age_ms[1],
+                        f.disoccluded[0], f.disoccluded[1]});
+    return nlohmann::json{{"m", m}, {"f", frames}}.dump();
+  };
+  const std::string a = run(2);
+  EXPECT_EQ(a, run(2));
+  EXPECT_EQ(a, run(1));
+}
+
+TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
+  SimConfig c = small_config(60);
+  c.uplink.latency_ms = 10;
+  c.downlink.latency_ms = 10;
+  c.downlink.loss_model = LinkConfig::Loss::GilbertElliott;  // bursts, so that whole frames are lost
+  c.downlink.ge_p_good_to_bad = 0.05;
+  c.downlink.ge_p_bad_to_good = 0.5;
+  c.downlink.ge_loss_bad = 1.0;
+  c.ao_codec = {"h264", {{"rate_control", "crf"}, {"crf", 18}}};
+  RunResult r = run_simulation(c, scene("room"), "room", cache());
+  ASSERT_EQ(r.frames.size(), 60u);
+  const nlohmann::json m = r.metrics();
+  uint64_t lost = 0;
+  for (const auto& p : m["passes"]) lost += p["frames_lost"].get<uint64_t>();
+  EXPECT_GT(lost, 0u) << "the loss model lost no frame: the test does not test anything";
+  double max_age = 0, last_age = 0;
+  for (const auto& f : r.frames) {
+    EXPECT_TRUE(std::isfinite(f.ssim_local));
+    if (f.source_frame[1] >= 0) {
+      max_age = std::max(max_age, f.age_ms[1]);
+      last_age = f.age_ms[1];
+    }
+  }
+  EXPECT_GT(max_age, 20.0 + 1000.0 / 60.0) << "buffer age never grew past one frame beyond the latency";
+  EXPECT_LT(last_age, max_age) << "buffer age did not recover";
+}
+
+TEST(FrameLoop, RemoteBaselineShowsNewestColourFrame) {
+  SimConfig c = small_config(6);
+  c.mode = "remote";
+  c.colour_codec = {"zstd"};
+  RunResult r = run_simulation(c, scene("temple"), "temple", cache());
+  for (const auto& f : r.frames) EXPECT_EQ(f.ssim_local, 1.0) << "zero latency, lossless colour";
+  EXPECT_EQ(r.traffic.size(), 1u);
+  EXPECT_GT(r.traffic[0].encoded_bytes, 0u);
+}
+
+TEST(FrameLoop, InvalidConfigurationReportsEveryProblem) {
+  SimConfig c = small_config(0);
+  c.width = 2;
+  c.ao_codec = {"lz5"};
+  c.predictor = {"reprojection", {{"bogus", 1}}};
+  c.visibility_codec = {"h264", {{"rate_control", "crf"}}};
+  try {
+    run_simulation(c, scene("room"), "room", cache());
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("resolution 2x36"), std::string::npos) << m;
+    EXPECT_NE(m.find("frames 0"), std::string::npos) << m;
+    EXPECT_NE(m.find("unknown codec 'lz5'"), std::string::npos) << m;
+    EXPECT_NE(m.find("bogus"), std::string::npos) << m;
+  }
+}
+
+}  // namespace
+}  // namespace dhr
