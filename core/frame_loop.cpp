@@ -6,6 +6,7 @@
 #include "core/metrics.h"
 #include "core/packet.h"
 #include "core/raster.h"
+#include "core/reference.h"
 #include "core/rt_scene.h"
 
 #include <algorithm>
@@ -159,7 +160,8 @@ nlohmann::json SimConfig::to_json() const {
           {"score_every", score_every},
           {"ground_truth_every", ground_truth_every},
           {"ground_truth_ao_rays", ground_truth_ao_rays},
-          {"ground_truth_samples_per_light", ground_truth_samples_per_light}};
+          {"ground_truth_samples_per_light", ground_truth_samples_per_light},
+          {"cache_dir", cache_dir}};
 }
 
 std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key) {
@@ -447,29 +449,16 @@ class Simulation {
     return g;
   }
 
-  // Ground truth: converged visibility and AO (no denoiser), composited. Cached.
+  // Ground truth: converged visibility and AO (no denoiser), composited (core/reference.h,
+  // cached on disk there and in memory here).
   std::shared_ptr<const ImageRGB8> ground_truth(int a, const GBuffer& gbuf) {
     const std::string key = truth_key(scene_key_, c_, a);
     if (auto hit = cache_.find_image(key)) return hit;
-    TraceSettings t = trace_settings(a);
-    t.samples_per_light = c_.ground_truth_samples_per_light;
-    TraceStats stats;
-    const size_t n = size_t(gbuf.width()) * size_t(gbuf.height());
-    std::vector<float> vis, ao;
-    if (plan_.visibility()) {
-      PassPlan p = plan_;
-      p.samples_per_light = c_.ground_truth_samples_per_light;
-      VisibilityCounts counts = trace_visibility_counts(rt(), gbuf, p, t, stats);
-      vis.resize(n * size_t(counts.lights));
-      for (int l = 0; l < counts.lights; ++l)
-        for (size_t i = 0; i < n; ++i) vis[size_t(l) * n + i] = counts.fraction(l, i);
-    }
-    if (plan_.ao) {
-      AoCounts counts = trace_ao_counts(rt(), gbuf, c_.ground_truth_ao_rays, plan_.ao_radius_m, t, stats);
-      ao.resize(n);
-      for (size_t i = 0; i < n; ++i) ao[i] = float(counts.unoccluded[i]) / float(counts.rays);
-    }
-    auto img = std::make_shared<ImageRGB8>(composite_fractions(gbuf, scene_, vis, ao));
+    ReferenceSettings rs;
+    rs.ao_rays = c_.ground_truth_ao_rays;
+    rs.samples_per_light = c_.ground_truth_samples_per_light;
+    rs.cache_dir = c_.cache_dir;
+    auto img = std::make_shared<ImageRGB8>(dhr::ground_truth(rt(), gbuf, rs).image);
     cache_.insert_image(key, img);
     return img;
   }

@@ -81,6 +81,7 @@ struct SimConfig {
   int ground_truth_ao_rays = 256;
   int ground_truth_samples_per_light = 64;
   bool keep_images = false;    // keep the displayed images (for image grids)
+  std::string cache_dir;       // ground truths on disk; empty: default_cache_dir() (core/reference.h)
 
   nlohmann::json to_json() const;
 };
