@@ -310,6 +310,14 @@ void validate_sim_config(const SimConfig& c, const Scene& scene) {
   check(c.ground_truth_ao_rays >= 1 && c.ground_truth_ao_rays <= 65535, "ground_truth_ao_rays: must be 1..65535");
   check(c.ground_truth_samples_per_light >= 1 && c.ground_truth_samples_per_light <= 65535,
         "ground_truth_samples_per_light: must be 1..65535");
+  for (const LinkConfig* link : {&c.uplink, &c.downlink}) {
+    if (link->latency_model != LinkConfig::Latency::Trace) continue;
+    try {
+      load_latency_trace(link->trace_file);
+    } catch (const Error& e) {
+      problems.push_back(fmt::format("{}: {}", link == &c.uplink ? "uplink" : "downlink", e.what()));
+    }
+  }
   try {
     plan_passes(scene, c.trace);
   } catch (const Error& e) {
@@ -752,11 +760,14 @@ class Simulation {
         rec.scored_ground_truth = true;
         rec.ssim_gt = g.ssim;
         rec.psnr_gt = g.psnr_db;
-        if (c_.keep_images) result_.ground_truth_images.push_back(*truth);
+        if (c_.keep_images) result_.ground_truth_images = {*truth};
       }
-      if (c_.keep_images) {
-        result_.images.push_back(image);
-        result_.local_images.push_back(local_image);
+      // Keep the images of the last frame scored against the ground truth (or, without ground
+      // truth, of the last scored frame): one frame per run, for the report's image grids.
+      if (c_.keep_images && (rec.scored_ground_truth || c_.ground_truth_every == 0)) {
+        result_.images = {image};
+        result_.local_images = {local_image};
+        result_.kept_frame = rec.frame;
       }
     }
     if (count) result_.frames.push_back(rec);

@@ -80,7 +80,7 @@ struct SimConfig {
   int ground_truth_every = 0;  // against the ground truth on every n-th frame (0: never)
   int ground_truth_ao_rays = 256;
   int ground_truth_samples_per_light = 64;
-  bool keep_images = false;    // keep the displayed images (for image grids)
+  bool keep_images = false;    // keep one frame's images (RunResult::images) for image grids
   std::string cache_dir;       // ground truths on disk; empty: default_cache_dir() (core/reference.h)
 
   nlohmann::json to_json() const;
@@ -131,8 +131,10 @@ struct RunResult {
   uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps  // (frame, pass) pairs composited with the local fallback
   TraceStats trace_stats;            // rays of the server frames
   double duration_ms = 0.0;          // virtual time of the scored frames
-  std::vector<ImageRGB8> images;     // displayed frames (keep_images)
-  std::vector<ImageRGB8> local_images, ground_truth_images;  // same frames
+  // keep_images: the displayed image, local reference and ground truth of one frame (the last
+  // scored against the ground truth, or the last scored when there is no ground truth).
+  std::vector<ImageRGB8> images, local_images, ground_truth_images;
+  int kept_frame = -1;
 
   nlohmann::json metrics() const;  // the per-run summary written to results.json
 };

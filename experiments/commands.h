@@ -15,5 +15,8 @@ using Runner = std::function<int()>;
 Runner add_list_command(CLI::App& app);
 Runner add_render_command(CLI::App& app);
 Runner add_compare_command(CLI::App& app);
+Runner add_run_command(CLI::App& app);
+Runner add_validate_command(CLI::App& app);
+Runner add_report_command(CLI::App& app);
 
 }  // namespace dhr::cli

@@ -21,6 +21,9 @@ int main(int argc, char** argv) {
     dhr::cli::Runner run = adder(app);
     commands.emplace_back(app.get_subcommands({}).at(before), std::move(run));
   };
+  add(dhr::cli::add_run_command);
+  add(dhr::cli::add_validate_command);
+  add(dhr::cli::add_report_command);
   add(dhr::cli::add_list_command);
   add(dhr::cli::add_render_command);
   add(dhr::cli::add_compare_command);

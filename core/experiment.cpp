@@ -1,0 +1,322 @@
+#include "core/experiment.h"
+
+#include "core/error.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+
+namespace dhr {
+
+namespace {
+
+std::string join_keys(const std::vector<std::string>& keys) {
+  std::string s;
+  for (const auto& k : keys) s += (s.empty() ? "" : ", ") + k;
+  return s;
+}
+
+// Typed readers that record problems instead of throwing, so that all are reported at once.
+struct Reader {
+  const nlohmann::json& j;
+  std::string where;
+  std::vector<std::string>& problems;
+
+  void keys(const std::vector<std::string>& valid) {
+    if (!j.is_object()) {
+      problems.push_back(fmt::format("{}: must be a JSON object, got {}", where, j.dump()));
+      return;
+    }
+    for (const auto& [k, v] : j.items())
+      if (std::find(valid.begin(), valid.end(), k) == valid.end())
+        problems.push_back(fmt::format("{}.{}: unknown key (valid: {})", where, k, join_keys(valid)));
+  }
+  bool has(const char* k) const { return j.is_object() && j.contains(k); }
+  template <class T>
+  void number(const char* k, T& out, double lo, double hi) {
+    if (!has(k)) return;
+    const auto& v = j.at(k);
+    const bool integral = std::is_integral_v<T>;
+    if (!v.is_number() || (integral && !v.is_number_integer()) || !std::isfinite(v.get<double>()) ||
+        v.get<double>() < lo || v.get<double>() > hi) {
+      problems.push_back(fmt::format("{}.{} = {}: must be {} in {}..{}", where, k, v.dump(),
+                                     integral ? "an integer" : "a number", lo, hi));
+      return;
+    }
+    out = v.get<T>();
+  }
+  void boolean(const char* k, bool& out) {
+    if (!has(k)) return;
+    if (!j.at(k).is_boolean()) problems.push_back(fmt::format("{}.{} = {}: must be true or false", where, k, j.at(k).dump()));
+    else out = j.at(k).get<bool>();
+  }
+  void string(const char* k, std::string& out, const std::vector<std::string>& choices = {}) {
+    if (!has(k)) return;
+    const auto& v = j.at(k);
+    if (!v.is_string() || (!choices.empty() && std::find(choices.begin(), choices.end(), v.get<std::string>()) == choices.end())) {
+      problems.push_back(fmt::format("{}.{} = {}: must be {}", where, k, v.dump(),
+                                     choices.empty() ? "a string" : "one of " + join_keys(choices)));
+      return;
+    }
+    out = v.get<std::string>();
+  }
+  void backend(const char* k, BackendChoice& out) {
+    if (!has(k)) return;
+    const auto& v = j.at(k);
+    Reader r{v, where + "." + k, problems};
+    r.keys({"name", "params"});
+    r.string("name", out.name);
+    if (r.has("params")) {
+      if (!v.at("params").is_object()) problems.push_back(fmt::format("{}.{}.params: must be a JSON object", where, k));
+      else out.params = v.at("params");
+    } else {
+      out.params = nlohmann::json::object();
+    }
+  }
+  void link(const char* k, LinkConfig& out) {
+    if (!has(k)) return;
+    try {
+      out = LinkConfig::from_json(j.at(k), where + "." + k);
+    } catch (const Error& e) {
+      problems.push_back(e.what());
+    }
+  }
+};
+
+// A relative data path (a latency trace) as given when it exists from the working folder,
+// else beside the experiment file, else in the repository.
+std::string resolve_data_path(const std::string& file, const std::string& experiment_path) {
+  namespace fs = std::filesystem;
+  if (file.empty() || fs::path(file).is_absolute() || fs::exists(file)) return file;
+  for (const fs::path base : {fs::path(experiment_path).parent_path(), fs::path(DHR_SOURCE_DIR)}) {
+    if (fs::exists(base / file)) return (base / file).string();
+  }
+  return file;  // validation reports it missing
+}
+
+}  // namespace
+
+SimConfig sim_config_from_json(const nlohmann::json& j, const std::string& where, std::vector<std::string>& problems) {
+  SimConfig c;
+  Reader r{j, where, problems};
+  r.keys({"mode", "width", "height", "frames", "warmup_frames", "display_hz", "start_time_s", "seed", "trace",
+          "visibility_codec", "ao_codec", "colour_codec", "ao_denoiser", "visibility_denoiser", "predictor",
+          "colour_predictor", "server_timing", "server_fixed_ms", "uplink", "downlink", "max_payload_bytes",
+          "history_frames", "score_every", "ground_truth_every", "ground_truth_ao_rays",
+          "ground_truth_samples_per_light", "cache_dir"});
+  if (!j.is_object()) return c;
+  r.string("mode", c.mode, {"hybrid", "remote"});
+  r.number("width", c.width, 8, 7680);
+  r.number("height", c.height, 8, 4320);
+  r.number("frames", c.frames, 1, 100000);
+  r.number("warmup_frames", c.warmup_frames, 0, 100000);
+  r.number("display_hz", c.display_hz, 1, 1000);
+  r.number("start_time_s", c.start_time_s, 0, 1e6);
+  r.number("seed", c.seed, 0, 9.007e15);
+  if (r.has("trace")) {
+    Reader t{j.at("trace"), where + ".trace", problems};
+    t.keys({"ao_rays", "ao_radius_m", "soft_shadows", "samples_per_light"});
+    t.number("ao_rays", c.trace.ao_rays, 0, 255);
+    t.number("ao_radius_m", c.trace.ao_radius_m, 0, 1e6);
+    t.boolean("soft_shadows", c.trace.soft_shadows);
+    t.number("samples_per_light", c.trace.samples_per_light, 1, 1024);
+  }
+  r.backend("visibility_codec", c.visibility_codec);
+  r.backend("ao_codec", c.ao_codec);
+  r.backend("colour_codec", c.colour_codec);
+  r.backend("ao_denoiser", c.ao_denoiser);
+  r.backend("visibility_denoiser", c.visibility_denoiser);
+  r.backend("predictor", c.predictor);
+  r.backend("colour_predictor", c.colour_predictor);
+  std::string timing = c.server_timing == SimConfig::ServerTiming::Fixed ? "fixed" : "measured";
+  r.string("server_timing", timing, {"fixed", "measured"});
+  c.server_timing = timing == "fixed" ? SimConfig::ServerTiming::Fixed : SimConfig::ServerTiming::Measured;
+  r.number("server_fixed_ms", c.server_fixed_ms, 0, 1e5);
+  r.link("uplink", c.uplink);
+  r.link("downlink", c.downlink);
+  r.number("max_payload_bytes", c.max_payload_bytes, 1, 65000);
+  r.number("history_frames", c.history_frames, 1, 1024);
+  r.number("score_every", c.score_every, 1, 100000);
+  r.number("ground_truth_every", c.ground_truth_every, 0, 100000);
+  r.number("ground_truth_ao_rays", c.ground_truth_ao_rays, 1, 65535);
+  r.number("ground_truth_samples_per_light", c.ground_truth_samples_per_light, 1, 65535);
+  r.string("cache_dir", c.cache_dir);
+  return c;
+}
+
+void set_dotted(nlohmann::json& target, const std::string& dotted, const nlohmann::json& value) {
+  nlohmann::json* node = &target;
+  size_t start = 0;
+  for (;;) {
+    const size_t dot = dotted.find('.', start);
+    const std::string key = dotted.substr(start, dot == std::string::npos ? std::string::npos : dot - start);
+    if (key.empty()) fail("'{}': empty component in a dotted key", dotted);
+    if (!node->is_object()) *node = nlohmann::json::object();
+    if (dot == std::string::npos) {
+      (*node)[key] = value;
+      return;
+    }
+    node = &(*node)[key];
+    start = dot + 1;
+  }
+}
+
+void apply_override(nlohmann::json& experiment, const std::string& assignment) {
+  const size_t eq = assignment.find('=');
+  if (eq == std::string::npos || eq == 0)
+    fail("--set '{}': expected key=value, e.g. run.frames=10 or run.ao_codec.name=zstd", assignment);
+  const std::string key = assignment.substr(0, eq), text = assignment.substr(eq + 1);
+  nlohmann::json value = nlohmann::json::parse(text, nullptr, false);
+  if (value.is_discarded()) value = text;  // a bare word: a string
+  set_dotted(experiment, key, value);
+}
+
+Experiment load_experiment(const std::string& path, const std::vector<std::string>& overrides) {
+  std::ifstream in(path);
+  if (!in) fail("{}: experiment file not found or unreadable", path);
+  nlohmann::json j = nlohmann::json::parse(in, nullptr, false, true);
+  if (j.is_discarded()) fail("{}: not valid JSON", path);
+  for (const auto& o : overrides) apply_override(j, o);
+
+  Experiment e;
+  e.path = path;
+  e.source = j;
+  std::vector<std::string> problems;
+  Reader top{j, path, problems};
+  top.keys({"version", "name", "description", "scenes", "run", "networks", "sweep", "configurations", "notes"});
+  if (!j.is_object()) fail("{}: an experiment must be a JSON object", path);
+  if (!j.contains("version")) problems.push_back(fmt::format("{}: \"version\": {} is required", path, kExperimentVersion));
+  else if (j.at("version") != kExperimentVersion)
+    problems.push_back(fmt::format("{}: version {} is not supported (this dhrbench reads version {})", path,
+                                   j.at("version").dump(), kExperimentVersion));
+  top.string("name", e.name);
+  top.string("description", e.description);
+  if (e.name.empty()) e.name = std::filesystem::path(path).stem().string();
+  if (!j.contains("scenes") || !j.at("scenes").is_array() || j.at("scenes").empty()) {
+    problems.push_back(fmt::format("{}.scenes: must be a non-empty list of scene files or built-in names", path));
+  } else {
+    for (const auto& s : j.at("scenes")) {
+      if (!s.is_string()) problems.push_back(fmt::format("{}.scenes: {} is not a string", path, s.dump()));
+      else e.scenes.push_back(s.get<std::string>());
+    }
+  }
+  const nlohmann::json base = j.value("run", nlohmann::json::object());
+  const nlohmann::json networks = j.value("networks", nlohmann::json::object());
+  if (!networks.is_object()) problems.push_back(fmt::format("{}.networks: must be an object of named networks", path));
+
+  // Configurations: each is a set of dotted assignments.
+  std::vector<std::pair<std::string, nlohmann::json>> configs;
+  if (j.contains("configurations")) {
+    const auto& list = j.at("configurations");
+    if (!list.is_array() || list.empty()) {
+      problems.push_back(fmt::format("{}.configurations: must be a non-empty list", path));
+    } else {
+      for (size_t i = 0; i < list.size(); ++i) {
+        Reader r{list[i], fmt::format("{}.configurations[{}]", path, i), problems};
+        r.keys({"name", "set"});
+        std::string name = fmt::format("c{}", i);
+        r.string("name", name);
+        nlohmann::json set = list[i].is_object() ? list[i].value("set", nlohmann::json::object()) : nlohmann::json::object();
+        if (!set.is_object()) problems.push_back(fmt::format("{}.configurations[{}].set: must be an object", path, i));
+        configs.emplace_back(name, set.is_object() ? set : nlohmann::json::object());
+      }
+    }
+  } else {
+    configs.emplace_back("", nlohmann::json::object());
+  }
+  // The sweep: a Cartesian product, applied on top of each configuration.
+  std::vector<std::pair<std::string, std::vector<nlohmann::json>>> axes;
+  if (j.contains("sweep")) {
+    const auto& sweep = j.at("sweep");
+    if (!sweep.is_object()) problems.push_back(fmt::format("{}.sweep: must be an object of dotted key: [values]", path));
+    else
+      for (const auto& [k, v] : sweep.items()) {
+        if (!v.is_array() || v.empty()) problems.push_back(fmt::format("{}.sweep.{}: must be a non-empty list of values", path, k));
+        else axes.emplace_back(k, std::vector<nlohmann::json>(v.begin(), v.end()));
+      }
+  }
+  size_t product = configs.size();
+  for (const auto& a : axes) product *= a.second.size();
+  if (product * std::max<size_t>(1, e.scenes.size()) > 10000)
+    problems.push_back(fmt::format("{}: {} runs: more than 10000, split the experiment", path, product * e.scenes.size()));
+
+  // Problems of the expanded run settings, grouped: message -> the runs it concerns.
+  std::map<std::string, std::vector<std::string>> per_run;
+  if (problems.empty()) {
+    int index = 0;
+    for (const auto& scene : e.scenes) {
+      for (const auto& [config_name, set] : configs) {
+        std::vector<size_t> pos(axes.size(), 0);
+        for (;;) {
+          nlohmann::json settings = set;
+          for (size_t a = 0; a < axes.size(); ++a) settings[axes[a].first] = axes[a].second[pos[a]];
+          nlohmann::json run = base;
+          std::string label = config_name;
+          for (const auto& [k, v] : settings.items()) {
+            if (k == "network") {
+              const std::string name = v.is_string() ? v.get<std::string>() : v.dump();
+              if (!networks.is_object() || !networks.contains(name)) {
+                problems.push_back(fmt::format("{}: network '{}' is not defined in \"networks\"", path, name));
+                continue;
+              }
+              const auto& net = networks.at(name);
+              if (!net.is_object()) {
+                problems.push_back(fmt::format("{}.networks.{}: must be an object with uplink and/or downlink", path, name));
+                continue;
+              }
+              for (const auto& [nk, nv] : net.items()) {
+                if (nk != "uplink" && nk != "downlink")
+                  problems.push_back(fmt::format("{}.networks.{}.{}: unknown key (valid: uplink, downlink)", path, name, nk));
+                else
+                  run[nk] = nv;
+              }
+            } else {
+              set_dotted(run, k, v);
+            }
+            if (!axes.empty() || config_name.empty())
+              label += fmt::format("{}{}={}", label.empty() ? "" : ", ", k, v.is_string() ? v.get<std::string>() : v.dump());
+          }
+          RunSpec spec;
+          spec.id = fmt::format("r{:03d}", index++);
+          spec.scene = scene;
+          spec.label = label.empty() ? "default" : label;
+          spec.settings = settings;
+          std::vector<std::string> run_problems;
+          spec.config = sim_config_from_json(run, path + ": run", run_problems);
+          for (auto& p : run_problems) per_run[p].push_back(fmt::format("{} on {}", spec.label, scene));
+          for (LinkConfig* link : {&spec.config.uplink, &spec.config.downlink})
+            link->trace_file = resolve_data_path(link->trace_file, path);
+          e.runs.push_back(std::move(spec));
+          // Next combination.
+          size_t a = 0;
+          while (a < axes.size() && ++pos[a] == axes[a].second.size()) pos[a++] = 0;
+          if (a == axes.size()) break;
+        }
+      }
+    }
+  }
+  for (const auto& [message, labels] : per_run) {
+    if (labels.size() == e.runs.size()) {
+      problems.push_back(message + " (every run)");
+    } else {
+      std::string which;
+      for (const auto& l : labels) which += (which.empty() ? "" : "; ") + l;
+      problems.push_back(fmt::format("{} (in: {})", message, which));
+    }
+  }
+  if (!problems.empty()) {
+    // Configurations repeat the same problem per scene: report each once.
+    std::vector<std::string> unique;
+    std::set<std::string> seen;
+    for (auto& p : problems)
+      if (seen.insert(p).second) unique.push_back(p);
+    std::string msg = fmt::format("{} problem(s) in the experiment:", unique.size());
+    for (const auto& p : unique) msg += "\n  " + p;
+    throw Error(msg);
+  }
+  return e;
+}
+
+}  // namespace dhr

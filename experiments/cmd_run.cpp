@@ -1,0 +1,322 @@
+// dhrbench run / validate / report: the experiment runner (core/experiment.h describes the
+// file). A run validates the whole sweep first and reports every problem at once; then it
+// runs each configuration on each scene, records a failing configuration with its error and
+// goes on, and writes results.json, frames.csv, images and the report.
+#include "core/error.h"
+#include "core/experiment.h"
+#include "core/image_io.h"
+#include "core/metrics.h"
+#include "core/reference.h"
+#include "core/scene_load.h"
+#include "experiments/commands.h"
+#include "experiments/context.h"
+
+#include <fmt/format.h>
+#include <tbb/global_control.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <memory>
+
+namespace dhr::cli {
+
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+struct LoadedScenes {
+  std::map<std::string, Scene> scenes;
+  std::map<std::string, std::string> keys;  // content hash per scene
+};
+
+// Loads every scene of the experiment and validates every run against it. Throws one
+// dhr::Error listing every problem.
+LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& scene_path) {
+  LoadedScenes loaded;
+  std::vector<std::string> problems;
+  const SceneSearchPath search = SceneSearchPath::standard(scene_path);
+  for (const auto& name : e.scenes) {
+    if (loaded.scenes.count(name)) continue;
+    try {
+      Scene s = load_scene_or_model(name, search);
+      loaded.keys[name] = fmt::format("{:016x}", scene_content_hash(s));
+      loaded.scenes.emplace(name, std::move(s));
+    } catch (const Error& err) {
+      problems.push_back(fmt::format("scene '{}': {}", name, err.what()));
+    }
+  }
+  for (const auto& run : e.runs) {
+    auto it = loaded.scenes.find(run.scene);
+    if (it == loaded.scenes.end()) continue;
+    try {
+      validate_sim_config(run.config, it->second);
+    } catch (const Error& err) {
+      std::string what = err.what();
+      for (size_t pos = 0; (pos = what.find('\n', pos)) != std::string::npos; pos += 5) what.replace(pos, 1, "\n    ");
+      problems.push_back(fmt::format("{} ({} on {}): {}", run.id, run.label, run.scene, what));
+    }
+  }
+  if (!problems.empty()) {
+    std::string msg = fmt::format("{}: {} problem(s); nothing was run:", e.path, problems.size());
+    for (const auto& p : problems) msg += "\n  " + p;
+    throw Error(msg);
+  }
+  return loaded;
+}
+
+// Progress: a bar on a terminal, plain lines otherwise.
+class Progress {
+ public:
+  Progress(size_t runs, int frames_per_run) : runs_(runs), frames_(frames_per_run), tty_(isatty(fileno(stderr))) {}
+  void update(size_t run, const std::string& label, int frame, int total) {
+    const double done = (double(run) + double(frame) / std::max(total, 1)) / double(runs_);
+    const double elapsed = std::chrono::duration<double>(Clock::now() - start_).count();
+    const double eta = done > 0 ? elapsed / done - elapsed : 0;
+    if (tty_) {
+      const int width = 24, filled = int(done * width);
+      std::fprintf(stderr, "\r[%s%s] config %zu/%zu frame %d/%d  ETA %s  %-40.40s", std::string(size_t(filled), '#').c_str(),
+                   std::string(size_t(width - filled), '.').c_str(), run + 1, runs_, frame, total, eta_text(eta).c_str(),
+                   label.c_str());
+      std::fflush(stderr);
+    } else if (frame == total || frame % std::max(1, total / 4) == 0) {
+      std::fprintf(stderr, "progress: config %zu/%zu (%s) frame %d/%d, elapsed %.0f s, ETA %s\n", run + 1, runs_,
+                   label.c_str(), frame, total, elapsed, eta_text(eta).c_str());
+    }
+  }
+  void finish() {
+    if (tty_) std::fprintf(stderr, "\n");
+  }
+
+ private:
+  static std::string eta_text(double s) {
+    return s < 90 ? fmt::format("{:.0f} s", s) : fmt::format("{:.0f} min {:02.0f} s", std::floor(s / 60), std::fmod(s, 60));
+  }
+  size_t runs_;
+  int frames_;
+  bool tty_;
+  Clock::time_point start_ = Clock::now();
+};
+
+ImageRGB8 downscale(const ImageRGB8& img, int max_width) {
+  if (img.width() <= max_width) return img;
+  const int f = (img.width() + max_width - 1) / max_width;
+  ImageRGB8 out(img.width() / f, img.height() / f);
+  for (int y = 0; y < out.height(); ++y)
+    for (int x = 0; x < out.width(); ++x) {
+      int r = 0, g = 0, b = 0;
+      for (int dy = 0; dy < f; ++dy)
+        for (int dx = 0; dx < f; ++dx) {
+          const Rgb8 p = img(x * f + dx, y * f + dy);
+          r += p.r;
+          g += p.g;
+          b += p.b;
+        }
+      const int n = f * f;
+      out(x, y) = {uint8_t(r / n), uint8_t(g / n), uint8_t(b / n)};
+    }
+  return out;
+}
+
+std::string csv_number(double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : (v > 0 ? "inf" : ""); }
+
+// Runs the report script (Debian's python3 with matplotlib) on a results folder.
+int write_report(const std::string& dir) {
+  const std::string script = std::string(DHR_SOURCE_DIR) + "/experiments/report.py";
+  const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
+  const std::string check = python + " -c 'import matplotlib' >/dev/null 2>&1";
+  if (std::system(check.c_str()) != 0) {
+    std::fprintf(stderr,
+                 "dhrbench: the report needs matplotlib for Debian's python3: apt-get install python3-matplotlib "
+                 "(or run scripts/setup.sh); the results in %s are complete, rebuild the report later with "
+                 "'dhrbench report %s'\n",
+                 dir.c_str(), dir.c_str());
+    return 3;
+  }
+  const std::string cmd = python + " '" + script + "' '" + dir + "'";
+  const int rc = std::system(cmd.c_str());
+  if (rc != 0) std::fprintf(stderr, "dhrbench: the report script failed (exit %d): %s\n", rc, cmd.c_str());
+  return rc == 0 ? 0 : 3;
+}
+
+}  // namespace
+
+Runner add_run_command(CLI::App& app) {
+  struct Options {
+    std::string experiment, out;
+    std::vector<std::string> sets, scene_path;
+    int threads = 0;
+    bool no_report = false;
+  };
+  auto o = std::make_shared<Options>();
+  auto* cmd = app.add_subcommand(
+      "run",
+      "Run an experiment: every configuration of its sweep on every scene. Validates the whole sweep first\n"
+      "(every problem at once), then writes DIR/results.json (context + one record per run), DIR/frames.csv\n"
+      "(one row per displayed frame), DIR/images/ and DIR/report.md with plots. A configuration that fails\n"
+      "is recorded with its error and the sweep goes on. Examples:\n"
+      "  dhrbench run experiments/quick.json\n"
+      "  dhrbench run experiments/paper.json --out out/paper --set run.frames=30 --threads 2");
+  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--out", o->out, "Output folder (default: out/<experiment name>)");
+  cmd->add_option("--set", o->sets, "Override a key of the experiment: key=value, dotted from the top (repeatable), "
+                                    "e.g. --set run.frames=10 --set 'scenes=[\"room\"]'");
+  cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
+  cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")->check(CLI::NonNegativeNumber);
+  cmd->add_flag("--no-report", o->no_report, "Write results only (build the report later with 'dhrbench report DIR')");
+  return [o] {
+    std::unique_ptr<tbb::global_control> limit;
+    if (o->threads > 0)
+      limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(o->threads));
+    const auto wall_start = Clock::now();
+    const Experiment e = load_experiment(o->experiment, o->sets);
+    LoadedScenes loaded = validate_all(e, o->scene_path);
+    const std::string dir = o->out.empty() ? "out/" + e.name : o->out;
+    fs::create_directories(fs::path(dir) / "images");
+    fmt::print(stderr, "{}: {} runs ({} scenes); writing {}\n", e.name, e.runs.size(), loaded.scenes.size(), dir);
+
+    nlohmann::json results;
+    results["context"] = run_context(DHR_BUILD_TYPE);
+    results["context"]["threads"] = o->threads;
+    results["context"]["command"] = "dhrbench run " + o->experiment;
+    for (const auto& s : o->sets) results["context"]["command"] = results["context"]["command"].get<std::string>() + " --set " + s;
+    results["experiment"] = e.source;
+    results["experiment_path"] = e.path;
+    results["runs"] = nlohmann::json::array();
+    std::ofstream csv(fs::path(dir) / "frames.csv");
+    csv << "run,scene,label,frame,t_ms,scored,ssim_local,psnr_local_db,scored_ground_truth,ssim_ground_truth,"
+           "psnr_ground_truth_db,source_frame_0,age_ms_0,disoccluded_0,source_frame_1,age_ms_1,disoccluded_1,client_wall_ms\n";
+
+    TraceCache cache;
+    Progress progress(e.runs.size(), 0);
+    int failed = 0;
+    for (size_t i = 0; i < e.runs.size(); ++i) {
+      const RunSpec& spec = e.runs[i];
+      nlohmann::json record = {{"id", spec.id}, {"scene", spec.scene}, {"label", spec.label}, {"settings", spec.settings}};
+      const auto run_start = Clock::now();
+      try {
+        SimConfig config = spec.config;
+        config.keep_images = true;
+        const Scene& scene = loaded.scenes.at(spec.scene);
+        RunResult r = run_simulation(config, scene, loaded.keys.at(spec.scene), cache,
+                                     [&](int f, int total) { progress.update(i, spec.label, f, total); });
+        record["config"] = r.config;
+        // Effective backend parameters (defaults filled in).
+        const Registries& reg = registries();
+        auto effective = [&](const auto& registry, const BackendChoice& b) {
+          Params p;
+          registry.create(b.name, b.params, &p);
+          return nlohmann::json{{"name", b.name}, {"params", p.effective()}};
+        };
+        record["backends"] = {{"visibility_codec", effective(reg.codecs, config.visibility_codec)},
+                              {"ao_codec", effective(reg.codecs, config.ao_codec)},
+                              {"colour_codec", effective(reg.codecs, config.colour_codec)},
+                              {"ao_denoiser", effective(reg.denoisers, config.ao_denoiser)},
+                              {"visibility_denoiser", effective(reg.denoisers, config.visibility_denoiser)},
+                              {"predictor", effective(reg.predictors, config.predictor)},
+                              {"colour_predictor", effective(reg.predictors, config.colour_predictor)}};
+        record["metrics"] = r.metrics();
+        record["server_time_model"] = config.server_timing == SimConfig::ServerTiming::Fixed
+                                          ? fmt::format("fixed {} ms per server frame (virtual)", config.server_fixed_ms)
+                                          : std::string("measured wall time of the server's stages");
+        for (const auto& f : r.frames) {
+          csv << spec.id << ',' << spec.scene << ",\"" << spec.label << "\"," << f.frame << ',' << csv_number(f.t_ms) << ','
+              << f.scored << ',' << (f.scored ? csv_number(f.ssim_local) : "") << ','
+              << (f.scored ? csv_number(f.psnr_local) : "") << ',' << f.scored_ground_truth << ','
+              << (f.scored_ground_truth ? csv_number(f.ssim_gt) : "") << ','
+              << (f.scored_ground_truth ? csv_number(f.psnr_gt) : "") << ',' << f.source_frame[0] << ','
+              << csv_number(f.age_ms[0]) << ',' << f.disoccluded[0] << ',' << f.source_frame[1] << ','
+              << csv_number(f.age_ms[1]) << ',' << f.disoccluded[1] << ',' << csv_number(f.client_wall_ms) << '\n';
+        }
+        // Images of the last scored frame (downscaled): what was shown, the local reference,
+        // the ground truth when scored, and the error against the best reference available.
+        if (!r.images.empty()) {
+          const fs::path img_dir = fs::path(dir) / "images";
+          const ImageRGB8& shown = r.images.back();
+          const ImageRGB8& local = r.local_images.back();
+          write_png((img_dir / (spec.id + "_shown.png")).string(), downscale(shown, 480));
+          write_png((img_dir / (spec.id + "_local.png")).string(), downscale(local, 480));
+          const ImageRGB8* truth = r.ground_truth_images.empty() ? nullptr : &r.ground_truth_images.back();
+          if (truth) write_png((img_dir / (spec.id + "_truth.png")).string(), downscale(*truth, 480));
+          const ImageRGB8& against = truth ? *truth : local;
+          // The error as grey levels: |luma difference| 0..32 -> 0..255 (saturating); the report
+          // colours every map with one fixed colour scale and its colour bar.
+          const ImageF err = abs_luma_difference(against, shown);
+          ImageRGB8 grey(err.width(), err.height());
+          for (size_t p = 0; p < err.size(); ++p) {
+            const uint8_t g = uint8_t(std::lround(std::min(err[p], 32.0f) * 255.0f / 32.0f));
+            grey[p] = {g, g, g};
+          }
+          write_png((img_dir / (spec.id + "_error.png")).string(), downscale(grey, 480));
+          record["images"] = {{"frame", r.kept_frame},
+                              {"error_against", &against == &local ? "local reference" : "ground truth"},
+                              {"error_scale", "|luma difference| 0..32 levels"}};
+        }
+      } catch (const std::exception& err) {
+        record["error"] = err.what();
+        ++failed;
+        fmt::print(stderr, "\n{} ({} on {}) failed: {}\n", spec.id, spec.label, spec.scene, err.what());
+      }
+      record["wall_s"] = std::chrono::duration<double>(Clock::now() - run_start).count();
+      results["runs"].push_back(record);
+      // Written after every run, so that nothing is lost if a later run crashes the process.
+      std::ofstream(fs::path(dir) / "results.json") << results.dump(1) << '\n';
+    }
+    progress.finish();
+    csv.close();
+    results["wall_s"] = std::chrono::duration<double>(Clock::now() - wall_start).count();
+    std::ofstream(fs::path(dir) / "results.json") << results.dump(1) << '\n';
+    fmt::print(stderr, "{} runs done ({} failed) in {:.1f} s: {}/results.json\n", e.runs.size(), failed,
+               results["wall_s"].get<double>(), dir);
+    int rc = 0;
+    if (!o->no_report) {
+      rc = write_report(dir);
+      if (rc == 0) fmt::print(stderr, "report: {}/report.md\n", dir);
+    }
+    return failed ? 4 : rc;
+  };
+}
+
+Runner add_validate_command(CLI::App& app) {
+  struct Options {
+    std::string experiment;
+    std::vector<std::string> sets, scene_path;
+  };
+  auto o = std::make_shared<Options>();
+  auto* cmd = app.add_subcommand("validate",
+                                 "Check an experiment without running it: the file, every backend name and parameter, "
+                                 "every scene and path. Prints every problem at once.");
+  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--set", o->sets, "Override a key (as for run)");
+  cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
+  return [o] {
+    const Experiment e = load_experiment(o->experiment, o->sets);
+    validate_all(e, o->scene_path);
+    int frames = 0;
+    for (const auto& r : e.runs) frames += r.config.frames + r.config.warmup_frames;
+    fmt::print("{}: valid: {} runs over {} scene(s), {} frames in all\n", o->experiment, e.runs.size(), e.scenes.size(), frames);
+    for (const auto& r : e.runs) fmt::print("  {}  {:<22} {}\n", r.id, r.scene, r.label);
+    return 0;
+  };
+}
+
+Runner add_report_command(CLI::App& app) {
+  auto dir = std::make_shared<std::string>();
+  auto* cmd = app.add_subcommand("report", "Rebuild DIR/report.md and its plots from DIR/results.json and DIR/frames.csv, "
+                                           "without running anything again");
+  cmd->add_option("dir", *dir, "A folder written by 'dhrbench run'")->required()->check(CLI::ExistingDirectory);
+  return [dir] {
+    if (!fs::exists(fs::path(*dir) / "results.json")) fail("{}: no results.json here (was it written by 'dhrbench run'?)", *dir);
+    const int rc = write_report(*dir);
+    if (rc == 0) fmt::print("report: {}/report.md\n", *dir);
+    return rc;
+  };
+}
+
+}  // namespace dhr::cli

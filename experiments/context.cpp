@@ -1,0 +1,96 @@
+// The context block of results.json: what a reviewer needs to know to trust and reproduce a
+// result (after Google Benchmark's context): the code, the build, the machine, the libraries.
+#include "experiments/context.h"
+
+#include <OpenImageIO/imageio.h>
+#include <embree3/rtcore.h>
+#include <lz4.h>
+#include <opencv2/core/version.hpp>
+#include <opencv2/core/utility.hpp>
+#include <sys/utsname.h>
+#include <tbb/version.h>
+#include <zstd.h>
+extern "C" {
+#include <libavcodec/avcodec.h>
+#include <libavutil/avutil.h>
+#include <x264.h>
+}
+
+#include <array>
+#include <cstdio>
+#include <fstream>
+#include <thread>
+
+namespace dhr::cli {
+
+namespace {
+
+std::string run_command(const std::string& cmd) {
+  std::string out;
+  if (FILE* p = popen(cmd.c_str(), "r")) {
+    std::array<char, 256> buf{};
+    while (fgets(buf.data(), int(buf.size()), p)) out += buf.data();
+    pclose(p);
+  }
+  while (!out.empty() && (out.back() == '\n' || out.back() == '\r')) out.pop_back();
+  return out;
+}
+
+std::string cpu_model() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
+  return "unknown";
+}
+
+std::string av_version(unsigned v) { return fmt::format("{}.{}.{}", v >> 16, (v >> 8) & 255, v & 255); }
+
+}  // namespace
+
+nlohmann::json run_context(const std::string& build_type) {
+  nlohmann::json c;
+  c["schema_version"] = kResultsSchemaVersion;
+  c["dhrbench_version"] = "0.1.0";
+  const std::string src = DHR_SOURCE_DIR;
+  const std::string commit = run_command("git -C '" + src + "' rev-parse HEAD 2>/dev/null");
+  c["git_commit"] = commit.empty() ? nlohmann::json(nullptr) : nlohmann::json(commit);
+  c["git_dirty"] = commit.empty() ? nlohmann::json(nullptr)
+                                  : nlohmann::json(!run_command("git -C '" + src + "' status --porcelain --untracked-files=no 2>/dev/null").empty());
+  c["compiler"] = fmt::format("{} {}", __GNUC__ ? (
+#ifdef __clang__
+      "clang"
+#else
+      "gcc"
+#endif
+      ) : "unknown", __VERSION__);
+  c["build_type"] = build_type;
+#ifdef __SANITIZE_ADDRESS__
+  c["sanitizers"] = true;
+#else
+  c["sanitizers"] = false;
+#endif
+  c["cpu_model"] = cpu_model();
+  c["hardware_threads"] = std::thread::hardware_concurrency();
+  utsname u{};
+  if (uname(&u) == 0) c["kernel"] = fmt::format("{} {} {}", u.sysname, u.release, u.machine);
+  // Library versions, read at run time where the library offers it.
+  RTCDevice dev = rtcNewDevice("verbose=0");
+  const ssize_t ev = dev ? rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_VERSION) : 0;
+  if (dev) rtcReleaseDevice(dev);
+  c["libraries"] = {
+      {"embree", fmt::format("{}.{}.{}", ev / 10000, (ev / 100) % 100, ev % 100)},
+      {"lz4", LZ4_versionString()},
+      {"zstd", ZSTD_versionString()},
+      {"libavcodec", av_version(avcodec_version())},
+      {"libavutil", av_version(avutil_version())},
+      {"x264", fmt::format("build {} (compile time: x264 has no run-time version call)", X264_BUILD)},
+      {"opencv", cv::getVersionString()},
+      {"openimageio", fmt::format("{}.{}.{}", OIIO::openimageio_version() / 10000, OIIO::openimageio_version() / 100 % 100,
+                                  OIIO::openimageio_version() % 100)},
+      {"tbb", TBB_runtime_version()},
+  };
+  return c;
+}
+
+}  // namespace dhr::cli
