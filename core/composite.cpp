@@ -1,0 +1,119 @@
+// The composite (see core/composite.h): decoding of the passes, the shading kernel per pixel
+// and sRGB tone mapping.
+#include "core/composite.h"
+
+#include "core/error.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <array>
+#include <cmath>
+
+namespace dhr {
+
+namespace {
+
+double srgb_to_linear(double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4); }
+
+// Linear values at which the rounded 8-bit sRGB code steps from k-1 to k (k = 1..255).
+const std::array<float, 255>& code_boundaries() {
+  static const std::array<float, 255> table = [] {
+    std::array<float, 255> t{};
+    for (int k = 1; k <= 255; ++k) t[size_t(k - 1)] = float(srgb_to_linear((k - 0.5) / 255.0));
+    return t;
+  }();
+  return table;
+}
+
+void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, bool is_ao) {
+  const std::string problem = pb.desc.validate();
+  if (!problem.empty()) fail("composite: {} pass: {}", pass_kind_name(pb.desc.kind), problem);
+  if (is_ao ? pb.desc.kind != PassKind::Ao
+            : pb.desc.kind != PassKind::Visibility && pb.desc.kind != PassKind::SoftVisibility)
+    fail("composite: got a {} pass where {} was expected", pass_kind_name(pb.desc.kind),
+         is_ao ? "an ao pass" : "a visibility or soft_visibility pass");
+  if (pb.desc.width != g.width() || pb.desc.height != g.height())
+    fail("composite: {} pass is {}x{}, the G-buffer {}x{}", pass_kind_name(pb.desc.kind), pb.desc.width,
+         pb.desc.height, g.width(), g.height());
+  if (!is_ao && size_t(pb.desc.channels) != scene.lights.size())
+    fail("composite: {} pass has {} channels, the scene {} lights", pass_kind_name(pb.desc.kind), pb.desc.channels,
+         scene.lights.size());
+  if (pb.bytes.size() != pb.desc.byte_size())
+    fail("composite: {} pass has {} bytes, its description needs {}", pass_kind_name(pb.desc.kind), pb.bytes.size(),
+         pb.desc.byte_size());
+}
+
+template <class VisAt, class AoAt>
+ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSettings& settings, VisAt&& vis_at,
+                         AoAt&& ao_at) {
+  if (!(settings.exposure > 0.0f) || !std::isfinite(settings.exposure))
+    fail("composite: exposure {} must be finite and > 0", settings.exposure);
+  const int w = g.width(), h = g.height();
+  ImageRGB8 out(w, h);
+  const Rgb8 background = tonemap_srgb8(scene.background * settings.exposure);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      for (int x = 0; x < w; ++x) {
+        if (!g.covered(x, y)) {
+          out(x, y) = background;
+          continue;
+        }
+        const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+        glm::vec3 n = g.normal(x, y);
+        if (!(glm::dot(n, n) > 0.0f)) n = g.geo_normal(x, y);
+        const glm::vec3 c = shade_lambert(scene, g.albedo(x, y), g.position(x, y), n, ao_at(pixel),
+                                          [&](size_t l) { return vis_at(l, pixel); });
+        out(x, y) = tonemap_srgb8(c * settings.exposure);
+      }
+    }
+  });
+  return out;
+}
+
+}  // namespace
+
+uint8_t tonemap_srgb8(float linear) {
+  if (!(linear > 0.0f)) return 0;  // also NaN
+  const auto& b = code_boundaries();
+  return uint8_t(std::upper_bound(b.begin(), b.end(), linear) - b.begin());
+}
+
+Rgb8 tonemap_srgb8(const glm::vec3& linear) {
+  return {tonemap_srgb8(linear.x), tonemap_srgb8(linear.y), tonemap_srgb8(linear.z)};
+}
+
+ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
+                    const CompositeSettings& settings) {
+  if (visibility) check_pass(*visibility, g, scene, false);
+  if (ao) check_pass(*ao, g, scene, true);
+  const size_t npx = size_t(g.width()) * size_t(g.height());
+  const float ao_scale = ao ? 1.0f / float(ao->desc.full_scale) : 0.0f;
+  auto ao_at = [&](size_t pixel) { return ao ? std::min(1.0f, float(ao->bytes[pixel]) * ao_scale) : 1.0f; };
+  if (!visibility) return composite_impl(g, scene, settings, [](size_t, size_t) { return 1.0f; }, ao_at);
+  const uint8_t* bytes = visibility->bytes.data();
+  if (visibility->desc.kind == PassKind::Visibility) {
+    const size_t bpp = size_t((visibility->desc.channels + 7) / 8);
+    return composite_impl(
+        g, scene, settings,
+        [&](size_t l, size_t pixel) { return float((bytes[pixel * bpp + (l >> 3)] >> (l & 7)) & 1u); }, ao_at);
+  }
+  const float vis_scale = 1.0f / float(visibility->desc.full_scale);
+  return composite_impl(
+      g, scene, settings,
+      [&](size_t l, size_t pixel) { return std::min(1.0f, float(bytes[l * npx + pixel]) * vis_scale); }, ao_at);
+}
+
+ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<const float> visibility,
+                              std::span<const float> ao, const CompositeSettings& settings) {
+  const size_t npx = size_t(g.width()) * size_t(g.height());
+  if (!visibility.empty() && visibility.size() != npx * scene.lights.size())
+    fail("composite: {} visibility values for {} pixels x {} lights", visibility.size(), npx, scene.lights.size());
+  if (!ao.empty() && ao.size() != npx) fail("composite: {} AO values for {} pixels", ao.size(), npx);
+  return composite_impl(
+      g, scene, settings,
+      [&](size_t l, size_t pixel) { return visibility.empty() ? 1.0f : visibility[l * npx + pixel]; },
+      [&](size_t pixel) { return ao.empty() ? 1.0f : ao[pixel]; });
+}
+
+}  // namespace dhr

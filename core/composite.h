@@ -1,0 +1,87 @@
+// The composite: ONE shading function used by the client, the remote-rendering baseline, the
+// local reference and the ground truth (design.md section 1), so that they differ only in
+// their inputs.
+//
+// Lambertian, per pixel with G-buffer albedo a, shading normal n and position p:
+//   colour = a * (ambient * AO + sum_l V_l * colour_l * intensity_l * max(0, n.l_l) * f_l)
+// - AO in [0, 1] (paper Eq. 3: N_unoccluded / N; an absent AO pass means AO = 1),
+// - V_l in [0, 1]: the light's visibility bit or visible fraction (absent pass: 1),
+// - sphere lights: l = direction to the centre, f = 1 / max(d^2, radius^2, 1e-6 m^2) (the clamp
+//   keeps points inside or touching the light finite), f = 0 beyond range_m (when > 0);
+// - distant lights: l = Light::direction (normalised), f = 1.
+// Background pixels get Scene::background.
+//
+// Tone mapping (tonemap_srgb8): linear colour times `exposure`, clamped to [0, 1] (NaN -> 0),
+// then the sRGB transfer function (IEC 61966-2-1), rounded to 8 bits. Exact: the code is found
+// against the 255 code boundaries, no approximating table.
+#pragma once
+
+#include "core/gbuffer.h"
+#include "core/image.h"
+#include "core/pass_buffer.h"
+#include "core/scene.h"
+
+#include <glm/glm.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <span>
+
+namespace dhr {
+
+struct CompositeSettings {
+  float exposure = 1.0f;  // linear scale before clamping; > 0
+};
+
+// The 8-bit sRGB code of a linear value (after exposure); see the header comment.
+uint8_t tonemap_srgb8(float linear);
+Rgb8 tonemap_srgb8(const glm::vec3& linear);
+
+// Linear radiance of one pixel: the shading kernel. visible(l) gives V_l, ao is AO.
+template <class VisibleFn>
+glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position,
+                        const glm::vec3& normal, float ao, VisibleFn&& visible);
+
+// From PassBuffers (null = absent: fully lit / AO = 1). `visibility` is a Visibility or
+// SoftVisibility pass with one channel per scene light; `ao` an Ao pass. Throws dhr::Error when
+// a pass does not match the G-buffer's size, the scene's light count or its own byte size.
+ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
+                    const CompositeSettings& settings = {});
+
+// From float estimates (references): visibility planar [light][pixel] in [0, 1] (empty: fully
+// lit), ao per pixel in [0, 1] (empty: 1).
+ImageRGB8 composite_fractions(const GBuffer& gbuf, const Scene& scene, std::span<const float> visibility,
+                              std::span<const float> ao, const CompositeSettings& settings = {});
+
+// ---- implementation of the kernel ----
+
+template <class VisibleFn>
+glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position,
+                        const glm::vec3& normal, float ao, VisibleFn&& visible) {
+  constexpr float kMinDistance2 = 1e-6f;
+  glm::vec3 light = scene.ambient * ao;
+  for (size_t l = 0; l < scene.lights.size(); ++l) {
+    const Light& L = scene.lights[l];
+    float n_dot_l = 0.0f, falloff = 1.0f;
+    if (L.type == LightType::Sphere) {
+      const glm::vec3 to_c = L.position - position;
+      const float d2 = glm::dot(to_c, to_c);
+      if (L.range_m > 0.0f && d2 > L.range_m * L.range_m) continue;
+      const float d = std::sqrt(d2);
+      if (!(d > 0.0f)) continue;  // at the centre: no direction, no term
+      n_dot_l = glm::dot(normal, to_c) / d;
+      falloff = 1.0f / std::max({d2, L.radius_m * L.radius_m, kMinDistance2});
+    } else {
+      const float len = glm::length(L.direction);
+      if (!(len > 0.0f)) continue;
+      n_dot_l = glm::dot(normal, L.direction) / len;
+    }
+    if (!(n_dot_l > 0.0f)) continue;
+    const float v = visible(l);
+    if (!(v > 0.0f)) continue;
+    light += (v * L.intensity * n_dot_l * falloff) * L.colour;
+  }
+  return albedo * light;
+}
+
+}  // namespace dhr

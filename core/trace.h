@@ -1,0 +1,205 @@
+// The server's ray-traced passes (paper section 3): shadow visibility per light (3.1, Fig. 1)
+// and ray-traced ambient occlusion (3.2, Eq. 1-3), computed for every pixel of a G-buffer.
+//
+// Which passes run is derived from the scene (plan_passes): no lights -> no visibility pass;
+// only point lights (Light::is_point) -> hard shadows, one deterministic ray per light; no
+// ao block -> no AO pass. Per pixel no ray is traced where the answer is known: background,
+// a surface facing away from the light (for a sphere light in soft mode: from the whole
+// sphere), a point beyond the light's range_m. Every ray traced is counted (TraceStats).
+//
+// Surface points are rebuilt from the G-buffer's object id, prim id and barycentrics with the
+// scene's vertices at the G-buffer's time (in double precision), and ray origins are offset
+// along the geometric normal (oriented like the G-buffer's, i.e. towards the camera) with
+// Waechter & Binder's integer-ULP method (Ray Tracing Gems, ch. 6); there is no global epsilon.
+//
+// Rays are validated before Embree sees them (ray_is_valid in core/rt_scene.h). An invalid
+// ray is counted in TraceStats::invalid_rays and never traced; its answer is "unoccluded":
+// a shadow ray counts as reaching its light (a missing shadow is the milder error, and a
+// wrong dark pixel would look like a real shadow) and an AO ray as unoccluded (AO then
+// falls back to "no occlusion", the composite's meaning of an absent AO pass).
+//
+// Special cases, documented answers:
+// - A point inside a sphere light (distance to the centre <= radius_m, including a point light
+//   exactly at the surface point): visible, no ray. The composite gives it the light's term
+//   at distance max(d, radius) with n.l from the centre direction (0 when d == 0).
+// - Geometry touching the light: shadow rays end a relative 1e-4 short of the light's surface
+//   (kShadowTfarScale), so geometry within that distance of the light does not occlude it.
+// - Emitter geometry never occludes shadow rays (geometry masks, see core/rt_scene.h).
+//
+// Randomness (core/rng.h): soft-shadow sample s of light l at pixel p uses the key
+// (seed, p, frame, s, kStreamLightBase + l); AO ray i uses (seed, p, frame, i, kStreamAo);
+// dimensions 0 and 1 are the two uniforms. Results do not depend on the thread count.
+#pragma once
+
+#include "core/gbuffer.h"
+#include "core/pass_buffer.h"
+#include "core/rng.h"
+#include "core/rt_scene.h"
+#include "core/scene.h"
+
+#include <glm/glm.hpp>
+
+#include <bit>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace dhr {
+
+// Shadow rays stop this fraction short of the light's surface (or centre for point lights).
+constexpr float kShadowTfarScale = 1.0f - 1e-4f;
+
+struct TraceSettings {
+  uint64_t seed = 1;
+  uint32_t frame = 0;
+  int ao_rays = 0;            // 1..255 rays per pixel; 0 = the scene's ao.rays
+  float ao_radius_m = 0.0f;   // > 0; 0 = the scene's ao.radius_m
+  bool soft_shadows = true;   // false: one ray to each light's centre (hard) even for area lights
+  // Rays per area light per pixel (soft shadows only). 1: one jittered ray, one bit per light
+  // (Visibility pass, the paper's bitmask). 2..1024: the visible fraction per light in 8 bits
+  // (SoftVisibility pass, full_scale = S, or 255 when S > 255).
+  int samples_per_light = 1;
+  int threads = 0;            // 0 = the RtScene's arena; else a dedicated arena of this size
+};
+
+enum class ShadowMode : uint8_t {
+  None,          // no visibility pass
+  Hard,          // one ray to each light's centre: bitmask
+  SoftBit,       // one ray per light, jittered within the light's cone: bitmask
+  SoftFraction,  // S rays per light: 8-bit fraction per light
+};
+const char* shadow_mode_name(ShadowMode mode);
+
+struct PassPlan {
+  ShadowMode shadow = ShadowMode::None;
+  int lights = 0;
+  int samples_per_light = 0;  // S for SoftFraction, 1 for Hard / SoftBit, 0 for None
+  std::vector<uint8_t> light_soft;  // per light: 1 = cone sampling, 0 = one ray to the centre
+  bool ao = false;
+  int ao_rays = 0;
+  float ao_radius_m = 0.0f;
+  std::vector<std::string> reasons;  // why each pass runs or not (one line each)
+
+  bool visibility() const { return shadow != ShadowMode::None; }
+  PassKind visibility_kind() const {
+    return shadow == ShadowMode::SoftFraction ? PassKind::SoftVisibility : PassKind::Visibility;
+  }
+  int visibility_full_scale() const;  // SoftFraction: min(S, 255); else 1
+  PassDesc visibility_desc(int width, int height) const;
+  PassDesc ao_desc(int width, int height) const;
+  std::string describe() const;  // the reasons, joined
+};
+
+// Throws dhr::Error for out-of-range settings (naming the key and the valid range) and for
+// scenes with more than 64 lights.
+PassPlan plan_passes(const Scene& scene, const TraceSettings& settings);
+
+struct TraceStats {
+  uint64_t pixels = 0;           // in the G-buffer
+  uint64_t covered_pixels = 0;   // not background
+  uint64_t shadow_rays = 0;      // traced (handed to Embree)
+  uint64_t ao_rays = 0;          // traced
+  uint64_t invalid_rays = 0;     // failed validation: counted, never traced
+  uint64_t unresolved_pixels = 0;  // object/prim id not in the scene: G-buffer position used
+  uint64_t shadow_skipped_facing = 0;  // (pixel, light) pairs: surface faces away, no ray
+  uint64_t shadow_skipped_range = 0;   // (pixel, light) pairs beyond range_m, no ray
+  uint64_t shadow_inside_light = 0;    // (pixel, light) pairs inside the light's sphere, no ray
+  double shadow_ms = 0.0;  // wall time of the visibility pass
+  double ao_ms = 0.0;      // wall time of the AO pass
+  void add(const TraceStats& o);
+};
+
+// Raw counts, for references that need more than 8 bits.
+struct VisibilityCounts {
+  int width = 0, height = 0, lights = 0;
+  std::vector<int> samples;       // per light: rays per pixel (1 for hard lights)
+  std::vector<uint16_t> visible;  // planar: [light][pixel], 0..samples[light]
+  float fraction(int light, size_t pixel) const {
+    return float(visible[size_t(light) * size_t(width) * size_t(height) + pixel]) / float(samples[size_t(light)]);
+  }
+};
+struct AoCounts {
+  int width = 0, height = 0, rays = 0;
+  std::vector<uint16_t> unoccluded;  // per pixel, 0..rays (rays on background pixels)
+};
+
+// Everything the plan asks for. Moves the scene to gbuf.time_s.
+struct TraceResult {
+  PassPlan plan;
+  std::optional<PassBuffer> visibility;  // Visibility or SoftVisibility
+  std::optional<PassBuffer> ao;
+  TraceStats stats;
+};
+TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const TraceSettings& settings);
+
+// The passes one at a time (plan.visibility() / plan.ao must hold). Statistics are added.
+PassBuffer trace_visibility(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
+                            const TraceSettings& settings, TraceStats& stats);
+PassBuffer trace_ao(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
+                    TraceStats& stats);
+
+// Counts with any sample count: samples_per_light 1..65535 for area lights, ao_rays
+// 1..65535 (used by core/reference.h for converged estimates).
+VisibilityCounts trace_visibility_counts(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
+                                         const TraceSettings& settings, TraceStats& stats);
+AoCounts trace_ao_counts(RtScene& rt, const GBuffer& gbuf, int ao_rays, float ao_radius_m,
+                         const TraceSettings& settings, TraceStats& stats);
+
+// The exact rays (in row order) that trace_visibility_counts / trace_ao_counts would hand to
+// Embree, without tracing them: benchmarks trace them with a bare Embree loop as the ceiling.
+std::vector<RTCRay> collect_visibility_rays(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
+                                            const TraceSettings& settings);
+std::vector<RTCRay> collect_ao_rays(RtScene& rt, const GBuffer& gbuf, int ao_rays, float ao_radius_m,
+                                    const TraceSettings& settings);
+
+// Packing counts into the canonical PassBuffer layouts (core/pass_buffer.h).
+PassBuffer pack_visibility(const VisibilityCounts& counts, const PassPlan& plan);
+PassBuffer pack_ao(const AoCounts& counts);
+
+// ---- Building blocks, exposed for tests and benchmarks ----
+
+// Waechter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing
+// Gems, 2019, ch. 6): move p along n by 256 ULPs per unit of n (in integer space, so the step
+// scales with |p|), or by n / 65536 for coordinates within 1/32 of the origin, where ULP steps
+// are too small.
+inline glm::vec3 offset_ray_origin(const glm::vec3& p, const glm::vec3& n) {
+  constexpr float kOrigin = 1.0f / 32.0f;
+  constexpr float kFloatScale = 1.0f / 65536.0f;
+  constexpr float kIntScale = 256.0f;
+  glm::vec3 out;
+  for (int i = 0; i < 3; ++i) {
+    const int32_t of_i = int32_t(kIntScale * n[i]);
+    const int32_t bits = std::bit_cast<int32_t>(p[i]);
+    // Unsigned arithmetic: no signed-overflow UB; for finite |p| < 1e18 it never wraps.
+    const float p_i = std::bit_cast<float>(int32_t(uint32_t(bits) + uint32_t(p[i] < 0.0f ? -of_i : of_i)));
+    out[i] = std::abs(p[i]) < kOrigin ? p[i] + kFloatScale * n[i] : p_i;
+  }
+  return out;
+}
+
+// Duff, Burgess, Christensen, Hery, Kensler, Liani, Villemin, "Building an Orthonormal Basis,
+// Revisited" (JCGT 6(1), 2017), Listing 3: t, b such that (t, b, n) is right-handed
+// orthonormal, for unit n, with no branch but the sign.
+inline void orthonormal_basis(const glm::vec3& n, glm::vec3& t, glm::vec3& b) {
+  const float sign = std::copysign(1.0f, n.z);
+  const float a = -1.0f / (sign + n.z);
+  const float c = n.x * n.y * a;
+  t = glm::vec3(1.0f + sign * n.x * n.x * a, sign * c, -sign * n.x);
+  b = glm::vec3(c, sign + n.y * n.y * a, -n.y);
+}
+
+// rng_uniform(RngKey{seed, pixel, frame, sample, stream}, dim) for dims 0 and 1, with the
+// per-pixel part of the hash computed once (bit-identical to core/rng.h; tested).
+struct PixelRng {
+  uint64_t h = 0;
+  PixelRng(uint64_t seed, uint32_t pixel, uint32_t frame)
+      : h(mix64(mix64(seed) ^ ((uint64_t(pixel) << 32) | frame))) {}
+  void uniform2(uint32_t sample, uint32_t stream, float& u0, float& u1) const {
+    const uint64_t k = mix64(h ^ ((uint64_t(sample) << 32) | stream));
+    u0 = float(mix64(k ^ 0u) >> 40) * (1.0f / 16777216.0f);
+    u1 = float(mix64(k ^ 1u) >> 40) * (1.0f / 16777216.0f);
+  }
+};
+
+}  // namespace dhr

@@ -1,0 +1,318 @@
+// Speed of the server's passes (core/trace.h) against a raw Embree ceiling measured in the same
+// run on the SAME rays: for each scene and pass, the rays the pass traces are collected into an
+// array first (collect_*_rays), then traced by the simplest loops -- rtcOccluded1 per ray,
+// rtcOccluded8 packets and rtcOccluded1M streams of 256 -- each over the array split between
+// the threads. The fastest of the three is the ceiling; the pass reports Mrays/s (rays it
+// traced / wall time of the whole pass: surface rebuild, ray generation, tracing, counting)
+// and its ratio to the ceiling. Goal: >= 0.9.
+//
+// Scenes: the built-in scenes (scenes/*.json) and the real scenes (scenes/real/*.json, skipped
+// when ../shared/scenes is missing), at 1280x720, camera at t = 0, G-buffer from Embree
+// primary rays. Set DHR_BENCH_SCENES=room,temple to restrict the scenes, DHR_BENCH_THREADS=N
+// for the thread count (default: all cores). Mrays_per_s is per wall second, Mrays_per_cpu_s
+// per process CPU second; the ratio uses CPU seconds, which a busy shared machine disturbs
+// least.
+//
+// Run: build-x/tests/bench_trace --benchmark_counters_tabular=true
+#include "core/error.h"
+#include "core/rt_scene.h"
+#include "core/scene_load.h"
+#include "core/trace.h"
+
+#include <benchmark/benchmark.h>
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <ctime>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace dhr {
+namespace {
+
+constexpr int kWidth = 1280, kHeight = 720;
+
+// Process CPU seconds (all threads). This machine is shared (2 cores, often many processes):
+// wall time then measures the neighbours, so rates and ratios are also given per CPU second.
+double cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+
+struct BenchScene {
+  std::string name;
+  Scene scene;
+  std::unique_ptr<RtScene> rt;
+  GBuffer gbuf;
+};
+
+struct PassCase {
+  std::string name;  // hard, soft, ao8
+  TraceSettings settings;
+  PassPlan plan;
+  std::vector<RTCRay> rays;  // exactly what the pass traces
+  double ceiling_mrays = 0.0;
+  std::string ceiling_kind;
+};
+
+std::map<std::string, std::unique_ptr<BenchScene>>& scenes() {
+  static std::map<std::string, std::unique_ptr<BenchScene>> m;
+  return m;
+}
+
+BenchScene& load(const std::string& file, const std::string& name, bool robust = false) {
+  const std::string key = name + (robust ? "#robust" : "");
+  auto& m = scenes();
+  auto it = m.find(key);
+  if (it != m.end()) return *it->second;
+  // Only one large scene in memory at a time.
+  m.clear();
+  auto b = std::make_unique<BenchScene>();
+  b->name = name;
+  b->scene = load_scene(file, SceneSearchPath::standard());
+  RtSceneOptions opt;
+  opt.robust = robust;
+  if (const char* t = std::getenv("DHR_BENCH_THREADS")) opt.threads = std::atoi(t);
+  b->rt = std::make_unique<RtScene>(b->scene, opt);
+  const Camera cam = b->scene.camera.at(0.0, kWidth, kHeight);
+  b->gbuf = b->rt->primary_gbuffer(cam, 0.0);
+  return *m.emplace(key, std::move(b)).first->second;
+}
+
+// Fresh copies every iteration: Embree overwrites tfar of occluded rays.
+void trace_1m(RTCScene scene, const std::vector<RTCRay>& rays) {
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    alignas(64) RTCRay buf[256];
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    for (size_t i = r.begin(); i < r.end(); i += 256) {
+      const unsigned n = unsigned(std::min<size_t>(256, r.end() - i));
+      std::memcpy(buf, &rays[i], n * sizeof(RTCRay));
+      rtcOccluded1M(scene, &ctx, buf, n, sizeof(RTCRay));
+      benchmark::DoNotOptimize(buf[0].tfar);
+    }
+  });
+}
+
+void trace_1(RTCScene scene, const std::vector<RTCRay>& rays) {
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    for (size_t i = r.begin(); i < r.end(); ++i) {
+      RTCRay ray = rays[i];
+      rtcOccluded1(scene, &ctx, &ray);
+      benchmark::DoNotOptimize(ray.tfar);
+    }
+  });
+}
+
+void trace_8(RTCScene scene, const std::vector<RTCRay>& rays) {
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    RTCRay8 p;
+    alignas(32) int valid[8];
+    for (size_t i = r.begin(); i < r.end(); i += 8) {
+      const size_t n = std::min<size_t>(8, r.end() - i);
+      for (size_t k = 0; k < 8; ++k) {
+        valid[k] = k < n ? -1 : 0;
+        const RTCRay& s = rays[i + std::min(k, n - 1)];
+        p.org_x[k] = s.org_x, p.org_y[k] = s.org_y, p.org_z[k] = s.org_z, p.tnear[k] = s.tnear;
+        p.dir_x[k] = s.dir_x, p.dir_y[k] = s.dir_y, p.dir_z[k] = s.dir_z, p.time[k] = s.time;
+        p.tfar[k] = s.tfar, p.mask[k] = s.mask, p.id[k] = s.id, p.flags[k] = s.flags;
+      }
+      rtcOccluded8(valid, scene, &ctx, &p);
+      benchmark::DoNotOptimize(p.tfar[0]);
+    }
+  });
+}
+
+std::map<std::string, PassCase>& cases() {
+  static std::map<std::string, PassCase> m;
+  return m;
+}
+
+PassCase make_case(BenchScene& b, const std::string& pass) {
+  PassCase c;
+  c.name = pass;
+  if (pass == "hard") c.settings.soft_shadows = false;
+  if (pass == "soft") c.settings.soft_shadows = true;
+  if (pass == "ao8") c.settings.ao_rays = 8;
+  c.plan = plan_passes(b.scene, c.settings);
+  if (pass == "ao8") {
+    const float radius = b.scene.ao ? c.plan.ao_radius_m : 1.0f;
+    c.rays = collect_ao_rays(*b.rt, b.gbuf, 8, radius, c.settings);
+  } else if (c.plan.visibility()) {
+    c.rays = collect_visibility_rays(*b.rt, b.gbuf, c.plan, c.settings);
+  }
+  return c;
+}
+
+// Returns the pass's Mrays/s (rays traced / wall time of the whole pass).
+double run_pass(BenchScene& b, PassCase& c, benchmark::State& state) {
+  uint64_t rays = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  const double c0 = cpu_seconds();
+  for (auto _ : state) {
+    TraceStats st;
+    if (c.name == "ao8") {
+      const float radius = b.scene.ao ? c.plan.ao_radius_m : 1.0f;
+      benchmark::DoNotOptimize(trace_ao_counts(*b.rt, b.gbuf, 8, radius, c.settings, st));
+      rays = st.ao_rays;
+    } else {
+      benchmark::DoNotOptimize(trace_visibility_counts(*b.rt, b.gbuf, c.plan, c.settings, st));
+      rays = st.shadow_rays;
+    }
+  }
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (rays != c.rays.size())
+    state.SkipWithError(fmt::format("pass traced {} rays, the ceiling {}", rays, c.rays.size()).c_str());
+  state.counters["Mrays_per_s"] = benchmark::Counter(double(rays) * 1e-6 * double(state.iterations()),
+                                                     benchmark::Counter::kIsRate);
+  state.counters["rays"] = double(rays);
+  const double cpu = cpu_seconds() - c0;
+  (void)s;
+  const double rate = double(rays) * 1e-6 * double(state.iterations()) / cpu;
+  state.counters["Mrays_per_cpu_s"] = rate;
+  return rate;
+}
+
+void register_scene(const std::string& file) {
+  const std::string name = std::filesystem::path(file).stem().string();
+  if (const char* only = std::getenv("DHR_BENCH_SCENES")) {
+    const std::string list = std::string(",") + only + ",";
+    if (list.find("," + name + ",") == std::string::npos) return;
+  }
+  for (const std::string pass : {"hard", "soft", "ao8"}) {
+    const std::string key = name + "/" + pass;
+    // Ceilings first (registration order is run order), then the pass itself.
+    for (const std::string kind : {"occluded1", "occluded8", "occluded1M"}) {
+      benchmark::RegisterBenchmark(("ceiling/" + key + "/" + kind).c_str(), [=](benchmark::State& state) {
+        BenchScene* b = nullptr;
+        try {
+          b = &load(file, name);
+        } catch (const Error& e) {
+          state.SkipWithError(e.what());
+          for (auto _ : state) {
+          }
+          return;
+        }
+        auto& cs = cases();
+        if (!cs.count(key)) cs[key] = make_case(*b, pass);
+        PassCase& c = cs[key];
+        if (c.rays.empty()) {
+          state.SkipWithError("no rays (the scene has no such pass)");
+          for (auto _ : state) {
+          }
+          return;
+        }
+        const RTCScene scene = b->rt->handle();
+        const auto t0 = std::chrono::steady_clock::now();
+        const double c0 = cpu_seconds();
+        b->rt->arena().execute([&] {
+          for (auto _ : state) {
+            if (kind == "occluded1") trace_1(scene, c.rays);
+            if (kind == "occluded8") trace_8(scene, c.rays);
+            if (kind == "occluded1M") trace_1m(scene, c.rays);
+          }
+        });
+        const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        const double mrays = double(c.rays.size()) * 1e-6 * double(state.iterations());
+        state.counters["Mrays_per_s"] = benchmark::Counter(mrays, benchmark::Counter::kIsRate);
+        state.counters["rays"] = double(c.rays.size());
+        const double cpu = cpu_seconds() - c0;
+        state.counters["Mrays_per_cpu_s"] = mrays / cpu;
+        (void)s;
+        const double rate = mrays / cpu;  // kept for the pass's ratio (per CPU second)
+        if (rate > c.ceiling_mrays) {
+          c.ceiling_mrays = rate;
+          c.ceiling_kind = kind;
+        }
+      })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+    }
+    benchmark::RegisterBenchmark(("pass/" + key).c_str(), [=](benchmark::State& state) {
+      auto& cs = cases();
+      BenchScene* bp = nullptr;
+      try {
+        bp = &load(file, name);
+      } catch (const Error& e) {
+        state.SkipWithError(e.what());
+        for (auto _ : state) {
+        }
+        return;
+      }
+      BenchScene& b = *bp;
+      if (!cs.count(key)) cs[key] = make_case(b, pass);  // filtered run without the ceilings
+      PassCase& c = cs[key];
+      if (c.rays.empty()) {
+        state.SkipWithError("no rays (the scene has no such pass)");
+        for (auto _ : state) {
+        }
+        return;
+      }
+      const double rate = run_pass(b, c, state);
+      state.counters["ceiling_Mrays_per_s"] = c.ceiling_mrays;
+      state.counters["ratio"] = rate / c.ceiling_mrays;
+      state.SetLabel("ceiling: " + c.ceiling_kind);
+    })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+  }
+}
+
+// RTC_SCENE_FLAG_ROBUST's cost on AO (8 rays), measured on the pass itself.
+void register_robust(const std::string& file) {
+  const std::string name = std::filesystem::path(file).stem().string();
+  if (const char* only = std::getenv("DHR_BENCH_SCENES")) {
+    const std::string list = std::string(",") + only + ",";
+    if (list.find("," + name + ",") == std::string::npos) return;
+  }
+  for (bool robust : {false, true}) {
+    benchmark::RegisterBenchmark(fmt::format("robust_flag/{}/ao8/{}", name, robust ? "robust" : "default").c_str(),
+                                 [=](benchmark::State& state) {
+                                   BenchScene* b = nullptr;
+                                   try {
+                                     b = &load(file, name, robust);
+                                   } catch (const Error& e) {
+                                     state.SkipWithError(e.what());
+                                     for (auto _ : state) {
+                                     }
+                                     return;
+                                   }
+                                   PassCase c;
+                                   c.name = "ao8";
+                                   c.settings.ao_rays = 8;
+                                   c.plan = plan_passes(b->scene, c.settings);
+                                   c.rays.resize(0);
+                                   TraceStats st0;
+                                   const float radius = b->scene.ao ? c.plan.ao_radius_m : 1.0f;
+                                   trace_ao_counts(*b->rt, b->gbuf, 8, radius, c.settings, st0);
+                                   c.rays.resize(st0.ao_rays);
+                                   run_pass(*b, c, state);
+                                 })
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime()
+        ->MinTime(1.0);
+  }
+}
+
+}  // namespace
+}  // namespace dhr
+
+int main(int argc, char** argv) {
+  benchmark::Initialize(&argc, argv);
+  std::vector<std::string> files = dhr::builtin_scene_files();
+  for (const auto& f : files) dhr::register_scene(f);
+  for (const auto& f : dhr::real_scene_files()) dhr::register_scene(f);
+  for (const auto& f : files) dhr::register_robust(f);
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

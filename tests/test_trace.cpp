@@ -1,0 +1,648 @@
+// The server's passes against analytic answers: AO (paper Eq. 1-3) on an open plane, at the
+// foot of a wall and far from everything; hard and soft shadows (section 3.1) of simple
+// occluders; ray counts and pass plans; determinism across thread counts; the composite.
+#include "core/composite.h"
+#include "core/error.h"
+#include "core/reference.h"
+#include "core/rng.h"
+#include "core/rt_scene.h"
+#include "core/shapes.h"
+#include "core/trace.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+
+namespace dhr {
+namespace {
+
+constexpr int kW = 48, kH = 32;
+
+Object make_object(uint32_t id, Mesh mesh, glm::vec3 offset, uint32_t material = 0) {
+  for (auto& p : mesh.positions) p += offset;
+  Object o;
+  o.name = "object" + std::to_string(id);
+  o.id = id;
+  o.material = material;
+  o.mesh = std::move(mesh);
+  return o;
+}
+
+// A single quad (two triangles) with the given corners, counter-clockwise.
+Mesh make_quad(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec3 d) {
+  Mesh m;
+  m.positions = {a, b, c, d};
+  m.triangles = {{0, 1, 2}, {0, 2, 3}};
+  return m;
+}
+
+Scene base_scene() {
+  Scene s;
+  s.name = "trace_test";
+  Material m;
+  m.name = "grey";
+  m.albedo = glm::vec3(0.5f, 0.6f, 0.7f);
+  s.materials.push_back(m);
+  s.ambient = glm::vec3(0.3f);
+  return s;
+}
+
+Light sphere_light(glm::vec3 p, float radius = 0.0f, float intensity = 10.0f) {
+  Light l;
+  l.position = p;
+  l.radius_m = radius;
+  l.intensity = intensity;
+  return l;
+}
+
+Light distant_light(glm::vec3 dir, float angular_radius_deg = 0.0f) {
+  Light l;
+  l.type = LightType::Distant;
+  l.direction = glm::normalize(dir);
+  l.angular_radius_deg = angular_radius_deg;
+  return l;
+}
+
+Camera cam(glm::vec3 pos, glm::vec3 target) { return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f); }
+
+bool bit(const PassBuffer& pb, int light, size_t pixel) {
+  const size_t bpp = size_t((pb.desc.channels + 7) / 8);
+  return (pb.bytes[pixel * bpp + size_t(light >> 3)] >> (light & 7)) & 1u;
+}
+
+// A G-buffer of `count` pixels that all show the same point of object `id` (so that each
+// pixel draws independent random numbers for the same estimate).
+GBuffer point_gbuffer(const Scene& s, uint32_t id, glm::vec3 point, glm::vec3 normal, int count) {
+  const Object* obj = nullptr;
+  for (const auto& o : s.objects)
+    if (o.id == id) obj = &o;
+  EXPECT_NE(obj, nullptr);
+  GBuffer g;
+  g.camera = cam(point + normal * 2.0f + glm::vec3(0.01f, 0, 0.01f), point);
+  g.resize(count, 1);
+  for (uint32_t t = 0; t < obj->mesh.triangles.size(); ++t) {
+    const glm::uvec3 tri = obj->mesh.triangles[t];
+    const glm::dvec3 a(obj->mesh.positions[tri.x]), b(obj->mesh.positions[tri.y]), c(obj->mesh.positions[tri.z]);
+    const glm::dvec3 n = glm::cross(b - a, c - a), p(point);
+    const double area2 = glm::dot(n, n);
+    const double b1 = glm::dot(glm::cross(p - a, c - a), n) / area2;
+    const double b2 = glm::dot(glm::cross(b - a, p - a), n) / area2;
+    if (b1 < 0 || b2 < 0 || b1 + b2 > 1) continue;
+    for (int x = 0; x < count; ++x) {
+      g.object_id(x, 0) = id;
+      g.prim_id(x, 0) = t;
+      g.bary(x, 0) = glm::vec2(float(b1), float(b2));
+      g.position(x, 0) = point;
+      g.geo_normal(x, 0) = normal;
+      g.normal(x, 0) = normal;
+      g.albedo(x, 0) = glm::vec3(1.0f);
+      g.depth(x, 0) = 2.0f;
+    }
+    return g;
+  }
+  ADD_FAILURE() << "point not on object " << id;
+  return g;
+}
+
+double mean_ao(const AoCounts& c) {
+  double sum = 0;
+  for (uint16_t v : c.unoccluded) sum += double(v) / c.rays;
+  return sum / double(c.unoccluded.size());
+}
+
+// ---- building blocks ----
+
+TEST(TraceBlocks, PixelRngMatchesCoreRng) {
+  for (uint32_t pixel : {0u, 1u, 921599u})
+    for (uint32_t sample : {0u, 7u, 255u}) {
+      const PixelRng rng(42, pixel, 3);
+      float u0, u1;
+      rng.uniform2(sample, kStreamAo, u0, u1);
+      const RngKey k{42, pixel, 3, sample, kStreamAo};
+      EXPECT_EQ(u0, rng_uniform(k, 0));
+      EXPECT_EQ(u1, rng_uniform(k, 1));
+    }
+}
+
+TEST(TraceBlocks, OrthonormalBasis) {
+  const glm::vec3 normals[] = {{0, 0, 1}, {0, 0, -1}, {1, 0, 0}, {0, 1, 0}, glm::normalize(glm::vec3(1, -2, 3)),
+                               glm::normalize(glm::vec3(1e-4f, -1e-4f, -1.0f))};
+  for (const auto& n : normals) {
+    glm::vec3 t, b;
+    orthonormal_basis(n, t, b);
+    EXPECT_NEAR(glm::length(t), 1.0f, 1e-5f);
+    EXPECT_NEAR(glm::length(b), 1.0f, 1e-5f);
+    EXPECT_NEAR(glm::dot(t, n), 0.0f, 1e-5f);
+    EXPECT_NEAR(glm::dot(b, n), 0.0f, 1e-5f);
+    EXPECT_NEAR(glm::dot(t, b), 0.0f, 1e-5f);
+    EXPECT_GT(glm::dot(glm::cross(t, b), n), 0.99f);  // right-handed
+  }
+}
+
+TEST(TraceBlocks, OffsetMovesToTheNormalSide) {
+  const glm::vec3 points[] = {{0, 0, 0}, {1e-3f, -2e-2f, 0.5f}, {3, -4, 5}, {1e5f, -1e5f, 1e5f}, {-1e6f, 2e6f, 7}};
+  const glm::vec3 normals[] = {{0, 1, 0}, {0, -1, 0}, glm::normalize(glm::vec3(1, 1, -1)), {-1, 0, 0}};
+  for (const auto& p : points)
+    for (const auto& n : normals) {
+      const glm::vec3 o = offset_ray_origin(p, n);
+      EXPECT_GT(glm::dot(glm::dvec3(o) - glm::dvec3(p), glm::dvec3(n)), 0.0) << p.x << " " << n.x;
+      for (int i = 0; i < 3; ++i)
+        if (n[i] == 0.0f) { EXPECT_EQ(o[i], p[i]); }
+    }
+  // Near the origin the step is n / 65536, far away it is 256 ULPs per unit of n.
+  EXPECT_FLOAT_EQ(offset_ray_origin({0, 0, 0}, {0, 1, 0}).y, 1.0f / 65536.0f);
+  EXPECT_FLOAT_EQ(offset_ray_origin({0, 1024, 0}, {0, 1, 0}).y, 1024.0f + 256.0f * std::ldexp(1.0f, 10 - 23));
+}
+
+// ---- pass plans ----
+
+TEST(PassPlan, FollowsTheScene) {
+  Scene s = base_scene();
+  PassPlan p = plan_passes(s, TraceSettings{});
+  EXPECT_FALSE(p.visibility());
+  EXPECT_FALSE(p.ao);
+  EXPECT_NE(p.describe().find("no lights"), std::string::npos);
+  EXPECT_NE(p.describe().find("no ao block"), std::string::npos);
+
+  s.lights = {sphere_light({0, 1, 0}), distant_light({0, 1, 0})};  // point lights only
+  p = plan_passes(s, TraceSettings{});
+  EXPECT_EQ(p.shadow, ShadowMode::Hard);
+  EXPECT_EQ(p.visibility_kind(), PassKind::Visibility);
+  EXPECT_EQ(p.visibility_desc(4, 4).channels, 2);
+
+  s.lights.push_back(sphere_light({0, 2, 0}, 0.5f));
+  TraceSettings ts;
+  p = plan_passes(s, ts);
+  EXPECT_EQ(p.shadow, ShadowMode::SoftBit);
+  EXPECT_EQ(p.light_soft, (std::vector<uint8_t>{0, 0, 1}));
+  ts.samples_per_light = 16;
+  p = plan_passes(s, ts);
+  EXPECT_EQ(p.shadow, ShadowMode::SoftFraction);
+  EXPECT_EQ(p.visibility_desc(4, 4).kind, PassKind::SoftVisibility);
+  EXPECT_EQ(p.visibility_full_scale(), 16);
+  ts.samples_per_light = 300;
+  EXPECT_EQ(plan_passes(s, ts).visibility_full_scale(), 255);
+  ts.soft_shadows = false;
+  EXPECT_EQ(plan_passes(s, ts).shadow, ShadowMode::Hard);
+
+  s.ao = AoSettings{0.5f, 16};
+  p = plan_passes(s, TraceSettings{});
+  EXPECT_TRUE(p.ao);
+  EXPECT_EQ(p.ao_rays, 16);
+  EXPECT_FLOAT_EQ(p.ao_radius_m, 0.5f);
+  TraceSettings over;
+  over.ao_rays = 4;
+  over.ao_radius_m = 2.0f;
+  p = plan_passes(s, over);
+  EXPECT_EQ(p.ao_rays, 4);
+  EXPECT_FLOAT_EQ(p.ao_radius_m, 2.0f);
+  EXPECT_EQ(p.ao_desc(4, 4).full_scale, 4);
+
+  over.ao_rays = 256;
+  EXPECT_THROW(plan_passes(s, over), Error);
+  TraceSettings bad;
+  bad.samples_per_light = 0;
+  EXPECT_THROW(plan_passes(s, bad), Error);
+}
+
+// ---- AO ----
+
+TEST(TraceAo, OpenPlaneIsUnoccluded) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(50.0f, 50.0f), glm::vec3(0.0f)));
+  s.ao = AoSettings{2.0f, 32};
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 3, 5}, {0, 0, 0}), 0.0);
+  TraceStats st;
+  const PassPlan plan = plan_passes(s, TraceSettings{});
+  const PassBuffer ao = trace_ao(rt, g, plan, TraceSettings{}, st);
+  EXPECT_EQ(ao.desc.full_scale, 32);
+  size_t cov = 0;
+  for (size_t i = 0; i < ao.bytes.size(); ++i) {
+    EXPECT_EQ(ao.bytes[i], 32) << i;
+    cov += g.object_id[i] != kBackgroundId;
+  }
+  EXPECT_GT(cov, 0u);
+  EXPECT_EQ(st.ao_rays, cov * 32);  // background pixels trace nothing
+}
+
+// A point on a floor at the foot of a (very) large wall, radius (very) large: the wall hides
+// exactly half of the cosine-weighted hemisphere, O = 1/2. 64 pixels x 64 rays = 4096
+// Bernoulli samples: standard error sqrt(0.25 / 4096) = 0.0078; tolerance 4 standard errors.
+TEST(TraceAo, FootOfWallIsHalfOccluded) {
+  Scene s = base_scene();
+  const float L = 1e4f;
+  s.objects.push_back(make_object(1, make_quad({-L, 0, L}, {L, 0, L}, {L, 0, -L}, {-L, 0, -L}), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_quad({0, 0, L}, {0, 0, -L}, {0, L, -L}, {0, L, L}), glm::vec3(0.0f)));
+  RtScene rt(s);
+  const GBuffer g = point_gbuffer(s, 1, {0.01f, 0.0f, 0.3f}, {0, 1, 0}, 64);
+  TraceSettings ts;
+  ts.seed = 7;
+  TraceStats st;
+  const AoCounts c = trace_ao_counts(rt, g, 64, 1e5f, ts, st);
+  const double se = std::sqrt(0.25 / (64.0 * 64.0));
+  EXPECT_NEAR(mean_ao(c), 0.5, 4.0 * se);
+  EXPECT_EQ(st.ao_rays, 64u * 64u);
+  EXPECT_EQ(st.invalid_rays, 0u);
+}
+
+// Farther than r from every surface but its own: O = 1 exactly.
+TEST(TraceAo, FarFromOtherSurfacesIsUnoccluded) {
+  Scene s = base_scene();
+  const float L = 100.0f;
+  s.objects.push_back(make_object(1, make_quad({-L, 0, L}, {L, 0, L}, {L, 0, -L}, {-L, 0, -L}), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_quad({0, 0, L}, {0, 0, -L}, {0, L, -L}, {0, L, L}), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(3, make_box({1, 1, 1}), glm::vec3(3.0f, 2.6f, 0.0f)));  // 2.1 m above
+  RtScene rt(s);
+  const GBuffer g = point_gbuffer(s, 1, {3.0f, 0.0f, 0.3f}, {0, 1, 0}, 16);  // 3 m from the wall
+  TraceStats st;
+  const AoCounts c = trace_ao_counts(rt, g, 128, 2.0f, TraceSettings{}, st);
+  EXPECT_EQ(mean_ao(c), 1.0);
+  // And with a radius that reaches the wall and the box, some rays are occluded.
+  const AoCounts c2 = trace_ao_counts(rt, g, 128, 3.5f, TraceSettings{}, st);
+  EXPECT_LT(mean_ao(c2), 1.0);
+}
+
+TEST(TraceAo, DeterministicAcrossThreadCounts) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
+  s.objects.push_back(make_object(3, make_sphere(0.4f, 16, 8), glm::vec3(1.0f, 0.4f, 0.5f)));
+  s.lights.push_back(sphere_light({2, 4, 1}, 0.5f));
+  s.ao = AoSettings{1.0f, 8};
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
+  TraceSettings one, two;
+  one.threads = 1;
+  two.threads = 2;
+  one.samples_per_light = two.samples_per_light = 4;
+  const TraceResult r1 = trace_passes(rt, g, one), r2 = trace_passes(rt, g, two);
+  ASSERT_TRUE(r1.ao && r2.ao && r1.visibility && r2.visibility);
+  EXPECT_EQ(r1.ao->bytes, r2.ao->bytes);
+  EXPECT_EQ(r1.visibility->bytes, r2.visibility->bytes);
+  EXPECT_EQ(r1.stats.ao_rays, r2.stats.ao_rays);
+  // Some AO occlusion actually happens (the test would be empty otherwise).
+  size_t partial = 0;
+  for (uint8_t v : r1.ao->bytes) partial += v < 8;
+  EXPECT_GT(partial, 0u);
+  // A different frame gives different noise.
+  TraceSettings other = one;
+  other.frame = 1;
+  EXPECT_NE(trace_passes(rt, g, other).ao->bytes, r1.ao->bytes);
+}
+
+// ---- shadows ----
+
+// Pixels whose surface faces away from every light trace no shadow ray.
+TEST(TraceShadows, FacingAwayTracesNoRay) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.lights.push_back(distant_light({0.2f, -1.0f, 0.0f}));       // below the plane
+  s.lights.push_back(sphere_light({0.0f, -2.0f, 0.0f}, 0.5f));  // below, soft
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 3, 5}, {0, 0, 0}), 0.0);
+  TraceResult r = trace_passes(rt, g, TraceSettings{});
+  ASSERT_GT(r.stats.covered_pixels, 0u);
+  EXPECT_EQ(r.stats.shadow_rays, 0u);
+  EXPECT_EQ(r.stats.shadow_skipped_facing, 2 * r.stats.covered_pixels);
+  for (uint8_t b : r.visibility->bytes) EXPECT_EQ(b, 0);
+  // One light above: exactly one ray per covered pixel.
+  s.lights.push_back(distant_light({0.0f, 1.0f, 0.2f}));
+  RtScene rt2(s);
+  r = trace_passes(rt2, g, TraceSettings{});
+  EXPECT_EQ(r.stats.shadow_rays, r.stats.covered_pixels);
+}
+
+TEST(TraceShadows, BeyondRangeTracesNoRay) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(200.0f, 200.0f), glm::vec3(0.0f)));
+  Light l = sphere_light({0, 1, 0});
+  l.range_m = 3.0f;
+  s.lights.push_back(l);
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 3, 5}, {0, 0, -10}), 0.0);
+  const TraceResult r = trace_passes(rt, g, TraceSettings{});
+  size_t in_range = 0;
+  for (size_t i = 0; i < g.depth.size(); ++i) {
+    if (g.object_id[i] == kBackgroundId) continue;
+    const float d = glm::length(g.position[i] - l.position);
+    if (std::abs(d - 3.0f) < 1e-3f) continue;
+    in_range += d < 3.0f;
+    EXPECT_EQ(bit(*r.visibility, 0, i), d < 3.0f) << i;
+  }
+  EXPECT_GT(in_range, 0u);
+  EXPECT_GT(r.stats.shadow_skipped_range, 0u);
+  EXPECT_EQ(r.stats.shadow_rays + r.stats.shadow_skipped_range, r.stats.covered_pixels);
+}
+
+// Does the segment from p to q cross the axis-aligned box [lo, hi]? (slab test, double)
+bool segment_hits_box(glm::dvec3 p, glm::dvec3 q, glm::dvec3 lo, glm::dvec3 hi) {
+  double t0 = 0.0, t1 = 1.0;
+  const glm::dvec3 d = q - p;
+  for (int i = 0; i < 3; ++i) {
+    if (d[i] == 0.0) {
+      if (p[i] < lo[i] || p[i] > hi[i]) return false;
+      continue;
+    }
+    double a = (lo[i] - p[i]) / d[i], b = (hi[i] - p[i]) / d[i];
+    if (a > b) std::swap(a, b);
+    t0 = std::max(t0, a);
+    t1 = std::min(t1, b);
+  }
+  return t0 <= t1;
+}
+
+// A unit box on the floor under a point light: a floor point is shadowed exactly when the
+// segment to the light crosses the box (pixels within 2 cm of the shadow's edge are not judged).
+TEST(TraceShadows, BoxCastsTheExpectedHardShadow) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
+  const glm::dvec3 light(2.0, 4.0, 0.5);
+  s.lights.push_back(sphere_light(glm::vec3(light)));
+  RtScene rt(s);
+  const Camera c = Camera::look_at({0, 6, 3.0f}, {-1, 0, 0}, {0, 1, 0}, 50.0f, 96, 64, 0.05f, 100.0f);
+  const GBuffer g = rt.primary_gbuffer(c, 0.0);
+  const TraceResult r = trace_passes(rt, g, TraceSettings{});
+  const glm::dvec3 lo(-0.5, 0.0, -0.5), hi(0.5, 1.0, 0.5);
+  size_t judged = 0, shadowed = 0;
+  for (size_t i = 0; i < g.depth.size(); ++i) {
+    if (g.object_id[i] != 1) continue;
+    const glm::dvec3 p(g.position[i]);
+    const bool hit = segment_hits_box(p, light, lo, hi);
+    bool robust = true;
+    for (glm::dvec3 e : {glm::dvec3(0.02, 0, 0), glm::dvec3(-0.02, 0, 0), glm::dvec3(0, 0, 0.02), glm::dvec3(0, 0, -0.02)})
+      robust = robust && segment_hits_box(p + e, light, lo, hi) == hit;
+    if (!robust) continue;
+    ++judged;
+    shadowed += hit;
+    EXPECT_EQ(bit(*r.visibility, 0, i), !hit) << p.x << " " << p.z;
+  }
+  EXPECT_GT(judged, 1000u);
+  EXPECT_GT(shadowed, 50u);
+  // The box's top face is lit (nothing above it).
+  for (size_t i = 0; i < g.depth.size(); ++i)
+    if (g.object_id[i] == 2 && g.geo_normal[i].y > 0.9f) { EXPECT_TRUE(bit(*r.visibility, 0, i)); }
+}
+
+// The penumbra of a straight edge. A point at the origin, a sphere light (radius R) at height
+// H above it, an opaque half-plane at height h covering x < e. A direction at angle theta from
+// the vertical and azimuth phi crosses height h at x = h tan(theta) cos(phi): the visible
+// fraction is the cone's solid-angle share with h tan(theta) cos(phi) >= e, integrated here by
+// quadrature. MC with 64 pixels x 255 rays; tolerance 4 standard errors.
+TEST(TraceShadows, SoftPenumbraMatchesAnalyticFraction) {
+  const float R = 1.0f, H = 4.0f, h = 1.0f;
+  const double s2 = double(R) * R / (double(H) * H);
+  const double omc_max = s2 / (1.0 + std::sqrt(1.0 - s2));  // 1 - cos(theta_max)
+  const double tan_max = std::sqrt(s2) / std::sqrt(1.0 - s2);
+  const float e = float(0.4 * h * tan_max);
+  double visible = 0;
+  const int nq = 1000;
+  for (int i = 0; i < nq; ++i) {
+    const double omc = (i + 0.5) / nq * omc_max, cos_t = 1.0 - omc;
+    const double tan_t = std::sqrt(omc * (2.0 - omc)) / cos_t;
+    for (int j = 0; j < nq; ++j) {
+      const double phi = (j + 0.5) / nq * 2.0 * std::numbers::pi;
+      visible += h * tan_t * std::cos(phi) >= e;
+    }
+  }
+  const double expected = visible / (double(nq) * nq);
+  ASSERT_GT(expected, 0.1);
+  ASSERT_LT(expected, 0.9);
+
+  Scene s = base_scene();
+  const float L = 50.0f;
+  s.objects.push_back(make_object(1, make_quad({-L, 0, L}, {L, 0, L}, {L, 0, -L}, {-L, 0, -L}), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_quad({-L, h, L}, {e, h, L}, {e, h, -L}, {-L, h, -L}), glm::vec3(0.0f)));
+  s.lights.push_back(sphere_light({0, H, 0}, R));
+  RtScene rt(s);
+  const GBuffer g = point_gbuffer(s, 1, {0.0f, 0.0f, 0.0f}, {0, 1, 0}, 64);
+  TraceSettings ts;
+  ts.samples_per_light = 255;
+  const PassPlan plan = plan_passes(s, ts);
+  TraceStats st;
+  const VisibilityCounts vc = trace_visibility_counts(rt, g, plan, ts, st);
+  double mean = 0;
+  for (size_t i = 0; i < 64; ++i) mean += vc.fraction(0, i) / 64.0;
+  const double se = std::sqrt(expected * (1 - expected) / (64.0 * 255.0));
+  EXPECT_NEAR(mean, expected, 4.0 * se);
+  EXPECT_EQ(st.shadow_rays, 64u * 255u);
+  // The packed pass carries the same counts (full_scale = S = 255).
+  const PassBuffer pb = pack_visibility(vc, plan);
+  EXPECT_EQ(pb.desc.full_scale, 255);
+  for (size_t i = 0; i < 64; ++i) EXPECT_EQ(pb.bytes[i], vc.visible[i]);
+}
+
+// A moving object (an instance) is placed at the G-buffer's time.
+TEST(TraceShadows, MovingOccluderFollowsTime) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  Object box = make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f));
+  Animation anim;
+  TransformKey k0, k1;
+  k0.time_s = 0.0;
+  k0.translation = {-3.0f, 1.0f, 0.0f};
+  k1.time_s = 1.0;
+  k1.translation = {3.0f, 1.0f, 0.0f};
+  anim.keys = {k0, k1};
+  box.animation = anim;
+  s.objects.push_back(box);
+  s.lights.push_back(sphere_light({0, 6, 0}));
+  RtScene rt(s);
+  const Camera c = cam({0, 8, 3}, {0, 0, 0});
+  for (double t : {0.0, 0.5, 1.0}) {
+    const GBuffer g = rt.primary_gbuffer(c, t);
+    const float box_x = -3.0f + 6.0f * float(t);
+    const TraceResult r = trace_passes(rt, g, TraceSettings{});
+    size_t box_pixels = 0;
+    for (size_t i = 0; i < g.depth.size(); ++i) {
+      if (g.object_id[i] == 2) {
+        ++box_pixels;
+        EXPECT_NEAR(g.position[i].x, box_x, 0.51f);
+      }
+      // Floor right below the box centre is in its shadow; far from it, lit.
+      if (g.object_id[i] == 1) {
+        const float dx = g.position[i].x - box_x, dz = g.position[i].z;
+        if (std::abs(dx) < 0.3f && std::abs(dz) < 0.3f) { EXPECT_FALSE(bit(*r.visibility, 0, i)); }
+        if (std::abs(dx) > 2.5f && std::abs(g.position[i].x) < 4.0f) { EXPECT_TRUE(bit(*r.visibility, 0, i)); }
+      }
+    }
+    EXPECT_GT(box_pixels, 10u) << t;
+  }
+}
+
+// Emitter geometry (the light's own proxy sphere) does not shadow its light; an alpha
+// cut-out hole lets light through.
+TEST(TraceShadows, EmittersAndCutoutsDoNotOcclude) {
+  Scene s = base_scene();
+  Material emitter;
+  emitter.name = "lamp";
+  emitter.emitter = true;
+  Material leaves;
+  leaves.name = "leaves";
+  leaves.alpha_cutout = true;
+  leaves.texture = 0;
+  s.materials = {s.materials[0], emitter, leaves};
+  Texture tex;
+  tex.path = "transparent";
+  tex.width = tex.height = 2;
+  tex.has_alpha = true;
+  tex.texels.assign(4, glm::u8vec4(255, 255, 255, 0));  // fully transparent
+  s.textures.push_back(tex);
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_sphere(0.3f, 12, 6), glm::vec3(0, 4, 0), 1));
+  s.objects.push_back(make_object(3, make_plane(3.0f, 3.0f), glm::vec3(0, 2, 0), 2));
+  s.lights.push_back(sphere_light({0, 4, 0}, 0.3f));
+  s.ao = AoSettings{3.0f, 16};
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 1.5f, 4}, {0, 0, 0}), 0.0);
+  for (size_t i = 0; i < g.depth.size(); ++i) EXPECT_NE(g.object_id[i], 3u);  // the hole is invisible
+  for (bool soft : {false, true}) {
+    TraceSettings ts;
+    ts.soft_shadows = soft;
+    const TraceResult r = trace_passes(rt, g, ts);
+    for (size_t i = 0; i < g.depth.size(); ++i)
+      if (g.object_id[i] == 1) { EXPECT_TRUE(bit(*r.visibility, 0, i)) << i; }
+  }
+  // Without the cut-out the quad does shadow the floor below it.
+  s.materials[2].alpha_cutout = false;
+  RtScene rt2(s);
+  const GBuffer g2 = rt2.primary_gbuffer(cam({0, 1.5f, 4}, {0, 0, 0}), 0.0);
+  size_t quad = 0;
+  for (size_t i = 0; i < g2.depth.size(); ++i) quad += g2.object_id[i] == 3;
+  EXPECT_GT(quad, 0u);
+}
+
+// ---- composite ----
+
+TEST(Composite, ToneMapIsExactSrgb) {
+  EXPECT_EQ(tonemap_srgb8(0.0f), 0);
+  EXPECT_EQ(tonemap_srgb8(-1.0f), 0);
+  EXPECT_EQ(tonemap_srgb8(std::nanf("")), 0);
+  EXPECT_EQ(tonemap_srgb8(1.0f), 255);
+  EXPECT_EQ(tonemap_srgb8(1e30f), 255);
+  for (int i = 0; i <= 1000; ++i) {
+    const double v = i / 1000.0;
+    const double enc = 255.0 * (v <= 0.0031308 ? 12.92 * v : 1.055 * std::pow(v, 1.0 / 2.4) - 0.055);
+    if (std::abs(enc - std::floor(enc) - 0.5) < 1e-4) continue;  // a tie: either code is right
+    EXPECT_EQ(tonemap_srgb8(float(v)), std::lround(enc)) << v;
+  }
+}
+
+TEST(Composite, NoLightsIsAlbedoTimesAmbient) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.background = glm::vec3(0.1f, 0.2f, 0.3f);
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 3, 5}, {0, 0, -5}), 0.0);
+  PassBuffer ao;
+  ao.desc = {PassKind::Ao, g.width(), g.height(), 1, 8};
+  ao.bytes.assign(size_t(g.width() * g.height()), 8);  // AO = 1
+  const ImageRGB8 with_ao = composite(g, s, nullptr, &ao);
+  const ImageRGB8 without = composite(g, s, nullptr, nullptr);
+  EXPECT_EQ(with_ao, without);
+  const Rgb8 expected = tonemap_srgb8(s.materials[0].albedo * s.ambient);
+  size_t cov = 0;
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x) {
+      cov += g.covered(x, y);
+      EXPECT_EQ(with_ao(x, y), g.covered(x, y) ? expected : tonemap_srgb8(s.background));
+    }
+  EXPECT_GT(cov, 0u);
+  // Half the AO rays unoccluded halves the ambient term.
+  std::fill(ao.bytes.begin(), ao.bytes.end(), 4);
+  const ImageRGB8 half = composite(g, s, nullptr, &ao);
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x)
+      if (g.covered(x, y)) { EXPECT_EQ(half(x, y), tonemap_srgb8(s.materials[0].albedo * s.ambient * 0.5f)); }
+}
+
+// Clearing one light's bit removes exactly that light's term.
+TEST(Composite, ShadowRemovesExactlyThatLight) {
+  Scene s = base_scene();
+  s.lights = {sphere_light({1, 3, 0}, 0.0f, 2.0f), distant_light({-0.3f, 1.0f, 0.2f})};
+  s.lights[1].intensity = 0.4f;
+  s.lights[1].colour = {1.0f, 0.5f, 0.25f};
+  GBuffer g;
+  g.camera = cam({0, 2, 2}, {0, 0, 0});
+  g.resize(2, 1);
+  for (int x = 0; x < 2; ++x) {
+    g.object_id(x, 0) = 1;
+    g.position(x, 0) = {0.2f * float(x), 0.0f, 0.1f};
+    g.normal(x, 0) = g.geo_normal(x, 0) = {0, 1, 0};
+    g.albedo(x, 0) = {0.5f, 0.6f, 0.7f};
+  }
+  PassBuffer vis;
+  vis.desc = {PassKind::Visibility, 2, 1, 2, 255};
+  vis.bytes = {0b11, 0b10};  // pixel 1: light 0 shadowed
+  const ImageRGB8 img = composite(g, s, &vis, nullptr);
+  auto term = [&](int l, glm::vec3 p) {
+    const Light& L = s.lights[size_t(l)];
+    if (L.type == LightType::Distant) return L.colour * L.intensity * glm::normalize(L.direction).y;
+    const glm::vec3 d = L.position - p;
+    return L.colour * L.intensity * (glm::normalize(d).y / glm::dot(d, d));
+  };
+  const glm::vec3 a = g.albedo(0, 0);
+  const glm::vec3 p0 = g.position(0, 0), p1 = g.position(1, 0);
+  EXPECT_EQ(img(0, 0), tonemap_srgb8(a * (s.ambient + term(0, p0) + term(1, p0))));
+  EXPECT_EQ(img(1, 0), tonemap_srgb8(a * (s.ambient + term(1, p1))));
+  // A soft pass with fractions scales the term.
+  PassBuffer soft;
+  soft.desc = {PassKind::SoftVisibility, 2, 1, 2, 4};
+  soft.bytes = {4, 2, 4, 4};  // light 0: pixel 0 full, pixel 1 half; light 1: full
+  const ImageRGB8 img2 = composite(g, s, &soft, nullptr);
+  EXPECT_EQ(img2(1, 0), tonemap_srgb8(a * (s.ambient + 0.5f * term(0, p1) + term(1, p1))));
+  // Mismatched passes are errors, not silent garbage.
+  PassBuffer wrong = vis;
+  wrong.desc.channels = 3;
+  EXPECT_THROW(composite(g, s, &wrong, nullptr), Error);
+}
+
+// ---- references ----
+
+TEST(Reference, GroundTruthIsCachedAndKeyed) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
+  s.lights.push_back(sphere_light({1, 4, 1}, 0.5f));
+  s.ao = AoSettings{1.0f, 8};
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 3, 4}, {0, 0.3f, 0}), 0.0);
+  const auto dir = std::filesystem::temp_directory_path() / "dhr_test_reference_cache";
+  std::filesystem::remove_all(dir);
+  ReferenceSettings rs;
+  rs.ao_rays = 64;
+  rs.samples_per_light = 32;
+  rs.cache_dir = dir.string();
+  const ReferenceResult a = ground_truth(rt, g, rs);
+  EXPECT_FALSE(a.from_cache);
+  EXPECT_GT(a.stats.ao_rays, 0u);
+  EXPECT_GT(a.stats.shadow_rays, 0u);
+  EXPECT_TRUE(std::filesystem::exists(a.path));
+  const ReferenceResult b = ground_truth(rt, g, rs);
+  EXPECT_TRUE(b.from_cache);
+  EXPECT_EQ(b.stats.ao_rays, 0u);
+  EXPECT_EQ(a.image, b.image);
+  // Any input change is a different key.
+  ReferenceSettings rs2 = rs;
+  rs2.ao_rays = 65;
+  EXPECT_NE(reference_key(s, g, rs2), a.key);
+  Scene s2 = s;
+  s2.lights[0].intensity = 11.0f;
+  EXPECT_NE(reference_key(s2, g, rs), a.key);
+  GBuffer g2 = g;
+  g2.time_s = 0.5;
+  EXPECT_NE(reference_key(s, g2, rs), a.key);
+  // The converged image is close to the local reference with the scene's own settings, and
+  // the local reference is exactly trace + composite.
+  TraceSettings ts;
+  const ImageRGB8 local = local_reference(rt, g, ts);
+  const TraceResult r = trace_passes(rt, g, ts);
+  EXPECT_EQ(local, composite(g, s, &*r.visibility, &*r.ao));
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace dhr

@@ -1,0 +1,345 @@
+// Numerically hard cases for the server's tracing (design.md section 7): surfaces far from the
+// origin, grazing lights, degenerate and non-finite triangles, lights touching or inside
+// geometry, zero-radius lights, a camera inside geometry, an empty view and invalid rays.
+// Every case asserts no NaN, no crash and the documented answer (core/trace.h).
+#include "core/composite.h"
+#include "core/error.h"
+#include "core/rt_scene.h"
+#include "core/shapes.h"
+#include "core/trace.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+namespace dhr {
+namespace {
+
+constexpr int kW = 48, kH = 32;
+
+Object make_object(uint32_t id, Mesh mesh, glm::vec3 offset, uint32_t material = 0) {
+  for (auto& p : mesh.positions) p += offset;
+  Object o;
+  o.name = "object" + std::to_string(id);
+  o.id = id;
+  o.material = material;
+  o.mesh = std::move(mesh);
+  return o;
+}
+
+Scene base_scene() {
+  Scene s;
+  s.name = "hard_case";
+  Material m;
+  m.name = "grey";
+  m.albedo = glm::vec3(0.5f);
+  s.materials.push_back(m);
+  s.ambient = glm::vec3(0.2f);
+  return s;
+}
+
+Light point_light(glm::vec3 p, float radius = 0.0f) {
+  Light l;
+  l.type = LightType::Sphere;
+  l.position = p;
+  l.radius_m = radius;
+  l.intensity = 20.0f;
+  return l;
+}
+
+Light distant_light(glm::vec3 dir, float angular_radius_deg = 0.0f) {
+  Light l;
+  l.type = LightType::Distant;
+  l.direction = glm::normalize(dir);
+  l.angular_radius_deg = angular_radius_deg;
+  l.intensity = 1.0f;
+  return l;
+}
+
+Camera cam(glm::vec3 pos, glm::vec3 target) { return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f); }
+
+bool bit(const PassBuffer& pb, int light, size_t pixel) {
+  const size_t bpp = size_t((pb.desc.channels + 7) / 8);
+  return (pb.bytes[pixel * bpp + size_t(light >> 3)] >> (light & 7)) & 1u;
+}
+
+size_t covered(const GBuffer& g) {
+  size_t n = 0;
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x) n += g.covered(x, y);
+  return n;
+}
+
+void expect_finite_image(const GBuffer& g, const Scene& s, const TraceResult& r) {
+  const ImageRGB8 img = composite(g, s, r.visibility ? &*r.visibility : nullptr, r.ao ? &*r.ao : nullptr);
+  EXPECT_EQ(img.width(), g.width());
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x)
+      if (g.covered(x, y)) {
+        ASSERT_TRUE(std::isfinite(g.depth(x, y)));
+        ASSERT_TRUE(std::isfinite(g.position(x, y).x));
+      }
+}
+
+// A lit plane far from the origin stays fully lit: no shadow acne, no AO self-occlusion.
+class FarFromOrigin : public ::testing::TestWithParam<float> {};
+
+TEST_P(FarFromOrigin, LitPlaneStaysFullyLit) {
+  const float o = GetParam();
+  const glm::vec3 offset(o, o, -o);  // every coordinate large, the normal axis included
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(40.0f, 40.0f), offset));
+  s.lights.push_back(point_light(offset + glm::vec3(1, 5, -1)));
+  s.lights.push_back(point_light(offset + glm::vec3(-2, 4, 1), 0.5f));
+  s.lights.push_back(distant_light({0.3f, 1.0f, 0.2f}, 2.0f));
+  s.ao = AoSettings{1.0f, 16};
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam(offset + glm::vec3(0, 3, 4), offset), 0.0);
+  const size_t cov = covered(g);
+  ASSERT_GT(cov, size_t(kW * kH / 2));
+  for (bool soft : {false, true}) {
+    TraceSettings ts;
+    ts.soft_shadows = soft;
+    const TraceResult r = trace_passes(rt, g, ts);
+    ASSERT_TRUE(r.visibility && r.ao);
+    EXPECT_EQ(r.stats.invalid_rays, 0u);
+    size_t lit = 0, ao_full = 0;
+    for (size_t i = 0; i < g.depth.size(); ++i) {
+      if (g.object_id[i] == kBackgroundId) continue;
+      for (int l = 0; l < 3; ++l) lit += bit(*r.visibility, l, i);
+      ao_full += r.ao->bytes[i] == 16;
+    }
+    EXPECT_EQ(lit, 3 * cov) << "offset " << o << (soft ? " soft" : " hard");
+    EXPECT_EQ(ao_full, cov) << "offset " << o;
+    expect_finite_image(g, s, r);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Offsets, FarFromOrigin, ::testing::Values(0.0f, 1e5f, 1e6f));
+
+// Lights nearly in the plane: every pixel with n.l > 0 stays lit.
+TEST(TraceHardCases, GrazingLightsStayLit) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(40.0f, 40.0f), glm::vec3(0.0f)));
+  for (float elevation_deg : {0.05f, 0.5f, 2.0f}) {
+    const float e = glm::radians(elevation_deg);
+    s.lights.push_back(distant_light({std::cos(e), std::sin(e), 0.3f}));
+  }
+  s.lights.push_back(point_light({200.0f, 0.02f, 0.0f}));  // far away, barely above the plane
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 2, 6}, {0, 0, 0}), 0.0);
+  TraceSettings ts;
+  const TraceResult r = trace_passes(rt, g, ts);
+  ASSERT_TRUE(r.visibility);
+  size_t expected = 0, lit = 0;
+  for (size_t i = 0; i < g.depth.size(); ++i) {
+    if (g.object_id[i] == kBackgroundId) continue;
+    for (int l = 0; l < 4; ++l) {
+      const Light& L = s.lights[size_t(l)];
+      const glm::vec3 dir = L.type == LightType::Distant ? L.direction : L.position - g.position[i];
+      if (glm::dot(g.geo_normal[i], dir) > 0.0f) {
+        ++expected;
+        lit += bit(*r.visibility, l, i);
+      }
+    }
+  }
+  EXPECT_GT(expected, 0u);
+  EXPECT_EQ(lit, expected);
+}
+
+// Degenerate, non-finite and out-of-range triangles are skipped and counted; tracing works.
+TEST(TraceHardCases, DegenerateAndNonFiniteTrianglesAreSkipped) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  Mesh bad;
+  const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+  bad.positions = {{0, 1, 0}, {1, 1, 0}, {2, 1, 0},     // collinear: zero area
+                   {0, 1, 1}, {nan, 1, 1}, {inf, 1, 2},  // non-finite
+                   {1e20f, 1, 0}, {0, 1, 3}, {1, 1, 3}};  // huge
+  bad.triangles = {{0, 1, 2}, {0, 0, 3}, {3, 4, 7}, {3, 5, 8}, {6, 7, 8}, {7, 8, 99}};
+  s.objects.push_back(make_object(2, bad, glm::vec3(0.0f)));
+  s.lights.push_back(point_light({0, 5, 0}));
+  s.ao = AoSettings{0.5f, 8};
+  RtScene rt(s);
+  const RtBuildStats& bs = rt.build_stats();
+  EXPECT_EQ(bs.triangles_total, 8u);
+  EXPECT_EQ(bs.triangles_built, 2u);
+  EXPECT_EQ(bs.skipped_degenerate, 2u);
+  EXPECT_EQ(bs.skipped_nonfinite, 2u);
+  EXPECT_EQ(bs.skipped_huge, 1u);
+  EXPECT_EQ(bs.skipped_bad_index, 1u);
+  EXPECT_EQ(bs.skipped(), 6u);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 4, 6}, {0, 0, 0}), 0.0);
+  const TraceResult r = trace_passes(rt, g, TraceSettings{});
+  ASSERT_TRUE(r.visibility);
+  size_t lit = 0;
+  for (size_t i = 0; i < g.depth.size(); ++i) lit += g.object_id[i] != kBackgroundId && bit(*r.visibility, 0, i);
+  EXPECT_EQ(lit, covered(g));  // the skipped triangles cast no shadow
+  expect_finite_image(g, s, r);
+}
+
+// A point light lying on the plane: n.l = 0 everywhere, no ray, no light, no NaN.
+TEST(TraceHardCases, LightOnTheSurface) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.lights.push_back(point_light({0.5f, 0.0f, 0.5f}));
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 4, 6}, {0, 0, 0}), 0.0);
+  const TraceResult r = trace_passes(rt, g, TraceSettings{});
+  EXPECT_EQ(r.stats.shadow_rays, 0u);
+  EXPECT_EQ(r.stats.invalid_rays, 0u);
+  const ImageRGB8 img = composite(g, s, &*r.visibility, nullptr);
+  const Rgb8 ambient_only = tonemap_srgb8(glm::vec3(0.5f) * s.ambient);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x)
+      if (g.covered(x, y)) { ASSERT_EQ(img(x, y), ambient_only) << x << "," << y; }
+}
+
+// A sphere light cutting through the plane: points inside its sphere are visible (no ray);
+// outside it, the ray to the centre (hard mode) rises above the plane and is unoccluded; the
+// soft rays partly dive below the horizon into the plane (occluded, as they should be).
+TEST(TraceHardCases, LightIntersectingGeometry) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.lights.push_back(point_light({0.0f, 0.1f, 0.0f}, 1.0f));
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 3, 3}, {0, 0, 0}), 0.0);
+  for (bool soft : {false, true}) {
+    TraceSettings ts;
+    ts.soft_shadows = soft;
+    const TraceResult r = trace_passes(rt, g, ts);
+    EXPECT_GT(r.stats.shadow_inside_light, 0u);
+    EXPECT_EQ(r.stats.invalid_rays, 0u);
+    size_t inside = 0;
+    for (size_t i = 0; i < g.depth.size(); ++i) {
+      if (g.object_id[i] == kBackgroundId) continue;
+      const bool in = glm::length(g.position[i] - s.lights[0].position) <= 1.0f;
+      inside += in;
+      if (in || !soft) { EXPECT_TRUE(bit(*r.visibility, 0, i)) << i; }
+    }
+    EXPECT_NEAR(double(inside), double(r.stats.shadow_inside_light), 2.0);  // float vs double at the rim
+    expect_finite_image(g, s, r);
+  }
+}
+
+// A light inside a closed box seen from outside: every outer face looks away from it.
+TEST(TraceHardCases, LightInsideClosedBox) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_box({2, 2, 2}), glm::vec3(0.0f)));
+  s.lights.push_back(point_light({0.2f, 0.1f, 0.0f}, 0.3f));
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({3, 3, 4}, {0, 0, 0}), 0.0);
+  ASSERT_GT(covered(g), 0u);
+  for (bool soft : {false, true}) {
+    TraceSettings ts;
+    ts.soft_shadows = soft;
+    const TraceResult r = trace_passes(rt, g, ts);
+    EXPECT_EQ(r.stats.shadow_rays, 0u);
+    for (size_t i = 0; i < g.depth.size(); ++i) EXPECT_FALSE(bit(*r.visibility, 0, i));
+    expect_finite_image(g, s, r);
+  }
+}
+
+// A zero-radius light (and a distant light of zero angular radius): soft == hard, bit for bit.
+TEST(TraceHardCases, ZeroRadiusLightSoftEqualsHard) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.3f, 0.5f, 0.0f)));
+  s.lights.push_back(point_light({1, 4, 1}, 0.0f));
+  s.lights.push_back(distant_light({-0.4f, 1.0f, 0.3f}, 0.0f));
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 4, 6}, {0, 0, 0}), 0.0);
+  TraceSettings hard, soft;
+  hard.soft_shadows = false;
+  soft.soft_shadows = true;
+  soft.samples_per_light = 1;
+  const TraceResult rh = trace_passes(rt, g, hard), rs = trace_passes(rt, g, soft);
+  EXPECT_EQ(rs.plan.shadow, ShadowMode::Hard);  // point lights only: hard whatever the setting
+  ASSERT_TRUE(rh.visibility && rs.visibility);
+  EXPECT_EQ(rh.visibility->bytes, rs.visibility->bytes);
+  EXPECT_EQ(rh.stats.shadow_rays, rs.stats.shadow_rays);
+  size_t shadowed = 0;
+  for (size_t i = 0; i < g.depth.size(); ++i) shadowed += g.object_id[i] == 1 && !bit(*rh.visibility, 0, i);
+  EXPECT_GT(shadowed, 0u);  // the box does cast a shadow
+}
+
+// A camera inside a closed box with the light outside: everything is shadowed; AO with a
+// radius larger than the box is fully occluded.
+TEST(TraceHardCases, CameraInsideGeometry) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_box({2, 2, 2}), glm::vec3(0.0f)));
+  s.lights.push_back(point_light({5, 6, 4}, 0.5f));
+  s.ao = AoSettings{10.0f, 8};
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0.1f, 0.2f, 0.3f}, {0, 0, -1}), 0.0);
+  EXPECT_EQ(covered(g), size_t(kW * kH));
+  const TraceResult r = trace_passes(rt, g, TraceSettings{});
+  ASSERT_TRUE(r.visibility && r.ao);
+  for (size_t i = 0; i < g.depth.size(); ++i) {
+    EXPECT_FALSE(bit(*r.visibility, 0, i)) << i;
+    EXPECT_EQ(r.ao->bytes[i], 0) << i;
+  }
+  EXPECT_EQ(r.stats.invalid_rays, 0u);
+  expect_finite_image(g, s, r);
+}
+
+// Nothing in view: no ray is traced at all.
+TEST(TraceHardCases, EmptyViewTracesNoRay) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.lights.push_back(point_light({0, 5, 0}, 0.5f));
+  s.ao = AoSettings{1.0f, 8};
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 2, 0}, {0, 10, 0.1f}), 0.0);  // looking up
+  EXPECT_EQ(covered(g), 0u);
+  const TraceResult r = trace_passes(rt, g, TraceSettings{});
+  EXPECT_EQ(r.stats.shadow_rays, 0u);
+  EXPECT_EQ(r.stats.ao_rays, 0u);
+  EXPECT_EQ(r.stats.covered_pixels, 0u);
+  const ImageRGB8 img = composite(g, s, &*r.visibility, &*r.ao);
+  for (const Rgb8& p : img.pixels()) EXPECT_EQ(p, tonemap_srgb8(s.background));
+}
+
+// Invalid rays (a G-buffer point at 1e19 or NaN with an id the scene does not know) are
+// counted and never traced; their answer is "unoccluded".
+TEST(TraceHardCases, InvalidRaysAreCountedNotTraced) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.lights.push_back(point_light({0, 5, 0}));
+  s.lights.push_back(distant_light({0, 1, 0}, 1.0f));
+  s.ao = AoSettings{1.0f, 8};
+  RtScene rt(s);
+  GBuffer g;
+  g.camera = cam({0, 2, 2}, {0, 0, 0});
+  g.resize(3, 1);
+  g.object_id(0, 0) = 99;  // unknown: falls back to the G-buffer's position
+  g.position(0, 0) = glm::vec3(1e19f, 0.0f, 0.0f);
+  g.geo_normal(0, 0) = glm::vec3(0, 1, 0);
+  g.object_id(1, 0) = 99;
+  g.position(1, 0) = glm::vec3(std::numeric_limits<float>::quiet_NaN());
+  g.geo_normal(1, 0) = glm::vec3(0, 1, 0);
+  g.object_id(2, 0) = 1;  // an ordinary point on the plane
+  g.prim_id(2, 0) = 0;
+  g.bary(2, 0) = glm::vec2(0.3f, 0.3f);
+  g.geo_normal(2, 0) = glm::vec3(0, 1, 0);
+  TraceSettings ts;
+  ts.samples_per_light = 4;
+  const TraceResult r = trace_passes(rt, g, ts);
+  EXPECT_EQ(r.stats.unresolved_pixels, 2u);
+  // Pixel 0: 1 hard + 4 soft shadow rays and 8 AO rays invalid; pixel 1: the NaN point fails
+  // before (no light decision possible) -> same rays, all invalid.
+  EXPECT_EQ(r.stats.invalid_rays, 2u * (1 + 4 + 8));
+  EXPECT_EQ(r.stats.shadow_rays, 1u + 4u);  // pixel 2 only
+  EXPECT_EQ(r.stats.ao_rays, 8u);
+  ASSERT_TRUE(r.visibility && r.ao);
+  EXPECT_EQ(r.visibility->desc.kind, PassKind::SoftVisibility);
+  for (size_t i = 0; i < 3; ++i) {
+    EXPECT_EQ(r.visibility->bytes[0 * 3 + i], 4) << i;  // unoccluded
+    EXPECT_EQ(r.visibility->bytes[1 * 3 + i], 4) << i;
+    EXPECT_EQ(r.ao->bytes[i], 8) << i;
+  }
+}
+
+}  // namespace
+}  // namespace dhr
