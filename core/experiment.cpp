@@ -90,7 +90,7 @@ struct Reader {
 std::string resolve_data_path(const std::string& file, const std::string& experiment_path) {
   namespace fs = std::filesystem;
   if (file.empty() || fs::path(file).is_absolute() || fs::exists(file)) return file;
-  for (const fs::path base : {fs::path(experiment_path).parent_path(), fs::path(DHR_SOURCE_DIR)}) {
+  for (const fs::path& base : {fs::path(experiment_path).parent_path(), fs::path(DHR_SOURCE_DIR)}) {
     if (fs::exists(base / file)) return (base / file).string();
   }
   return file;  // validation reports it missing

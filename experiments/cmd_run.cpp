@@ -124,6 +124,13 @@ ImageRGB8 downscale(const ImageRGB8& img, int max_width) {
   return out;
 }
 
+// RFC 4180: a field in double quotes, with inner quotes doubled.
+std::string csv_quote(const std::string& s) {
+  std::string out = "\"";
+  for (char ch : s) out += ch == '"' ? std::string("\"\"") : std::string(1, ch);
+  return out + "\"";
+}
+
 std::string csv_number(double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : (v > 0 ? "inf" : ""); }
 
 // Runs the report script (Debian's python3 with matplotlib) on a results folder.
@@ -226,7 +233,7 @@ Runner add_run_command(CLI::App& app) {
                                           ? fmt::format("fixed {} ms per server frame (virtual)", config.server_fixed_ms)
                                           : std::string("measured wall time of the server's stages");
         for (const auto& f : r.frames) {
-          csv << spec.id << ',' << spec.scene << ",\"" << spec.label << "\"," << f.frame << ',' << csv_number(f.t_ms) << ','
+          csv << spec.id << ',' << csv_quote(spec.scene) << ',' << csv_quote(spec.label) << ',' << f.frame << ',' << csv_number(f.t_ms) << ','
               << f.scored << ',' << (f.scored ? csv_number(f.ssim_local) : "") << ','
               << (f.scored ? csv_number(f.psnr_local) : "") << ',' << f.scored_ground_truth << ','
               << (f.scored_ground_truth ? csv_number(f.ssim_gt) : "") << ','
