@@ -1,0 +1,649 @@
+// Predictors: reprojection and rotation_warp on small synthetic G-buffers, plus a conformance
+// test over every registered predictor. The G-buffers come from a tiny analytic scene (a
+// finite ground plane and boxes) intersected with Camera::primary_ray, so no rasterizer is
+// needed and every pixel's world point is known exactly.
+#include "core/backend.h"
+#include "core/rng.h"
+
+#include <glm/gtc/matrix_transform.hpp>
+#include <gtest/gtest.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <set>
+
+namespace dhr {
+namespace {
+
+constexpr int kW = 64, kH = 48;
+constexpr uint32_t kGroundId = 1, kBoxId = 2;
+
+// ---------------------------------------------------------------- the analytic scene
+
+struct Box {
+  glm::vec3 lo, hi;
+  uint32_t id;
+};
+
+struct Scene {
+  float ground_half_m = 20.0f;  // ground: y = 0, |x|, |z| <= half
+  std::vector<Box> boxes{{{-1.3f, 0.0f, -1.1f}, {0.9f, 2.3f, 1.2f}, kBoxId}};
+};
+
+struct Hit {
+  float t = INFINITY;
+  glm::vec3 normal{0.0f};
+  uint32_t id = kBackgroundId;
+};
+
+Hit intersect(const Scene& s, const Ray& r) {
+  Hit h;
+  if (r.direction.y != 0.0f) {
+    const float t = -r.origin.y / r.direction.y;
+    const glm::vec3 p = r.origin + t * r.direction;
+    if (t > 1e-4f && std::fabs(p.x) <= s.ground_half_m && std::fabs(p.z) <= s.ground_half_m)
+      h = {t, {0.0f, r.direction.y < 0.0f ? 1.0f : -1.0f, 0.0f}, kGroundId};
+  }
+  for (const Box& b : s.boxes) {  // slabs; the camera is outside every box
+    float t0 = -INFINITY, t1 = INFINITY;
+    int axis = -1;
+    for (int a = 0; a < 3; ++a) {
+      if (r.direction[a] == 0.0f) {
+        if (r.origin[a] < b.lo[a] || r.origin[a] > b.hi[a]) t0 = INFINITY;
+        continue;
+      }
+      float ta = (b.lo[a] - r.origin[a]) / r.direction[a], tb = (b.hi[a] - r.origin[a]) / r.direction[a];
+      if (ta > tb) std::swap(ta, tb);
+      if (ta > t0) {
+        t0 = ta;
+        axis = a;
+      }
+      t1 = std::min(t1, tb);
+    }
+    if (axis >= 0 && t0 <= t1 && t0 > 1e-4f && t0 < h.t) {
+      glm::vec3 n(0.0f);
+      n[axis] = r.direction[axis] > 0.0f ? -1.0f : 1.0f;
+      h = {t0, n, b.id};
+    }
+  }
+  return h;
+}
+
+GBuffer render(const Scene& s, const Camera& cam) {
+  GBuffer g;
+  g.camera = cam;
+  g.resize(cam.width, cam.height);
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const Ray r = cam.primary_ray(float(x) + 0.5f, float(y) + 0.5f);
+      const Hit h = intersect(s, r);
+      if (h.id == kBackgroundId) continue;
+      const glm::vec3 p = r.origin + h.t * r.direction;
+      g.position(x, y) = p;
+      g.depth(x, y) = cam.view_depth(p);
+      g.normal(x, y) = h.normal;
+      g.geo_normal(x, y) = h.normal;
+      g.albedo(x, y) = glm::vec3(0.5f);
+      g.object_id(x, y) = h.id;
+    }
+  return g;
+}
+
+Camera look(const glm::vec3& eye, const glm::vec3& target, const glm::vec3& up = {0, 1, 0}, int w = kW,
+            int h = kH) {
+  return Camera::look_at(eye, target, up, 60.0f, w, h, 0.05f, 100.0f);
+}
+
+Camera oblique() { return look({0.5f, 3.5f, 5.5f}, {0.0f, 0.8f, 0.0f}); }
+Camera translated(Camera c, const glm::vec3& d) {
+  c.position += d;
+  return c;
+}
+
+// ---------------------------------------------------------------- painted server buffers
+
+// AO painted on the world: a 1 m checker, different values on ground and box, never 255
+// (255 is the local fallback, so a 255 at a covered pixel marks a disocclusion).
+uint8_t ao_value(const glm::vec3& p, uint32_t id) {
+  const int c = (int(std::floor(p.x)) + int(std::floor(p.y)) + int(std::floor(p.z))) & 1;
+  return id == kGroundId ? (c ? 60 : 180) : (c ? 20 : 100);
+}
+
+PassBuffer make_ao(const GBuffer& g, int full_scale = 255) {
+  PassBuffer b;
+  b.desc = {PassKind::Ao, g.width(), g.height(), 1, full_scale};
+  b.bytes.resize(b.desc.byte_size());
+  for (size_t i = 0; i < g.object_id.size(); ++i)
+    b.bytes[i] = g.object_id[i] == kBackgroundId ? uint8_t(full_scale)
+                                                 : uint8_t(ao_value(g.position[i], g.object_id[i]) * full_scale / 255);
+  return b;
+}
+
+// A server-like buffer of any kind: random values at covered pixels, fully lit at the
+// background (what the server writes where it traces no ray).
+PassBuffer make_random(const GBuffer& g, PassKind kind, int channels, int full_scale, uint64_t seed) {
+  PassBuffer b;
+  b.desc = {kind, g.width(), g.height(), channels, full_scale};
+  b.bytes.resize(b.desc.byte_size());
+  const size_t n = g.object_id.size();
+  for (size_t i = 0; i < n; ++i) {
+    const bool bg = g.object_id[i] == kBackgroundId;
+    const uint64_t r = rng_bits({seed, uint32_t(i), 0, 0, 7});
+    switch (kind) {
+      case PassKind::Visibility: {
+        const int bpp = (channels + 7) / 8;
+        const uint64_t mask = channels >= 64 ? ~0ull : (1ull << channels) - 1;
+        const uint64_t v = bg ? mask : (r & mask);
+        for (int k = 0; k < bpp; ++k) b.bytes[i * bpp + k] = uint8_t(v >> (8 * k));
+        break;
+      }
+      case PassKind::SoftVisibility:
+        for (int c = 0; c < channels; ++c)
+          b.bytes[size_t(c) * n + i] = bg ? uint8_t(full_scale) : uint8_t((r >> (8 * c)) % uint64_t(full_scale + 1));
+        break;
+      case PassKind::Ao: b.bytes[i] = bg ? uint8_t(full_scale) : uint8_t(r % uint64_t(full_scale + 1)); break;
+      case PassKind::Colour:
+        for (int c = 0; c < 3; ++c) b.bytes[i * 3 + c] = uint8_t(r >> (8 * c));
+        break;
+    }
+  }
+  return b;
+}
+
+std::unique_ptr<Predictor> make(const std::string& name, const nlohmann::json& params = nlohmann::json::object()) {
+  return registries().predictors.create(name, params);
+}
+
+size_t covered_count(const GBuffer& g) {
+  size_t c = 0;
+  for (uint32_t id : g.object_id.pixels()) c += id != kBackgroundId;
+  return c;
+}
+
+template <class F>
+void with_threads(int n, F&& f) {
+  tbb::task_arena arena(n);
+  arena.execute(f);
+}
+
+// ---------------------------------------------------------------- reprojection
+
+TEST(Reprojection, IdentityReturnsInputExactlyForEveryPassKind) {
+  const GBuffer g = render(Scene{}, oblique());
+  const GBuffer g2 = g;  // a distinct but equal dst
+  struct Case {
+    PassKind kind;
+    int channels, full_scale;
+  };
+  const Case cases[] = {{PassKind::Visibility, 4, 255}, {PassKind::Visibility, 40, 255},
+                        {PassKind::Visibility, 64, 255}, {PassKind::SoftVisibility, 3, 255},
+                        {PassKind::SoftVisibility, 2, 16}, {PassKind::Ao, 1, 8},
+                        {PassKind::Ao, 1, 255}};
+  for (const char* filter : {"nearest", "bilinear"})
+    for (const char* fill : {"nearest_valid", "local"}) {
+      auto p = make("reprojection", {{"filter", filter}, {"fill", fill}});
+      for (const Case& c : cases) {
+        const PassBuffer in = make_random(g, c.kind, c.channels, c.full_scale, 11);
+        PassBuffer out;
+        const PredictStats st = p->predict({in, g, g2}, out);
+        SCOPED_TRACE(fmt::format("{} {} ch {} fs {} {}", filter, fill, c.channels, c.full_scale,
+                                 pass_kind_name(c.kind)));
+        EXPECT_EQ(out.desc, in.desc);
+        EXPECT_TRUE(out.bytes == in.bytes);
+        EXPECT_EQ(st.disoccluded, 0u);
+        EXPECT_EQ(st.pixels, covered_count(g));
+      }
+    }
+}
+
+// A top-down camera moved by exactly 3 ground-pixel footprints: every ground point lands on a
+// pixel centre of the source, so nearest reprojection must find the painted value again.
+TEST(Reprojection, CameraTranslationFindsWorldPaintedValuesAgain) {
+  const Scene scene;
+  const Camera c0 = look({0.0f, 10.0f, 0.0f}, {0.0f, 0.0f, 0.0f}, {0, 0, -1});
+  const float footprint_m = 2.0f * 10.0f * std::tan(glm::radians(30.0f)) / float(kH);
+  const Camera c1 = translated(c0, c0.right() * (3.0f * footprint_m));
+  const GBuffer src = render(scene, c0), dst = render(scene, c1);
+  const PassBuffer in = make_ao(src);
+  PassBuffer out;
+  const PredictStats st = make("reprojection", {{"filter", "nearest"}, {"fill", "local"}})->predict({in, src, dst}, out);
+  ASSERT_EQ(out.desc, in.desc);
+  size_t kept = 0, exact = 0, filled = 0;
+  for (size_t i = 0; i < out.bytes.size(); ++i) {
+    if (dst.object_id[i] == kBackgroundId) {
+      EXPECT_EQ(out.bytes[i], 255);
+      continue;
+    }
+    if (out.bytes[i] == 255) {
+      ++filled;
+      continue;
+    }
+    ++kept;
+    exact += out.bytes[i] == ao_value(dst.position[i], dst.object_id[i]);
+  }
+  EXPECT_EQ(filled, st.disoccluded);
+  EXPECT_EQ(st.pixels, covered_count(dst));
+  // The 3 columns entering on the right were off-screen in the source.
+  EXPECT_GE(st.disoccluded, 3u * kH);
+  EXPECT_LT(st.disoccluded, 6u * kH);
+  ASSERT_GT(kept, size_t(kW * kH / 2));
+  EXPECT_GE(double(exact), 0.99 * double(kept)) << exact << " of " << kept;
+}
+
+// The ray from the src camera to P is blocked by something closer than P.
+bool hidden_from(const Scene& s, const Camera& cam, const glm::vec3& p) {
+  const glm::vec3 d = p - cam.position;
+  const float dist = glm::length(d);
+  const Hit h = intersect(s, {cam.position, d / dist});
+  return h.t < dist * (1.0f - 1e-3f);
+}
+
+struct Located {
+  size_t disoccluded = 0, explained = 0, visible_disoccluded = 0, deep_hidden = 0, deep_hidden_disoccluded = 0, offscreen = 0;
+};
+
+// Classifies every covered dst pixel: disoccluded (output 255), hidden from the src camera,
+// off-screen in src, and whether the 3x3 source pixels around its projection all show
+// another object ("deep" inside the old silhouette).
+Located locate(const Scene& scene, const GBuffer& src, const GBuffer& dst, const PassBuffer& out) {
+  Located r;
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      const uint32_t id = dst.object_id(x, y);
+      if (id == kBackgroundId) continue;
+      const bool dis = out.bytes[size_t(y) * kW + x] == 255;
+      const glm::vec3 p = dst.position(x, y);
+      const glm::vec3 q = src.camera.project(p);
+      const bool offscreen = !(q.z > 0.0f && q.x >= 0.0f && q.x < kW && q.y >= 0.0f && q.y < kH);
+      const bool hidden = hidden_from(scene, src.camera, p);
+      bool any_other = false, all_other = !offscreen;
+      if (!offscreen) {
+        const int qx = int(q.x), qy = int(q.y);
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int sx = std::clamp(qx + dx, 0, kW - 1), sy = std::clamp(qy + dy, 0, kH - 1);
+            const bool other = src.object_id(sx, sy) != id;
+            any_other |= other;
+            all_other &= other;
+          }
+      }
+      r.offscreen += offscreen && dis;
+      if (dis) {
+        ++r.disoccluded;
+        r.explained += hidden || offscreen || any_other;
+        r.visible_disoccluded += !hidden && !offscreen;
+      }
+      if (hidden && all_other) {
+        ++r.deep_hidden;
+        r.deep_hidden_disoccluded += dis;
+      }
+    }
+  return r;
+}
+
+TEST(Reprojection, DisocclusionsLieWhereTheBoxUncoveredTheGround) {
+  const Scene scene;
+  const Camera c0 = oblique();
+  const Camera c1 = translated(c0, {2.0f, 0.0f, 0.0f});
+  const GBuffer src = render(scene, c0), dst = render(scene, c1);
+  const PassBuffer in = make_ao(src);
+  PassBuffer local_out, nearest_out;
+  const PredictStats st_local =
+      make("reprojection", {{"fill", "local"}})->predict({in, src, dst}, local_out);
+  const Located loc = locate(scene, src, dst, local_out);
+  EXPECT_EQ(loc.disoccluded, st_local.disoccluded);
+  EXPECT_GT(st_local.disoccluded, loc.offscreen + 10) << "no disocclusion besides the screen edge";
+  EXPECT_EQ(loc.explained, loc.disoccluded) << "disoccluded pixels away from the box's old silhouette";
+  EXPECT_LE(loc.visible_disoccluded, 5u) << "points the src camera saw, reported as disoccluded";
+  EXPECT_GT(loc.deep_hidden, 10u) << "the test scene should uncover ground behind the box";
+  EXPECT_EQ(loc.deep_hidden_disoccluded, loc.deep_hidden) << "hidden ground reported as valid";
+
+  // nearest_valid: the same pixels are disoccluded; each is filled from a source pixel of its
+  // own object (painted values of that object), or by the fallback when none is in reach.
+  const PredictStats st_near =
+      make("reprojection", {{"fill", "nearest_valid"}, {"fill_radius_px", 3}})->predict({in, src, dst}, nearest_out);
+  EXPECT_EQ(st_near.disoccluded, st_local.disoccluded);
+  size_t filled_from_source = 0;
+  for (size_t i = 0; i < in.bytes.size(); ++i) {
+    if (local_out.bytes[i] != 255 || dst.object_id[i] == kBackgroundId) {
+      EXPECT_EQ(nearest_out.bytes[i], local_out.bytes[i]) << "pixel " << i;
+      continue;
+    }
+    const uint8_t v = nearest_out.bytes[i];
+    if (v == 255) continue;
+    ++filled_from_source;
+    if (dst.object_id[i] == kGroundId)
+      EXPECT_TRUE(v == 60 || v == 180) << "ground pixel " << i << " filled with " << int(v);
+    else
+      EXPECT_TRUE(v == 20 || v == 100) << "box pixel " << i << " filled with " << int(v);
+  }
+  EXPECT_GT(filled_from_source, loc.deep_hidden / 2);
+}
+
+TEST(Reprojection, BitmasksAreNeverBlended) {
+  const Scene scene;
+  const Camera c0 = oblique();
+  const GBuffer src = render(scene, c0);
+  for (const glm::vec3& move : {glm::vec3(0.7f, 0.0f, 0.0f), glm::vec3(-0.3f, 0.4f, 0.5f)}) {
+    const GBuffer dst = render(scene, translated(c0, move));
+    for (int lights : {4, 40}) {
+      const PassBuffer in = make_random(src, PassKind::Visibility, lights, 255, 5);
+      const int bpp = (lights + 7) / 8;
+      auto value = [&](const std::vector<uint8_t>& b, size_t i) {
+        uint64_t v = 0;
+        for (int k = 0; k < bpp; ++k) v |= uint64_t(b[i * bpp + k]) << (8 * k);
+        return v;
+      };
+      std::set<uint64_t> source_values;
+      for (size_t i = 0; i < src.object_id.size(); ++i) source_values.insert(value(in.bytes, i));
+      const uint64_t lit = (uint64_t(1) << lights) - 1;
+      for (const char* fill : {"nearest_valid", "local"}) {
+        PassBuffer out;
+        const PredictStats st =
+            make("reprojection", {{"filter", "bilinear"}, {"fill", fill}})->predict({in, src, dst}, out);
+        ASSERT_EQ(out.bytes.size(), in.bytes.size());
+        EXPECT_GT(st.disoccluded, 0u);
+        size_t foreign = 0;
+        for (size_t i = 0; i < dst.object_id.size(); ++i) {
+          const uint64_t v = value(out.bytes, i);
+          if (dst.object_id[i] == kBackgroundId)
+            EXPECT_EQ(v, lit);
+          else
+            foreign += v != lit && !source_values.count(v);
+        }
+        EXPECT_EQ(foreign, 0u) << lights << " lights, fill " << fill;
+      }
+    }
+  }
+}
+
+// Planes of a SoftVisibility buffer share one mapping: plane 1 = full - plane 0 stays so.
+TEST(Reprojection, SoftVisibilityPlanesMoveTogether) {
+  const Scene scene;
+  const GBuffer src = render(scene, oblique()), dst = render(scene, translated(oblique(), {0.5f, 0.2f, 0.0f}));
+  PassBuffer in = make_random(src, PassKind::SoftVisibility, 2, 200, 3);
+  const size_t n = size_t(kW) * kH;
+  for (size_t i = 0; i < n; ++i) in.bytes[n + i] = uint8_t(200 - in.bytes[i]);
+  PassBuffer out;
+  make("reprojection", {{"filter", "nearest"}})->predict({in, src, dst}, out);
+  ASSERT_EQ(out.bytes.size(), 2 * n);
+  size_t checked = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (dst.object_id[i] == kBackgroundId || (out.bytes[i] == 200 && out.bytes[n + i] == 200)) continue;  // lit
+    ASSERT_EQ(out.bytes[n + i], 200 - out.bytes[i]) << i;
+    ++checked;
+  }
+  EXPECT_GT(checked, n / 2);
+}
+
+TEST(Reprojection, GarbageInBackgroundPixelsChangesNothing) {
+  const Scene scene;
+  const GBuffer src = render(scene, oblique()), dst = render(scene, translated(oblique(), {1.0f, 0.3f, -0.5f}));
+  auto dirty = [](GBuffer g) {
+    const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+    for (size_t i = 0; i < g.object_id.size(); ++i) {
+      if (g.object_id[i] != kBackgroundId) continue;
+      g.position[i] = glm::vec3(nan, inf, -inf);
+      g.normal[i] = glm::vec3(inf, nan, 0.0f);
+      g.geo_normal[i] = glm::vec3(nan);
+      g.depth[i] = nan;
+      g.motion[i] = glm::vec2(nan);
+    }
+    return g;
+  };
+  const GBuffer src_dirty = dirty(src), dst_dirty = dirty(dst);
+  for (PassKind kind : {PassKind::Ao, PassKind::Visibility, PassKind::SoftVisibility}) {
+    const PassBuffer in = make_random(src, kind, kind == PassKind::Ao ? 1 : 3, 255, 9);
+    for (const char* filter : {"nearest", "bilinear"}) {
+      auto p = make("reprojection", {{"filter", filter}});
+      PassBuffer clean_out, dirty_out;
+      const PredictStats a = p->predict({in, src, dst}, clean_out);
+      const PredictStats b = p->predict({in, src_dirty, dst_dirty}, dirty_out);
+      EXPECT_TRUE(clean_out.bytes == dirty_out.bytes) << pass_kind_name(kind) << " " << filter;
+      EXPECT_EQ(a.disoccluded, b.disoccluded);
+      EXPECT_EQ(a.pixels, b.pixels);
+    }
+  }
+  // A covered dst pixel with non-finite data and a covered src pixel with a broken normal:
+  // no crash, the dst pixel counts as disoccluded and gets the local fallback.
+  GBuffer dst_bad = dst_dirty, src_bad = src_dirty;
+  const int bx = kW / 2, by = kH - 3;
+  ASSERT_NE(dst_bad.object_id(bx, by), kBackgroundId);
+  dst_bad.position(bx, by) = glm::vec3(std::numeric_limits<float>::quiet_NaN());
+  src_bad.normal(bx, by) = glm::vec3(std::numeric_limits<float>::infinity());
+  const PassBuffer in = make_ao(src);
+  PassBuffer out_ref, out_bad;
+  auto p = make("reprojection");
+  const PredictStats ref = p->predict({in, src, dst}, out_ref);
+  const PredictStats bad = p->predict({in, src_bad, dst_bad}, out_bad);
+  EXPECT_EQ(out_bad.bytes[size_t(by) * kW + bx], 255);
+  EXPECT_GE(bad.disoccluded, ref.disoccluded + 1);
+}
+
+TEST(Reprojection, RefusesMismatchedSizesColourAndMalformedBuffers) {
+  const Scene scene;
+  const GBuffer big = render(scene, oblique());
+  const GBuffer small = render(scene, look({0.5f, 4.0f, 9.0f}, {0.0f, 0.5f, 0.0f}, {0, 1, 0}, 32, 24));
+  auto p = make("reprojection");
+  auto message = [&](const PassBuffer& in, const GBuffer& s, const GBuffer& d) -> std::string {
+    PassBuffer out;
+    try {
+      p->predict({in, s, d}, out);
+    } catch (const Error& e) {
+      return e.what();
+    }
+    return "(no error)";
+  };
+  const PassBuffer in_big = make_ao(big), in_small = make_ao(small);
+  for (const std::string& m : {message(in_big, big, small), message(in_small, big, big), message(in_big, small, big)}) {
+    EXPECT_NE(m.find("64x48"), std::string::npos) << m;
+    EXPECT_NE(m.find("32x24"), std::string::npos) << m;
+    EXPECT_NE(m.find("reprojection"), std::string::npos) << m;
+  }
+  GBuffer wrong_camera = big;
+  wrong_camera.camera.width = 1280;
+  EXPECT_NE(message(in_big, big, wrong_camera).find("camera is 1280x48"), std::string::npos);
+  const std::string colour = message(make_random(big, PassKind::Colour, 3, 255, 1), big, big);
+  EXPECT_NE(colour.find("refuses a colour buffer"), std::string::npos) << colour;
+  PassBuffer short_buf = in_big;
+  short_buf.bytes.pop_back();
+  EXPECT_NE(message(short_buf, big, big).find("bytes"), std::string::npos);
+}
+
+TEST(Reprojection, SameResultAtOneAndTwoThreadsAndWhenOutputAliasesInput) {
+  const Scene scene;
+  const GBuffer src = render(scene, oblique()), dst = render(scene, translated(oblique(), {1.2f, -0.2f, 0.4f}));
+  for (PassKind kind : {PassKind::Ao, PassKind::Visibility, PassKind::SoftVisibility}) {
+    const PassBuffer in = make_random(src, kind, kind == PassKind::Ao ? 1 : 5, 255, 21);
+    auto p = make("reprojection");
+    PassBuffer out1, out2;
+    PredictStats s1, s2;
+    with_threads(1, [&] { s1 = p->predict({in, src, dst}, out1); });
+    with_threads(2, [&] { s2 = p->predict({in, src, dst}, out2); });
+    EXPECT_TRUE(out1.bytes == out2.bytes) << pass_kind_name(kind);
+    EXPECT_EQ(s1.disoccluded, s2.disoccluded);
+    EXPECT_GT(s1.disoccluded, 0u);
+    PassBuffer alias = in;
+    p->predict({alias, src, dst}, alias);
+    EXPECT_TRUE(alias.bytes == out1.bytes) << pass_kind_name(kind);
+  }
+}
+
+// ---------------------------------------------------------------- rotation_warp
+
+// The remote client has cameras only: G-buffers with no images.
+GBuffer cameras_only(const Camera& c) {
+  GBuffer g;
+  g.camera = c;
+  return g;
+}
+
+Camera yawed(const Camera& c, float deg) {
+  const glm::mat3 r(glm::rotate(glm::mat4(1.0f), glm::radians(deg), glm::vec3(0, 1, 0)));
+  Camera out = c;
+  out.forward = glm::normalize(r * c.forward);
+  out.up = glm::normalize(r * c.up);
+  return out;
+}
+
+// r = 3 x + 20, g = 5 y, b = 7: the source column is readable from r.
+PassBuffer ramp_colour(int w, int h) {
+  PassBuffer b;
+  b.desc = {PassKind::Colour, w, h, 3, 255};
+  b.bytes.resize(b.desc.byte_size());
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      uint8_t* p = &b.bytes[(size_t(y) * w + x) * 3];
+      p[0] = uint8_t(3 * x + 20);
+      p[1] = uint8_t(5 * y);
+      p[2] = 7;
+    }
+  return b;
+}
+
+TEST(RotationWarp, IdentityIsExactForEveryAcceptedKind) {
+  const Camera c = look({1.0f, 2.0f, 3.0f}, {0.0f, 0.0f, 0.0f});
+  const GBuffer g = cameras_only(c);
+  const GBuffer scene_g = render(Scene{}, c);  // for the fully-lit background of lighting passes
+  for (const char* fill : {"clamp", "black"}) {
+    auto p = make("rotation_warp", {{"fill", fill}});
+    for (const PassBuffer& in : {make_random(scene_g, PassKind::Colour, 3, 255, 2),
+                                 make_random(scene_g, PassKind::Ao, 1, 255, 2),
+                                 make_random(scene_g, PassKind::SoftVisibility, 3, 100, 2)}) {
+      PassBuffer out;
+      const PredictStats st = p->predict({in, g, g}, out);
+      EXPECT_EQ(out.desc, in.desc);
+      EXPECT_TRUE(out.bytes == in.bytes) << pass_kind_name(in.desc.kind) << " " << fill;
+      EXPECT_EQ(st.disoccluded, 0u);
+      EXPECT_EQ(st.pixels, uint64_t(kW) * kH);
+    }
+  }
+}
+
+TEST(RotationWarp, YawShiftsTheCentreByFocalTimesTan) {
+  const Camera c0 = look({0.0f, 1.0f, 0.0f}, {0.0f, 1.0f, -5.0f});
+  const PassBuffer in = ramp_colour(kW, kH);
+  const float f_px = 0.5f * kH / std::tan(glm::radians(30.0f));
+  for (float yaw_deg : {3.0f, -5.0f}) {
+    const Camera c1 = yawed(c0, yaw_deg);
+    PassBuffer out;
+    make("rotation_warp")->predict({in, cameras_only(c0), cameras_only(c1)}, out);
+    // dst pixel centre (31.5, 23.5) looks at angle atan(-0.5 / f) left of dst's axis; a yaw
+    // of +a turns the camera left, so src sees it at that angle minus a.
+    const float expected_x = 0.5f * kW + f_px * std::tan(std::atan(-0.5f / f_px) - glm::radians(yaw_deg));
+    const uint8_t* px = &out.bytes[(size_t(23) * kW + 31) * 3];
+    const float found_x = (float(px[0]) - 20.0f) / 3.0f + 0.5f;  // r = 3 (x_centre - 0.5) + 20
+    EXPECT_NEAR(found_x, expected_x, 0.34f) << "yaw " << yaw_deg;
+    EXPECT_NEAR(31.5f - found_x, f_px * std::tan(glm::radians(yaw_deg)), 0.4f) << "yaw " << yaw_deg;
+    EXPECT_NEAR(px[1], 5 * 23, 1) << "a yaw must not move the centre row";
+    EXPECT_EQ(px[2], 7);
+  }
+}
+
+TEST(RotationWarp, OutsideTheSourceIsClampedOrBlack) {
+  const Camera c0 = look({0.0f, 1.0f, 0.0f}, {0.0f, 1.0f, -5.0f});
+  const Camera c1 = yawed(c0, 20.0f);  // turned left: the left part of dst was never seen
+  const PassBuffer in = ramp_colour(kW, kH);
+  PassBuffer clamp_out, black_out;
+  const PredictStats sc = make("rotation_warp", {{"fill", "clamp"}})->predict({in, cameras_only(c0), cameras_only(c1)}, clamp_out);
+  const PredictStats sb = make("rotation_warp", {{"fill", "black"}})->predict({in, cameras_only(c0), cameras_only(c1)}, black_out);
+  EXPECT_EQ(sc.disoccluded, sb.disoccluded);
+  EXPECT_GT(sb.disoccluded, uint64_t(5 * kH));
+  size_t black = 0;
+  for (int y = 0; y < kH; ++y) {
+    const uint8_t* c = &clamp_out.bytes[size_t(y) * kW * 3];  // dst column 0
+    const uint8_t* b = &black_out.bytes[size_t(y) * kW * 3];
+    EXPECT_EQ(c[0], 20) << "clamped to the source's left edge (r = 20), row " << y;
+    EXPECT_EQ(b[0] + b[1] + b[2], 0) << "row " << y;
+    for (int x = 0; x < kW; ++x) {
+      const uint8_t* q = &black_out.bytes[(size_t(y) * kW + x) * 3];
+      black += q[0] == 0 && q[1] == 0 && q[2] == 0;
+    }
+  }
+  EXPECT_EQ(black, sb.disoccluded);
+  // The right part was seen: both fills agree there.
+  for (int y = 0; y < kH; ++y)
+    EXPECT_EQ(clamp_out.bytes[(size_t(y) * kW + kW - 1) * 3], black_out.bytes[(size_t(y) * kW + kW - 1) * 3]);
+}
+
+TEST(RotationWarp, RefusesBitmasksAndMismatchedSizesAndIsThreadCountIndependent) {
+  const Camera c0 = look({0.0f, 1.0f, 0.0f}, {0.0f, 1.0f, -5.0f});
+  auto p = make("rotation_warp");
+  PassBuffer out;
+  const GBuffer g = render(Scene{}, c0);
+  try {
+    p->predict({make_random(g, PassKind::Visibility, 4, 255, 1), g, g}, out);
+    ADD_FAILURE() << "a bitmask was warped";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("bitmask"), std::string::npos) << e.what();
+  }
+  const PassBuffer small = ramp_colour(32, 24);
+  try {
+    p->predict({small, cameras_only(c0), cameras_only(c0)}, out);
+    ADD_FAILURE() << "a 32x24 buffer was warped as if rendered for a 64x48 camera";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("32x24"), std::string::npos) << m;
+    EXPECT_NE(m.find("64x48"), std::string::npos) << m;
+  }
+  // A different display size is allowed: the output takes the dst camera's size.
+  Camera wide = yawed(c0, 7.0f);
+  wide.width = 80;
+  wide.height = 40;
+  const PassBuffer in = ramp_colour(kW, kH);
+  PassBuffer o1, o2;
+  with_threads(1, [&] { p->predict({in, cameras_only(c0), cameras_only(wide)}, o1); });
+  with_threads(2, [&] { p->predict({in, cameras_only(c0), cameras_only(wide)}, o2); });
+  EXPECT_EQ(o1.desc.width, 80);
+  EXPECT_EQ(o1.desc.height, 40);
+  EXPECT_EQ(o1.bytes.size(), size_t(80 * 40 * 3));
+  EXPECT_TRUE(o1.bytes == o2.bytes);
+}
+
+// ---------------------------------------------------------------- every predictor
+
+// Identity cameras (dst = an equal copy of src) must return the input, at dst's size, for
+// every pass kind the predictor accepts; each predictor must accept at least one kind and
+// refuse others only with a dhr::Error.
+TEST(PredictorConformance, IdentityReturnsInputForAcceptedKinds) {
+  const GBuffer src = render(Scene{}, oblique());
+  const GBuffer dst = src;
+  struct Case {
+    PassKind kind;
+    int channels, full_scale;
+  };
+  const Case cases[] = {{PassKind::Visibility, 4, 255}, {PassKind::Visibility, 12, 255},
+                        {PassKind::SoftVisibility, 3, 255}, {PassKind::Ao, 1, 8},
+                        {PassKind::Ao, 1, 255}, {PassKind::Colour, 3, 255}};
+  const auto& entries = registries().predictors.entries();
+  ASSERT_GE(entries.size(), 3u);
+  for (const auto& e : entries) {
+    auto p = registries().predictors.create(e.name, nlohmann::json::object());
+    int accepted = 0;
+    for (const Case& c : cases) {
+      const PassBuffer in = make_random(src, c.kind, c.channels, c.full_scale, 31);
+      PassBuffer out;
+      PredictStats st;
+      try {
+        st = p->predict({in, src, dst}, out);
+      } catch (const Error& err) {
+        EXPECT_FALSE(std::string(err.what()).empty());
+        continue;
+      }
+      ++accepted;
+      SCOPED_TRACE(e.name + " " + pass_kind_name(c.kind) + " " + std::to_string(c.channels));
+      EXPECT_EQ(out.desc.width, dst.width());
+      EXPECT_EQ(out.desc.height, dst.height());
+      EXPECT_EQ(out.desc, in.desc);
+      EXPECT_TRUE(out.bytes == in.bytes);
+      EXPECT_EQ(st.disoccluded, 0u);
+      p->reset();
+    }
+    EXPECT_GE(accepted, 1) << e.name << " accepts no pass kind";
+  }
+}
+
+}  // namespace
+}  // namespace dhr
