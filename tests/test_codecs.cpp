@@ -1,0 +1,723 @@
+// Codec conformance over every registered codec (pbrt-v4 style: one loop over all
+// implementations checks the shared promises), plus the layout conversions and what is
+// specific to lz4/zstd (checksums) and h264 (a standard bitstream, keyframes, state).
+#include "core/backend.h"
+#include "core/buffer_layout.h"
+#include "core/rng.h"
+#include "tests/support_buffers.h"
+
+#include <gtest/gtest.h>
+
+extern "C" {
+#include <libavcodec/avcodec.h>
+#include <libavutil/log.h>
+}
+
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <optional>
+
+namespace dhr {
+namespace {
+
+using nlohmann::json;
+using test::SyntheticView;
+
+// Parameters that make a codec that is lossy by default lossless. A lossy codec without an
+// entry here is only checked for robustness (and named in the output).
+const std::map<std::string, json>& lossless_params() {
+  static const std::map<std::string, json> m{{"h264", {{"rate_control", "lossless"}}}};
+  return m;
+}
+
+// Further configurations worth a round trip: other modes and layouts of the same codec.
+const std::multimap<std::string, json>& extra_params() {
+  static const std::multimap<std::string, json> m{
+      {"lz4", {{"mode", "hc"}, {"level", 9}}},
+      {"lz4", {{"layout", "interleaved"}, {"acceleration", 8}}},
+      {"zstd", {{"level", 9}}},
+      {"zstd", {{"layout", "interleaved"}}},
+      {"delta", {{"inner", "lz4"}, {"keyframe_interval", 2}}},
+  };
+  return m;
+}
+
+struct Variant {
+  std::string name;
+  json params;
+  std::string label() const { return name + params.dump(); }
+  std::unique_ptr<Codec> create() const { return registries().codecs.create(name, params); }
+};
+
+// Every registered codec in a lossless configuration, plus the extra configurations.
+std::vector<Variant> lossless_variants() {
+  std::vector<Variant> v;
+  for (const auto& e : registries().codecs.entries()) {
+    json params = json::object();
+    if (!registries().codecs.create(e.name, params)->lossless()) {
+      auto it = lossless_params().find(e.name);
+      if (it == lossless_params().end()) {
+        std::printf("note: codec '%s' is lossy with no lossless configuration: robustness only\n", e.name.c_str());
+        continue;
+      }
+      params = it->second;
+    }
+    v.push_back({e.name, params});
+    auto [first, last] = extra_params().equal_range(e.name);
+    for (auto it = first; it != last; ++it) v.push_back({e.name, it->second});
+  }
+  return v;
+}
+
+// Every registered codec with its default parameters.
+std::vector<Variant> default_variants() {
+  std::vector<Variant> v;
+  for (const auto& e : registries().codecs.entries()) v.push_back({e.name, json::object()});
+  return v;
+}
+
+bool has_codec(const char* name) { return registries().codecs.find(name) != nullptr; }
+
+struct Case {
+  std::string name;
+  PassBuffer buffer;
+};
+
+std::vector<Case> cases_at(int w, int h, bool small_only) {
+  const SyntheticView view{w, h, 0.0, 0.0, 0, 7};
+  std::vector<Case> c;
+  c.push_back({"constant_ao", test::make_constant({PassKind::Ao, w, h, 1, 255}, 200)});
+  c.push_back({"random_ao", test::make_random({PassKind::Ao, w, h, 1, 255}, 11)});
+  c.push_back({"noisy_ao_8", test::make_noisy_ao(view, 8)});
+  c.push_back({"smooth_ao", test::make_smooth_ao(view)});
+  c.push_back({"hard_vis_4", test::make_hard_visibility(view, 4)});
+  if (small_only) return c;
+  c.push_back({"constant_vis_4", test::make_constant({PassKind::Visibility, w, h, 4, 255}, 0xFF)});
+  c.push_back({"random_vis_1", test::make_random({PassKind::Visibility, w, h, 1, 255}, 12)});
+  c.push_back({"random_vis_64", test::make_random({PassKind::Visibility, w, h, 64, 255}, 13)});
+  c.push_back({"random_soft_3", test::make_random({PassKind::SoftVisibility, w, h, 3, 255}, 14)});
+  c.push_back({"random_colour", test::make_random({PassKind::Colour, w, h, 3, 255}, 15)});
+  c.push_back({"hard_vis_1", test::make_hard_visibility(view, 1)});
+  c.push_back({"hard_vis_64", test::make_hard_visibility(view, 64)});
+  c.push_back({"soft_vis_4", test::make_soft_visibility(view, 4)});
+  c.push_back({"soft_vis_2_noisy16", test::make_soft_visibility(view, 2, 16)});
+  c.push_back({"colour", test::make_colour(view)});
+  return c;
+}
+
+// Encodes then decodes with the same object. Returns false (with a gtest failure) on any
+// mismatch; `refused` is set (and nothing checked) when the codec refuses the buffer.
+void expect_round_trip(Codec& codec, const std::string& label, const Case& c, bool& refused) {
+  refused = false;
+  if (std::string why = codec.refuses(c.buffer.desc); !why.empty()) {
+    refused = true;
+    EXPECT_THROW({
+      std::vector<uint8_t> bytes;
+      codec.encode(c.buffer, {}, bytes);
+    }, Error) << label << " " << c.name << ": encode of a refused buffer must throw";
+    return;
+  }
+  std::vector<uint8_t> bytes;
+  codec.encode(c.buffer, {}, bytes);
+  PassBuffer out;
+  std::string error;
+  ASSERT_TRUE(codec.decode(bytes, c.buffer.desc, out, error))
+      << label << " " << c.name << " " << c.buffer.desc.width << "x" << c.buffer.desc.height << ": " << error;
+  EXPECT_EQ(out.desc, c.buffer.desc) << label << " " << c.name;
+  EXPECT_TRUE(out.bytes == c.buffer.bytes)
+      << label << " " << c.name << " " << c.buffer.desc.width << "x" << c.buffer.desc.height << " not bit-exact";
+}
+
+class QuietAv : public ::testing::Environment {
+ public:
+  // Corrupt input makes the H.264 decoder log every damaged slice; the tests feed it plenty.
+  void SetUp() override { av_log_set_level(AV_LOG_QUIET); }
+};
+const auto* const kQuietAv = ::testing::AddGlobalTestEnvironment(new QuietAv);
+
+// ---------------------------------------------------------------- layout conversions
+
+// Reference: one bit at a time, straight from the layout definitions.
+std::vector<uint8_t> naive_planes(const PassBuffer& b) {
+  const size_t n = size_t(b.desc.width) * b.desc.height, bpp = size_t(b.desc.channels + 7) / 8;
+  const size_t plane = (n + 7) / 8;
+  std::vector<uint8_t> p(plane * size_t(b.desc.channels), 0);
+  for (size_t i = 0; i < n; ++i)
+    for (int l = 0; l < b.desc.channels; ++l)
+      if ((b.bytes[i * bpp + size_t(l / 8)] >> (l % 8)) & 1) p[size_t(l) * plane + i / 8] |= uint8_t(1u << (i % 8));
+  return p;
+}
+
+TEST(BufferLayout, PlanesMatchDefinitionAndRoundTripExactly) {
+  for (int lights : {1, 3, 7, 8, 9, 16, 17, 63, 64})
+    for (auto [w, h] : {std::pair{1, 1}, {3, 3}, {8, 1}, {16, 1}, {17, 13}, {61, 7}, {0, 0}, {5, 0}}) {
+      const PassDesc desc{PassKind::Visibility, w, h, lights, 255};
+      const PassBuffer in = test::make_random(desc, uint64_t(lights * 100 + w));
+      std::vector<uint8_t> planes(visibility_planes_size(desc));
+      visibility_to_planes(desc, in.bytes, planes);
+      EXPECT_EQ(planes, naive_planes(in)) << lights << " lights " << w << "x" << h;
+      std::vector<uint8_t> back(desc.byte_size());
+      EXPECT_TRUE(visibility_from_planes(desc, planes, back));
+      EXPECT_EQ(back, in.bytes) << lights << " lights " << w << "x" << h;
+    }
+}
+
+TEST(BufferLayout, SizesFollowTheDefinition) {
+  EXPECT_EQ(visibility_plane_bytes(17, 13), 28u);  // 221 bits
+  EXPECT_EQ(visibility_planes_size({PassKind::Visibility, 17, 13, 4, 255}), 112u);
+  EXPECT_EQ(visibility_planes_size({PassKind::Visibility, 1280, 720, 4, 255}), 460800u);  // half of 1 byte/px
+}
+
+TEST(BufferLayout, UnusedBitsAreRejected) {
+  const PassDesc desc{PassKind::Visibility, 3, 3, 4, 255};
+  PassBuffer in = test::make_constant(desc, 0x0F);
+  EXPECT_TRUE(visibility_unused_bits_clear(desc, in.bytes));
+  in.bytes[4] |= 0x10;  // light 4 of a 4-light mask
+  EXPECT_FALSE(visibility_unused_bits_clear(desc, in.bytes));
+  std::vector<uint8_t> planes(visibility_planes_size(desc));
+  EXPECT_THROW(visibility_to_planes(desc, in.bytes, planes), Error);
+}
+
+TEST(BufferLayout, PaddingBitsAreCorruption) {
+  const PassDesc desc{PassKind::Visibility, 3, 3, 2, 255};  // 9 px: 2 bytes a plane, 7 padding bits
+  std::vector<uint8_t> planes(visibility_planes_size(desc), 0);
+  std::vector<uint8_t> out(desc.byte_size());
+  EXPECT_TRUE(visibility_from_planes(desc, planes, out));
+  planes[3] = 0x02;  // second plane, pixel 9 (does not exist)
+  EXPECT_FALSE(visibility_from_planes(desc, planes, out));
+}
+
+TEST(BufferLayout, WrongSizesAndKindsThrow) {
+  const PassDesc desc{PassKind::Visibility, 4, 4, 4, 255};
+  std::vector<uint8_t> in(desc.byte_size()), planes(visibility_planes_size(desc) + 1);
+  EXPECT_THROW(visibility_to_planes(desc, in, planes), Error);
+  std::vector<uint8_t> ok(visibility_planes_size(desc));
+  EXPECT_THROW(visibility_to_planes({PassKind::Ao, 4, 4, 1, 255}, in, ok), Error);
+  EXPECT_THROW(parse_visibility_layout("rows"), Error);
+}
+
+// ---------------------------------------------------------------- conformance, all codecs
+
+TEST(CodecConformance, LosslessRoundTripIsBitExactAtOddSizes) {
+  for (const Variant& v : lossless_variants()) {
+    auto codec = v.create();
+    ASSERT_TRUE(codec->lossless()) << v.label();
+    int refused = 0, total = 0;
+    for (auto [w, h] : {std::pair{1, 1}, {17, 13}})
+      for (const Case& c : cases_at(w, h, false)) {
+        bool r = false;
+        expect_round_trip(*codec, v.label(), c, r);
+        refused += r;
+        ++total;
+      }
+    std::printf("%-45s %d of %d small cases refused\n", v.label().c_str(), refused, total);
+  }
+}
+
+TEST(CodecConformance, LosslessRoundTripAtFullHdPlusOne) {
+  // One big odd-sized AO and one bitmask per codec configuration (kept few: ASan is slow).
+  const std::vector<Case> big = cases_at(1281, 721, true);
+  for (const Variant& v : lossless_variants()) {
+    auto codec = v.create();
+    for (const Case& c : big) {
+      if (c.name != "noisy_ao_8" && c.name != "hard_vis_4") continue;
+      bool refused = false;
+      expect_round_trip(*codec, v.label(), c, refused);
+    }
+  }
+}
+
+TEST(CodecConformance, EmptyBuffersRoundTripOrAreRefused) {
+  for (const Variant& v : lossless_variants()) {
+    auto codec = v.create();
+    for (const PassDesc& desc : {PassDesc{PassKind::Ao, 0, 0, 1, 255}, PassDesc{PassKind::Visibility, 0, 5, 4, 255},
+                                 PassDesc{PassKind::Colour, 7, 0, 3, 255}}) {
+      bool refused = false;
+      expect_round_trip(*codec, v.label(), {"empty", test::make_constant(desc, 0)}, refused);
+      if (refused) std::printf("%-45s refuses %dx%d %s: %s\n", v.label().c_str(), desc.width, desc.height,
+                               pass_kind_name(desc.kind), codec->refuses(desc).c_str());
+    }
+  }
+}
+
+TEST(CodecConformance, BadInputReturnsFalseAndNeverCrashes) {
+  const PassBuffer ao = test::make_smooth_ao({17, 13});
+  for (const Variant& v : default_variants()) {
+    auto codec = v.create();
+    if (!codec->refuses(ao.desc).empty()) continue;
+    std::vector<uint8_t> bytes;
+    codec->encode(ao, {}, bytes);
+    ASSERT_FALSE(bytes.empty()) << v.label();
+    auto rejects = [&](std::span<const uint8_t> in, const PassDesc& desc, const char* what) {
+      PassBuffer out;
+      std::string error;
+      const bool ok = codec->decode(in, desc, out, error);
+      EXPECT_FALSE(ok) << v.label() << ": " << what << " accepted";
+      if (!ok) {
+        EXPECT_FALSE(error.empty()) << v.label() << ": " << what << " rejected without a message";
+      }
+    };
+    rejects({}, ao.desc, "empty input");
+    rejects(std::span(bytes).first(1), ao.desc, "first byte only");
+    rejects(std::span(bytes).first(bytes.size() / 2), ao.desc, "first half");
+    std::vector<uint8_t> longer = bytes;
+    longer.push_back(0);
+    if (v.name != "h264") rejects(longer, ao.desc, "a trailing zero byte");  // H.264 allows trailing zeros
+    longer.back() = 0x5A;
+    if (v.name != "h264") rejects(longer, ao.desc, "a trailing byte");
+    const PassBuffer noise = test::make_random({PassKind::Ao, 1000, 1, 1, 255}, 99);
+    rejects(noise.bytes, ao.desc, "random bytes");
+    const std::string text = "this is not a frame of any codec";
+    rejects(std::span(reinterpret_cast<const uint8_t*>(text.data()), text.size()), ao.desc, "text");
+    PassDesc wider = ao.desc;
+    wider.width += 2;
+    rejects(bytes, wider, "a wrong buffer size");
+    PassDesc invalid = ao.desc;
+    invalid.channels = 0;
+    rejects(bytes, invalid, "an invalid description");
+    // Every prefix: truncation must never crash (and for checked codecs never succeed).
+    for (size_t n = 0; n < bytes.size(); n += std::max<size_t>(1, bytes.size() / 40)) {
+      PassBuffer out;
+      std::string error;
+      const bool ok = codec->decode(std::span(bytes).first(n), ao.desc, out, error);
+      if (v.name != "h264") {
+        EXPECT_FALSE(ok) << v.label() << ": prefix of " << n << " bytes accepted";
+      }
+      if (ok) {
+        EXPECT_EQ(out.bytes.size(), ao.desc.byte_size());
+      }
+    }
+  }
+}
+
+TEST(CodecConformance, ForeignFramesAreRejected) {
+  // A valid frame of another codec is foreign input too.
+  const PassBuffer ao = test::make_smooth_ao({17, 13});
+  for (const Variant& a : default_variants())
+    for (const Variant& b : default_variants()) {
+      if (a.name == b.name || a.name == "raw" || b.name == "raw") continue;  // raw accepts any right-sized bytes
+      auto enc = a.create();
+      auto dec = b.create();
+      if (!enc->refuses(ao.desc).empty() || !dec->refuses(ao.desc).empty()) continue;
+      std::vector<uint8_t> bytes;
+      enc->encode(ao, {}, bytes);
+      PassBuffer out;
+      std::string error;
+      const bool ok = dec->decode(bytes, ao.desc, out, error);
+      // Accepting is only tolerable when the decoder produced the right bytes anyway.
+      if (ok) {
+        EXPECT_TRUE(out.bytes == ao.bytes) << b.name << " decoded a " << a.name << " frame into wrong bytes";
+      }
+    }
+}
+
+// Single bit flips: every codec with a checksum must reject them or return the right bytes
+// (measured.md: without checksums 55-65% decode into wrong bytes).
+TEST(CodecConformance, ChecksummedCodecsDetectEveryBitFlip) {
+  const SyntheticView view{33, 21};
+  const std::vector<PassBuffer> inputs{test::make_smooth_ao(view), test::make_hard_visibility(view, 4),
+                                       test::make_noisy_ao(view, 8)};
+  for (const char* name : {"lz4", "zstd", "delta"}) {
+    if (!has_codec(name)) continue;
+    for (const json& params : {json::object(), json{{"layout", "interleaved"}}}) {
+      if (std::string(name) == "delta" && !params.empty()) continue;
+      auto codec = registries().codecs.create(name, params);
+      for (const PassBuffer& in : inputs) {
+        std::vector<uint8_t> bytes;
+        codec->encode(in, {}, bytes);
+        int detected = 0, harmless = 0, wrong = 0;
+        for (uint32_t i = 0; i < 300; ++i) {
+          const uint64_t r = rng_bits({2024, i, 0, 0, 0});
+          std::vector<uint8_t> flipped = bytes;
+          flipped[size_t(r % flipped.size())] ^= uint8_t(1u << ((r >> 32) % 8));
+          if (std::string(name) == "delta") codec->reset();  // a fresh keyframe decoder each time
+          PassBuffer out;
+          std::string error;
+          if (!codec->decode(flipped, in.desc, out, error))
+            ++detected;
+          else if (out.bytes == in.bytes)
+            ++harmless;
+          else
+            ++wrong;
+        }
+        EXPECT_EQ(wrong, 0) << name << params.dump() << " " << pass_kind_name(in.desc.kind) << ": " << wrong
+                            << " of 300 bit flips decoded into wrong bytes";
+        EXPECT_GT(detected, 250) << name;
+      }
+    }
+  }
+}
+
+TEST(CodecConformance, SameInputGivesSameBytes) {
+  const SyntheticView view{33, 21};
+  std::vector<Variant> all = default_variants();
+  for (const Variant& v : lossless_variants()) all.push_back(v);
+  for (const Variant& v : all) {
+    auto a = v.create();
+    auto b = v.create();
+    for (uint32_t f = 0; f < 3; ++f) {
+      SyntheticView moved = view;
+      moved.shift_x_px = 2.0 * f;
+      moved.frame = f;
+      for (const PassBuffer& in : {test::make_smooth_ao(moved), test::make_colour(moved)}) {
+        if (!a->refuses(in.desc).empty()) continue;
+        std::vector<uint8_t> x, y;
+        a->encode(in, {}, x);
+        b->encode(in, {}, y);
+        EXPECT_TRUE(x == y) << v.label() << " frame " << f << " " << pass_kind_name(in.desc.kind);
+      }
+    }
+  }
+}
+
+TEST(CodecConformance, InvalidInputBufferThrowsOnEncode) {
+  for (const Variant& v : default_variants()) {
+    if (v.name == "raw") continue;  // the baseline copies whatever it is given
+    auto codec = v.create();
+    PassBuffer bad = test::make_smooth_ao({8, 8});
+    bad.bytes.pop_back();
+    std::vector<uint8_t> out;
+    EXPECT_THROW(codec->encode(bad, {}, out), Error) << v.label();
+  }
+}
+
+// ---------------------------------------------------------------- lz4 / zstd specifics
+
+TEST(Lz4Zstd, FramesAreStandardAndHoldThePlanes) {
+  const PassBuffer vis = test::make_hard_visibility({40, 24}, 4);
+  std::vector<uint8_t> planes(visibility_planes_size(vis.desc));
+  visibility_to_planes(vis.desc, vis.bytes, planes);
+  for (const char* name : {"lz4", "zstd"}) {
+    if (!has_codec(name)) continue;
+    for (const char* layout : {"planes", "interleaved"}) {
+      auto codec = registries().codecs.create(name, {{"layout", layout}});
+      std::vector<uint8_t> bytes;
+      codec->encode(vis, {}, bytes);
+      // The same bytes decoded as a plain AO-like byte buffer of the coded size: a codec that
+      // writes a standard frame of the (planar) bytes accepts it.
+      const std::vector<uint8_t>& want = std::string(layout) == "planes" ? planes : vis.bytes;
+      const PassDesc as_bytes{PassKind::Ao, int(want.size()), 1, 1, 255};
+      PassBuffer out;
+      std::string error;
+      ASSERT_TRUE(codec->decode(bytes, as_bytes, out, error)) << name << " " << layout << ": " << error;
+      EXPECT_EQ(out.bytes, want) << name << " " << layout;
+    }
+  }
+}
+
+TEST(Lz4Zstd, PlanesAreSmallerThanInterleavedOnBitmasks) {
+  const PassBuffer vis = test::make_hard_visibility({320, 180}, 4);
+  for (const char* name : {"lz4", "zstd"}) {
+    if (!has_codec(name)) continue;
+    std::vector<uint8_t> planar, interleaved;
+    registries().codecs.create(name, {{"layout", "planes"}})->encode(vis, {}, planar);
+    registries().codecs.create(name, {{"layout", "interleaved"}})->encode(vis, {}, interleaved);
+    EXPECT_LT(planar.size(), interleaved.size()) << name;
+    std::printf("%s 4-light bitmask 320x180: planes %zu bytes, interleaved %zu bytes\n", name, planar.size(),
+                interleaved.size());
+  }
+}
+
+TEST(Lz4Zstd, UnusedBitmaskBitsAreBadInput) {
+  PassBuffer vis = test::make_hard_visibility({9, 5}, 3);
+  vis.bytes[7] |= 0x80;
+  for (const char* name : {"lz4", "zstd"}) {
+    if (!has_codec(name)) continue;
+    std::vector<uint8_t> bytes;
+    EXPECT_THROW(registries().codecs.create(name, json::object())->encode(vis, {}, bytes), Error) << name;
+    // The interleaved layout carries the bytes as they are.
+    auto raw_layout = registries().codecs.create(name, {{"layout", "interleaved"}});
+    raw_layout->encode(vis, {}, bytes);
+    PassBuffer out;
+    std::string error;
+    EXPECT_TRUE(raw_layout->decode(bytes, vis.desc, out, error)) << error;
+    EXPECT_EQ(out.bytes, vis.bytes);
+  }
+}
+
+// ---------------------------------------------------------------- h264 specifics
+
+std::unique_ptr<Codec> h264(json params = json::object()) { return registries().codecs.create("h264", params); }
+
+// Decodes one access unit with a fresh, plain libavcodec H.264 decoder (not the codec object).
+// Returns the luma plane cropped to w x h, or nothing when no picture came out.
+std::optional<std::vector<uint8_t>> plain_decode_luma(const std::vector<uint8_t>& bytes, int w, int h,
+                                                      bool* keyframe = nullptr) {
+  const AVCodec* dec = avcodec_find_decoder(AV_CODEC_ID_H264);
+  AVCodecContext* ctx = avcodec_alloc_context3(dec);
+  ctx->thread_count = 1;
+  std::optional<std::vector<uint8_t>> luma;
+  if (avcodec_open2(ctx, dec, nullptr) == 0) {
+    AVPacket* pkt = av_packet_alloc();
+    AVFrame* frame = av_frame_alloc();
+    if (av_new_packet(pkt, int(bytes.size())) == 0) {
+      std::memcpy(pkt->data, bytes.data(), bytes.size());
+      if (avcodec_send_packet(ctx, pkt) >= 0) {
+        avcodec_send_packet(ctx, nullptr);  // flush: a plain decoder may hold the picture back
+        if (avcodec_receive_frame(ctx, frame) == 0 && frame->width >= w && frame->height >= h) {
+          luma.emplace(size_t(w) * size_t(h));
+          for (int y = 0; y < h; ++y)
+            std::memcpy(luma->data() + size_t(y) * w, frame->data[0] + ptrdiff_t(y) * frame->linesize[0], size_t(w));
+          if (keyframe) *keyframe = frame->key_frame != 0;
+        }
+      }
+    }
+    av_frame_free(&frame);
+    av_packet_free(&pkt);
+  }
+  avcodec_free_context(&ctx);
+  return luma;
+}
+
+// Sizes of the NAL units of an Annex-B byte stream (start codes excluded) and their types.
+std::vector<std::pair<size_t, int>> nal_units(const std::vector<uint8_t>& b) {
+  std::vector<size_t> starts;
+  for (size_t i = 0; i + 2 < b.size(); ++i)
+    if (b[i] == 0 && b[i + 1] == 0 && b[i + 2] == 1) {
+      starts.push_back(i + 3);
+      i += 2;
+    }
+  std::vector<std::pair<size_t, int>> units;
+  for (size_t k = 0; k < starts.size(); ++k) {
+    size_t end = k + 1 < starts.size() ? starts[k + 1] - 3 : b.size();
+    while (end > starts[k] && b[end - 1] == 0) --end;  // a 4-byte start code's leading zero
+    units.push_back({end - starts[k], b[starts[k]] & 0x1F});
+  }
+  return units;
+}
+
+PassBuffer decode_or_fail(Codec& codec, const std::vector<uint8_t>& bytes, const PassDesc& desc) {
+  PassBuffer out;
+  std::string error;
+  EXPECT_TRUE(codec.decode(bytes, desc, out, error)) << error;
+  return out;
+}
+
+TEST(H264, LossyQualityOnSmoothAoAndColour) {
+  if (!has_codec("h264")) GTEST_SKIP() << "no h264 codec registered";
+  // Measured at 256x144 (Release, keyframe): smooth AO 46.4 dB, colour 38.3 dB at crf 23.
+  const SyntheticView view{256, 144};
+  for (auto [buffer, min_db] : {std::pair{test::make_smooth_ao(view), 44.0}, {test::make_colour(view), 36.0}}) {
+    auto codec = h264({{"crf", 23}});
+    std::vector<uint8_t> bytes;
+    codec->encode(buffer, {}, bytes);
+    const PassBuffer out = decode_or_fail(*codec, bytes, buffer.desc);
+    const double db = test::buffer_psnr_db(buffer, out);
+    std::printf("h264 crf 23 %s 256x144: %zu bytes, PSNR %.2f dB\n", pass_kind_name(buffer.desc.kind), bytes.size(), db);
+    EXPECT_GE(db, min_db) << pass_kind_name(buffer.desc.kind);
+  }
+}
+
+TEST(H264, KeyframeIsAStandardBitstream) {
+  if (!has_codec("h264")) GTEST_SKIP() << "no h264 codec registered";
+  for (const json& params : {json::object(), json{{"rate_control", "lossless"}}}) {
+    const PassBuffer ao = test::make_smooth_ao({34, 20});
+    auto codec = h264(params);
+    std::vector<uint8_t> bytes;
+    codec->encode(ao, {}, bytes);
+    bool key = false;
+    const auto luma = plain_decode_luma(bytes, 34, 20, &key);
+    ASSERT_TRUE(luma.has_value()) << params.dump() << ": a plain H.264 decoder cannot decode the first frame";
+    EXPECT_TRUE(key);
+    EXPECT_EQ(*luma, decode_or_fail(*codec, bytes, ao.desc).bytes) << params.dump();
+    if (params.contains("rate_control")) {
+      EXPECT_EQ(*luma, ao.bytes) << "lossless";
+    }
+  }
+  // Colour: the plain decoder sees a 4:2:0 picture of the padded size.
+  const PassBuffer colour = test::make_colour({33, 21});
+  auto codec = h264();
+  std::vector<uint8_t> bytes;
+  codec->encode(colour, {}, bytes);
+  EXPECT_TRUE(plain_decode_luma(bytes, 34, 22).has_value());
+}
+
+TEST(H264, ForcedKeyframeMidStreamAndGop) {
+  if (!has_codec("h264")) GTEST_SKIP() << "no h264 codec registered";
+  auto codec = h264({{"gop", 5}});
+  for (int f = 0; f < 8; ++f) {
+    const PassBuffer ao = test::make_smooth_ao({48, 32, 2.0 * f, 0.0, uint32_t(f)});
+    EncodeOptions options;
+    options.force_keyframe = f == 3;
+    std::vector<uint8_t> bytes;
+    codec->encode(ao, options, bytes);
+    // A keyframe decodes alone; x264 restarts the interval at a forced IDR: 0, 3, (8).
+    const bool expect_key = f == 0 || f == 3;
+    EXPECT_EQ(plain_decode_luma(bytes, 48, 32).has_value(), expect_key) << "frame " << f;
+    decode_or_fail(*codec, bytes, ao.desc);
+  }
+}
+
+TEST(H264, ResetStartsANewStream) {
+  if (!has_codec("h264")) GTEST_SKIP() << "no h264 codec registered";
+  auto codec = h264();
+  std::vector<uint8_t> bytes;
+  for (int f = 0; f < 3; ++f) {
+    const PassBuffer ao = test::make_smooth_ao({32, 16, double(f), 0.0});
+    codec->encode(ao, {}, bytes);
+    decode_or_fail(*codec, bytes, ao.desc);
+  }
+  EXPECT_FALSE(plain_decode_luma(bytes, 32, 16).has_value()) << "frame 2 should be a P-frame";
+  codec->reset();
+  const PassBuffer ao = test::make_smooth_ao({32, 16, 3.0, 0.0});
+  codec->encode(ao, {}, bytes);
+  EXPECT_TRUE(plain_decode_luma(bytes, 32, 16).has_value()) << "the first frame after reset is a keyframe";
+  const PassBuffer out = decode_or_fail(*codec, bytes, ao.desc);
+  EXPECT_GE(test::buffer_psnr_db(ao, out), 35.0);
+}
+
+TEST(H264, PFrameSequenceRoundTrips) {
+  if (!has_codec("h264")) GTEST_SKIP() << "no h264 codec registered";
+  for (const json& params : {json::object(), json{{"rate_control", "lossless"}}}) {
+    const bool lossless = params.contains("rate_control");
+    auto codec = h264(params);
+    size_t key_bytes = 0, p_bytes = 0;
+    for (int f = 0; f < 10; ++f) {
+      const SyntheticView view{64, 40, 1.5 * f, 0.5 * f, uint32_t(f)};
+      for (const PassBuffer& in : {test::make_smooth_ao(view)}) {
+        std::vector<uint8_t> bytes;
+        codec->encode(in, {}, bytes);
+        (f == 0 ? key_bytes : p_bytes) += bytes.size();
+        const PassBuffer out = decode_or_fail(*codec, bytes, in.desc);
+        if (lossless) {
+          EXPECT_EQ(out.bytes, in.bytes) << "frame " << f;
+        } else {
+          EXPECT_GE(test::buffer_psnr_db(in, out), 32.0) << "frame " << f;  // measured 34.2-35.1 (64x40)
+        }
+      }
+    }
+    EXPECT_LT(p_bytes / 9, key_bytes) << params.dump() << ": P-frames are not smaller than the keyframe";
+  }
+  // Colour and soft visibility through the same stateful object, changing size mid-stream.
+  auto codec = h264();
+  for (int f = 0; f < 10; ++f) {
+    const SyntheticView view{f < 5 ? 48 : 31, f < 5 ? 32 : 17, 2.0 * f, 0.0, uint32_t(f)};
+    for (const PassBuffer& in : {test::make_colour(view)}) {
+      std::vector<uint8_t> bytes;
+      codec->encode(in, {}, bytes);
+      const PassBuffer out = decode_or_fail(*codec, bytes, in.desc);
+      EXPECT_EQ(out.bytes.size(), in.bytes.size());
+      EXPECT_GE(test::buffer_psnr_db(in, out), 28.0) << "frame " << f;
+    }
+  }
+}
+
+TEST(H264, SlicesFitThePacketPayload) {
+  if (!has_codec("h264")) GTEST_SKIP() << "no h264 codec registered";
+  const PassBuffer noisy = test::make_noisy_ao({160, 96}, 8);
+  for (int limit : {1100, 500}) {
+    auto codec = h264({{"slice_max_size_bytes", limit}, {"crf", 10}});
+    std::vector<uint8_t> bytes;
+    codec->encode(noisy, {}, bytes);
+    int slices = 0;
+    for (auto [size, type] : nal_units(bytes))
+      if (type == 1 || type == 5) {
+        ++slices;
+        EXPECT_LE(size, size_t(limit)) << "slice NAL of " << size << " bytes";
+      }
+    EXPECT_GT(slices, 1) << "the picture should need several slices";
+    decode_or_fail(*codec, bytes, noisy.desc);
+  }
+}
+
+TEST(H264, RefusesBitmasksAndEmptyPictures) {
+  if (!has_codec("h264")) GTEST_SKIP() << "no h264 codec registered";
+  auto codec = h264();
+  EXPECT_FALSE(codec->lossless());
+  EXPECT_TRUE(h264({{"rate_control", "lossless"}})->lossless());
+  EXPECT_NE(codec->refuses({PassKind::Visibility, 16, 16, 4, 255}), "");
+  EXPECT_NE(codec->refuses({PassKind::Ao, 0, 0, 1, 255}), "");
+  EXPECT_EQ(codec->refuses({PassKind::SoftVisibility, 17, 13, 3, 255}), "");
+  EXPECT_EQ(codec->refuses({PassKind::Colour, 1, 1, 3, 255}), "");
+  std::vector<uint8_t> bytes;
+  EXPECT_THROW(codec->encode(test::make_hard_visibility({16, 16}, 4), {}, bytes), Error);
+}
+
+TEST(H264, TinyAndOddPicturesWork) {
+  if (!has_codec("h264")) GTEST_SKIP() << "no h264 codec registered";
+  auto codec = h264();
+  for (auto [w, h] : {std::pair{1, 1}, {17, 13}, {2, 1}, {1, 3}}) {
+    const SyntheticView view{w, h};
+    for (const PassBuffer& in : {test::make_smooth_ao(view), test::make_colour(view), test::make_soft_visibility(view, 3),
+                                 test::make_noisy_ao(view, 8)}) {
+      std::vector<uint8_t> bytes;
+      codec->encode(in, {}, bytes);
+      const PassBuffer out = decode_or_fail(*codec, bytes, in.desc);
+      EXPECT_EQ(out.bytes.size(), in.bytes.size());
+      if (in.desc.kind != PassKind::Colour) {
+        for (uint8_t v : out.bytes) ASSERT_LE(v, in.desc.full_scale);
+      }
+    }
+  }
+}
+
+// ---------------------------------------------------------------- delta specifics
+
+// Mean coded bytes per frame of `frames` through a fresh codec, and a bit-exact check.
+double mean_bytes(const char* name, const json& params, const std::vector<PassBuffer>& frames) {
+  auto codec = registries().codecs.create(name, params);
+  size_t total = 0;
+  for (const PassBuffer& in : frames) {
+    std::vector<uint8_t> bytes;
+    codec->encode(in, {}, bytes);
+    total += bytes.size();
+    EXPECT_EQ(decode_or_fail(*codec, bytes, in.desc).bytes, in.bytes) << name;
+  }
+  return double(total) / double(frames.size());
+}
+
+TEST(Delta, SavesOnAStaticCameraAndReportsAMovingOne) {
+  if (!has_codec("delta")) GTEST_SKIP() << "no delta codec registered";
+  for (double shift_px : {0.0, 1.0, 4.0}) {
+    std::vector<PassBuffer> ao, vis, noisy;
+    for (int f = 0; f < 6; ++f) {
+      const SyntheticView view{160, 90, shift_px * f, 0.0, uint32_t(f)};
+      ao.push_back(test::make_smooth_ao(view));
+      vis.push_back(test::make_hard_visibility(view, 4));
+      noisy.push_back(test::make_noisy_ao(view, 8));
+    }
+    for (auto& [label, frames] : {std::pair<const char*, std::vector<PassBuffer>&>{"smooth_ao", ao},
+                                  {"hard_vis_4", vis}, {"noisy_ao_8", noisy}}) {
+      const double plain = mean_bytes("zstd", json::object(), frames);
+      const double delta = mean_bytes("delta", json::object(), frames);
+      std::printf("160x90 %-10s pan %.0f px/frame: zstd %.0f B/frame, delta+zstd %.0f B/frame (%.0f%%)\n", label,
+                  shift_px, plain, delta, 100.0 * delta / plain);
+      if (shift_px == 0 && std::string(label) != "noisy_ao_8") {
+        EXPECT_LT(delta, 0.5 * plain) << label << ": a static view should cost little after the keyframe";
+      }
+    }
+  }
+}
+
+TEST(Delta, LostFrameFailsUntilTheNextKeyframe) {
+  if (!has_codec("delta")) GTEST_SKIP() << "no delta codec registered";
+  auto enc = registries().codecs.create("delta", {{"keyframe_interval", 4}});
+  auto dec = registries().codecs.create("delta", {{"keyframe_interval", 4}});
+  for (int f = 0; f < 9; ++f) {
+    const PassBuffer in = test::make_hard_visibility({40, 24, double(f), 0.0}, 3);
+    std::vector<uint8_t> bytes;
+    enc->encode(in, {}, bytes);
+    EXPECT_EQ(bytes[0], (f % 4 == 0) ? 'K' : 'D') << "frame " << f;
+    if (f == 1) continue;  // lost on the link
+    PassBuffer out;
+    std::string error;
+    const bool ok = dec->decode(bytes, in.desc, out, error);
+    EXPECT_EQ(ok, f == 0 || f >= 4) << "frame " << f << ": " << error;
+    if (ok) {
+      EXPECT_EQ(out.bytes, in.bytes) << "frame " << f;
+    }
+  }
+}
+
+TEST(Delta, InnerLevelsAreValidated) {
+  if (!has_codec("delta")) GTEST_SKIP() << "no delta codec registered";
+  EXPECT_THROW(registries().codecs.create("delta", {{"inner", "lz4"}, {"level", 2}}), Error);
+  EXPECT_THROW(registries().codecs.create("delta", {{"inner", "lz4"}, {"level", 13}}), Error);
+  EXPECT_NO_THROW(registries().codecs.create("delta", {{"inner", "lz4"}, {"level", 12}}));
+  EXPECT_NO_THROW(registries().codecs.create("delta", {{"inner", "zstd"}, {"level", 19}}));
+}
+
+}  // namespace
+}  // namespace dhr
