@@ -1,0 +1,435 @@
+// The denoisers (backends/denoise/): a conformance test over every registered denoiser, and
+// behaviour tests of the SVGF family (svgf_ao, atrous, single_iteration, temporal) on small
+// synthetic G-buffers built here: a background plane with a smooth AO field, a foreground box
+// at another depth and object id, a depth step, camera pans and moving objects expressed as
+// motion vectors, and binomial AO counts around the known converged AO (core/rng.h).
+//
+// Measured figures the assertions are built on (Release, 64x48; printed by the tests): see
+// the comments at each test.
+#include "core/backend.h"
+#include "core/error.h"
+#include "core/gbuffer.h"
+#include "core/image.h"
+#include "core/rng.h"
+
+#include <gtest/gtest.h>
+#include <tbb/global_control.h>
+
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace dhr {
+namespace {
+
+constexpr int kW = 64;
+constexpr int kH = 48;
+
+// ---------------------------------------------------------------- synthetic frames
+
+struct Frame {
+  GBuffer gbuf;
+  ImageF truth;  // converged AO, 0..1 (1 = unoccluded); 1 at background
+};
+
+// Background plane (id 1, depth 6 m, smooth AO) panned left by bg_speed px per frame, and a
+// box (id 2, depth 3 m, AO 0.9) spanning screen x [box_x0 - fg_speed f, box_x1 - fg_speed f)
+// and y [8, 40). Motion vectors point to where each surface point was in frame f - 1. Rows
+// y >= 44 are background (no object) when with_background is set.
+Frame make_frame(int f, int bg_speed, int fg_speed, bool with_box = true, bool with_background = true,
+                 int box_x0 = 40, int box_x1 = 56) {
+  Frame fr;
+  fr.gbuf.resize(kW, kH);
+  fr.truth.resize(kW, kH, 1.0f);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      if (with_background && y >= 44) continue;  // background: id 0, depth +inf (resize)
+      const bool box = with_box && y >= 8 && y < 40 && x >= box_x0 - fg_speed * f && x < box_x1 - fg_speed * f;
+      const float xw = float(x + bg_speed * f);  // world x of the plane point
+      fr.gbuf.object_id(x, y) = box ? 2 : 1;
+      fr.gbuf.depth(x, y) = box ? 3.0f : 6.0f;
+      fr.gbuf.normal(x, y) = glm::vec3(0, 0, 1);
+      fr.gbuf.geo_normal(x, y) = glm::vec3(0, 0, 1);
+      fr.gbuf.position(x, y) = glm::vec3(box ? float(x + fg_speed * f) : xw, float(y), -fr.gbuf.depth(x, y));
+      fr.gbuf.motion(x, y) = glm::vec2(float(box ? fg_speed : bg_speed), 0.0f);
+      fr.truth(x, y) = box ? 0.9f : 0.6f + 0.2f * std::sin(xw * 0.08f) * std::cos(float(y) * 0.1f);
+    }
+  return fr;
+}
+
+// Binomial counts of `rays` AO rays around `truth` (each ray escapes with probability truth).
+ImageU8 noisy_counts(const ImageF& truth, int rays, uint32_t frame, uint64_t seed = 7) {
+  ImageU8 out(truth.width(), truth.height());
+  for (int y = 0; y < truth.height(); ++y)
+    for (int x = 0; x < truth.width(); ++x) {
+      int n = 0;
+      for (int s = 0; s < rays; ++s) {
+        const RngKey key{seed, uint32_t(y * truth.width() + x), frame, uint32_t(s), kStreamAo};
+        n += rng_uniform(key) < truth(x, y) ? 1 : 0;
+      }
+      out(x, y) = uint8_t(n);
+    }
+  return out;
+}
+
+std::unique_ptr<Denoiser> make(const std::string& name, const nlohmann::json& params = nlohmann::json::object()) {
+  return registries().denoisers.create(name, params);
+}
+
+ImageU8 run(Denoiser& d, const Frame& fr, const ImageU8& noisy, int full_scale, uint32_t frame,
+            bool history_valid = true) {
+  ImageU8 out;
+  d.denoise(DenoiseInput{fr.gbuf, noisy, full_scale, frame, history_valid}, out);
+  return out;
+}
+
+// Mean |out/255 - truth| over the pixels where `mask` holds.
+double mae(const ImageU8& out, const ImageF& truth, const std::function<bool(int, int)>& mask) {
+  double s = 0.0;
+  int n = 0;
+  for (int y = 0; y < out.height(); ++y)
+    for (int x = 0; x < out.width(); ++x)
+      if (mask(x, y)) {
+        s += std::fabs(out(x, y) / 255.0 - truth(x, y));
+        ++n;
+      }
+  return n ? s / n : 0.0;
+}
+
+const std::vector<std::string> kSvgfFamily = {"svgf_ao", "atrous", "single_iteration", "temporal"};
+
+// ---------------------------------------------------------------- conformance: every denoiser
+
+TEST(DenoiserConformance, EveryDenoiserSizeRangeDeterminismReset) {
+  ASSERT_GE(registries().denoisers.entries().size(), 5u);
+  for (const auto& entry : registries().denoisers.entries()) {
+    SCOPED_TRACE(entry.name);
+    // A few frames of a moving scene; 8 rays.
+    std::vector<Frame> frames;
+    std::vector<ImageU8> noisy;
+    for (int f = 0; f < 4; ++f) {
+      frames.push_back(make_frame(f, 1, 3));
+      noisy.push_back(noisy_counts(frames.back().truth, 8, uint32_t(f)));
+    }
+    auto run_all = [&](int threads) {
+      tbb::global_control gc(tbb::global_control::max_allowed_parallelism, size_t(threads));
+      auto d = make(entry.name);
+      std::vector<ImageU8> outs;
+      for (int f = 0; f < 4; ++f) outs.push_back(run(*d, frames[size_t(f)], noisy[size_t(f)], 8, uint32_t(f)));
+      return outs;
+    };
+    const auto one = run_all(1);
+    const auto two = run_all(2);
+    for (int f = 0; f < 4; ++f) {
+      ASSERT_EQ(one[size_t(f)].width(), kW);
+      ASSERT_EQ(one[size_t(f)].height(), kH);
+      EXPECT_TRUE(one[size_t(f)] == two[size_t(f)]) << "frame " << f << " differs between 1 and 2 threads";
+    }
+    // reset(): the next frame equals a fresh instance's first frame.
+    auto d = make(entry.name);
+    for (int f = 0; f < 3; ++f) run(*d, frames[size_t(f)], noisy[size_t(f)], 8, uint32_t(f));
+    d->reset();
+    auto fresh = make(entry.name);
+    EXPECT_TRUE(run(*d, frames[3], noisy[3], 8, 3) == run(*fresh, frames[3], noisy[3], 8, 3));
+    // Background pixels (object id 0) pass through as the rescaled input.
+    for (int x = 0; x < kW; ++x) {
+      const int v = noisy[0](x, 46);
+      EXPECT_EQ(one[0](x, 46), (v * 255 + 4) / 8) << "background pixel x=" << x;
+    }
+  }
+}
+
+TEST(DenoiserConformance, NoneReturnsRescaledInput) {
+  const Frame fr = make_frame(0, 0, 0);
+  ImageU8 noisy(kW, kH);
+  for (size_t i = 0; i < noisy.size(); ++i) noisy[i] = uint8_t((i * 37) % 256);
+  auto d = make("none");
+  const ImageU8 out = run(*d, fr, noisy, 200, 0);
+  for (size_t i = 0; i < noisy.size(); ++i) {
+    const int v = std::min<int>(noisy[i], 200);
+    ASSERT_EQ(out[i], (v * 255 + 100) / 200) << i;
+  }
+}
+
+// ---------------------------------------------------------------- robustness
+
+TEST(Denoisers, ConstantImageStaysConstant) {
+  for (const auto& entry : registries().denoisers.entries()) {
+    SCOPED_TRACE(entry.name);
+    auto d = make(entry.name);
+    for (int f = 0; f < 5; ++f) {
+      const Frame fr = make_frame(f, 1, 3);
+      const ImageU8 noisy(kW, kH, 5);  // 5 of 8 rays everywhere: 159.375 -> 159
+      const ImageU8 out = run(*d, fr, noisy, 8, uint32_t(f));
+      for (size_t i = 0; i < out.size(); ++i) ASSERT_NEAR(int(out[i]), 159, 1) << "frame " << f << " pixel " << i;
+    }
+  }
+}
+
+// A G-buffer full of garbage: NaN/Inf/zero/huge depths and normals, NaN/Inf/huge motion,
+// ids of objects whose depth is +inf, and noisy values above full_scale.
+Frame garbage_frame(int f) {
+  Frame fr = make_frame(f, 1, 3);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const float inf = std::numeric_limits<float>::infinity();
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      const int k = (x * 7 + y * 13 + f) % 11;
+      switch (k) {
+        case 0: fr.gbuf.depth(x, y) = nan; break;
+        case 1: fr.gbuf.depth(x, y) = inf; break;
+        case 2: fr.gbuf.normal(x, y) = glm::vec3(nan, 0, 1); break;
+        case 3: fr.gbuf.normal(x, y) = glm::vec3(0, 0, 0); break;
+        case 4: fr.gbuf.motion(x, y) = glm::vec2(nan, inf); break;
+        case 5: fr.gbuf.motion(x, y) = glm::vec2(1e30f, -1e30f); break;
+        case 6: fr.gbuf.depth(x, y) = -1.0f; break;
+        case 7: fr.gbuf.depth(x, y) = 1e38f; break;
+        case 8: fr.gbuf.normal(x, y) = glm::vec3(inf, inf, inf); break;
+        case 9: fr.gbuf.depth(x, y) = 1e-30f; break;  // valid but absurd
+        default: break;
+      }
+    }
+  return fr;
+}
+
+TEST(Denoisers, GarbageGBufferAndOutOfRangeValuesStayInRange) {
+  for (const auto& entry : registries().denoisers.entries()) {
+    SCOPED_TRACE(entry.name);
+    auto d = make(entry.name);
+    auto d2 = make(entry.name);
+    for (int f = 0; f < 6; ++f) {
+      const Frame fr = garbage_frame(f);
+      // (1) Every value at or above full_scale: the answer is 255 everywhere. A NaN weight
+      // that leaked into a sum would turn pixels into 0.
+      ImageU8 bright(kW, kH);
+      for (size_t i = 0; i < bright.size(); ++i) bright[i] = uint8_t(8 + (i * 31) % 248);
+      const ImageU8 out = run(*d, fr, bright, 8, uint32_t(f));
+      for (size_t i = 0; i < out.size(); ++i) ASSERT_EQ(out[i], 255) << "frame " << f << " pixel " << i;
+      // (2) Random values in 0..8: every output is a weighted mean of inputs, so it lies in
+      // [min, max] of the rescaled input (here 0..255, and not below 2 levels under min).
+      ImageU8 noisy(kW, kH);
+      for (size_t i = 0; i < noisy.size(); ++i) noisy[i] = uint8_t(2 + (i * 7 + size_t(f)) % 7);  // 2..8
+      const ImageU8 out2 = run(*d2, fr, noisy, 8, uint32_t(f));
+      for (size_t i = 0; i < out2.size(); ++i) ASSERT_GE(int(out2[i]), 2 * 255 / 8) << "frame " << f << " pixel " << i;
+    }
+  }
+}
+
+TEST(Denoisers, BadInputThrows) {
+  for (const auto& name : kSvgfFamily) {
+    SCOPED_TRACE(name);
+    auto d = make(name);
+    const Frame fr = make_frame(0, 0, 0);
+    const ImageU8 noisy(kW, kH, 1);
+    ImageU8 out;
+    EXPECT_THROW(d->denoise(DenoiseInput{fr.gbuf, noisy, 0, 0, true}, out), Error);
+    const ImageU8 small(kW - 1, kH, 1);
+    EXPECT_THROW(d->denoise(DenoiseInput{fr.gbuf, small, 8, 0, true}, out), Error);
+  }
+  EXPECT_THROW(make("svgf_ao", {{"iterations", 11}}), Error);
+  EXPECT_THROW(make("svgf_ao", {{"alpha", 0.0}}), Error);
+  EXPECT_THROW(make("atrous", {{"kernel_radius", 3}}), Error);
+  EXPECT_THROW(make("temporal", {{"sigma_l", 1.0}}), Error);  // temporal has no spatial filter
+}
+
+// ---------------------------------------------------------------- history reset
+
+TEST(Denoisers, ResetAndInvalidHistoryGiveTheSpatialOnlyPath) {
+  struct Case {
+    std::string name;
+    std::string spatial;  // the denoiser whose single frame is the spatial-only path
+    nlohmann::json spatial_params;
+    int tolerance;
+  };
+  const std::vector<Case> cases = {
+      {"svgf_ao", "atrous", nlohmann::json::object(), 0},
+      {"single_iteration", "atrous", {{"iterations", 1}, {"kernel_radius", 1}}, 0},
+      {"temporal", "none", nlohmann::json::object(), 1},  // float vs integer rounding
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    for (int mode = 0; mode < 3; ++mode) {  // reset(), history_valid = false, size change
+      auto d = make(c.name);
+      for (int f = 0; f < 6; ++f) {
+        const Frame fr = make_frame(f, 1, 3);
+        run(*d, fr, noisy_counts(fr.truth, 4, uint32_t(f)), 4, uint32_t(f));
+      }
+      if (mode == 2) {  // a frame of another size in between
+        GBuffer g;
+        g.resize(16, 8);
+        ImageU8 n(16, 8, 1), o;
+        d->denoise(DenoiseInput{g, n, 4, 6, true}, o);
+      }
+      if (mode == 0) d->reset();
+      const Frame fr = make_frame(7, 1, 3);
+      const ImageU8 noisy = noisy_counts(fr.truth, 4, 7);
+      const ImageU8 out = run(*d, fr, noisy, 4, 7, /*history_valid=*/mode != 1);
+      auto s = make(c.spatial, c.spatial_params);
+      const ImageU8 ref = run(*s, fr, noisy, 4, 7);
+      int worst = 0;
+      for (size_t i = 0; i < out.size(); ++i) worst = std::max(worst, std::abs(int(out[i]) - int(ref[i])));
+      EXPECT_LE(worst, c.tolerance) << "mode " << mode;
+    }
+  }
+}
+
+// ---------------------------------------------------------------- convergence, static camera
+
+// Measured (4 rays, mean of 8 seeds, frames 0..7): svgf_ao 0.0224 0.0169 0.0140 0.0130 0.0119
+// 0.0116 0.0115 0.0115; svgf_ao with feedback "accumulated" 0.0224 ... 0.0127 (a bump of
+// +0.0008 at frame 3, where the variance switches from spatial to temporal); temporal 0.183
+// 0.128 0.104 0.090 0.080 0.073 0.069 0.066; single_iteration 0.079 ... 0.021.
+TEST(Denoisers, StaticCameraErrorFallsFrameByFrame) {
+  const std::vector<std::pair<std::string, nlohmann::json>> configs = {
+      {"svgf_ao", nlohmann::json::object()},
+      {"svgf_ao", {{"feedback", "accumulated"}}},
+      {"temporal", nlohmann::json::object()},
+      {"single_iteration", nlohmann::json::object()}};
+  for (const auto& [name, params] : configs) {
+    SCOPED_TRACE(name + params.dump());
+    // Averaged over seeds: a heavily filtered 64x48 image holds few independent error blobs,
+    // so one seed's per-frame MAE fluctuates by about 10%.
+    constexpr int kSeeds = 8;
+    std::vector<double> err(8, 0.0);
+    for (int seed = 1; seed <= kSeeds; ++seed) {
+      auto d = make(name, params);
+      for (int f = 0; f < 8; ++f) {
+        const Frame fr = make_frame(0, 0, 0);
+        const ImageU8 out = run(*d, fr, noisy_counts(fr.truth, 4, uint32_t(f), uint64_t(seed)), 4, uint32_t(f));
+        err[size_t(f)] += mae(out, fr.truth, [](int, int y) { return y < 44; }) / kSeeds;
+      }
+    }
+    std::printf("%-16s %s static MAE:", name.c_str(), params.dump().c_str());
+    for (double e : err) std::printf(" %.4f", e);
+    std::printf("\n");
+    for (size_t f = 1; f < err.size(); ++f) EXPECT_LE(err[f], err[f - 1] + 0.002) << "frame " << f;
+    EXPECT_LT(err.back(), 0.6 * err.front());
+  }
+}
+
+// ---------------------------------------------------------------- ghosting at disocclusions
+
+// The camera pans by 1 px per frame (background) while the box in front moves 3 px per frame:
+// each frame a strip 2 px wide and 32 px high of the plane appears behind the box's trailing
+// edge. Followed in world coordinates, that strip's error is measured j = 0.. frames after it
+// appeared and compared with the error of the plane far from the box (long history), averaged
+// over strips that appeared in frames 3..6. A ghost of the box (AO 0.9 over a plane of about
+// 0.6) would show as a positive bias in the strip.
+// Measured (4 rays), strip MAE vs reference MAE at j = 0, 1, 2, 3:
+//   svgf_ao           0.015 0.014 0.015 0.013  vs 0.013 0.013 0.013 0.014  -> within from j = 0
+//   single_iteration  0.103 0.062 0.038 0.030  vs 0.026 0.023 0.021 0.022  -> within from j = 3
+//   temporal          0.203 0.145 0.108 0.090  vs 0.082 0.076 0.071 0.069  -> within from j = 3
+// ("within": <= max(1.5 x reference, reference + 0.01)); bias at most +0.005 (no ghost of
+// the box). Asserted with one frame of margin: F = 1, 4, 4.
+TEST(Denoisers, GhostingAtDisocclusionsDiesOut) {
+  struct Expect {
+    std::string name;
+    int frames;  // F: the strip error is within tolerance of the reference after F frames
+  };
+  for (const Expect& ex : {Expect{"svgf_ao", 1}, Expect{"single_iteration", 4}, Expect{"temporal", 4}}) {
+    SCOPED_TRACE(ex.name);
+    constexpr int kFirst = 3, kLast = 6, kFollow = 9;
+    std::vector<double> strip_err(kFollow, 0.0), strip_bias(kFollow, 0.0), ref_err(kFollow, 0.0);
+    for (int f0 = kFirst; f0 <= kLast; ++f0) {
+      auto d = make(ex.name);
+      for (int f = 0; f < f0 + kFollow; ++f) {
+        const Frame fr = make_frame(f, 1, 3);
+        const ImageU8 out = run(*d, fr, noisy_counts(fr.truth, 4, uint32_t(f)), 4, uint32_t(f));
+        const int j = f - f0;
+        if (j < 0) continue;
+        // The strip that appeared at f0: screen x [56 - 3 f0, 58 - 3 f0) then, world x fixed.
+        const int x0 = 56 - 3 * f0 - j, x1 = 58 - 3 * f0 - j;
+        double e = 0.0, b = 0.0;
+        int n = 0;
+        for (int y = 8; y < 40; ++y)
+          for (int x = std::max(0, x0); x < x1; ++x) {
+            const double diff = out(x, y) / 255.0 - fr.truth(x, y);
+            e += std::fabs(diff);
+            b += diff;
+            ++n;
+          }
+        strip_err[size_t(j)] += e / n / (kLast - kFirst + 1);
+        strip_bias[size_t(j)] += b / n / (kLast - kFirst + 1);
+        // Reference: the plane above and below the box (rows 0..5 and 42..43), long history
+        // except at the right border where the pan brings in new columns.
+        ref_err[size_t(j)] += mae(out, fr.truth, [](int x, int y) { return x < 48 && (y < 6 || (y >= 42 && y < 44)); }) /
+                              (kLast - kFirst + 1);
+      }
+    }
+    std::printf("%-16s disocclusion strip MAE / bias / reference MAE, frames after appearing:\n", ex.name.c_str());
+    for (int j = 0; j < kFollow; ++j)
+      std::printf("  j=%d  %.4f  %+.4f  %.4f\n", j, strip_err[size_t(j)], strip_bias[size_t(j)], ref_err[size_t(j)]);
+    for (int j = ex.frames; j < kFollow; ++j) {
+      EXPECT_LE(strip_err[size_t(j)], std::max(1.5 * ref_err[size_t(j)], ref_err[size_t(j)] + 0.01)) << "j=" << j;
+    }
+    for (int j = 0; j < kFollow; ++j) EXPECT_LT(strip_bias[size_t(j)], 0.03) << "ghost bias at j=" << j;
+  }
+}
+
+// ---------------------------------------------------------------- edges
+
+// A depth step (2 m left, 5 m right, same object id and normal) between AO 0.2 and 0.8. No
+// bleeding: the mean of the two columns next to the edge stays within 0.03 of the truth.
+TEST(Denoisers, DepthEdgesArePreserved) {
+  Frame fr;
+  fr.gbuf.resize(kW, kH);
+  fr.truth.resize(kW, kH);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      const bool left = x < 32;
+      fr.gbuf.object_id(x, y) = 1;
+      fr.gbuf.depth(x, y) = left ? 2.0f : 5.0f;
+      fr.gbuf.normal(x, y) = glm::vec3(0, 0, 1);
+      fr.truth(x, y) = left ? 0.2f : 0.8f;
+    }
+  for (const auto& name : kSvgfFamily) {
+    SCOPED_TRACE(name);
+    auto d = make(name);
+    ImageU8 out;
+    for (int f = 0; f < 6; ++f) out = run(*d, fr, noisy_counts(fr.truth, 8, uint32_t(f)), 8, uint32_t(f));
+    for (int side = 0; side < 2; ++side) {
+      const int xa = side == 0 ? 30 : 32;
+      double mean = 0.0;
+      for (int y = 0; y < kH; ++y) mean += (out(xa, y) + out(xa + 1, y)) / 255.0 / (2.0 * kH);
+      const double truth = side == 0 ? 0.2 : 0.8;
+      std::printf("%-16s edge side %d: mean %.4f truth %.1f\n", name.c_str(), side, mean, truth);
+      EXPECT_NEAR(mean, truth, 0.03) << "side " << side;
+    }
+  }
+}
+
+// ---------------------------------------------------------------- soft-shadow visibility
+
+// The same API on one light's soft-visibility plane: S = 16 shadow rays per pixel, a
+// penumbra ramp across the plane and a box in front. The denoised plane is closer to the
+// exact fraction than the noisy one, and the penumbra's mean profile is kept.
+TEST(Denoisers, SoftVisibilityPlane) {
+  Frame fr = make_frame(0, 0, 0, true, false);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x)
+      fr.truth(x, y) = fr.gbuf.object_id(x, y) == 2 ? 1.0f : std::clamp((float(x) - 12.0f) / 20.0f, 0.0f, 1.0f);
+  for (const auto& name : kSvgfFamily) {
+    SCOPED_TRACE(name);
+    auto d = make(name);
+    auto none = make("none");
+    ImageU8 out, raw;
+    for (int f = 0; f < 4; ++f) {
+      const ImageU8 noisy = noisy_counts(fr.truth, 16, uint32_t(f), 11);
+      out = run(*d, fr, noisy, 16, uint32_t(f));
+      raw = run(*none, fr, noisy, 16, uint32_t(f));
+    }
+    const auto all = [](int, int) { return true; };
+    const double e_out = mae(out, fr.truth, all), e_raw = mae(raw, fr.truth, all);
+    std::printf("%-16s soft visibility MAE %.4f (noisy %.4f)\n", name.c_str(), e_out, e_raw);
+    EXPECT_LT(e_out, 0.7 * e_raw);
+    // Fully lit and fully shadowed regions stay exact.
+    EXPECT_EQ(out(2, 2), 0);
+    EXPECT_EQ(out(kW - 1, 2), 255);
+  }
+}
+
+}  // namespace
+}  // namespace dhr
