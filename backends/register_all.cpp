@@ -13,12 +13,22 @@ namespace dhr {
 void register_all_backends(Registries& r) {
   // Codecs (backends/codec/)
   DHR_CODEC(make_raw_codec);
+  DHR_CODEC(make_lz4_codec);
+  DHR_CODEC(make_zstd_codec);
+  DHR_CODEC(make_h264_codec);
+  DHR_CODEC(make_delta_codec);
 
   // Denoisers (backends/denoise/)
   DHR_DENOISER(make_none_denoiser);
+  DHR_DENOISER(make_svgf_ao_denoiser);
+  DHR_DENOISER(make_atrous_denoiser);
+  DHR_DENOISER(make_single_iteration_denoiser);
+  DHR_DENOISER(make_temporal_denoiser);
 
   // Predictors (backends/predict/)
   DHR_PREDICTOR(make_none_predictor);
+  DHR_PREDICTOR(make_reprojection_predictor);
+  DHR_PREDICTOR(make_rotation_warp_predictor);
 }
 
 const Registries& registries() {

@@ -25,9 +25,13 @@ bool contains_all(const std::set<std::string>& have, std::initializer_list<const
 
 TEST(Registry, ExpectedBackendsAreRegistered) {
   std::string missing;
-  EXPECT_TRUE(contains_all(names(registries().codecs), {"raw"}, missing)) << "codecs missing:" << missing;
-  EXPECT_TRUE(contains_all(names(registries().denoisers), {"none"}, missing)) << "denoisers missing:" << missing;
-  EXPECT_TRUE(contains_all(names(registries().predictors), {"none"}, missing)) << "predictors missing:" << missing;
+  EXPECT_TRUE(contains_all(names(registries().codecs), {"raw", "lz4", "zstd", "h264", "delta"}, missing))
+      << "codecs missing:" << missing;
+  EXPECT_TRUE(contains_all(names(registries().denoisers), {"none", "svgf_ao", "atrous", "single_iteration", "temporal"},
+                           missing))
+      << "denoisers missing:" << missing;
+  EXPECT_TRUE(contains_all(names(registries().predictors), {"none", "reprojection", "rotation_warp"}, missing))
+      << "predictors missing:" << missing;
 }
 
 TEST(Registry, EveryBackendHasDescriptionAndCreatesWithDefaults) {

@@ -1,0 +1,172 @@
+#include "core/packet.h"
+
+#include "core/checksum.h"
+#include "core/error.h"
+
+#include <algorithm>
+#include <cstring>
+
+namespace dhr {
+namespace {
+
+// Offsets of the header fields (see the table in packet.h).
+constexpr size_t kOffVersion = 4, kOffPass = 5, kOffStream = 6, kOffFrame = 8, kOffCodec = 12,
+                 kOffSequence = 16, kOffTotal = 20, kOffIndex = 24, kOffCount = 26, kOffChunk = 28,
+                 kOffPayloadLen = 30, kOffWidth = 32, kOffHeight = 34, kOffChannels = 36,
+                 kOffFullScale = 37, kOffReserved = 38, kOffChecksum = 40;
+static_assert(kOffChecksum + 4 == kPacketHeaderBytes);
+
+void put16(uint8_t* p, uint32_t v) {
+  p[0] = uint8_t(v);
+  p[1] = uint8_t(v >> 8);
+}
+void put32(uint8_t* p, uint32_t v) {
+  for (int i = 0; i < 4; ++i) p[i] = uint8_t(v >> (8 * i));
+}
+uint16_t get16(const uint8_t* p) { return uint16_t(p[0] | (p[1] << 8)); }
+uint32_t get32(const uint8_t* p) {
+  return uint32_t(p[0]) | (uint32_t(p[1]) << 8) | (uint32_t(p[2]) << 16) | (uint32_t(p[3]) << 24);
+}
+
+// The checksum covers the header up to the checksum field, then everything after the header
+// (whatever its length field claims), so truncation and extension are both caught.
+uint32_t datagram_checksum(std::span<const uint8_t> d) {
+  const uint32_t c = crc32c(d.first(kOffChecksum));
+  return crc32c(d.subspan(kPacketHeaderBytes), c);
+}
+
+uint64_t count_for(uint64_t total, uint64_t chunk) {
+  return total == 0 ? 1 : (total + chunk - 1) / chunk;
+}
+
+bool known_pass(uint8_t kind) {
+  return kind >= uint8_t(PassKind::Visibility) && kind <= uint8_t(PassKind::Colour);
+}
+
+}  // namespace
+
+uint32_t codec_id(std::string_view codec_name) {
+  return crc32c({reinterpret_cast<const uint8_t*>(codec_name.data()), codec_name.size()});
+}
+
+size_t packet_count(size_t encoded_bytes, size_t max_payload) {
+  if (max_payload == 0) fail("packet_count: max_payload must be at least 1 byte");
+  return size_t(count_for(encoded_bytes, max_payload));
+}
+
+size_t wire_bytes_of_pass(size_t encoded_bytes, size_t max_payload) {
+  return encoded_bytes + packet_count(encoded_bytes, max_payload) * wire_bytes(0);
+}
+
+std::vector<std::vector<uint8_t>> packetize(const PacketMeta& meta, std::span<const uint8_t> encoded,
+                                            size_t max_payload) {
+  if (max_payload < 1 || max_payload > kMaxPayloadLimitBytes)
+    fail("packetize: max_payload {} out of range 1..{}", max_payload, kMaxPayloadLimitBytes);
+  const PassDesc& d = meta.desc;
+  if (std::string why = d.validate(); !why.empty())
+    fail("packetize: stream {} frame {}: invalid pass description: {}", meta.stream_id, meta.frame_id,
+         why);
+  // validate() bounds width/height by kMaxImageSide (16384) and channels by 64, so they fit
+  // the header's 16- and 8-bit fields; full_scale is only bounded for Ao/SoftVisibility.
+  if (d.full_scale < 0 || d.full_scale > 255)
+    fail("packetize: full_scale {} does not fit the header (0..255)", d.full_scale);
+  if (encoded.size() > UINT32_MAX)
+    fail("packetize: a pass of {} bytes is above the 4 GiB a header can describe", encoded.size());
+  const size_t count = packet_count(encoded.size(), max_payload);
+  if (count > UINT16_MAX)
+    fail("packetize: {} bytes need {} packets of {} bytes, above 65535: raise max_payload",
+         encoded.size(), count, max_payload);
+
+  std::vector<std::vector<uint8_t>> packets(count);
+  for (size_t i = 0; i < count; ++i) {
+    const size_t offset = i * max_payload;
+    const size_t len = std::min(max_payload, encoded.size() - offset);
+    auto& p = packets[i];
+    p.assign(kPacketHeaderBytes + len, 0);
+    uint8_t* h = p.data();
+    std::memcpy(h, kPacketMagic, 4);
+    h[kOffVersion] = kPacketVersion;
+    h[kOffPass] = uint8_t(d.kind);
+    put16(h + kOffStream, meta.stream_id);
+    put32(h + kOffFrame, meta.frame_id);
+    put32(h + kOffCodec, meta.codec_id);
+    put32(h + kOffSequence, uint32_t(meta.first_sequence + i));  // wraps modulo 2^32 by design
+    put32(h + kOffTotal, uint32_t(encoded.size()));
+    put16(h + kOffIndex, uint32_t(i));
+    put16(h + kOffCount, uint32_t(count));
+    put16(h + kOffChunk, uint32_t(max_payload));
+    put16(h + kOffPayloadLen, uint32_t(len));
+    put16(h + kOffWidth, uint32_t(d.width));
+    put16(h + kOffHeight, uint32_t(d.height));
+    h[kOffChannels] = uint8_t(d.channels);
+    h[kOffFullScale] = uint8_t(d.full_scale);
+    if (len) std::memcpy(h + kPacketHeaderBytes, encoded.data() + offset, len);
+    put32(h + kOffChecksum, datagram_checksum(p));
+  }
+  return packets;
+}
+
+void seal_packet(std::span<uint8_t> datagram) {
+  if (datagram.size() < kPacketHeaderBytes)
+    fail("seal_packet: {} bytes is shorter than a {}-byte header", datagram.size(), kPacketHeaderBytes);
+  put32(datagram.data() + kOffChecksum, datagram_checksum(datagram));
+}
+
+ParseResult parse_packet(std::span<const uint8_t> d, ParsedPacket& out) {
+  if (d.size() < kPacketHeaderBytes) return ParseResult::TooShort;
+  const uint8_t* h = d.data();
+  if (std::memcmp(h, kPacketMagic, 4) != 0) return ParseResult::BadMagic;
+  if (h[kOffVersion] != kPacketVersion) return ParseResult::BadVersion;
+  if (get32(h + kOffChecksum) != datagram_checksum(d)) return ParseResult::BadChecksum;
+  if (get16(h + kOffReserved) != 0) return ParseResult::BadReserved;
+
+  out.total_bytes = get32(h + kOffTotal);
+  out.index = get16(h + kOffIndex);
+  out.count = get16(h + kOffCount);
+  out.chunk_bytes = get16(h + kOffChunk);
+  const uint16_t payload_len = get16(h + kOffPayloadLen);
+  if (out.count == 0 || out.index >= out.count) return ParseResult::BadIndex;
+  if (out.chunk_bytes == 0) return ParseResult::BadLength;
+  if (payload_len != d.size() - kPacketHeaderBytes) return ParseResult::BadLength;
+  // The sender cuts a pass into chunks of chunk_bytes, the last one shorter: so count and
+  // each payload length follow from total and chunk.
+  if (count_for(out.total_bytes, out.chunk_bytes) != out.count) return ParseResult::BadLength;
+  const uint64_t expected_len = out.index + 1 < out.count
+                                    ? uint64_t(out.chunk_bytes)
+                                    : out.total_bytes - uint64_t(out.count - 1) * out.chunk_bytes;
+  if (payload_len != expected_len) return ParseResult::BadLength;
+
+  if (!known_pass(h[kOffPass])) return ParseResult::BadDesc;
+  PassDesc& desc = out.meta.desc;
+  desc.kind = PassKind(h[kOffPass]);
+  desc.width = get16(h + kOffWidth);
+  desc.height = get16(h + kOffHeight);
+  desc.channels = h[kOffChannels];
+  desc.full_scale = h[kOffFullScale];
+  if (!desc.validate().empty()) return ParseResult::BadDesc;
+
+  out.meta.stream_id = get16(h + kOffStream);
+  out.meta.frame_id = get32(h + kOffFrame);
+  out.meta.codec_id = get32(h + kOffCodec);
+  out.sequence = get32(h + kOffSequence);
+  out.meta.first_sequence = out.sequence - out.index;
+  out.payload = d.subspan(kPacketHeaderBytes);
+  return ParseResult::Ok;
+}
+
+const char* parse_result_name(ParseResult r) {
+  switch (r) {
+    case ParseResult::Ok: return "ok";
+    case ParseResult::TooShort: return "too_short";
+    case ParseResult::BadMagic: return "bad_magic";
+    case ParseResult::BadVersion: return "bad_version";
+    case ParseResult::BadChecksum: return "bad_checksum";
+    case ParseResult::BadLength: return "bad_length";
+    case ParseResult::BadIndex: return "bad_index";
+    case ParseResult::BadDesc: return "bad_desc";
+    case ParseResult::BadReserved: return "bad_reserved";
+  }
+  return "unknown";
+}
+
+}  // namespace dhr

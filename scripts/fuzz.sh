@@ -1,0 +1,68 @@
+#!/usr/bin/env bash
+# Builds the libFuzzer targets with clang (AddressSanitizer + UndefinedBehaviorSanitizer) in
+# build-fuzz, replays every seed corpus, then fuzzes each target for a while. Exits non-zero
+# on any crash, leak, sanitizer report or failed check; the input that caused it is left in
+# build-fuzz/artifacts/<target>/ (replay it with: build-fuzz/tests/fuzz/<target> FILE).
+#   DHR_FUZZ_SECONDS   seconds of fuzzing per target (default 20; 0 only replays the corpora)
+#   DHR_FUZZ_TARGETS   targets to run (default: fuzz_packet_header fuzz_assembler fuzz_decoders)
+#   DHR_FUZZ_JOBS      build parallelism (default: nproc)
+#   DHR_FUZZ_WERROR    ON (default): clang's warnings are errors, as gcc's are in the main build
+# New inputs found while fuzzing go to build-fuzz/corpus/<target>/, never into the repository.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+cd "$root"
+seconds=${DHR_FUZZ_SECONDS:-20}
+targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders"}
+jobs=${DHR_FUZZ_JOBS:-$(nproc 2>/dev/null || echo 2)}
+werror=${DHR_FUZZ_WERROR:-ON}
+build=$root/build-fuzz
+
+for tool in clang clang++; do
+  command -v "$tool" >/dev/null || { echo "fuzz: $tool not found: run scripts/setup.sh" >&2; exit 1; }
+done
+
+echo "== configure and build the fuzz targets (clang, libFuzzer, ASan+UBSan)"
+cmake -S "$root" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  -DDHR_BUILD_TESTS=OFF -DDHR_BUILD_BENCHMARKS=OFF -DDHR_FUZZ=ON -DDHR_WERROR="$werror" \
+  -DCMAKE_CXX_COMPILER=clang++ -DCMAKE_C_COMPILER=clang >/dev/null
+# shellcheck disable=SC2086
+cmake --build "$build" -j "$jobs" --target $targets
+
+export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1:symbolize=1}
+export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
+status=0
+for t in $targets; do
+  exe=$build/tests/fuzz/$t
+  seeds=$root/tests/fuzz/corpus/$t
+  work=$build/corpus/$t
+  artifacts=$build/artifacts/$t
+  mkdir -p "$work" "$artifacts"
+  echo "== $t: replay $(find "$seeds" -type f | wc -l) seeds"
+  if ! "$exe" -runs=0 -artifact_prefix="$artifacts/" "$seeds" >"$build/$t.replay.log" 2>&1; then
+    echo "fuzz: $t crashed on its seed corpus; see $build/$t.replay.log" >&2
+    tail -n 40 "$build/$t.replay.log" >&2
+    status=1
+    continue
+  fi
+  if [ "$seconds" -gt 0 ]; then
+    echo "== $t: fuzz for $seconds s"
+    # -rss_limit_mb bounds memory (the assembler and the decoders must not allocate from
+    # untrusted sizes); -timeout catches hangs; the work corpus is listed first so that new
+    # inputs go there and the seeds stay read-only.
+    if ! "$exe" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -max_len=8192 \
+        -print_final_stats=1 -artifact_prefix="$artifacts/" "$work" "$seeds" >"$build/$t.fuzz.log" 2>&1; then
+      echo "fuzz: $t failed; see $build/$t.fuzz.log and $artifacts/" >&2
+      tail -n 60 "$build/$t.fuzz.log" >&2
+      status=1
+      continue
+    fi
+    runs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$build/$t.fuzz.log" | grep -o '[0-9]*$' || true)
+    speed=$(grep -o 'stat::average_exec_per_sec: *[0-9]*' "$build/$t.fuzz.log" | grep -o '[0-9]*$' || true)
+    echo "   $t: ${runs:-?} runs, ${speed:-?} exec/s, no crash"
+  fi
+done
+if [ "$status" -ne 0 ]; then
+  echo "== fuzzing found problems" >&2
+  exit 1
+fi
+echo "== fuzzing: no crash"
