@@ -117,7 +117,9 @@ SimConfig sim_config_from_json(const nlohmann::json& j, const std::string& where
   r.number("seed", c.seed, 0, 9.007e15);
   if (r.has("trace")) {
     Reader t{j.at("trace"), where + ".trace", problems};
-    t.keys({"ao_rays", "ao_radius_m", "soft_shadows", "samples_per_light"});
+    t.keys({"ao_rays", "ao_radius_m", "soft_shadows", "samples_per_light", "visibility_pass", "ao_pass"});
+    t.boolean("visibility_pass", c.trace.visibility_pass);
+    t.boolean("ao_pass", c.trace.ao_pass);
     t.number("ao_rays", c.trace.ao_rays, 0, 255);
     t.number("ao_radius_m", c.trace.ao_radius_m, 0, 1e6);
     t.boolean("soft_shadows", c.trace.soft_shadows);
@@ -207,7 +209,12 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   if (!networks.is_object()) problems.push_back(fmt::format("{}.networks: must be an object of named networks", path));
 
   // Configurations: each is a set of dotted assignments.
-  std::vector<std::pair<std::string, nlohmann::json>> configs;
+  struct Configuration {
+    std::string name;
+    nlohmann::json set;
+    std::vector<std::string> scenes;  // empty: every scene
+  };
+  std::vector<Configuration> configs;
   if (j.contains("configurations")) {
     const auto& list = j.at("configurations");
     if (!list.is_array() || list.empty()) {
@@ -215,16 +222,28 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
     } else {
       for (size_t i = 0; i < list.size(); ++i) {
         Reader r{list[i], fmt::format("{}.configurations[{}]", path, i), problems};
-        r.keys({"name", "set"});
+        r.keys({"name", "set", "scenes"});
         std::string name = fmt::format("c{}", i);
         r.string("name", name);
         nlohmann::json set = list[i].is_object() ? list[i].value("set", nlohmann::json::object()) : nlohmann::json::object();
         if (!set.is_object()) problems.push_back(fmt::format("{}.configurations[{}].set: must be an object", path, i));
-        configs.emplace_back(name, set.is_object() ? set : nlohmann::json::object());
+        std::vector<std::string> only;
+        if (r.has("scenes")) {
+          const auto& sc = list[i].at("scenes");
+          if (!sc.is_array()) problems.push_back(fmt::format("{}.configurations[{}].scenes: must be a list of scenes", path, i));
+          else
+            for (const auto& x : sc) {
+              if (!x.is_string() || std::find(e.scenes.begin(), e.scenes.end(), x.get<std::string>()) == e.scenes.end())
+                problems.push_back(fmt::format("{}.configurations[{}].scenes: {} is not one of the experiment's scenes", path, i, x.dump()));
+              else
+                only.push_back(x.get<std::string>());
+            }
+        }
+        configs.push_back({name, set.is_object() ? set : nlohmann::json::object(), only});
       }
     }
   } else {
-    configs.emplace_back("", nlohmann::json::object());
+    configs.push_back({"", nlohmann::json::object(), {}});
   }
   // The sweep: a Cartesian product, applied on top of each configuration.
   std::vector<std::pair<std::string, std::vector<nlohmann::json>>> axes;
@@ -247,7 +266,8 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   if (problems.empty()) {
     int index = 0;
     for (const auto& scene : e.scenes) {
-      for (const auto& [config_name, set] : configs) {
+      for (const auto& [config_name, set, only] : configs) {
+        if (!only.empty() && std::find(only.begin(), only.end(), scene) == only.end()) continue;
         std::vector<size_t> pos(axes.size(), 0);
         for (;;) {
           nlohmann::json settings = set;

@@ -49,9 +49,9 @@ struct Datagram {
 
 std::string trace_key(const std::string& scene_key, const SimConfig& c, int frame) {
   const TraceSettings& t = c.trace;
-  return fmt::format("trace|{}|{}x{}|f{}|s{}|ao{}:{}|soft{}|spl{}|hz{}|t0{}", scene_key, c.width, c.height, frame,
-                     c.seed, t.ao_rays, t.ao_radius_m, t.soft_shadows, t.samples_per_light, c.display_hz,
-                     c.start_time_s);
+  return fmt::format("trace|{}|{}x{}|f{}|s{}|ao{}:{}|soft{}|spl{}|hz{}|t0{}|p{}{}", scene_key, c.width, c.height,
+                     frame, c.seed, t.ao_rays, t.ao_radius_m, t.soft_shadows, t.samples_per_light, c.display_hz,
+                     c.start_time_s, t.visibility_pass, t.ao_pass);
 }
 
 std::string truth_key(const std::string& scene_key, const SimConfig& c, int frame) {
@@ -143,7 +143,9 @@ nlohmann::json SimConfig::to_json() const {
            {{"ao_rays", trace.ao_rays},
             {"ao_radius_m", trace.ao_radius_m},
             {"soft_shadows", trace.soft_shadows},
-            {"samples_per_light", trace.samples_per_light}}},
+            {"samples_per_light", trace.samples_per_light},
+            {"visibility_pass", trace.visibility_pass},
+            {"ao_pass", trace.ao_pass}}},
           {"visibility_codec", backend(visibility_codec)},
           {"ao_codec", backend(ao_codec)},
           {"colour_codec", backend(colour_codec)},

@@ -271,6 +271,8 @@ PassPlan plan_passes(const Scene& scene, const TraceSettings& s) {
   plan.lights = int(scene.lights.size());
   if (scene.lights.empty()) {
     plan.reasons.push_back("no lights: no visibility pass");
+  } else if (!s.visibility_pass) {
+    plan.reasons.push_back("visibility pass switched off by the run's settings");
   } else {
     bool any_area = false;
     for (const Light& l : scene.lights) {
@@ -299,6 +301,8 @@ PassPlan plan_passes(const Scene& scene, const TraceSettings& s) {
   }
   if (!scene.ao) {
     plan.reasons.push_back("no ao block: no AO pass");
+  } else if (!s.ao_pass) {
+    plan.reasons.push_back("AO pass switched off by the run's settings");
   } else {
     plan.ao = true;
     plan.ao_rays = s.ao_rays > 0 ? s.ao_rays : scene.ao->rays;

@@ -61,6 +61,10 @@ struct TraceSettings {
   // (SoftVisibility pass, full_scale = S, or 255 when S > 255).
   int samples_per_light = 1;
   int threads = 0;            // 0 = the RtScene's arena; else a dedicated arena of this size
+  // A run may switch a pass off (the paper's Table 2 adds the passes one at a time); it can
+  // never switch on a pass the scene does not call for.
+  bool visibility_pass = true;
+  bool ao_pass = true;
 };
 
 enum class ShadowMode : uint8_t {
