@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs what is missing, builds, and runs every test: first an optimised build, then the
 # same tests under AddressSanitizer and UndefinedBehaviorSanitizer. Warnings are errors.
-# Set DHR_SKIP_SANITIZERS=1 to run only the optimised build (not what CI does).
+# Then the fuzz targets replay their seed corpora and fuzz for DHR_FUZZ_SECONDS (20) each.
+# Set DHR_SKIP_SANITIZERS=1 / DHR_SKIP_FUZZ=1 to skip those stages (not what CI does).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
@@ -17,5 +18,9 @@ if [ "${DHR_SKIP_SANITIZERS:-0}" != 1 ]; then
   bash scripts/build.sh build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDHR_SANITIZE=ON -DDHR_BUILD_BENCHMARKS=OFF
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=0 UBSAN_OPTIONS=print_stacktrace=1 \
     ctest --test-dir build-asan --output-on-failure -j "$jobs"
+fi
+if [ "${DHR_SKIP_FUZZ:-0}" != 1 ]; then
+  echo "== fuzz targets (clang, libFuzzer): replay the seed corpora, then fuzz each target briefly"
+  DHR_FUZZ_SECONDS=${DHR_FUZZ_SECONDS:-20} bash scripts/fuzz.sh
 fi
 echo "== all tests passed"
