@@ -14,6 +14,9 @@
 #include <cstring>
 #include <cmath>
 #include <deque>
+#include <filesystem>
+#include <fstream>
+#include <thread>
 #include <queue>
 
 namespace dhr {
@@ -167,11 +170,114 @@ nlohmann::json SimConfig::to_json() const {
 }
 
 std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key) {
-  std::lock_guard lock(mutex_);
-  auto it = entries_.find(key);
-  if (it == entries_.end()) return nullptr;
-  it->second.first = ++tick_;
-  return it->second.second;
+  {
+    std::lock_guard lock(mutex_);
+    auto it = entries_.find(key);
+    if (it != entries_.end()) {
+      it->second.first = ++tick_;
+      return it->second.second;
+    }
+  }
+  if (disk_dir_.empty()) return nullptr;
+  auto entry = read_disk(key);
+  if (entry) {
+    std::lock_guard lock(mutex_);
+    if (!entries_.count(key)) {
+      if (entry->visibility) bytes_ += entry->visibility->bytes.size();
+      if (entry->ao) bytes_ += entry->ao->bytes.size();
+      entries_[key] = {++tick_, entry};
+      evict_locked();
+    }
+  }
+  return entry;
+}
+
+namespace {
+
+constexpr char kTraceFileMagic[8] = {'D', 'H', 'R', 'T', 'R', 'C', '0', '1'};
+
+uint64_t fnv1a64(const std::string& s) {
+  uint64_t h = 0xcbf29ce484222325ull;
+  for (unsigned char ch : s) h = (h ^ ch) * 0x100000001b3ull;
+  return h;
+}
+
+template <class T>
+void put(std::string& out, const T& v) {
+  out.append(reinterpret_cast<const char*>(&v), sizeof(T));
+}
+
+template <class T>
+bool get(const std::string& in, size_t& pos, T& v) {
+  if (in.size() - pos < sizeof(T)) return false;
+  std::memcpy(&v, in.data() + pos, sizeof(T));
+  pos += sizeof(T);
+  return true;
+}
+
+}  // namespace
+
+void TraceCache::write_disk(const std::string& key, const Entry& e) const {
+  namespace fs = std::filesystem;
+  std::string out(kTraceFileMagic, sizeof(kTraceFileMagic));
+  put(out, uint32_t(key.size()));
+  out += key;
+  put(out, e.stats);
+  for (const auto* b : {&e.visibility, &e.ao}) {
+    put(out, uint8_t(b->has_value()));
+    if (!b->has_value()) continue;
+    const PassBuffer& p = **b;
+    put(out, uint8_t(p.desc.kind));
+    put(out, int32_t(p.desc.width));
+    put(out, int32_t(p.desc.height));
+    put(out, int32_t(p.desc.channels));
+    put(out, int32_t(p.desc.full_scale));
+    put(out, uint64_t(p.bytes.size()));
+    out.append(reinterpret_cast<const char*>(p.bytes.data()), p.bytes.size());
+  }
+  std::error_code ec;
+  fs::create_directories(disk_dir_, ec);
+  const fs::path path = fs::path(disk_dir_) / fmt::format("{:016x}.bin", fnv1a64(key));
+  const fs::path tmp = path.string() + fmt::format(".tmp{}", uint64_t(std::hash<std::thread::id>{}(std::this_thread::get_id())));
+  {
+    std::ofstream f(tmp, std::ios::binary);
+    f.write(out.data(), std::streamsize(out.size()));
+    if (!f) return;  // a cache that cannot be written is only slower
+  }
+  fs::rename(tmp, path, ec);
+}
+
+std::shared_ptr<const TraceCache::Entry> TraceCache::read_disk(const std::string& key) const {
+  namespace fs = std::filesystem;
+  const fs::path path = fs::path(disk_dir_) / fmt::format("{:016x}.bin", fnv1a64(key));
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return nullptr;
+  const std::string in((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  size_t pos = sizeof(kTraceFileMagic);
+  if (in.size() < pos || std::memcmp(in.data(), kTraceFileMagic, pos) != 0) return nullptr;
+  uint32_t key_size = 0;
+  if (!get(in, pos, key_size) || in.size() - pos < key_size || in.compare(pos, key_size, key) != 0) return nullptr;
+  pos += key_size;
+  auto e = std::make_shared<Entry>();
+  if (!get(in, pos, e->stats)) return nullptr;
+  for (auto* b : {&e->visibility, &e->ao}) {
+    uint8_t present = 0;
+    if (!get(in, pos, present)) return nullptr;
+    if (!present) continue;
+    PassBuffer p;
+    uint8_t kind = 0;
+    int32_t w = 0, h = 0, ch = 0, fs_ = 0;
+    uint64_t n = 0;
+    if (!get(in, pos, kind) || !get(in, pos, w) || !get(in, pos, h) || !get(in, pos, ch) || !get(in, pos, fs_) ||
+        !get(in, pos, n))
+      return nullptr;
+    p.desc = {PassKind(kind), w, h, ch, fs_};
+    if (!p.desc.validate().empty() || n != p.desc.byte_size() || in.size() - pos < n) return nullptr;
+    p.bytes.assign(in.begin() + std::ptrdiff_t(pos), in.begin() + std::ptrdiff_t(pos + n));
+    pos += n;
+    *b = std::move(p);
+  }
+  return pos == in.size() ? e : nullptr;
 }
 
 std::shared_ptr<const ImageRGB8> TraceCache::find_image(const std::string& key) {
@@ -183,6 +289,7 @@ std::shared_ptr<const ImageRGB8> TraceCache::find_image(const std::string& key) 
 }
 
 void TraceCache::insert(const std::string& key, std::shared_ptr<const Entry> entry) {
+  if (!disk_dir_.empty()) write_disk(key, *entry);
   std::lock_guard lock(mutex_);
   if (entries_.count(key)) return;
   if (entry->visibility) bytes_ += entry->visibility->bytes.size();

@@ -147,6 +147,11 @@ class TraceCache {
     TraceStats stats;  // with the wall time of the original trace
   };
   explicit TraceCache(size_t max_bytes = size_t(4) << 30) : max_bytes_(max_bytes) {}
+  // Also keep traced buffers on disk in `dir` (created when needed), so that later processes
+  // never trace the same frame twice. Files are checked (magic, key, sizes) when read; a bad
+  // or foreign file is ignored and traced again. Empty: memory only.
+  void set_disk_dir(std::string dir) { disk_dir_ = std::move(dir); }
+  const std::string& disk_dir() const { return disk_dir_; }
   std::shared_ptr<const Entry> find(const std::string& key);
   void insert(const std::string& key, std::shared_ptr<const Entry> entry);
   std::shared_ptr<const ImageRGB8> find_image(const std::string& key);
@@ -155,6 +160,9 @@ class TraceCache {
 
  private:
   void evict_locked();
+  std::shared_ptr<const Entry> read_disk(const std::string& key) const;
+  void write_disk(const std::string& key, const Entry& entry) const;
+  std::string disk_dir_;
   std::mutex mutex_;
   size_t max_bytes_;
   size_t bytes_ = 0;

@@ -159,7 +159,7 @@ Runner add_run_command(CLI::App& app) {
     std::string experiment, out;
     std::vector<std::string> sets, scene_path;
     int threads = 0;
-    bool no_report = false;
+    bool no_report = false, no_disk_cache = false;
   };
   auto o = std::make_shared<Options>();
   auto* cmd = app.add_subcommand(
@@ -176,6 +176,9 @@ Runner add_run_command(CLI::App& app) {
                                     "e.g. --set run.frames=10 --set 'scenes=[\"room\"]'");
   cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
   cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")->check(CLI::NonNegativeNumber);
+  cmd->add_flag("--no-disk-cache", o->no_disk_cache,
+                "Keep traced buffers in memory only (default: also in $DHR_CACHE_DIR or cache/ under trace/, so that "
+                "later runs never trace the same frame twice)");
   cmd->add_flag("--no-report", o->no_report, "Write results only (build the report later with 'dhrbench report DIR')");
   return [o] {
     std::unique_ptr<tbb::global_control> limit;
@@ -201,6 +204,7 @@ Runner add_run_command(CLI::App& app) {
            "psnr_ground_truth_db,source_frame_0,age_ms_0,disoccluded_0,source_frame_1,age_ms_1,disoccluded_1,client_wall_ms\n";
 
     TraceCache cache;
+    if (!o->no_disk_cache) cache.set_disk_dir((fs::path(default_cache_dir()) / "trace").string());
     Progress progress(e.runs.size(), 0);
     int failed = 0;
     for (size_t i = 0; i < e.runs.size(); ++i) {

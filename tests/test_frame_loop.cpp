@@ -8,6 +8,8 @@
 #include <tbb/global_control.h>
 
 #include <cmath>
+#include <cstdio>
+#include <filesystem>
 
 namespace dhr {
 namespace {
@@ -162,6 +164,90 @@ TEST(FrameLoop, InvalidConfigurationReportsEveryProblem) {
     EXPECT_NE(m.find("unknown codec 'lz5'"), std::string::npos) << m;
     EXPECT_NE(m.find("bogus"), std::string::npos) << m;
   }
+}
+
+}  // namespace
+}  // namespace dhr
+
+namespace dhr {
+namespace {
+
+// Per codec, at 1% and 5% independent packet loss on the downlink: frames lost, frames that
+// still arrived (recovered by the next complete frame), and the quality of what is shown.
+// Stateful codecs (h264, delta) must recover through keyframes, never show garbage.
+TEST(FrameLoop, EveryCodecUnderOneAndFivePercentLoss) {
+  for (const char* codec : {"raw", "lz4", "zstd", "h264", "delta"}) {
+    for (double loss : {0.01, 0.05}) {
+      SimConfig c = small_config(40);
+      c.width = 96;
+      c.height = 54;  // several packets per frame, so that loss hits frames partly
+      c.uplink.latency_ms = 5;
+      c.downlink.latency_ms = 5;
+      c.downlink.loss_model = LinkConfig::Loss::Independent;
+      c.downlink.loss_rate = loss;
+      c.seed = 7;
+      c.ao_denoiser = {"svgf_ao"};
+      c.ao_codec = {codec};
+      c.visibility_codec = {std::string(codec) == "h264" ? "zstd" : codec};
+      RunResult r = run_simulation(c, scene("room"), "room", cache());
+      const nlohmann::json m = r.metrics();
+      const auto& ao = m["passes"][1];
+      const uint64_t sent = ao["server_frames"], lost = ao["frames_lost"], completed = ao["frames_completed"];
+      std::printf("%-5s loss %.0f%%: AO frames sent %llu, lost %llu, completed %llu, decode errors %llu, "
+                  "keyframe requests %llu, SSIM %.4f\n",
+                  codec, loss * 100, (unsigned long long)sent, (unsigned long long)lost, (unsigned long long)completed,
+                  (unsigned long long)ao["decode_errors"].get<uint64_t>(),
+                  (unsigned long long)ao["keyframe_requests"].get<uint64_t>(), m["ssim_local_mean"].get<double>());
+      EXPECT_GT(completed, sent / 2) << codec;
+      // A stateful decoder that lost a frame resets and asks for a keyframe: it fails at most
+      // until the keyframe arrives (one uplink and one downlink trip, two server frames here).
+      EXPECT_LE(ao["decode_errors"].get<uint64_t>(), 3 * lost + 1) << codec;
+      EXPECT_LE(completed + lost, sent + 1) << codec;  // + the frame still in flight at the end
+      for (const auto& f : r.frames) EXPECT_TRUE(std::isfinite(f.ssim_local)) << codec;
+      // What is shown stays close to the local reference: no garbage from a broken decoder.
+      EXPECT_GT(m["ssim_local_mean"].get<double>(), 0.8) << codec << " at " << loss;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace dhr
+
+namespace dhr {
+namespace {
+
+TEST(TraceCache, DiskCacheRoundTripsAndIgnoresBadFiles) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / "dhr_trace_cache_test";
+  fs::remove_all(dir);
+  auto entry = std::make_shared<TraceCache::Entry>();
+  PassBuffer ao;
+  ao.desc = {PassKind::Ao, 5, 3, 1, 8};
+  ao.bytes = {0, 1, 2, 3, 4, 5, 6, 7, 8, 0, 1, 2, 3, 4, 5};
+  entry->ao = ao;
+  entry->stats.ao_rays = 120;
+  entry->stats.ao_ms = 1.5;
+  {
+    TraceCache writer;
+    writer.set_disk_dir(dir.string());
+    writer.insert("key-a", entry);
+  }
+  TraceCache reader;
+  reader.set_disk_dir(dir.string());
+  auto got = reader.find("key-a");
+  ASSERT_NE(got, nullptr);
+  ASSERT_TRUE(got->ao.has_value());
+  EXPECT_FALSE(got->visibility.has_value());
+  EXPECT_EQ(got->ao->bytes, ao.bytes);
+  EXPECT_EQ(got->ao->desc, ao.desc);
+  EXPECT_EQ(got->stats.ao_rays, 120u);
+  EXPECT_EQ(reader.find("key-b"), nullptr);
+  // A truncated or corrupted file is ignored (traced again), never trusted.
+  for (const auto& f : fs::directory_iterator(dir)) fs::resize_file(f.path(), fs::file_size(f.path()) - 3);
+  TraceCache again;
+  again.set_disk_dir(dir.string());
+  EXPECT_EQ(again.find("key-a"), nullptr);
+  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -72,6 +72,7 @@ class DeltaCodec final : public Codec {
             p.get_string("inner"), inner_params(p.get_string("inner"), p.get_int("level"), p.get_string("layout")))) {}
 
   bool lossless() const override { return true; }
+  bool stateful() const override { return true; }  // frames reference the previous one
   std::string refuses(const PassDesc& desc) const override { return inner_->refuses(desc); }
 
   void encode(const PassBuffer& in, const EncodeOptions& options, std::vector<uint8_t>& out) override {

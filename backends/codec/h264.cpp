@@ -119,6 +119,7 @@ class H264Codec final : public Codec {
   H264Codec& operator=(const H264Codec&) = delete;
 
   bool lossless() const override { return rate_control_ == RateControl::Lossless; }
+  bool stateful() const override { return true; }  // P-frames reference earlier frames
 
   std::string refuses(const PassDesc& desc) const override {
     if (std::string why = desc.validate(); !why.empty()) return "invalid buffer description: " + why;
