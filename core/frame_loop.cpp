@@ -360,6 +360,7 @@ nlohmann::json RunResult::metrics() const {
                       {"packets", t.packets},
                       {"bandwidth_mbps", seconds > 0 ? double(t.wire_bytes) * 8 / 1e6 / seconds : 0.0},
                       {"frames_completed", t.frames_completed},
+                      {"delivered_fps", seconds > 0 ? double(t.frames_completed) / seconds : 0.0},
                       {"frames_lost", t.frames_lost},
                       {"frames_given_up_by_receiver", t.frames_given_up},
                       {"decode_errors", t.decode_errors},

@@ -158,10 +158,35 @@ def main(d):
                            "Quality against bandwidth", os.path.join(d, "plots", "quality_vs_bandwidth.png"), logx=True)
         scatter_with_front(ok, server_ms, "server wall time per frame (ms, sum of stage medians)",
                            "Quality against server time", os.path.join(d, "plots", "quality_vs_server_time.png"))
+        # Frame size against delivered frame rate (the paper's Fig. 10): per run, the bytes of one
+        # server frame (all passes) against the frames per second that arrived complete (the
+        # slowest pass). Under a bandwidth cap, larger frames arrive less often.
+        fig, ax = plt.subplots(figsize=(7, 4.2))
+        for mode, colour in (("hybrid", "tab:blue"), ("remote", "tab:orange")):
+            rs = [r for r in ok if r["config"].get("mode", "hybrid") == mode]
+            xs, ys = [], []
+            for r in rs:
+                passes = [p for p in r["metrics"]["passes"] if p["server_frames"]]
+                if not passes:
+                    continue
+                xs.append(sum(p["bytes_per_frame"] for p in passes))
+                ys.append(min(p.get("delivered_fps", 0.0) for p in passes))
+            if xs:
+                ax.scatter(xs, ys, s=16, color=colour, label=mode)
+        ax.set_xscale("log")
+        ax.set_xlabel("bytes per server frame (all passes, encoded)")
+        ax.set_ylabel("frames delivered complete per second (slowest pass)")
+        ax.set_title("Frame size against delivered frame rate")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(os.path.join(d, "plots", "frame_size_vs_fps.png"), dpi=110)
+        plt.close(fig)
         out.append("## Plots\n")
         out.append("Red: the Pareto front (no other run of the scene is both cheaper and better).\n")
         out.append("![quality against bandwidth](plots/quality_vs_bandwidth.png)\n")
         out.append("![quality against server time](plots/quality_vs_server_time.png)\n")
+        out.append("![frame size against delivered frame rate](plots/frame_size_vs_fps.png)\n")
         # SSIM per frame.
         if frames:
             scenes = sorted({r["scene"] for r in ok})
