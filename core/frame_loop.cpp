@@ -841,10 +841,16 @@ class Simulation {
           if (count) ++result_.frames_without_data;  // local fallback: fully lit / AO 1
           continue;
         }
-        PassBuffer out;
-        const PredictStats ps = predictor_[slot]->predict({received_[slot].buffer, *src, gbuf}, out);
         rec.source_frame[slot] = received_[slot].frame;
         rec.age_ms[slot] = now - frame_ms(received_[slot].frame);
+        if (received_[slot].frame == a) {
+          // The server's buffer is for this very frame: nothing to predict. (Reprojecting onto
+          // the same camera is the identity only up to float rounding at pixel centres.)
+          predicted[slot] = received_[slot].buffer;
+          continue;
+        }
+        PassBuffer out;
+        const PredictStats ps = predictor_[slot]->predict({received_[slot].buffer, *src, gbuf}, out);
         rec.disoccluded[slot] = ps.disoccluded;
         predicted[slot] = std::move(out);
       }

@@ -39,13 +39,15 @@ SimConfig small_config(int frames) {
 }
 
 TEST(FrameLoop, ZeroLatencyLosslessEqualsLocalReferenceBitForBit) {
-  for (const char* denoiser : {"none", "svgf_ao"}) {
-    SimConfig c = small_config(8);
+  for (const char* denoiser : {"none", "svgf_ao", "atrous", "single_iteration", "temporal"}) {
+    SimConfig c = small_config(30);
+    c.width = 160;
+    c.height = 90;
     c.ao_denoiser = {denoiser};
     c.visibility_codec = {"lz4"};
     c.ao_codec = {"zstd"};
     RunResult r = run_simulation(c, scene("room"), "room", cache());
-    ASSERT_EQ(r.frames.size(), 8u);
+    ASSERT_EQ(r.frames.size(), 30u);
     for (const FrameRecord& f : r.frames) {
       ASSERT_TRUE(f.scored);
       EXPECT_EQ(f.ssim_local, 1.0) << denoiser << " frame " << f.frame;

@@ -27,6 +27,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/partitioner.h>
 
 #include <algorithm>
 #include <bit>
@@ -371,11 +372,18 @@ inline uint8_t to_u8(float v01) {
   return uint8_t(v);
 }
 
+// Row blocks come from tbb::simple_partitioner: it splits [0, height) by halving down to the
+// grain, so the blocks depend on the height alone, never on the thread count or on timing.
+// (Kernels that carry state across the rows of a block, like atrous_rows' accumulators, gave
+// different roundings under the default auto_partitioner from one call to the next.)
 template <class Body>
 void parallel_rows(int height, Body&& body) {
-  tbb::parallel_for(tbb::blocked_range<int>(0, height, 4), [&](const tbb::blocked_range<int>& r) {
-    for (int y = r.begin(); y < r.end(); ++y) body(y);
-  });
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, height, 4),
+      [&](const tbb::blocked_range<int>& r) {
+        for (int y = r.begin(); y < r.end(); ++y) body(y);
+      },
+      tbb::simple_partitioner());
 }
 
 DHR_DENOISE_TARGETS
@@ -820,10 +828,13 @@ class FilterPipeline {
     a.var_in = var_in;
     a.v_out = v_out;
     a.var_out = var_out;
-    tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& range) {
-      std::vector<float> acc(size_t(w) * 3);
-      atrous_rows(a, range.begin(), range.end(), acc.data());
-    });
+    tbb::parallel_for(
+        tbb::blocked_range<int>(0, h, 4),
+        [&](const tbb::blocked_range<int>& range) {
+          std::vector<float> acc(size_t(w) * 3);
+          atrous_rows(a, range.begin(), range.end(), acc.data());
+        },
+        tbb::simple_partitioner());  // blocks independent of threads and timing (see parallel_rows)
   }
 
   int normal_squarings() const { return std::countr_zero(unsigned(s_.sigma_n)); }
