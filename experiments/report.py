@@ -161,8 +161,9 @@ def main(d):
         # Frame size against delivered frame rate (the paper's Fig. 10): per run, the bytes of one
         # server frame (all passes) against the frames per second that arrived complete (the
         # slowest pass). Under a bandwidth cap, larger frames arrive less often.
+        have_fps = any("delivered_fps" in p for r in ok for p in r["metrics"]["passes"])
         fig, ax = plt.subplots(figsize=(7, 4.2))
-        for mode, colour in (("hybrid", "tab:blue"), ("remote", "tab:orange")):
+        for mode, colour in (("hybrid", "tab:blue"), ("remote", "tab:orange")) if have_fps else ():
             rs = [r for r in ok if r["config"].get("mode", "hybrid") == mode]
             xs, ys = [], []
             for r in rs:
@@ -186,7 +187,8 @@ def main(d):
         out.append("Red: the Pareto front (no other run of the scene is both cheaper and better).\n")
         out.append("![quality against bandwidth](plots/quality_vs_bandwidth.png)\n")
         out.append("![quality against server time](plots/quality_vs_server_time.png)\n")
-        out.append("![frame size against delivered frame rate](plots/frame_size_vs_fps.png)\n")
+        if have_fps:
+            out.append("![frame size against delivered frame rate](plots/frame_size_vs_fps.png)\n")
         # SSIM per frame.
         if frames:
             scenes = sorted({r["scene"] for r in ok})
