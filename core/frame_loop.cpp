@@ -50,10 +50,14 @@ struct Datagram {
   }
 };
 
+// Bump when tracing, rasterizing or the cache file format changes: disk entries written by an
+// older version are then never read (the key is stored in the file and compared).
+constexpr int kTraceCacheVersion = 1;
+
 std::string trace_key(const std::string& scene_key, const SimConfig& c, int frame) {
   const TraceSettings& t = c.trace;
-  return fmt::format("trace|{}|{}x{}|f{}|s{}|ao{}:{}|soft{}|spl{}|hz{}|t0{}|p{}{}", scene_key, c.width, c.height,
-                     frame, c.seed, t.ao_rays, t.ao_radius_m, t.soft_shadows, t.samples_per_light, c.display_hz,
+  return fmt::format("trace{}|{}|{}x{}|f{}|s{}|ao{}:{}|soft{}|spl{}|hz{}|t0{}|p{}{}", kTraceCacheVersion, scene_key, c.width,
+                     c.height, frame, c.seed, t.ao_rays, t.ao_radius_m, t.soft_shadows, t.samples_per_light, c.display_hz,
                      c.start_time_s, t.visibility_pass, t.ao_pass);
 }
 
