@@ -67,13 +67,6 @@ std::string truth_key(const std::string& scene_key, const SimConfig& c, int fram
                      c.display_hz, c.start_time_s);
 }
 
-ImageU8 plane_of(const PassBuffer& b, int plane) {
-  ImageU8 img(b.desc.width, b.desc.height);
-  const size_t n = img.size();
-  std::copy_n(b.bytes.begin() + std::ptrdiff_t(size_t(plane) * n), n, img.data());
-  return img;
-}
-
 // Denoises the AO counts (and soft-visibility planes) of one frame. The "none" denoiser sends
 // the raw counts (full_scale = N rays), as the paper does; any other sends 0..255.
 struct PassDenoisers {
@@ -92,7 +85,7 @@ struct PassDenoisers {
   void run(const GBuffer& gbuf, uint32_t frame, std::optional<PassBuffer>& vis, std::optional<PassBuffer>& ao_buf) {
     if (ao_buf && !ao_is_none) {
       ImageU8 out;
-      const ImageU8 noisy = plane_of(*ao_buf, 0);
+      const ImageU8 noisy = pass_plane(*ao_buf, 0);
       ao->denoise({gbuf, noisy, ao_buf->desc.full_scale, frame, true}, out);
       ao_buf->bytes.assign(out.pixels().begin(), out.pixels().end());
       ao_buf->desc.full_scale = 255;
@@ -103,7 +96,7 @@ struct PassDenoisers {
       const size_t n = size_t(vis->desc.width) * size_t(vis->desc.height);
       for (int l = 0; l < lights; ++l) {
         ImageU8 out;
-        const ImageU8 noisy = plane_of(*vis, l);
+        const ImageU8 noisy = pass_plane(*vis, l);
         soft[size_t(l)]->denoise({gbuf, noisy, vis->desc.full_scale, frame, true}, out);
         std::copy(out.pixels().begin(), out.pixels().end(), vis->bytes.begin() + std::ptrdiff_t(size_t(l) * n));
       }

@@ -1,6 +1,9 @@
 #include "core/pass_buffer.h"
 
+#include "core/error.h"
 #include "core/image.h"
+
+#include <algorithm>
 
 #include <fmt/format.h>
 
@@ -47,6 +50,23 @@ std::string PassDesc::validate() const {
   if ((kind == PassKind::Ao || kind == PassKind::SoftVisibility) && (full_scale < 1 || full_scale > 255))
     return fmt::format("full_scale {} out of range 1..255", full_scale);
   return {};
+}
+
+}  // namespace dhr
+
+namespace dhr {
+
+ImageU8 pass_plane(const PassBuffer& b, int index) {
+  if (b.desc.kind == PassKind::Visibility)
+    fail("pass_plane: a visibility bitmask has no 8-bit planes (unpack its bits instead)");
+  const int planes = b.desc.kind == PassKind::SoftVisibility ? b.desc.channels : 1;
+  if (index < 0 || index >= planes) fail("pass_plane: plane {} out of range 0..{}", index, planes - 1);
+  ImageU8 img(b.desc.width, b.desc.height);
+  const size_t n = img.size();
+  if (b.bytes.size() < (size_t(index) + 1) * n)
+    fail("pass_plane: buffer holds {} bytes, plane {} needs {}", b.bytes.size(), index, (size_t(index) + 1) * n);
+  std::copy_n(b.bytes.begin() + std::ptrdiff_t(size_t(index) * n), n, img.data());
+  return img;
 }
 
 }  // namespace dhr

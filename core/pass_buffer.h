@@ -35,4 +35,11 @@ struct PassBuffer {
   std::vector<uint8_t> bytes;  // desc.byte_size() bytes
 };
 
+class BitImage;
+template <class T>
+class Image;
+// Plane `index` of an 8-bit buffer (Ao: 0; SoftVisibility: the light) as an image, values as
+// stored (0..full_scale). Throws dhr::Error for a bitmask (Visibility) or an index out of range.
+Image<uint8_t> pass_plane(const PassBuffer& buffer, int index);
+
 }  // namespace dhr

@@ -27,13 +27,11 @@ double ms_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
-ImageU8 plane(const PassBuffer& b, int index, bool rescale) {
-  ImageU8 img(b.desc.width, b.desc.height);
-  const size_t n = img.size();
-  for (size_t i = 0; i < n; ++i) {
-    const int v = b.bytes[size_t(index) * n + i];
-    img[i] = rescale ? uint8_t((v * 255 + b.desc.full_scale / 2) / std::max(1, b.desc.full_scale)) : uint8_t(v);
-  }
+// A plane rescaled from 0..full_scale to 0..255 for viewing.
+ImageU8 viewable_plane(const PassBuffer& b, int index) {
+  ImageU8 img = pass_plane(b, index);
+  const int scale = std::max(1, b.desc.full_scale);
+  for (auto& v : img.pixels()) v = uint8_t((v * 255 + scale / 2) / scale);
   return img;
 }
 
@@ -152,13 +150,13 @@ Runner add_render_command(CLI::App& app) {
         const PassBuffer& v = *tr.visibility;
         ImageU8 combined(v.desc.width, v.desc.height, 0);
         for (int l = 0; l < v.desc.channels; ++l) {
-          const ImageU8 p = v.desc.kind == PassKind::Visibility ? bit_plane(v, l) : plane(v, l, true);
+          const ImageU8 p = v.desc.kind == PassKind::Visibility ? bit_plane(v, l) : viewable_plane(v, l);
           write_png(prefix + fmt::format("visibility_light{:02d}.png", l), p);
           for (size_t i = 0; i < p.size(); ++i) combined[i] = uint8_t(std::min(255, combined[i] + p[i] / v.desc.channels));
         }
         write_png(prefix + "visibility.png", combined);
       }
-      if (wants("ao") && tr.ao) write_png(prefix + "ao.png", plane(*tr.ao, 0, true));
+      if (wants("ao") && tr.ao) write_png(prefix + "ao.png", viewable_plane(*tr.ao, 0));
       if (wants("composite")) {
         t0 = std::chrono::steady_clock::now();
         const ImageRGB8 img = composite(gbuf, scene, tr.visibility ? &*tr.visibility : nullptr, tr.ao ? &*tr.ao : nullptr);

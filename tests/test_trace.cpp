@@ -9,6 +9,8 @@
 #include "core/shapes.h"
 #include "core/trace.h"
 
+#include "tests/support.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -20,15 +22,7 @@ namespace {
 
 constexpr int kW = 48, kH = 32;
 
-Object make_object(uint32_t id, Mesh mesh, glm::vec3 offset, uint32_t material = 0) {
-  for (auto& p : mesh.positions) p += offset;
-  Object o;
-  o.name = "object" + std::to_string(id);
-  o.id = id;
-  o.material = material;
-  o.mesh = std::move(mesh);
-  return o;
-}
+using test::make_object;
 
 // A single quad (two triangles) with the given corners, counter-clockwise.
 Mesh make_quad(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec3 d) {

@@ -15,3 +15,17 @@ std::string shared_scenes_dir() {
 }
 
 }  // namespace dhr::test
+
+namespace dhr::test {
+
+Object make_object(uint32_t id, Mesh mesh, glm::vec3 offset, uint32_t material) {
+  for (auto& p : mesh.positions) p += offset;
+  Object o;
+  o.name = "object" + std::to_string(id);
+  o.id = id;
+  o.material = material;
+  o.mesh = std::move(mesh);
+  return o;
+}
+
+}  // namespace dhr::test
