@@ -3,7 +3,16 @@
 # build-fuzz, replays every seed corpus, then fuzzes each target for a while. Exits non-zero
 # on any crash, leak, sanitizer report or failed check; the input that caused it is left in
 # build-fuzz/artifacts/<target>/ (replay it with: build-fuzz/tests/fuzz/<target> FILE).
-#   DHR_FUZZ_SECONDS   seconds of fuzzing per target (default 20; 0 only replays the corpora)
+# Two modes:
+#   default        a reproducible run: libFuzzer with a fixed seed for DHR_FUZZ_RUNS inputs per
+#                  target, starting from the seed corpus only, so the same commit explores the
+#                  same inputs on every machine (this is what scripts/test.sh and CI run)
+#   DHR_FUZZ_SECONDS=N  exploratory: N seconds per target with a random seed, growing the work
+#                  corpus in build-fuzz/corpus/ across runs; use it to look for new bugs, then
+#                  add the input that found one to tests/fuzz/corpus/<target>/ with the fix
+#   DHR_FUZZ_RUNS      inputs per target in the default mode (default 50000 for the packet
+#                      header and the assembler, 4000 for the slower decoders; 0 only replays)
+#   DHR_FUZZ_SEED      libFuzzer seed in the default mode (default 1)
 #   DHR_FUZZ_TARGETS   targets to run (default: fuzz_packet_header fuzz_assembler fuzz_decoders)
 #   DHR_FUZZ_JOBS      build parallelism (default: nproc)
 #   DHR_FUZZ_WERROR    ON (default): clang's warnings are errors, as gcc's are in the main build
@@ -11,7 +20,8 @@
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
-seconds=${DHR_FUZZ_SECONDS:-20}
+seconds=${DHR_FUZZ_SECONDS:-0}
+seed=${DHR_FUZZ_SEED:-1}
 targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders"}
 jobs=${DHR_FUZZ_JOBS:-$(nproc 2>/dev/null || echo 2)}
 werror=${DHR_FUZZ_WERROR:-ON}
@@ -44,22 +54,30 @@ for t in $targets; do
     status=1
     continue
   fi
+  # -rss_limit_mb bounds memory (the assembler and the decoders must not allocate from
+  # untrusted sizes); -timeout catches hangs; the work corpus is listed first so that new
+  # inputs go there and the seeds stay read-only.
+  case $t in fuzz_decoders) runs=${DHR_FUZZ_RUNS:-4000} ;; *) runs=${DHR_FUZZ_RUNS:-50000} ;; esac
   if [ "$seconds" -gt 0 ]; then
-    echo "== $t: fuzz for $seconds s"
-    # -rss_limit_mb bounds memory (the assembler and the decoders must not allocate from
-    # untrusted sizes); -timeout catches hangs; the work corpus is listed first so that new
-    # inputs go there and the seeds stay read-only.
-    if ! "$exe" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -max_len=8192 \
-        -print_final_stats=1 -artifact_prefix="$artifacts/" "$work" "$seeds" >"$build/$t.fuzz.log" 2>&1; then
-      echo "fuzz: $t failed; see $build/$t.fuzz.log and $artifacts/" >&2
-      tail -n 60 "$build/$t.fuzz.log" >&2
-      status=1
-      continue
-    fi
-    runs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$build/$t.fuzz.log" | grep -o '[0-9]*$' || true)
-    speed=$(grep -o 'stat::average_exec_per_sec: *[0-9]*' "$build/$t.fuzz.log" | grep -o '[0-9]*$' || true)
-    echo "   $t: ${runs:-?} runs, ${speed:-?} exec/s, no crash"
+    echo "== $t: fuzz for $seconds s (random seed, work corpus $work)"
+    mode=(-max_total_time="$seconds")
+  elif [ "$runs" -gt 0 ]; then
+    echo "== $t: fuzz $runs inputs with seed $seed (reproducible)"
+    rm -rf "$work" && mkdir -p "$work"
+    mode=(-runs="$runs" -seed="$seed")
+  else
+    continue
   fi
+  if ! "$exe" "${mode[@]}" -timeout=10 -rss_limit_mb=2048 -max_len=8192 \
+      -print_final_stats=1 -artifact_prefix="$artifacts/" "$work" "$seeds" >"$build/$t.fuzz.log" 2>&1; then
+    echo "fuzz: $t failed; see $build/$t.fuzz.log and $artifacts/" >&2
+    tail -n 60 "$build/$t.fuzz.log" >&2
+    status=1
+    continue
+  fi
+  done_runs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$build/$t.fuzz.log" | grep -o '[0-9]*$' || true)
+  speed=$(grep -o 'stat::average_exec_per_sec: *[0-9]*' "$build/$t.fuzz.log" | grep -o '[0-9]*$' || true)
+  echo "   $t: ${done_runs:-?} runs, ${speed:-?} exec/s, no crash"
 done
 if [ "$status" -ne 0 ]; then
   echo "== fuzzing found problems" >&2

@@ -71,6 +71,21 @@ class Lz4Codec final : public Codec {
   }
 
   bool decode(std::span<const uint8_t> in, const PassDesc& desc, PassBuffer& out, std::string& error) override {
+    if (decode_frame(in, desc, out, error)) return true;
+    // liblz4 1.9.4's LZ4F_resetDecompressionContext() does not clear the remaining content
+    // size of a frame left unfinished, and a frame without a declared size (the empty
+    // buffer's) does not set it either: the next empty frame then fails with
+    // ERROR_frameSize_wrong. A fresh context after every failure (a rare path) avoids that.
+    LZ4F_dctx* fresh = nullptr;
+    if (!LZ4F_isError(LZ4F_createDecompressionContext(&fresh, LZ4F_VERSION))) {
+      LZ4F_freeDecompressionContext(dctx_);
+      dctx_ = fresh;
+    }
+    return false;
+  }
+
+ private:
+  bool decode_frame(std::span<const uint8_t> in, const PassDesc& desc, PassBuffer& out, std::string& error) {
     if (std::string why = desc.validate(); !why.empty()) {
       error = "lz4: invalid buffer description: " + why;
       return false;
@@ -137,7 +152,6 @@ class Lz4Codec final : public Codec {
     return true;
   }
 
- private:
   LZ4F_preferences_t preferences(size_t content_size) const {
     LZ4F_preferences_t prefs;
     std::memset(&prefs, 0, sizeof prefs);
