@@ -5,6 +5,8 @@
 #include "core/error.h"
 #include "core/metrics.h"
 #include "core/packet.h"
+#include "core/pass_denoisers.h"
+#include "core/pass_receiver.h"
 #include "core/raster.h"
 #include "core/reference.h"
 #include "core/rt_scene.h"
@@ -66,44 +68,6 @@ std::string truth_key(const std::string& scene_key, const SimConfig& c, int fram
                      c.trace.ao_rays, c.trace.ao_radius_m, c.ground_truth_ao_rays, c.ground_truth_samples_per_light,
                      c.display_hz, c.start_time_s);
 }
-
-// Denoises the AO counts (and soft-visibility planes) of one frame. The "none" denoiser sends
-// the raw counts (full_scale = N rays), as the paper does; any other sends 0..255.
-struct PassDenoisers {
-  std::unique_ptr<Denoiser> ao;
-  std::vector<std::unique_ptr<Denoiser>> soft;  // one per light (each keeps its own history)
-  bool ao_is_none = true, soft_is_none = true;
-  BackendChoice soft_choice;
-
-  PassDenoisers(const SimConfig& c) {
-    ao_is_none = c.ao_denoiser.name == "none";
-    soft_is_none = c.visibility_denoiser.name == "none";
-    if (!ao_is_none) ao = registries().denoisers.create(c.ao_denoiser.name, c.ao_denoiser.params);
-    soft_choice = c.visibility_denoiser;
-  }
-
-  void run(const GBuffer& gbuf, uint32_t frame, std::optional<PassBuffer>& vis, std::optional<PassBuffer>& ao_buf) {
-    if (ao_buf && !ao_is_none) {
-      ImageU8 out;
-      const ImageU8 noisy = pass_plane(*ao_buf, 0);
-      ao->denoise({gbuf, noisy, ao_buf->desc.full_scale, frame, true}, out);
-      ao_buf->bytes.assign(out.pixels().begin(), out.pixels().end());
-      ao_buf->desc.full_scale = 255;
-    }
-    if (vis && vis->desc.kind == PassKind::SoftVisibility && !soft_is_none) {
-      const int lights = vis->desc.channels;
-      while (int(soft.size()) < lights) soft.push_back(registries().denoisers.create(soft_choice.name, soft_choice.params));
-      const size_t n = size_t(vis->desc.width) * size_t(vis->desc.height);
-      for (int l = 0; l < lights; ++l) {
-        ImageU8 out;
-        const ImageU8 noisy = pass_plane(*vis, l);
-        soft[size_t(l)]->denoise({gbuf, noisy, vis->desc.full_scale, frame, true}, out);
-        std::copy(out.pixels().begin(), out.pixels().end(), vis->bytes.begin() + std::ptrdiff_t(size_t(l) * n));
-      }
-      vis->desc.full_scale = 255;
-    }
-  }
-};
 
 }  // namespace
 
@@ -484,20 +448,20 @@ class Simulation {
     assembler_ = Assembler(ac);
     if (remote_) {
       server_codec_[0] = r.codecs.create(c.colour_codec.name, c.colour_codec.params);
-      client_codec_[0] = r.codecs.create(c.colour_codec.name, c.colour_codec.params);
+      receivers_[0].codec = r.codecs.create(c.colour_codec.name, c.colour_codec.params);
       predictor_[0] = r.predictors.create(c.colour_predictor.name, c.colour_predictor.params);
       traffic_.push_back({"colour"});
       codec_name_[0] = c.colour_codec.name;
     } else {
       if (plan_.visibility()) {
         server_codec_[0] = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
-        client_codec_[0] = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
+        receivers_[0].codec = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
         predictor_[0] = r.predictors.create(c.predictor.name, c.predictor.params);
         codec_name_[0] = c.visibility_codec.name;
       }
       if (plan_.ao) {
         server_codec_[1] = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
-        client_codec_[1] = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
+        receivers_[1].codec = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
         predictor_[1] = r.predictors.create(c.predictor.name, c.predictor.params);
         codec_name_[1] = c.ao_codec.name;
       }
@@ -668,6 +632,8 @@ class Simulation {
       if (count) {
         ++t.server_frames;
         t.encoded_bytes += encoded.size();
+        result_.server_log.push_back({j, t.pass, encoded.size(), packets.size(),
+                                      wire_bytes_of_pass(encoded.size(), c_.max_payload_bytes)});
       }
       datagrams.emplace_back(slot, std::move(packets));
     }
@@ -696,11 +662,6 @@ class Simulation {
 
   // ---- client ----
 
-  struct Received {
-    int frame = -1;
-    PassBuffer buffer;
-  };
-
   void receive(double now_ms, bool count) {
     while (!in_flight_.empty() && in_flight_.top().arrival_ms <= now_ms) {
       const Datagram& d = in_flight_.top();
@@ -714,33 +675,16 @@ class Simulation {
     }
     for (AssembledFrame& f : events.completed) {
       const int slot = slot_of(f.meta.desc.kind);
-      if (slot < 0 || !client_codec_[slot]) continue;
+      if (slot < 0 || !receivers_[slot].codec) continue;
       PassTraffic& t = traffic_[size_t(slot)];
       if (count) ++t.frames_completed;
-      Codec& codec = *client_codec_[slot];
-      // A gap in the sequence numbers before this frame means a frame of this stream was lost:
-      // a stateful decoder cannot go on from it.
-      const bool gap = expected_sequence_[slot] != f.meta.first_sequence;
-      expected_sequence_[slot] = f.meta.first_sequence + f.packet_count;
-      if (gap && codec.stateful() && received_[slot].frame >= 0) {
-        codec.reset();
-        keyframe_request_ = true;
-        if (count) ++t.keyframe_requests;
+      const PassReceiver::Outcome o = receivers_[slot].on_frame(f);
+      client_decode_ms_ += o.decode_ms;
+      keyframe_request_ = keyframe_request_ || o.keyframe_request;
+      if (count) {
+        t.decode_errors += o.decode_error ? 1 : 0;
+        t.keyframe_requests += o.gap_reset ? 1 : 0;
       }
-      PassBuffer out;
-      std::string error;
-      auto t0 = Clock::now();
-      const bool ok = codec.decode(f.encoded, f.meta.desc, out, error);
-      client_decode_ms_ += ms_since(t0);
-      if (!ok) {
-        if (count) ++t.decode_errors;
-        if (codec.stateful()) {
-          codec.reset();
-          keyframe_request_ = true;
-        }
-        continue;
-      }
-      if (int(f.meta.frame_id) > received_[slot].frame) received_[slot] = {int(f.meta.frame_id), std::move(out)};
     }
   }
 
@@ -810,16 +754,16 @@ class Simulation {
     ImageRGB8 image;
     if (remote_) {
       t0 = Clock::now();
-      if (received_[0].frame >= 0) {
+      if (receivers_[0].frame >= 0) {
         GBuffer src_cams, dst_cams;  // the remote client knows cameras only
-        src_cams.camera = camera(received_[0].frame);
+        src_cams.camera = camera(receivers_[0].frame);
         dst_cams.camera = cam;
         PassBuffer out;
-        predictor_[0]->predict({received_[0].buffer, src_cams, dst_cams}, out);
+        predictor_[0]->predict({receivers_[0].buffer, src_cams, dst_cams}, out);
         image = ImageRGB8(c_.width, c_.height);
         std::memcpy(image.data(), out.bytes.data(), std::min(out.bytes.size(), image.size() * sizeof(Rgb8)));
-        rec.source_frame[0] = received_[0].frame;
-        rec.age_ms[0] = now - frame_ms(received_[0].frame);
+        rec.source_frame[0] = receivers_[0].frame;
+        rec.age_ms[0] = now - frame_ms(receivers_[0].frame);
       } else {
         image = ImageRGB8(c_.width, c_.height);  // nothing received yet: black
         if (count) ++result_.frames_without_data;
@@ -833,23 +777,15 @@ class Simulation {
       for (int slot = 0; slot < 2; ++slot) {
         const bool planned = slot == kSlotVisibility ? plan_.visibility() : plan_.ao;
         if (!planned) continue;
-        const GBuffer* src = received_[slot].frame >= 0 ? history(received_[slot].frame) : nullptr;
+        const PassReceiver& r = receivers_[slot];
+        const GBuffer* src = r.frame >= 0 ? history(r.frame) : nullptr;
         if (!src) {
           if (count) ++result_.frames_without_data;  // local fallback: fully lit / AO 1
           continue;
         }
-        rec.source_frame[slot] = received_[slot].frame;
-        rec.age_ms[slot] = now - frame_ms(received_[slot].frame);
-        if (received_[slot].frame == a) {
-          // The server's buffer is for this very frame: nothing to predict. (Reprojecting onto
-          // the same camera is the identity only up to float rounding at pixel centres.)
-          predicted[slot] = received_[slot].buffer;
-          continue;
-        }
-        PassBuffer out;
-        const PredictStats ps = predictor_[slot]->predict({received_[slot].buffer, *src, gbuf}, out);
-        rec.disoccluded[slot] = ps.disoccluded;
-        predicted[slot] = std::move(out);
+        rec.source_frame[slot] = r.frame;
+        rec.age_ms[slot] = now - frame_ms(r.frame);
+        predicted[slot] = predict_pass(*predictor_[slot], r, *src, gbuf, r.frame == a, rec.disoccluded[slot]);
       }
       ms = ms_since(t0);
       stage("predict", ms, count);
@@ -895,7 +831,7 @@ class Simulation {
   Link uplink_, downlink_;
   PassDenoisers server_denoise_, local_denoise_;
   std::unique_ptr<RtScene> rt_;
-  std::unique_ptr<Codec> server_codec_[2], client_codec_[2];
+  std::unique_ptr<Codec> server_codec_[2];
   std::unique_ptr<Predictor> predictor_[2];
   std::string codec_name_[2];
   std::vector<PassTraffic> traffic_;
@@ -916,8 +852,7 @@ class Simulation {
   uint64_t send_order_ = 0;
 
   // client state
-  Received received_[2];
-  uint32_t expected_sequence_[2] = {0, 0};
+  PassReceiver receivers_[2];
   bool keyframe_request_ = false;
   double client_decode_ms_ = 0.0;
   std::deque<std::pair<int, GBuffer>> history_;

@@ -120,11 +120,21 @@ struct PassTraffic {
   double bytes_per_frame() const { return server_frames ? double(encoded_bytes) / double(server_frames) : 0.0; }
 };
 
+// One pass of one server frame as sent (the packet layer's accounting).
+struct ServerPassRecord {
+  int frame = 0;     // the client frame whose camera it was traced for
+  std::string pass;  // visibility | ao | colour
+  uint64_t encoded_bytes = 0;
+  uint64_t packets = 0;
+  uint64_t wire_bytes = 0;  // packets incl. dhrbench header + 28 IP/UDP
+};
+
 struct RunResult {
   nlohmann::json config;  // SimConfig::to_json with backends' effective parameters
   PassPlan plan;
   std::vector<FrameRecord> frames;
   std::vector<PassTraffic> traffic;
+  std::vector<ServerPassRecord> server_log;  // every pass sent for a scored frame, in order
   std::map<std::string, StageStats> stages;  // wall time per stage
   uint64_t server_frames = 0, cameras_dropped = 0, cameras_lost = 0;
   uint64_t frames_without_data = 0;

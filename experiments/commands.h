@@ -18,5 +18,8 @@ Runner add_compare_command(CLI::App& app);
 Runner add_run_command(CLI::App& app);
 Runner add_validate_command(CLI::App& app);
 Runner add_report_command(CLI::App& app);
+Runner add_serve_command(CLI::App& app);   // cmd_live.cpp
+Runner add_client_command(CLI::App& app);  // cmd_live.cpp
+Runner add_relay_command(CLI::App& app);   // cmd_live.cpp
 
 }  // namespace dhr::cli

@@ -27,6 +27,9 @@ int main(int argc, char** argv) {
   add(dhr::cli::add_list_command);
   add(dhr::cli::add_render_command);
   add(dhr::cli::add_compare_command);
+  add(dhr::cli::add_serve_command);
+  add(dhr::cli::add_client_command);
+  add(dhr::cli::add_relay_command);
 
   try {
     app.parse(argc, argv);

@@ -1,0 +1,1049 @@
+#include "core/live.h"
+
+#include "core/assembler.h"
+#include "core/composite.h"
+#include "core/error.h"
+#include "core/image_io.h"
+#include "core/live_protocol.h"
+#include "core/metrics.h"
+#include "core/packet.h"
+#include "core/pass_denoisers.h"
+#include "core/pass_receiver.h"
+#include "core/raster.h"
+#include "core/rng.h"
+#include "core/rt_scene.h"
+#include "core/trace.h"
+
+#include <fmt/format.h>
+#include <poll.h>
+#include <sys/socket.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <deque>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <optional>
+#include <queue>
+#include <set>
+
+namespace dhr {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+template <class... Args>
+void say(bool quiet, const char* who, fmt::format_string<Args...> f, Args&&... args) {
+  if (quiet) return;
+  fmt::print(stderr, "{}: {}\n", who, fmt::format(f, std::forward<Args>(args)...));
+  std::fflush(stderr);
+}
+
+void write_port_file(const std::string& path, const Endpoint& e) {
+  if (path.empty()) return;
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream f(tmp);
+    f << e.port() << "\n";
+    if (!f) fail("cannot write the port file '{}'", path);
+  }
+  std::filesystem::rename(tmp, path);  // whole, so a reader never sees a partial number
+}
+
+void write_text(const std::string& path, const std::string& text) {
+  std::ofstream f(path, std::ios::binary);
+  f << text;
+  if (!f) fail("cannot write '{}'", path);
+}
+
+// The wildcard address of the server's family, port 0 (a client's local socket).
+Endpoint any_endpoint_like(const Endpoint& peer) {
+  return resolve_endpoint(peer.addr.ss_family == AF_INET6 ? "[::]:0" : "0.0.0.0:0", true);
+}
+
+nlohmann::json percentiles(std::vector<double> v) {
+  if (v.empty()) return nullptr;
+  std::sort(v.begin(), v.end());
+  auto at = [&](double q) { return v[std::min(v.size() - 1, size_t(q * double(v.size() - 1) + 0.5))]; };
+  double sum = 0;
+  for (double x : v) sum += x;
+  return {{"median", at(0.5)}, {"p95", at(0.95)}, {"max", v.back()}, {"mean", sum / double(v.size())}, {"n", v.size()}};
+}
+
+int slot_of(PassKind k) {
+  if (k == PassKind::Visibility || k == PassKind::SoftVisibility) return 0;
+  if (k == PassKind::Ao) return 1;
+  return -1;
+}
+constexpr const char* kSlotName[2] = {"visibility", "ao"};
+
+ControlMessage msg(ControlType type, uint32_t session, std::string text = {}) {
+  ControlMessage m;
+  m.type = type;
+  m.session = session;
+  m.text = std::move(text);
+  return m;
+}
+
+ControlMessage camera_msg(uint32_t session, const CameraUpdate& cu) {
+  ControlMessage m = msg(ControlType::Camera, session);
+  m.camera = cu;
+  return m;
+}
+
+uint16_t stream_of(uint32_t session) { return uint16_t(session & 0xffffu); }
+
+}  // namespace
+
+// ---- the offer ---------------------------------------------------------------------------
+
+nlohmann::json session_offer(const SimConfig& c, const std::string& scene_name, const std::string& scene_key) {
+  auto effective = [](const auto& registry, const BackendChoice& b) {
+    Params p;
+    registry.create(b.name, b.params, &p);
+    return nlohmann::json{{"name", b.name}, {"params", p.effective()}};
+  };
+  const Registries& r = registries();
+  return {{"protocol", kLiveProtocolVersion},
+          {"scene", scene_name},
+          {"scene_hash", scene_key},
+          {"width", c.width},
+          {"height", c.height},
+          {"display_hz", c.display_hz},
+          {"start_time_s", c.start_time_s},
+          {"seed", c.seed},
+          {"trace", c.to_json()["trace"]},
+          {"visibility_codec", effective(r.codecs, c.visibility_codec)},
+          {"ao_codec", effective(r.codecs, c.ao_codec)},
+          {"ao_denoiser", effective(r.denoisers, c.ao_denoiser)},
+          {"visibility_denoiser", effective(r.denoisers, c.visibility_denoiser)},
+          {"max_payload_bytes", c.max_payload_bytes}};
+}
+
+std::vector<std::string> offer_mismatches(const nlohmann::json& client, const nlohmann::json& server) {
+  std::vector<std::string> out;
+  auto walk = [&](auto& self, const nlohmann::json& a, const nlohmann::json& b, const std::string& path) -> void {
+    if (a.is_object() && b.is_object()) {
+      std::set<std::string> keys;
+      for (auto it = a.begin(); it != a.end(); ++it) keys.insert(it.key());
+      for (auto it = b.begin(); it != b.end(); ++it) keys.insert(it.key());
+      for (const std::string& k : keys) {
+        if (path.empty() && k == "scene") continue;  // the name may differ; the hash may not
+        const std::string p = path.empty() ? k : path + "." + k;
+        self(self, a.contains(k) ? a[k] : nlohmann::json(), b.contains(k) ? b[k] : nlohmann::json(), p);
+      }
+      return;
+    }
+    if (a != b) out.push_back(fmt::format("{}: client {}, server {}", path, a.dump(), b.dump()));
+  };
+  walk(walk, client, server, "");
+  if (!out.empty() && client.value("scene_hash", "") != server.value("scene_hash", ""))
+    out.insert(out.begin(), fmt::format("scene: client '{}', server '{}' (different content)", client.value("scene", "?"),
+                                        server.value("scene", "?")));
+  return out;
+}
+
+std::vector<std::string> live_ignored_fields(const SimConfig& c) {
+  const SimConfig d;
+  std::vector<std::string> out;
+  if (c.uplink.to_json() != d.uplink.to_json() || c.downlink.to_json() != d.downlink.to_json())
+    out.push_back("uplink/downlink (the network is the real one, or dhrbench relay's)");
+  if (c.warmup_frames != d.warmup_frames) out.push_back("warmup_frames");
+  if (c.server_timing != d.server_timing || c.server_fixed_ms != d.server_fixed_ms)
+    out.push_back("server_timing/server_fixed_ms (the server takes the time it takes)");
+  if (c.ground_truth_every != d.ground_truth_every) out.push_back("ground_truth_every");
+  return out;
+}
+
+// ---- server ------------------------------------------------------------------------------
+
+namespace {
+
+class LiveServer {
+ public:
+  LiveServer(const SimConfig& c, const LiveScene& s, const ServeOptions& o)
+      : c_(c), scene_(s), o_(o), offer_(session_offer(c, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
+        socket_(o.bind) {
+    if (c.mode != "hybrid") fail("live mode serves hybrid rendering only (mode '{}' given)", c.mode);
+    rt_ = std::make_unique<RtScene>(*s.scene);
+    write_port_file(o.port_file, socket_.local());
+    say(o_.quiet, "serve", "listening on UDP {} (scene {}, {}x{} at {} Hz, passes:{}{})", socket_.local().to_string(),
+        s.name, c.width, c.height, c.display_hz, plan_.visibility() ? " visibility" : "", plan_.ao ? " ao" : "");
+  }
+
+  int run(const std::atomic<bool>& stop) {
+    while (!stop.load()) {
+      socket_.wait_readable(20);
+      drain();
+      if (session_ && session_->pending) serve(*session_);
+      if (session_ && ms_between(session_->last_heard, Clock::now()) > o_.idle_timeout_s * 1000.0)
+        end_session(fmt::format("the client was silent for {:.1f} s", o_.idle_timeout_s));
+      if (o_.sessions > 0 && sessions_done_ >= o_.sessions) break;
+    }
+    if (session_) {
+      send_control(msg(ControlType::Bye, session_->id, "server stopping"), session_->peer);
+      end_session("the server was stopped");
+    }
+    say(o_.quiet, "serve", "exiting after {} session(s)", sessions_done_);
+    return 0;
+  }
+
+ private:
+  struct Session {
+    uint32_t id = 0;
+    Endpoint peer;
+    std::unique_ptr<Codec> codec[2];
+    std::string codec_name[2];
+    std::unique_ptr<PassDenoisers> denoise;
+    uint32_t sequence[2] = {0, 0};
+    bool has_prev = false;
+    Camera prev_camera;
+    double prev_time_s = 0;
+    int64_t last_frame = -1;
+    std::optional<CameraUpdate> pending;
+    bool keyframe = false;
+    Clock::time_point started, last_heard;
+    uint64_t cameras = 0, cameras_superseded = 0, cameras_stale = 0, frames_served = 0;
+    uint64_t datagrams_sent = 0, bytes_sent = 0, send_dropped = 0;
+    std::vector<double> compute_ms;
+    std::vector<ServerPassRecord> log;
+  };
+
+  void send_control(const ControlMessage& m, const Endpoint& to) { socket_.send_to(encode_control(m), to); }
+
+  void drain() {
+    // At most this many datagrams before serving a frame again: a flood cannot starve it.
+    for (int i = 0; i < 4096; ++i) {
+      Endpoint from;
+      const ReceiveResult r = socket_.receive(buffer_, from);
+      if (r == ReceiveResult::Empty) return;
+      if (r == ReceiveResult::Error) continue;
+      if (r == ReceiveResult::Truncated) {
+        ++bad_["truncated"];
+        continue;
+      }
+      handle(from);
+    }
+  }
+
+  void handle(const Endpoint& from) {
+    ControlMessage m;
+    const ControlParse p = parse_control(buffer_, m);
+    if (p != ControlParse::Ok) {
+      ++bad_[p == ControlParse::NotControl ? "not_a_control_message" : control_parse_name(p)];
+      return;
+    }
+    switch (m.type) {
+      case ControlType::Hello: return on_hello(m, from);
+      case ControlType::Camera: return on_camera(m);
+      case ControlType::Bye:
+        if (session_ && m.session == session_->id) end_session("the client said bye: " + m.text);
+        else ++bad_["bye_for_another_session"];
+        return;
+      default: ++bad_["unexpected_" + std::string(control_type_name(m.type))];
+    }
+  }
+
+  void on_hello(const ControlMessage& m, const Endpoint& from) {
+    nlohmann::json offer;
+    try {
+      offer = nlohmann::json::parse(m.text);
+    } catch (const std::exception&) {
+      ++bad_["hello_not_json"];
+      return;
+    }
+    std::vector<std::string> why = offer_mismatches(offer, offer_);
+    if (!why.empty()) {
+      std::string text = "the session offers differ: ";
+      for (size_t i = 0; i < why.size(); ++i) text += (i ? "; " : "") + why[i];
+      text += ". Start client and server with the same scene and settings.";
+      if (text.size() > kMaxControlBody) text.resize(kMaxControlBody);
+      say(o_.quiet, "serve", "refused {}: {}", from.to_string(), text);
+      send_control(msg(ControlType::Refuse, 0, text), from);
+      ++refused_;
+      return;
+    }
+    if (session_) {
+      if (from == session_->peer) {  // the Welcome was lost: send it again
+        send_control(msg(ControlType::Welcome, session_->id, welcome_text()), from);
+      } else {
+        send_control(msg(ControlType::Refuse, 0,
+                      fmt::format("the server is busy with another client ({})", session_->peer.to_string())),
+                     from);
+        ++refused_;
+      }
+      return;
+    }
+    auto s = std::make_unique<Session>();
+    // Session ids differ between sessions and servers, so stale packets of an earlier session
+    // are told apart; 0 is reserved for "no session".
+    s->id = uint32_t((uint64_t(Clock::now().time_since_epoch().count()) * 0x9E3779B97F4A7C15ull) >> 32) | 1u;
+    s->peer = from;
+    const Registries& r = registries();
+    if (plan_.visibility()) {
+      s->codec[0] = r.codecs.create(c_.visibility_codec.name, c_.visibility_codec.params);
+      s->codec_name[0] = c_.visibility_codec.name;
+    }
+    if (plan_.ao) {
+      s->codec[1] = r.codecs.create(c_.ao_codec.name, c_.ao_codec.params);
+      s->codec_name[1] = c_.ao_codec.name;
+    }
+    s->denoise = std::make_unique<PassDenoisers>(c_);
+    s->started = s->last_heard = Clock::now();
+    session_ = std::move(s);
+    send_control(msg(ControlType::Welcome, session_->id, welcome_text()), from);
+    say(o_.quiet, "serve", "session {:08x} with {}", session_->id, from.to_string());
+  }
+
+  std::string welcome_text() const { return nlohmann::json{{"session", session_->id}, {"offer", offer_}}.dump(); }
+
+  void on_camera(const ControlMessage& m) {
+    if (!session_ || m.session != session_->id) {
+      ++bad_["camera_for_another_session"];
+      return;
+    }
+    Session& s = *session_;
+    s.last_heard = Clock::now();
+    ++s.cameras;
+    if (m.camera.camera.width != c_.width || m.camera.camera.height != c_.height) {
+      ++bad_["camera_wrong_size"];
+      return;
+    }
+    if (int64_t(m.camera.frame) <= s.last_frame || (s.pending && m.camera.frame <= s.pending->frame)) {
+      ++s.cameras_stale;  // reordered or duplicated: a newer camera was seen already
+      return;
+    }
+    if (s.pending) ++s.cameras_superseded;  // the server was busy: only the newest is served
+    s.keyframe = s.keyframe || m.camera.keyframe_request;
+    s.pending = m.camera;
+  }
+
+  void serve(Session& s) {
+    const CameraUpdate cam = *s.pending;
+    s.pending.reset();
+    const bool keyframe = s.keyframe;
+    s.keyframe = false;
+    const auto t0 = Clock::now();
+    GBuffer g;
+    rasterize({scene_.scene, cam.camera, cam.scene_time_s, s.has_prev ? s.prev_camera : cam.camera,
+               s.has_prev ? s.prev_time_s : cam.scene_time_s},
+              g);
+    s.has_prev = true;
+    s.prev_camera = cam.camera;
+    s.prev_time_s = cam.scene_time_s;
+    // The same seed and frame index as the simulator: the same camera gives the same passes.
+    TraceSettings ts = c_.trace;
+    ts.seed = c_.seed;
+    ts.frame = cam.frame;
+    TraceResult traced = trace_passes(*rt_, g, ts);
+    s.denoise->run(g, cam.frame, traced.visibility, traced.ao);
+    std::optional<PassBuffer>* buffers[2] = {&traced.visibility, &traced.ao};
+    std::vector<std::vector<uint8_t>> packets[2];
+    for (int slot = 0; slot < 2; ++slot) {
+      if (!*buffers[slot] || !s.codec[slot]) continue;
+      const PassBuffer& buf = **buffers[slot];
+      std::vector<uint8_t> encoded;
+      s.codec[slot]->encode(buf, {keyframe}, encoded);
+      PacketMeta meta;
+      meta.stream_id = stream_of(s.id);
+      meta.desc = buf.desc;
+      meta.frame_id = cam.frame;
+      meta.codec_id = codec_id(s.codec_name[slot]);
+      meta.first_sequence = s.sequence[slot];
+      packets[slot] = packetize(meta, encoded, c_.max_payload_bytes);
+      s.sequence[slot] += uint32_t(packets[slot].size());
+      s.log.push_back({int(cam.frame), kSlotName[slot], encoded.size(), packets[slot].size(),
+                       wire_bytes_of_pass(encoded.size(), c_.max_payload_bytes)});
+    }
+    s.compute_ms.push_back(ms_between(t0, Clock::now()));
+    for (auto& list : packets)
+      for (const auto& p : list) {
+        const SendResult r = socket_.send_to(p, s.peer);
+        if (r == SendResult::Sent) {
+          ++s.datagrams_sent;
+          s.bytes_sent += p.size();
+        } else {
+          ++s.send_dropped;  // the kernel's send buffer was full: a lost datagram
+        }
+      }
+    s.last_frame = cam.frame;
+    ++s.frames_served;
+  }
+
+  void end_session(const std::string& reason) {
+    Session& s = *session_;
+    const double seconds = ms_between(s.started, Clock::now()) / 1000.0;
+    say(o_.quiet, "serve", "session {:08x} ended: {} ({} frames served in {:.1f} s, {} datagrams, {:.2f} MB sent{})",
+        s.id, reason, s.frames_served, seconds, s.datagrams_sent, double(s.bytes_sent) / 1e6,
+        s.send_dropped ? fmt::format(", {} dropped by a full send buffer", s.send_dropped) : "");
+    ++sessions_done_;
+    if (!o_.out_dir.empty()) {
+      std::filesystem::create_directories(o_.out_dir);
+      nlohmann::json bad = nlohmann::json::object();
+      for (const auto& [k, v] : bad_) bad[k] = v;
+      summaries_.push_back({{"session", s.id},
+                            {"client", s.peer.to_string()},
+                            {"end_reason", reason},
+                            {"duration_s", seconds},
+                            {"cameras_received", s.cameras},
+                            {"cameras_superseded", s.cameras_superseded},
+                            {"cameras_stale", s.cameras_stale},
+                            {"frames_served", s.frames_served},
+                            {"datagrams_sent", s.datagrams_sent},
+                            {"bytes_sent", s.bytes_sent},
+                            {"datagrams_dropped_by_send_buffer", s.send_dropped},
+                            {"compute_ms", percentiles(s.compute_ms)},
+                            {"bad_or_foreign_datagrams", bad},
+                            {"refused_hellos", refused_}});
+      write_text(o_.out_dir + "/server.json",
+                 nlohmann::json{{"role", "server"}, {"offer", offer_}, {"sessions", summaries_}}.dump(2) + "\n");
+      std::string csv = sessions_done_ == 1 ? "session,frame,pass,encoded_bytes,packets,wire_bytes\n" : "";
+      for (const ServerPassRecord& r : s.log)
+        csv += fmt::format("{:08x},{},{},{},{},{}\n", s.id, r.frame, r.pass, r.encoded_bytes, r.packets, r.wire_bytes);
+      std::ofstream f(o_.out_dir + "/server_frames.csv", sessions_done_ == 1 ? std::ios::trunc : std::ios::app);
+      f << csv;
+    }
+    session_.reset();
+  }
+
+  const SimConfig& c_;
+  LiveScene scene_;
+  ServeOptions o_;
+  nlohmann::json offer_;
+  PassPlan plan_;
+  UdpSocket socket_;
+  std::unique_ptr<RtScene> rt_;
+  std::unique_ptr<Session> session_;
+  std::vector<uint8_t> buffer_;
+  std::map<std::string, uint64_t> bad_;
+  uint64_t refused_ = 0;
+  int sessions_done_ = 0;
+  std::vector<nlohmann::json> summaries_;
+};
+
+}  // namespace
+
+int run_live_server(const SimConfig& config, const LiveScene& scene, const ServeOptions& options,
+                    const std::atomic<bool>& stop) {
+  validate_sim_config(config, *scene.scene);
+  LiveServer server(config, scene, options);
+  return server.run(stop);
+}
+
+// ---- client ------------------------------------------------------------------------------
+
+namespace {
+
+class LiveClient {
+ public:
+  LiveClient(const SimConfig& c, const LiveScene& s, const ClientOptions& o)
+      : c_(c), scene_(s), o_(o), offer_(session_offer(c, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
+        socket_(any_endpoint_like(o.server)) {
+    if (c.mode != "hybrid") fail("live mode is hybrid rendering only (mode '{}' given)", c.mode);
+    if (o.frames < 1) fail("client: --frames must be at least 1 (got {})", o.frames);
+    const Registries& r = registries();
+    if (plan_.visibility()) {
+      receivers_[0].codec = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
+      predictor_[0] = r.predictors.create(c.predictor.name, c.predictor.params);
+    }
+    if (plan_.ao) {
+      receivers_[1].codec = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
+      predictor_[1] = r.predictors.create(c.predictor.name, c.predictor.params);
+    }
+    AssemblerConfig ac;
+    ac.max_payload_bytes = c.max_payload_bytes;
+    ac.timeout_ms = 500;
+    assembler_ = Assembler(ac);
+  }
+
+  int run(const std::atomic<bool>& stop) {
+    if (int rc = handshake(stop); rc != 0) return rc;
+    const double period_ms = 1000.0 / c_.display_hz;
+    t0_ = Clock::now();
+    last_heard_ = t0_;
+    send_ms_.assign(size_t(o_.frames), -1.0);
+    for (int a = 0; a < o_.frames && end_reason_.empty(); ++a) {
+      if (stop.load()) {
+        end_reason_ = "the client was stopped";
+        break;
+      }
+      const double deadline = double(a) * period_ms;
+      if (now_ms() > deadline + period_ms) {
+        ++frames_skipped_;  // this machine cannot keep the display rate: the frame is dropped
+        continue;
+      }
+      pump_until(deadline, stop);
+      if (!end_reason_.empty()) break;
+      display(a);
+      if (ms_between(last_heard_, Clock::now()) > o_.idle_timeout_s * 1000.0)
+        end_reason_ = fmt::format("the server was silent for {:.1f} s", o_.idle_timeout_s);
+    }
+    const bool server_gone = end_reason_.rfind("the server", 0) == 0;
+    if (end_reason_.empty()) end_reason_ = fmt::format("all {} frames displayed", o_.frames);
+    if (!server_gone)
+      for (int i = 0; i < 3; ++i)  // UDP may lose one; the server's idle timeout is the fallback
+        socket_.send_to(encode_control(msg(ControlType::Bye, session_, "client done")), o_.server);
+    session_seconds_ = now_ms() / 1000.0;
+    AssemblerEvents rest = assembler_.flush(int64_t(now_ms()));
+    count_lost(rest);
+    say(o_.quiet, "client", "session ended: {}", end_reason_);
+    score();
+    write_outputs();
+    return 0;
+  }
+
+ private:
+  struct Row {
+    int frame = 0;
+    double t_ms = 0, client_ms = 0;
+    int source_frame[2] = {-1, -1};
+    double age_ms[2] = {0, 0};
+    uint64_t disoccluded[2] = {0, 0};
+    bool scored = false;
+    double ssim = 0, psnr = 0;
+  };
+
+  double now_ms() const { return ms_between(t0_, Clock::now()); }
+  double frame_time_s(int a) const { return c_.start_time_s + double(a) / c_.display_hz; }
+  Camera camera(int a) const { return scene_.scene->camera.at(frame_time_s(a), c_.width, c_.height); }
+
+  int handshake(const std::atomic<bool>& stop) {
+    const auto start = Clock::now();
+    const std::vector<uint8_t> hello = encode_control(msg(ControlType::Hello, 0, offer_.dump()));
+    say(o_.quiet, "client", "connecting to {} ...", o_.server.to_string());
+    double next_hello_ms = 0;
+    while (!stop.load()) {
+      const double t = ms_between(start, Clock::now());
+      if (t > o_.connect_timeout_s * 1000.0) break;
+      if (t >= next_hello_ms) {
+        socket_.send_to(hello, o_.server);
+        next_hello_ms = t + 250.0;  // Hello or its answer may be lost: repeat
+      }
+      if (!socket_.wait_readable(int(std::max(1.0, next_hello_ms - t)))) continue;
+      Endpoint from;
+      while (socket_.receive(buffer_, from) == ReceiveResult::Received) {
+        ControlMessage m;
+        if (parse_control(buffer_, m) != ControlParse::Ok) continue;
+        if (m.type == ControlType::Refuse) {
+          fmt::print(stderr, "client: the server at {} refused the session: {}\n", o_.server.to_string(), m.text);
+          return 2;
+        }
+        if (m.type == ControlType::Welcome && m.session != 0) {
+          session_ = m.session;
+          say(o_.quiet, "client", "session {:08x} with {} after {:.0f} ms", session_, o_.server.to_string(),
+              ms_between(start, Clock::now()));
+          return 0;
+        }
+      }
+    }
+    fmt::print(stderr,
+               "client: no answer from a dhrbench server at {} within {:.1f} s (is 'dhrbench serve' running there, "
+               "and does UDP reach it?)\n",
+               o_.server.to_string(), o_.connect_timeout_s);
+    return 1;
+  }
+
+  // Receives until `deadline_ms` (session time), or only what is waiting when it has passed.
+  void pump_until(double deadline_ms, const std::atomic<bool>& stop) {
+    for (;;) {
+      receive_waiting();
+      const double left = deadline_ms - now_ms();
+      if (left <= 0 || !end_reason_.empty() || stop.load()) return;
+      socket_.wait_readable(int(std::ceil(std::min(left, 50.0))));
+    }
+  }
+
+  void receive_waiting() {
+    for (int i = 0; i < 65536; ++i) {
+      Endpoint from;
+      const ReceiveResult r = socket_.receive(buffer_, from);
+      if (r == ReceiveResult::Empty) return;
+      if (r != ReceiveResult::Received) {
+        ++bad_[r == ReceiveResult::Truncated ? "truncated" : "receive_error"];
+        continue;
+      }
+      on_datagram();
+    }
+  }
+
+  void on_datagram() {
+    const double t = now_ms();
+    const size_t second = size_t(std::max(0.0, t / 1000.0));
+    if (per_second_.size() <= second) per_second_.resize(second + 1);
+    per_second_[second].datagrams += 1;
+    per_second_[second].bytes += buffer_.size();
+    ++datagrams_;
+    bytes_ += buffer_.size();
+    if (looks_like_control(buffer_)) {
+      ControlMessage m;
+      const ControlParse p = parse_control(buffer_, m);
+      if (p != ControlParse::Ok) {
+        ++bad_[std::string("control_") + control_parse_name(p)];
+      } else if (m.session != session_) {
+        ++bad_["control_for_another_session"];
+      } else if (m.type == ControlType::Bye) {
+        end_reason_ = "the server ended the session: " + m.text;
+      } else if (m.type != ControlType::Welcome) {  // a repeated Welcome is harmless
+        ++bad_[std::string("unexpected_") + control_type_name(m.type)];
+      }
+      last_heard_ = Clock::now();
+      return;
+    }
+    ParsedPacket pkt;
+    const ParseResult pr = parse_packet(buffer_, pkt);
+    if (pr != ParseResult::Ok) {
+      ++bad_[std::string("packet_") + parse_result_name(pr)];
+      return;
+    }
+    if (pkt.meta.stream_id != stream_of(session_)) {
+      ++bad_["packet_for_another_session"];
+      return;
+    }
+    last_heard_ = Clock::now();
+    const PacketFate fate = assembler_.push(buffer_, int64_t(t));
+    if (fate == PacketFate::Accepted || fate == PacketFate::Completed) {
+      const int slot = slot_of(pkt.meta.desc.kind);
+      if (slot >= 0) {
+        auto& b = socket_bytes_[{slot, pkt.meta.frame_id}];
+        b.first += buffer_.size();
+        b.second += 1;
+      }
+    }
+  }
+
+  void count_lost(const AssemblerEvents& events) {
+    for (const LostFrame& l : events.lost) {
+      const int slot = slot_of(l.meta.desc.kind);
+      if (slot < 0) continue;
+      ++frames_lost_[slot];
+      socket_bytes_.erase({slot, l.meta.frame_id});
+    }
+  }
+
+  void display(int a) {
+    const auto start = Clock::now();
+    Row row;
+    row.frame = a;
+    row.t_ms = now_ms();
+    // Uplink: this frame's camera, with a keyframe request after a loss.
+    CameraUpdate cu;
+    cu.frame = uint32_t(a);
+    cu.keyframe_request = keyframe_request_;
+    cu.scene_time_s = frame_time_s(a);
+    cu.camera = camera(a);
+    if (socket_.send_to(encode_control(camera_msg(session_, cu)), o_.server) == SendResult::Sent)
+      keyframe_request_ = false;
+    send_ms_[size_t(a)] = row.t_ms;
+
+    GBuffer g;
+    rasterize({scene_.scene, cu.camera, cu.scene_time_s, has_prev_ ? prev_camera_ : cu.camera,
+               has_prev_ ? prev_time_s_ : cu.scene_time_s},
+              g);
+    has_prev_ = true;
+    prev_camera_ = cu.camera;
+    prev_time_s_ = cu.scene_time_s;
+    history_.emplace_back(a, std::move(g));
+    while (int(history_.size()) > c_.history_frames) history_.pop_front();
+    const GBuffer& gbuf = history_.back().second;
+
+    receive_waiting();
+    AssemblerEvents events = assembler_.poll(int64_t(now_ms()));
+    count_lost(events);
+    for (AssembledFrame& f : events.completed) {
+      const int slot = slot_of(f.meta.desc.kind);
+      if (slot < 0 || !receivers_[slot].codec) continue;
+      ++frames_completed_[slot];
+      const uint32_t frame_id = f.meta.frame_id;
+      if (frame_id < send_ms_.size() && send_ms_[frame_id] >= 0)
+        round_trip_ms_[slot].push_back(double(f.completed_ms) - send_ms_[frame_id]);
+      const PassReceiver::Outcome out = receivers_[slot].on_frame(f);
+      keyframe_request_ = keyframe_request_ || out.keyframe_request;
+      decode_errors_[slot] += out.decode_error ? 1 : 0;
+      auto it = socket_bytes_.find({slot, frame_id});
+      if (it != socket_bytes_.end()) {
+        completed_log_.push_back({int(frame_id), slot, it->second.first, it->second.second});
+        socket_bytes_.erase(it);
+      }
+    }
+    // Partial frames' byte counts older than the history are no longer needed.
+    while (!socket_bytes_.empty() && int64_t(socket_bytes_.begin()->first.second) + 4 * c_.history_frames < a)
+      socket_bytes_.erase(socket_bytes_.begin());
+
+    std::optional<PassBuffer> predicted[2];
+    for (int slot = 0; slot < 2; ++slot) {
+      if (!receivers_[slot].codec) continue;
+      const PassReceiver& r = receivers_[slot];
+      const GBuffer* src = nullptr;
+      for (const auto& [f, hg] : history_)
+        if (f == r.frame) src = &hg;
+      if (!src) {
+        ++without_data_;  // the local fallback: fully lit / AO 1
+        continue;
+      }
+      row.source_frame[slot] = r.frame;
+      row.age_ms[slot] = double(a - r.frame) * 1000.0 / c_.display_hz;
+      predicted[slot] = predict_pass(*predictor_[slot], r, *src, gbuf, r.frame == a, row.disoccluded[slot]);
+    }
+    ImageRGB8 image = composite(gbuf, *scene_.scene, predicted[0] ? &*predicted[0] : nullptr,
+                                predicted[1] ? &*predicted[1] : nullptr);
+    row.client_ms = ms_between(start, Clock::now());
+    if (o_.score_every > 0 && a % o_.score_every == 0) {
+      row.scored = true;
+      kept_[a] = image;
+    }
+    if (o_.save_every > 0 && a % o_.save_every == 0) kept_[a] = std::move(image);
+    rows_.push_back(row);
+  }
+
+  // Quality after the session (so that scoring never slows the real-time loop): each scored
+  // frame against the local reference, the frame's own passes traced and denoised as the
+  // simulator does. With a temporal denoiser its history runs over every displayed frame.
+  void score() {
+    if (o_.score_every <= 0 || rows_.empty()) return;
+    say(o_.quiet, "client", "scoring {} frames against the local reference ...",
+        std::count_if(rows_.begin(), rows_.end(), [](const Row& r) { return r.scored; }));
+    RtScene rt(*scene_.scene);
+    PassDenoisers local(c_);
+    const bool every_frame = !local.ao_is_none || !local.soft_is_none;
+    Camera prev;
+    double prev_t = 0;
+    bool has_prev = false;
+    for (Row& row : rows_) {
+      if (!row.scored && !every_frame) continue;
+      const Camera cam = camera(row.frame);
+      GBuffer g;
+      rasterize({scene_.scene, cam, frame_time_s(row.frame), has_prev ? prev : cam, has_prev ? prev_t : frame_time_s(row.frame)},
+                g);
+      prev = cam;
+      prev_t = frame_time_s(row.frame);
+      has_prev = true;
+      TraceSettings ts = c_.trace;
+      ts.seed = c_.seed;
+      ts.frame = uint32_t(row.frame);
+      TraceResult t = trace_passes(rt, g, ts);
+      local.run(g, uint32_t(row.frame), t.visibility, t.ao);
+      if (!row.scored) continue;
+      const ImageRGB8 ref = composite(g, *scene_.scene, t.visibility ? &*t.visibility : nullptr, t.ao ? &*t.ao : nullptr);
+      const QualityScores q = compare_images(ref, kept_.at(row.frame));
+      row.ssim = q.ssim;
+      row.psnr = q.psnr_db;
+    }
+  }
+
+  void write_outputs() {
+    namespace fs = std::filesystem;
+    fs::create_directories(o_.out_dir);
+    if (o_.save_every > 0) {
+      fs::create_directories(o_.out_dir + "/frames");
+      for (const auto& [a, img] : kept_)
+        if (a % o_.save_every == 0) write_png(fmt::format("{}/frames/frame_{:05d}.png", o_.out_dir, a), img);
+    }
+    std::string csv = "frame,t_ms,client_ms,vis_source_frame,vis_age_ms,ao_source_frame,ao_age_ms,scored,ssim_local,psnr_local\n";
+    std::vector<double> client_ms, ssim, psnr, age[2];
+    for (const Row& r : rows_) {
+      csv += fmt::format("{},{:.3f},{:.3f},{},{:.1f},{},{:.1f},{},{},{}\n", r.frame, r.t_ms, r.client_ms, r.source_frame[0],
+                         r.age_ms[0], r.source_frame[1], r.age_ms[1], r.scored ? 1 : 0,
+                         r.scored ? fmt::format("{:.6f}", r.ssim) : "", r.scored ? fmt::format("{:.3f}", r.psnr) : "");
+      client_ms.push_back(r.client_ms);
+      if (r.scored) {
+        ssim.push_back(r.ssim);
+        psnr.push_back(std::isfinite(r.psnr) ? r.psnr : 99.0);
+      }
+      for (int s = 0; s < 2; ++s)
+        if (r.source_frame[s] >= 0) age[s].push_back(r.age_ms[s]);
+    }
+    write_text(o_.out_dir + "/frames.csv", csv);
+    std::string sock = "second,datagrams,bytes,mbps\n";
+    for (size_t i = 0; i < per_second_.size(); ++i)
+      sock += fmt::format("{},{},{},{:.3f}\n", i, per_second_[i].datagrams, per_second_[i].bytes,
+                          double(per_second_[i].bytes) * 8.0 / 1e6);
+    write_text(o_.out_dir + "/socket.csv", sock);
+    std::string passes_csv = "frame,pass,socket_bytes,packets\n";
+    for (const auto& r : completed_log_)
+      passes_csv += fmt::format("{},{},{},{}\n", r.frame, kSlotName[r.slot], r.socket_bytes, r.packets);
+    write_text(o_.out_dir + "/received_passes.csv", passes_csv);
+
+    const AssemblerStats& as = assembler_.stats();
+    nlohmann::json bad = nlohmann::json::object();
+    for (const auto& [k, v] : bad_) bad[k] = v;
+    nlohmann::json fates = nlohmann::json::object();
+    for (int f = 0; f < kPacketFateCount; ++f)
+      if (as.packets[size_t(f)]) fates[packet_fate_name(PacketFate(f))] = as.packets[size_t(f)];
+    nlohmann::json lost_by = nlohmann::json::object();
+    for (int r = 0; r < kLossReasonCount; ++r)
+      if (as.frames_lost[size_t(r)]) lost_by[loss_reason_name(LossReason(r))] = as.frames_lost[size_t(r)];
+    nlohmann::json passes = nlohmann::json::object();
+    for (int s = 0; s < 2; ++s) {
+      if (!receivers_[s].codec) continue;
+      passes[kSlotName[s]] = {{"frames_completed", frames_completed_[s]},
+                              {"frames_lost", frames_lost_[s]},
+                              {"decode_errors", decode_errors_[s]},
+                              {"age_ms", percentiles(age[s])},
+                              {"round_trip_ms", percentiles(round_trip_ms_[s])}};
+    }
+    const uint64_t received_packets = as.count(PacketFate::Accepted) + as.count(PacketFate::Completed);
+    const double seconds = std::max(1e-9, session_seconds_);
+    const nlohmann::json out = {
+        {"role", "client"},
+        {"server", o_.server.to_string()},
+        {"session", session_},
+        {"end_reason", end_reason_},
+        {"offer", offer_},
+        {"predictor", {{"name", c_.predictor.name}, {"params", c_.predictor.params}}},
+        {"frames",
+         {{"requested", o_.frames},
+          {"displayed", rows_.size()},
+          {"skipped_late", frames_skipped_},
+          {"without_data", without_data_},
+          {"scored", ssim.size()}}},
+        {"quality", {{"ssim_local", percentiles(ssim)}, {"psnr_local_db", percentiles(psnr)}}},
+        {"client_ms", percentiles(client_ms)},
+        {"socket",
+         {{"duration_s", session_seconds_},
+          {"datagrams", datagrams_},
+          {"bytes", bytes_},
+          {"datagrams_per_s", double(datagrams_) / seconds},
+          {"bytes_per_s", double(bytes_) / seconds},
+          {"mbps", double(bytes_) * 8.0 / 1e6 / seconds},
+          {"receive_buffer_bytes", socket_.receive_buffer_bytes()},
+          {"bad_or_foreign", bad}}},
+        {"packets",
+         {{"received", received_packets},
+          {"fates", fates},
+          {"lost", as.packets_lost},
+          {"loss_rate", received_packets + as.packets_lost
+                            ? double(as.packets_lost) / double(received_packets + as.packets_lost)
+                            : 0.0},
+          {"frames_lost_by_reason", lost_by}}},
+        {"passes", passes}};
+    write_text(o_.out_dir + "/live.json", out.dump(2) + "\n");
+    say(o_.quiet, "client",
+        "{} of {} frames displayed ({} skipped late), {} without data; {:.2f} Mb/s, {} datagrams, {} packets lost "
+        "({:.2f} %); SSIM {}; results in {}",
+        rows_.size(), o_.frames, frames_skipped_, without_data_, out["socket"]["mbps"].get<double>(), datagrams_,
+        as.packets_lost, 100.0 * out["packets"]["loss_rate"].get<double>(),
+        ssim.empty() ? std::string("not scored") : fmt::format("{:.4f} (mean of {})", out["quality"]["ssim_local"]["mean"].get<double>(), ssim.size()),
+        o_.out_dir);
+  }
+
+  struct Second {
+    uint64_t datagrams = 0, bytes = 0;
+  };
+
+  const SimConfig& c_;
+  LiveScene scene_;
+  ClientOptions o_;
+  nlohmann::json offer_;
+  PassPlan plan_;
+  UdpSocket socket_;
+  uint32_t session_ = 0;
+  Clock::time_point t0_, last_heard_;
+  std::string end_reason_;
+  double session_seconds_ = 0;
+  std::vector<uint8_t> buffer_;
+  Assembler assembler_;
+  PassReceiver receivers_[2];
+  std::unique_ptr<Predictor> predictor_[2];
+  bool keyframe_request_ = false;
+  bool has_prev_ = false;
+  Camera prev_camera_;
+  double prev_time_s_ = 0;
+  std::deque<std::pair<int, GBuffer>> history_;
+  std::vector<double> send_ms_;
+  std::vector<Row> rows_;
+  std::map<int, ImageRGB8> kept_;  // bounded: frames / score_every + frames / save_every images
+  std::map<std::pair<int, uint32_t>, std::pair<uint64_t, uint64_t>> socket_bytes_;  // (slot, frame) -> bytes, packets
+  struct ReceivedPass {
+    int frame = 0;
+    int slot = 0;
+    uint64_t socket_bytes = 0;  // the datagrams' bytes as read from the socket (dhrbench header included)
+    uint64_t packets = 0;
+  };
+  std::vector<ReceivedPass> completed_log_;  // per completed pass
+  std::vector<Second> per_second_;
+  std::map<std::string, uint64_t> bad_;
+  uint64_t datagrams_ = 0, bytes_ = 0, frames_skipped_ = 0, without_data_ = 0;
+  uint64_t frames_completed_[2] = {0, 0}, frames_lost_[2] = {0, 0}, decode_errors_[2] = {0, 0};
+  std::vector<double> round_trip_ms_[2];
+};
+
+}  // namespace
+
+int run_live_client(const SimConfig& config, const LiveScene& scene, const ClientOptions& options,
+                    const std::atomic<bool>& stop) {
+  validate_sim_config(config, *scene.scene);
+  LiveClient client(config, scene, options);
+  return client.run(stop);
+}
+
+// ---- relay -------------------------------------------------------------------------------
+
+namespace {
+
+struct Scheduled {
+  double due_ms = 0;
+  uint64_t order = 0;
+  int direction = 0;  // 0: client -> server, 1: server -> client
+  std::vector<uint8_t> bytes;
+  bool operator>(const Scheduled& o) const { return due_ms != o.due_ms ? due_ms > o.due_ms : order > o.order; }
+};
+
+struct DirectionStats {
+  uint64_t received = 0, received_bytes = 0, forwarded = 0, forwarded_bytes = 0;
+  uint64_t dropped_loss = 0, dropped_link_queue = 0, dropped_mtu = 0, dropped_relay_queue = 0, duplicated = 0;
+  uint64_t send_failed = 0;
+  nlohmann::json to_json() const {
+    return {{"received", received},
+            {"received_bytes", received_bytes},
+            {"forwarded", forwarded},
+            {"forwarded_bytes", forwarded_bytes},
+            {"dropped_loss", dropped_loss},
+            {"dropped_link_queue", dropped_link_queue},
+            {"dropped_mtu", dropped_mtu},
+            {"dropped_relay_queue", dropped_relay_queue},
+            {"duplicated", duplicated},
+            {"send_failed", send_failed}};
+  }
+};
+
+}  // namespace
+
+int run_live_relay(const RelayOptions& o, const std::atomic<bool>& stop) {
+  if (!(o.duplicate_rate >= 0.0 && o.duplicate_rate <= 1.0))
+    fail("relay: duplicate rate {} is outside 0..1", o.duplicate_rate);
+  UdpSocket front(o.listen);                     // faces the client
+  UdpSocket back(any_endpoint_like(o.server));  // faces the server
+  write_port_file(o.port_file, front.local());
+  say(o.quiet, "relay", "listening on {}, forwarding to {}", front.local().to_string(), o.server.to_string());
+  Link links[2] = {Link(o.uplink, o.seed, 100), Link(o.downlink, o.seed, 101)};
+  DirectionStats stats[2];
+  std::priority_queue<Scheduled, std::vector<Scheduled>, std::greater<Scheduled>> queue;
+  size_t queued_bytes = 0, peak_queued_bytes = 0;
+  uint64_t order = 0, foreign = 0, duplicate_index = 0;
+  Endpoint client;
+  const auto t0 = Clock::now();
+  auto last_traffic = t0;
+  bool any_traffic = false;
+  double bye_seen_ms = -1;
+  std::string end_reason;
+  std::vector<uint8_t> buf;
+
+  auto accept = [&](int dir, double now) {
+    DirectionStats& s = stats[dir];
+    ++s.received;
+    s.received_bytes += buf.size();
+    last_traffic = Clock::now();
+    any_traffic = true;
+    if (looks_like_control(buf)) {
+      ControlMessage m;
+      if (parse_control(buf, m) == ControlParse::Ok && m.type == ControlType::Bye && bye_seen_ms < 0) {
+        bye_seen_ms = now;
+        end_reason = fmt::format("the {} said bye", dir == 0 ? "client" : "server");
+      }
+    }
+    const Delivery d = links[dir].send(buf.size() + kIpUdpOverheadBytes, now);
+    if (!d.delivered) {
+      if (d.reason == DropReason::Loss) ++s.dropped_loss;
+      else if (d.reason == DropReason::QueueFull) ++s.dropped_link_queue;
+      else ++s.dropped_mtu;
+      return;
+    }
+    // Seeded duplication: a second copy right after the first (a duplicated datagram on a
+    // real path arrives close behind the original).
+    const uint64_t n = duplicate_index++;
+    const bool dup = o.duplicate_rate > 0 &&
+                     rng_uniform_double({o.seed, uint32_t(n), uint32_t(n >> 32), uint32_t(dir), 7}) < o.duplicate_rate;
+    for (int copy = 0; copy < (dup ? 2 : 1); ++copy) {
+      if (queued_bytes + buf.size() > o.max_queue_bytes) {
+        ++s.dropped_relay_queue;
+        continue;
+      }
+      if (copy) ++s.duplicated;
+      queued_bytes += buf.size();
+      peak_queued_bytes = std::max(peak_queued_bytes, queued_bytes);
+      queue.push({d.arrival_ms + 0.05 * copy, order++, dir, buf});
+    }
+  };
+
+  while (!stop.load()) {
+    const double now = ms_between(t0, Clock::now());
+    // Forward what is due.
+    while (!queue.empty() && queue.top().due_ms <= now) {
+      const Scheduled& s = queue.top();
+      UdpSocket& out = s.direction == 0 ? back : front;
+      const Endpoint& to = s.direction == 0 ? o.server : client;
+      DirectionStats& st = stats[s.direction];
+      if (to.valid() && out.send_to(s.bytes, to) == SendResult::Sent) {
+        ++st.forwarded;
+        st.forwarded_bytes += s.bytes.size();
+      } else {
+        ++st.send_failed;
+      }
+      queued_bytes -= s.bytes.size();
+      queue.pop();
+    }
+    if (bye_seen_ms >= 0 && queue.empty() && now - bye_seen_ms > 500.0) break;  // drained after a Bye
+    if (any_traffic && ms_between(last_traffic, Clock::now()) > o.idle_timeout_s * 1000.0) {
+      end_reason = fmt::format("no traffic for {:.1f} s", o.idle_timeout_s);
+      break;
+    }
+    const double wait = queue.empty() ? 20.0 : std::clamp(queue.top().due_ms - now, 0.0, 20.0);
+    pollfd fds[2] = {{front.fd(), POLLIN, 0}, {back.fd(), POLLIN, 0}};
+    ::poll(fds, 2, int(std::ceil(wait)));
+    for (int side = 0; side < 2; ++side) {
+      UdpSocket& in = side == 0 ? front : back;
+      for (int i = 0; i < 4096; ++i) {
+        Endpoint from;
+        const ReceiveResult r = in.receive(buf, from);
+        if (r == ReceiveResult::Empty) break;
+        if (r != ReceiveResult::Received) continue;
+        if (side == 0) {
+          if (!client.valid()) {
+            client = from;
+            say(o.quiet, "relay", "client {}", client.to_string());
+          } else if (!(from == client)) {
+            ++foreign;  // a second client: this relay carries one session
+            continue;
+          }
+        } else if (!(from == o.server)) {
+          ++foreign;
+          continue;
+        }
+        accept(side, ms_between(t0, Clock::now()));
+      }
+    }
+  }
+  if (end_reason.empty()) end_reason = stop.load() ? "the relay was stopped" : "done";
+  const nlohmann::json out = {{"role", "relay"},
+                              {"end_reason", end_reason},
+                              {"client_to_server", stats[0].to_json()},
+                              {"server_to_client", stats[1].to_json()},
+                              {"uplink", o.uplink.to_json()},
+                              {"downlink", o.downlink.to_json()},
+                              {"duplicate_rate", o.duplicate_rate},
+                              {"seed", o.seed},
+                              {"foreign_datagrams", foreign},
+                              {"peak_queued_bytes", peak_queued_bytes}};
+  if (!o.out_file.empty()) {
+    const std::filesystem::path p(o.out_file);
+    if (p.has_parent_path()) std::filesystem::create_directories(p.parent_path());
+    write_text(o.out_file, out.dump(2) + "\n");
+  }
+  say(o.quiet, "relay",
+      "ended: {}; client->server {} in, {} out ({} lost, {} duplicated); server->client {} in, {} out ({} lost, {} "
+      "duplicated, {} over the relay queue)",
+      end_reason, stats[0].received, stats[0].forwarded, stats[0].dropped_loss, stats[0].duplicated, stats[1].received,
+      stats[1].forwarded, stats[1].dropped_loss, stats[1].duplicated, stats[1].dropped_relay_queue);
+  return 0;
+}
+
+}  // namespace dhr

@@ -1,0 +1,45 @@
+#include "core/pass_receiver.h"
+
+#include <chrono>
+
+namespace dhr {
+
+PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f) {
+  Outcome o;
+  const bool gap = expected_sequence != f.meta.first_sequence;
+  expected_sequence = f.meta.first_sequence + f.packet_count;
+  if (gap && codec->stateful() && frame >= 0) {
+    codec->reset();
+    o.gap_reset = o.keyframe_request = true;
+  }
+  PassBuffer out;
+  std::string error;
+  const auto t0 = std::chrono::steady_clock::now();
+  const bool ok = codec->decode(f.encoded, f.meta.desc, out, error);
+  o.decode_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  if (!ok) {
+    o.decode_error = true;
+    if (codec->stateful()) {
+      codec->reset();
+      o.keyframe_request = true;
+    }
+    return o;
+  }
+  o.decoded = true;
+  if (int(f.meta.frame_id) > frame) {
+    frame = int(f.meta.frame_id);
+    buffer = std::move(out);
+  }
+  return o;
+}
+
+PassBuffer predict_pass(Predictor& predictor, const PassReceiver& r, const GBuffer& src, const GBuffer& dst,
+                        bool same_frame, uint64_t& disoccluded) {
+  disoccluded = 0;
+  if (same_frame) return r.buffer;
+  PassBuffer out;
+  disoccluded = predictor.predict({r.buffer, src, dst}, out).disoccluded;
+  return out;
+}
+
+}  // namespace dhr

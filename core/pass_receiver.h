@@ -1,0 +1,44 @@
+// The client's side of one pass stream, shared by the simulator (core/frame_loop) and live mode
+// (core/live): decodes the pass frames the assembler completes, in order, and keeps the newest;
+// then predicts it to the displayed frame.
+//
+// A gap in the sequence numbers before a completed frame means a frame of the stream was lost:
+// a stateful decoder (h264, delta) cannot go on from it, so it is reset and asks for a
+// keyframe; a failed decode does the same.
+#pragma once
+
+#include "core/assembler.h"
+#include "core/backend.h"
+#include "core/gbuffer.h"
+
+#include <memory>
+#include <optional>
+#include <string>
+
+namespace dhr {
+
+struct PassReceiver {
+  std::unique_ptr<Codec> codec;
+  uint32_t expected_sequence = 0;
+  int frame = -1;     // the newest decoded server frame (-1: none yet)
+  PassBuffer buffer;  // its decoded buffer
+
+  struct Outcome {
+    bool decoded = false;           // decoded (and kept when newer than `frame`)
+    bool decode_error = false;
+    bool gap_reset = false;         // a lost frame before this one reset the decoder
+    bool keyframe_request = false;  // the decoder was reset (gap or error) and needs a keyframe
+    double decode_ms = 0.0;         // wall time of the decode call
+  };
+  // Decodes `f` (its encoded bytes are consumed).
+  Outcome on_frame(AssembledFrame& f);
+};
+
+// The buffer to composite for the frame whose G-buffer is `dst`, from the receiver's newest
+// buffer, made for the frame whose G-buffer is `src`: as is when it is this very frame
+// (`same_frame`; reprojection onto the same camera is the identity only up to rounding), else
+// the predictor's output. `disoccluded` receives the predictor's count.
+PassBuffer predict_pass(Predictor& predictor, const PassReceiver& r, const GBuffer& src, const GBuffer& dst,
+                        bool same_frame, uint64_t& disoccluded);
+
+}  // namespace dhr
