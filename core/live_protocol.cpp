@@ -139,6 +139,8 @@ std::vector<uint8_t> encode_control(const ControlMessage& m) {
   return d;
 }
 
+void seal_control(std::span<uint8_t> d) { put32(d.data() + kOffChecksum, checksum(d)); }
+
 ControlParse parse_control(std::span<const uint8_t> d, ControlMessage& out) {
   if (d.size() < kControlHeaderBytes || !looks_like_control(d)) return ControlParse::NotControl;
   if (d[kOffVersion] != kControlVersion) return ControlParse::BadVersion;

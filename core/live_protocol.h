@@ -70,6 +70,9 @@ const char* control_parse_name(ControlParse r);
 std::vector<uint8_t> encode_control(const ControlMessage& m);
 // Never throws; on anything but Ok, `out` is unspecified.
 ControlParse parse_control(std::span<const uint8_t> datagram, ControlMessage& out);
+// Recomputes the checksum in place (for tests and fuzzers that craft messages; the datagram
+// must be at least a header long).
+void seal_control(std::span<uint8_t> datagram);
 // True when the datagram starts with the control magic (cheap dispatch before parsing).
 bool looks_like_control(std::span<const uint8_t> datagram);
 

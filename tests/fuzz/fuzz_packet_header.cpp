@@ -1,8 +1,10 @@
-// libFuzzer target: parse_packet() on arbitrary datagrams. Each input is parsed as it is, then
+// libFuzzer target: parse_packet() and live mode's parse_control() on arbitrary datagrams. Each input is parsed as it is, then
 // again with its checksum recomputed (a fuzzer cannot forge a CRC, so without this the field
 // checks behind the checksum would never be reached). Properties checked on every accepted
 // datagram: the fields are in range, and the datagram is byte for byte the one packetize()
-// makes for those fields, i.e. the parser accepts exactly the canonical encoding.
+// (encode_control()) makes for those fields, i.e. the parsers accept exactly the canonical
+// encoding.
+#include "core/live_protocol.h"
 #include "core/packet.h"
 #include "tests/fuzz/fuzz_common.h"
 
@@ -32,6 +34,14 @@ void check_accepted(std::span<const uint8_t> d, const dhr::ParsedPacket& p) {
   DHR_FUZZ_CHECK(mine.size() == d.size() && std::memcmp(mine.data(), d.data(), d.size()) == 0);
 }
 
+void check_control(std::span<const uint8_t> d) {
+  using namespace dhr;
+  ControlMessage m;
+  if (parse_control(d, m) != ControlParse::Ok) return;
+  const std::vector<uint8_t> again = encode_control(m);  // must not throw
+  DHR_FUZZ_CHECK(again.size() == d.size() && std::memcmp(again.data(), d.data(), d.size()) == 0);
+}
+
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
@@ -47,6 +57,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     const ParseResult r = parse_packet(sealed, q);
     DHR_FUZZ_CHECK(r != ParseResult::BadChecksum && r != ParseResult::TooShort);
     if (r == ParseResult::Ok) check_accepted(sealed, q);
+  }
+  check_control(d);
+  if (size >= kControlHeaderBytes) {
+    std::vector<uint8_t> sealed(data, data + size);
+    std::memcpy(sealed.data(), kControlMagic, 4);  // reach the checks behind the magic
+    seal_control(sealed);
+    ControlMessage m;
+    DHR_FUZZ_CHECK(parse_control(sealed, m) != ControlParse::BadChecksum);
+    check_control(sealed);
   }
   return 0;
 }

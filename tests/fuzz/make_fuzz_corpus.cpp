@@ -3,6 +3,7 @@
 // header parser, programs that exercise every assembler operation, and each codec's own
 // output for the decoders. Usage: make_fuzz_corpus DIR (rerun after a format change).
 #include "core/backend.h"
+#include "core/live_protocol.h"
 #include "core/packet.h"
 #include "core/rng.h"
 
@@ -52,6 +53,20 @@ void header_seeds(const fs::path& dir) {
   bad[0] = 'X';
   write(dir, "bad_magic", bad);
   write(dir, "header_only", Bytes(three[1].begin(), three[1].begin() + kPacketHeaderBytes));
+  // Live mode's control messages share the target (the server and client parse both).
+  ControlMessage c;
+  c.type = ControlType::Hello;
+  c.text = R"({"protocol": 1, "width": 320, "height": 180})";
+  write(dir, "control_hello", encode_control(c));
+  c.type = ControlType::Camera;
+  c.session = 0x12345679;
+  c.camera.frame = 17;
+  c.camera.scene_time_s = 0.25;
+  c.camera.camera = Camera::look_at({1, 2, 3}, {0, 1, 0}, {0, 1, 0}, 60.0f, 320, 180, 0.05f, 100.0f);
+  write(dir, "control_camera", encode_control(c));
+  c.type = ControlType::Bye;
+  c.text = "client done";
+  write(dir, "control_bye", encode_control(c));
 }
 
 // Programs for fuzz_assembler (see its LLVMFuzzerTestOneInput): 5 configuration bytes, then
