@@ -214,9 +214,10 @@ class LiveServer {
     Clock::time_point started, last_heard;
     uint64_t cameras = 0, cameras_superseded = 0, cameras_stale = 0, frames_served = 0;
     uint64_t datagrams_sent = 0, bytes_sent = 0, send_dropped = 0;
-    std::vector<double> compute_ms;
-    std::vector<ServerPassRecord> log;
+    std::vector<double> compute_ms;  // the first kMaxSamples frames (for percentiles)
+    std::ofstream log;               // server_frames.csv, written as frames are sent
   };
+  static constexpr size_t kMaxSamples = 100000;
 
   void send_control(const ControlMessage& m, const Endpoint& to) { socket_.send_to(encode_control(m), to); }
 
@@ -299,6 +300,13 @@ class LiveServer {
     }
     s->denoise = std::make_unique<PassDenoisers>(c_);
     s->started = s->last_heard = Clock::now();
+    if (!o_.out_dir.empty()) {
+      std::filesystem::create_directories(o_.out_dir);
+      const bool first = sessions_done_ == 0;
+      s->log.open(o_.out_dir + "/server_frames.csv", first ? std::ios::trunc : std::ios::app);
+      if (!s->log) fail("serve: cannot write '{}/server_frames.csv'", o_.out_dir);
+      if (first) s->log << "session,frame,pass,encoded_bytes,packets,wire_bytes\n";
+    }
     session_ = std::move(s);
     send_control(msg(ControlType::Welcome, session_->id, welcome_text()), from);
     say(o_.quiet, "serve", "session {:08x} with {}", session_->id, from.to_string());
@@ -361,10 +369,11 @@ class LiveServer {
       meta.first_sequence = s.sequence[slot];
       packets[slot] = packetize(meta, encoded, c_.max_payload_bytes);
       s.sequence[slot] += uint32_t(packets[slot].size());
-      s.log.push_back({int(cam.frame), kSlotName[slot], encoded.size(), packets[slot].size(),
-                       wire_bytes_of_pass(encoded.size(), c_.max_payload_bytes)});
+      if (s.log.is_open())
+        s.log << fmt::format("{:08x},{},{},{},{},{}\n", s.id, cam.frame, kSlotName[slot], encoded.size(),
+                             packets[slot].size(), wire_bytes_of_pass(encoded.size(), c_.max_payload_bytes));
     }
-    s.compute_ms.push_back(ms_between(t0, Clock::now()));
+    if (s.compute_ms.size() < kMaxSamples) s.compute_ms.push_back(ms_between(t0, Clock::now()));
     for (auto& list : packets)
       for (const auto& p : list) {
         const SendResult r = socket_.send_to(p, s.peer);
@@ -406,11 +415,7 @@ class LiveServer {
                             {"refused_hellos", refused_}});
       write_text(o_.out_dir + "/server.json",
                  nlohmann::json{{"role", "server"}, {"offer", offer_}, {"sessions", summaries_}}.dump(2) + "\n");
-      std::string csv = sessions_done_ == 1 ? "session,frame,pass,encoded_bytes,packets,wire_bytes\n" : "";
-      for (const ServerPassRecord& r : s.log)
-        csv += fmt::format("{:08x},{},{},{},{},{}\n", s.id, r.frame, r.pass, r.encoded_bytes, r.packets, r.wire_bytes);
-      std::ofstream f(o_.out_dir + "/server_frames.csv", sessions_done_ == 1 ? std::ios::trunc : std::ios::app);
-      f << csv;
+      s.log.close();
     }
     session_.reset();
   }
