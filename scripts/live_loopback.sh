@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Live mode on one machine: dhrbench serve, relay and client over loopback UDP, then a summary.
+#   bash scripts/live_loopback.sh [OUT_DIR] [extra settings for both sides, e.g. --set width=640]
+# Environment:
+#   DHR_LIVE_SCENE     scene (default room)
+#   DHR_LIVE_FRAMES    frames the client displays (default 300: 5 s at 60 Hz)
+#   DHR_LIVE_DOWNLINK  relay downlink JSON (default: 20 ms +- 5 ms normal latency, reordering
+#                      allowed, 1 % independent loss); DHR_LIVE_UPLINK (default 20 ms)
+#   DHR_LIVE_NO_RELAY=1  client straight to the server
+# Needs a built ./build/experiments/dhrbench (bash scripts/build.sh build).
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+exe=${DHRBENCH:-$root/build/experiments/dhrbench}
+[ -x "$exe" ] || { echo "live_loopback: $exe not found: build first (bash scripts/build.sh build)" >&2; exit 1; }
+out=${1:-out/live}
+shift || true
+scene=${DHR_LIVE_SCENE:-room}
+frames=${DHR_LIVE_FRAMES:-300}
+downlink=${DHR_LIVE_DOWNLINK:-'{"latency": "normal", "latency_ms": 20, "jitter_ms": 5, "preserve_order": false, "loss": "independent", "loss_rate": 0.01}'}
+uplink=${DHR_LIVE_UPLINK:-'{"latency_ms": 20}'}
+mkdir -p "$out"
+rm -f "$out/server.port" "$out/relay.port"
+pids=()
+cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done; }
+trap cleanup EXIT
+
+wait_port() {  # file, seconds
+  for _ in $(seq $(( $2 * 10 ))); do [ -s "$1" ] && { cat "$1"; return 0; }; sleep 0.1; done
+  echo "live_loopback: no port in $1 after $2 s" >&2; return 1
+}
+
+"$exe" serve --scene "$scene" "$@" --bind 127.0.0.1:0 --port-file "$out/server.port" --out "$out/server" \
+  >"$out/server.log" 2>&1 &
+pids+=($!)
+port=$(wait_port "$out/server.port" 120)
+target=127.0.0.1:$port
+if [ "${DHR_LIVE_NO_RELAY:-0}" != 1 ]; then
+  "$exe" relay --listen 127.0.0.1:0 --server "$target" --port-file "$out/relay.port" --out "$out/relay.json" \
+    --downlink "$downlink" --uplink "$uplink" >"$out/relay.log" 2>&1 &
+  pids+=($!)
+  target=127.0.0.1:$(wait_port "$out/relay.port" 30)
+fi
+"$exe" client --scene "$scene" "$@" --server "$target" --frames "$frames" --out "$out/client" 2>&1 | tee "$out/client.log"
+wait "${pids[@]}" 2>/dev/null || true
+pids=()
+cat "$out/server.log"
+[ -f "$out/relay.log" ] && cat "$out/relay.log"
+echo "live_loopback: results in $out/client/live.json, $out/server/, $out/relay.json"
