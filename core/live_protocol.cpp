@@ -1,5 +1,6 @@
 #include "core/live_protocol.h"
 
+#include "core/byte_order.h"
 #include "core/checksum.h"
 #include "core/error.h"
 
@@ -10,25 +11,16 @@
 namespace dhr {
 namespace {
 
+using le::get16;
+using le::get32;
+using le::put16;
+using le::get64;
+using le::put32;
+using le::put64;
+
 constexpr size_t kOffVersion = 4, kOffType = 5, kOffReserved1 = 6, kOffSession = 8, kOffBodyLen = 12,
                  kOffReserved2 = 14, kOffChecksum = 16;
 static_assert(kOffChecksum + 4 == kControlHeaderBytes);
-
-void put16(uint8_t* p, uint32_t v) {
-  p[0] = uint8_t(v);
-  p[1] = uint8_t(v >> 8);
-}
-void put32(uint8_t* p, uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = uint8_t(v >> (8 * i));
-}
-void put64(uint8_t* p, uint64_t v) {
-  for (int i = 0; i < 8; ++i) p[i] = uint8_t(v >> (8 * i));
-}
-uint16_t get16(const uint8_t* p) { return uint16_t(p[0] | (p[1] << 8)); }
-uint32_t get32(const uint8_t* p) {
-  return uint32_t(p[0]) | (uint32_t(p[1]) << 8) | (uint32_t(p[2]) << 16) | (uint32_t(p[3]) << 24);
-}
-uint64_t get64(const uint8_t* p) { return uint64_t(get32(p)) | (uint64_t(get32(p + 4)) << 32); }
 
 uint32_t checksum(std::span<const uint8_t> d) {
   return crc32c(d.subspan(kControlHeaderBytes), crc32c(d.first(kOffChecksum)));

@@ -1,5 +1,6 @@
 #include "core/packet.h"
 
+#include "core/byte_order.h"
 #include "core/checksum.h"
 #include "core/error.h"
 
@@ -9,24 +10,17 @@
 namespace dhr {
 namespace {
 
+using le::get16;
+using le::get32;
+using le::put16;
+using le::put32;
+
 // Offsets of the header fields (see the table in packet.h).
 constexpr size_t kOffVersion = 4, kOffPass = 5, kOffStream = 6, kOffFrame = 8, kOffCodec = 12,
                  kOffSequence = 16, kOffTotal = 20, kOffIndex = 24, kOffCount = 26, kOffChunk = 28,
                  kOffPayloadLen = 30, kOffWidth = 32, kOffHeight = 34, kOffChannels = 36,
                  kOffFullScale = 37, kOffReserved = 38, kOffChecksum = 40;
 static_assert(kOffChecksum + 4 == kPacketHeaderBytes);
-
-void put16(uint8_t* p, uint32_t v) {
-  p[0] = uint8_t(v);
-  p[1] = uint8_t(v >> 8);
-}
-void put32(uint8_t* p, uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = uint8_t(v >> (8 * i));
-}
-uint16_t get16(const uint8_t* p) { return uint16_t(p[0] | (p[1] << 8)); }
-uint32_t get32(const uint8_t* p) {
-  return uint32_t(p[0]) | (uint32_t(p[1]) << 8) | (uint32_t(p[2]) << 16) | (uint32_t(p[3]) << 24);
-}
 
 // The checksum covers the header up to the checksum field, then everything after the header
 // (whatever its length field claims), so truncation and extension are both caught.
