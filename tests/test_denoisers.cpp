@@ -6,6 +6,7 @@
 //
 // Measured figures the assertions are built on (Release, 64x48; printed by the tests): see
 // the comments at each test.
+#include "backends/denoise/filters.h"
 #include "core/backend.h"
 #include "core/error.h"
 #include "core/gbuffer.h"
@@ -17,6 +18,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <functional>
 #include <limits>
 #include <string>
@@ -429,6 +431,104 @@ TEST(Denoisers, SoftVisibilityPlane) {
     EXPECT_EQ(out(2, 2), 0);
     EXPECT_EQ(out(kW - 1, 2), 255);
   }
+}
+
+// ---------------------------------------------------------------- vector widths
+
+// The a-trous kernel has an AVX-512 version (16 lanes) chosen at run time and an 8-lane one
+// (AVX2 or baseline); both must give the same bits, or results would depend on the machine.
+// Random planes 75 px wide (16-lane blocks, 8-lane blocks, scalar borders), some invalid pixels
+// (zero normal and depth), every step and radius and both normal-power paths; the same for the
+// spatial moments (moment_span, also 16 lanes on AVX-512). On a CPU without
+// AVX-512 both calls take the 8-lane kernel and this compares it with itself.
+TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
+  std::printf("AVX-512 a-trous kernel: %s\n",
+              denoise::cpu_has_avx512() ? "used" : "not used (no AVX-512 on this CPU, or a sanitizer / non-GCC build)");
+  constexpr int w = 75, h = 9;
+  const size_t n = size_t(w) * h;
+  auto u = [](uint32_t i, uint32_t dim) { return rng_uniform(RngKey{3, i, 0, dim, kStreamAo}); };
+  std::vector<float> depth(n), nx(n), ny(n), nz(n), ipz(n), ipl(n), v(n), var(n);
+  std::vector<uint8_t> valid(n);
+  for (uint32_t i = 0; i < n; ++i) {
+    valid[i] = u(i, 0) < 0.9f;
+    const float a = u(i, 1) * 0.6f, b = u(i, 2) * 6.28f;
+    const float k = valid[i] ? 1.0f : 0.0f;
+    nx[i] = k * std::sin(a) * std::cos(b);
+    ny[i] = k * std::sin(a) * std::sin(b);
+    nz[i] = k * std::cos(a);
+    depth[i] = k * (1.0f + 2.0f * float((i % w) > 40) + 0.05f * u(i, 3));
+    ipz[i] = k * (5.0f + 50.0f * u(i, 4));
+    ipl[i] = k * (1.0f + 30.0f * u(i, 5));
+    v[i] = u(i, 6);
+    var[i] = k * 0.05f * u(i, 7);
+  }
+  static constexpr float kB3[5] = {1.0f / 16, 1.0f / 4, 3.0f / 8, 1.0f / 4, 1.0f / 16};
+  static constexpr float k3[3] = {0.25f, 0.5f, 0.25f};
+  for (int radius : {1, 2})
+    for (int step : {1, 2, 4})
+      for (int nsq : {7, 3}) {
+        SCOPED_TRACE("radius " + std::to_string(radius) + " step " + std::to_string(step) + " squarings " +
+                     std::to_string(nsq));
+        denoise::AtrousArgs a;
+        a.width = w;
+        a.height = h;
+        a.step = step;
+        a.radius = radius;
+        a.normal_squarings = nsq;
+        a.k1d = radius == 2 ? kB3 + 2 : k3 + 1;
+        a.depth = depth.data();
+        a.nx = nx.data();
+        a.ny = ny.data();
+        a.nz = nz.data();
+        a.valid = valid.data();
+        a.inv_phi_z = ipz.data();
+        a.inv_phi_l = ipl.data();
+        a.v_in = v.data();
+        a.var_in = var.data();
+        std::vector<float> acc(size_t(w) * 3), v8(n), var8(n), v16(n), var16(n);
+        a.v_out = v8.data();
+        a.var_out = var8.data();
+        denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/false);
+        a.v_out = v16.data();
+        a.var_out = var16.data();
+        denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/true);
+        EXPECT_EQ(std::memcmp(v8.data(), v16.data(), n * sizeof(float)), 0);
+        EXPECT_EQ(std::memcmp(var8.data(), var16.data(), n * sizeof(float)), 0);
+        // Not a vacuous comparison: the filter changed the values.
+        int changed = 0;
+        for (size_t i = 0; i < n; ++i) changed += valid[i] && v8[i] != v[i];
+        EXPECT_GT(changed, int(n) / 2);
+      }
+  // The spatial moments (variance estimate where history is short), over spans that start
+  // anywhere in the row; m2 from a plane and m2 = m1^2.
+  for (int with_m2 : {0, 1})
+    for (int radius : {1, 3})
+      for (int xa : {0, 5}) {
+        SCOPED_TRACE("moments: m2 plane " + std::to_string(with_m2) + " radius " + std::to_string(radius) + " xa " +
+                     std::to_string(xa));
+        denoise::MomentArgs m;
+        m.width = w;
+        m.height = h;
+        m.radius = radius;
+        m.depth = depth.data();
+        m.nx = nx.data();
+        m.ny = ny.data();
+        m.nz = nz.data();
+        m.inv_phi_z = ipz.data();
+        m.m1 = v.data();
+        m.m2 = with_m2 ? var.data() : nullptr;
+        const int xb = w - 1 - xa;
+        const size_t span = size_t(xb - xa + 1) * 3;
+        for (int y = 0; y < h; ++y) {
+          std::vector<float> acc8(span, 0.0f), acc16(span, 0.0f);
+          denoise::moment_span(m, y, xa, xb, acc8.data(), /*use_avx512=*/false);
+          denoise::moment_span(m, y, xa, xb, acc16.data(), /*use_avx512=*/true);
+          ASSERT_EQ(std::memcmp(acc8.data(), acc16.data(), span * sizeof(float)), 0) << "row " << y;
+          double sum_w = 0.0;  // not a vacuous comparison: most pixels have weighted neighbours
+          for (size_t i = 0; i < span / 3; ++i) sum_w += acc8[i] > 0.0f ? 1.0 : 0.0;
+          ASSERT_GT(sum_w, 0.5 * double(span / 3)) << "row " << y;
+        }
+      }
 }
 
 }  // namespace

@@ -13,8 +13,11 @@
 // removed by their zero normal (weight exactly 0) rather than by a test.
 //
 // Cost at 1280x720 (tests/bench_denoise.cpp): a-trous dominates (5 iterations x 24 taps per
-// pixel). Centre values and sums of 8 pixels stay in registers across the 24 taps; the
-// normal power is 7 squarings (sigma_n = 128 is compiled in; other powers of two loop).
+// pixel). Centre values and sums of 8 pixels (16 with AVX-512) stay in registers across the
+// 24 taps; the normal power is 7 squarings (sigma_n = 128 is compiled in; other powers of two
+// loop). Where the CPU has AVX-512 the a-trous and spatial-moment kernels take 16 lanes
+// (picked at run time; the same bits as 8 lanes, tests/test_denoisers.cpp checks it): svgf_ao
+// went from 189 to 131 CPU ms per frame on a 2-vCPU Zen 5 (room, 1280x720; bench_denoise).
 //
 // Internal to backends/denoise/: not a public API.
 #pragma once
@@ -58,13 +61,27 @@ namespace dhr::denoise {
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__AVX2__) && \
     !defined(__SANITIZE_ADDRESS__)
 #define DHR_DENOISE_TARGETS __attribute__((target_clones("avx2", "default")))
+// The a-trous rows and spatial moments also have a 16-wide AVX-512 version, chosen at run time
+// (atrous_rows, moment_span).
+// AVX-512F brings its own FMA instructions, which GCC would contract a * b + c into under its
+// default -ffp-contract=fast: fp-contract=off keeps every product and sum rounded separately,
+// so the 16-wide kernel gives the bits of the 8-wide and scalar ones.
+#define DHR_DENOISE_AVX512 1
+#define DHR_DENOISE_TARGET_AVX512 __attribute__((target("avx512f"), optimize("fp-contract=off")))
 #else
 #define DHR_DENOISE_TARGETS
+#define DHR_DENOISE_AVX512 0
 #endif
 
 constexpr int kLanes = 8;
 using VecF = float __attribute__((vector_size(4 * kLanes)));
 using VecI = int32_t __attribute__((vector_size(4 * kLanes)));
+using VecU = uint32_t __attribute__((vector_size(4 * kLanes)));
+// 16 lanes: one AVX-512 register (only the a-trous interior blocks and the spatial moments use it).
+constexpr int kLanes16 = 16;
+using VecF16 = float __attribute__((vector_size(4 * kLanes16)));
+using VecI16 = int32_t __attribute__((vector_size(4 * kLanes16)));
+using VecU16 = uint32_t __attribute__((vector_size(4 * kLanes16)));
 
 DHR_ALWAYS_INLINE VecF splat(float v) { return VecF{} + v; }
 
@@ -85,26 +102,32 @@ DHR_ALWAYS_INLINE float exp_neg(float x) {
   const float r = std::bit_cast<float>(std::bit_cast<int32_t>(p) + int32_t(uint32_t(i) << 23));
   return x < -60.0f ? 0.0f : r;
 }
-DHR_ALWAYS_INLINE VecF exp_neg(VecF x) {
-  const VecF lo = splat(-60.0f), zero = splat(0.0f);
-  VecF xc = x < lo ? lo : x;
+// The same, lane by lane, for a vector V of floats (VI, VU: its int32 and uint32 twins).
+template <class V, class VI, class VU>
+DHR_ALWAYS_INLINE V exp_neg_lanes(V x) {
+  const V lo = V{} - 60.0f, zero = V{};
+  V xc = x < lo ? lo : x;
   xc = xc > zero ? zero : xc;
-  const VecF t = xc * 1.44269504f;
-  const VecI i = __builtin_convertvector(t - 0.5f, VecI);
-  const VecF f = t - __builtin_convertvector(i, VecF);
-  VecF p = splat(9.6181291e-3f);
+  const V t = xc * 1.44269504f;
+  const VI i = __builtin_convertvector(t - 0.5f, VI);
+  const V f = t - __builtin_convertvector(i, V);
+  V p = V{} + 9.6181291e-3f;
   p = p * f + 5.5504109e-2f;
   p = p * f + 2.4022651e-1f;
   p = p * f + 6.9314718e-1f;
   p = p * f + 1.0f;
-  const VecF r = (VecF)((VecI)p + (VecI)((__attribute__((vector_size(4 * kLanes))) uint32_t)i << 23));
+  const V r = (V)((VI)p + (VI)((VU)i << 23));
   return x < lo ? zero : r;
 }
+DHR_ALWAYS_INLINE VecF exp_neg(VecF x) { return exp_neg_lanes<VecF, VecI, VecU>(x); }
+DHR_ALWAYS_INLINE VecF16 exp_neg(VecF16 x) { return exp_neg_lanes<VecF16, VecI16, VecU16>(x); }
 
 DHR_ALWAYS_INLINE float abs_f(float v) { return std::fabs(v); }
 DHR_ALWAYS_INLINE VecF abs_f(VecF v) { return (VecF)((VecI)v & 0x7fffffff); }
+DHR_ALWAYS_INLINE VecF16 abs_f(VecF16 v) { return (VecF16)((VecI16)v & 0x7fffffff); }
 DHR_ALWAYS_INLINE float max0(float v) { return v > 0.0f ? v : 0.0f; }
 DHR_ALWAYS_INLINE VecF max0(VecF v) { return v > splat(0.0f) ? v : splat(0.0f); }
+DHR_ALWAYS_INLINE VecF16 max0(VecF16 v) { return v > VecF16{} ? v : VecF16{}; }
 
 // max(0, d)^(2^k) by k squarings (the normal weight, sigma_n = 2^k). K >= 0: k = K known at
 // compile time (the loop unrolls); K = -1: k at run time.
@@ -133,6 +156,15 @@ struct VectorLane {
     return v;
   }
   static DHR_ALWAYS_INLINE void store(float* p, VecF v) { std::memcpy(p, &v, sizeof v); }
+};
+struct VectorLane16 {
+  using T = VecF16;
+  static DHR_ALWAYS_INLINE VecF16 load(const float* p) {
+    VecF16 v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  }
+  static DHR_ALWAYS_INLINE void store(float* p, VecF16 v) { std::memcpy(p, &v, sizeof v); }
 };
 
 // ---- The a-trous tap, on a whole row at once for one tap offset.
@@ -205,8 +237,9 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
   L::store(sv_out, sv);
 }
 
-// Rows [y0, y1) of one a-trous iteration; acc holds 3 * width floats of scratch.
-template <int K>
+// Rows [y0, y1) of one a-trous iteration; acc holds 3 * width floats of scratch. Wide: the
+// interior is done 16 pixels at a time where it can (AVX-512), the rest 8 at a time.
+template <int K, bool Wide>
 DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, float* acc) {
   const int w = a.width, h = a.height, r = a.radius, step = a.step;
   float hk[5][5] = {}, inv_len[5][5] = {};
@@ -226,8 +259,12 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
     p.sw = acc;
     p.sl = acc + w;
     p.sv = acc + 2 * w;
-    for (int x = xl; x < xm; x += kLanes)
-      atrous_block<K, VectorLane>(a, y, x, hk, inv_len, p.sw + x, p.sl + x, p.sv + x);
+    int xb = xl;
+    if constexpr (Wide)
+      for (; xb + kLanes16 <= xm; xb += kLanes16)
+        atrous_block<K, VectorLane16>(a, y, xb, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
+    for (; xb < xm; xb += kLanes)
+      atrous_block<K, VectorLane>(a, y, xb, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
     const float hc = a.k1d[0] * a.k1d[0];
     for (int x = 0; x < w; ++x) {  // centre tap of the border pixels: weight h_c
       if (x == xl) x = xm;
@@ -280,11 +317,41 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
 }
 
 DHR_DENOISE_TARGETS
-static void atrous_rows(const AtrousArgs& a, int y0, int y1, float* acc) {
+static void atrous_rows_8(const AtrousArgs& a, int y0, int y1, float* acc) {
   if (a.normal_squarings == kDefaultSquarings)
-    atrous_rows_impl<kDefaultSquarings>(a, y0, y1, acc);
+    atrous_rows_impl<kDefaultSquarings, false>(a, y0, y1, acc);
   else
-    atrous_rows_impl<-1>(a, y0, y1, acc);
+    atrous_rows_impl<-1, false>(a, y0, y1, acc);
+}
+
+#if DHR_DENOISE_AVX512
+DHR_DENOISE_TARGET_AVX512
+static void atrous_rows_16(const AtrousArgs& a, int y0, int y1, float* acc) {
+  if (a.normal_squarings == kDefaultSquarings)
+    atrous_rows_impl<kDefaultSquarings, true>(a, y0, y1, acc);
+  else
+    atrous_rows_impl<-1, true>(a, y0, y1, acc);
+}
+#endif
+
+// The a-trous rows with the widest vectors the CPU has (same bits either way: see
+// DHR_DENOISE_TARGET_AVX512). use_avx512 = false forces the 8-wide kernel (tests compare them).
+inline bool cpu_has_avx512() {
+#if DHR_DENOISE_AVX512
+  static const bool has = __builtin_cpu_supports("avx512f");
+  return has;
+#else
+  return false;
+#endif
+}
+
+inline void atrous_rows(const AtrousArgs& a, int y0, int y1, float* acc, bool use_avx512 = true) {
+#if DHR_DENOISE_AVX512
+  if (use_avx512 && cpu_has_avx512()) return atrous_rows_16(a, y0, y1, acc);
+#else
+  (void)use_avx512;
+#endif
+  atrous_rows_8(a, y0, y1, acc);
 }
 
 // ---- AO phi of the a-trous weight: ipl = valid / (sigma_l sqrt(var) + eps), var = the 3x3
@@ -343,8 +410,9 @@ DHR_ALWAYS_INLINE void moment_tap(const MomentArgs& a, size_t row, size_t qrow, 
   L::store(a2, L::load(a2) + wgt * v2);
 }
 
-// acc: 3 * (xb - xa + 1) floats, zeroed by the caller: sum w, sum w m1, sum w m2.
-template <int K>
+// acc: 3 * (xb - xa + 1) floats, zeroed by the caller: sum w, sum w m1, sum w m2. Wide: 16
+// lanes at a time first (AVX-512).
+template <int K, bool Wide>
 DHR_ALWAYS_INLINE void moment_span_impl(const MomentArgs& a, int y, int xa, int xb, float* acc) {
   const int w = a.width, h = a.height, r = a.radius, n = xb - xa + 1;
   const size_t row = size_t(y) * size_t(w);
@@ -357,6 +425,10 @@ DHR_ALWAYS_INLINE void moment_span_impl(const MomentArgs& a, int y, int xa, int 
       if (lo >= hi) continue;
       const float inv_len = (dx == 0 && dy == 0) ? 0.0f : 1.0f / std::sqrt(float(dx * dx + dy * dy));
       int x = lo;
+      if constexpr (Wide)
+        for (; x + kLanes16 <= hi; x += kLanes16)
+          moment_tap<K, VectorLane16>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa),
+                                      acc + 2 * n + (x - xa));
       for (; x + kLanes <= hi; x += kLanes)
         moment_tap<K, VectorLane>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa), acc + 2 * n + (x - xa));
       for (; x < hi; ++x)
@@ -387,11 +459,31 @@ void parallel_rows(int height, Body&& body) {
 }
 
 DHR_DENOISE_TARGETS
-static void moment_span(const MomentArgs& a, int y, int xa, int xb, float* acc) {
+static void moment_span_8(const MomentArgs& a, int y, int xa, int xb, float* acc) {
   if (a.normal_squarings == kDefaultSquarings)
-    moment_span_impl<kDefaultSquarings>(a, y, xa, xb, acc);
+    moment_span_impl<kDefaultSquarings, false>(a, y, xa, xb, acc);
   else
-    moment_span_impl<-1>(a, y, xa, xb, acc);
+    moment_span_impl<-1, false>(a, y, xa, xb, acc);
+}
+
+#if DHR_DENOISE_AVX512
+DHR_DENOISE_TARGET_AVX512
+static void moment_span_16(const MomentArgs& a, int y, int xa, int xb, float* acc) {
+  if (a.normal_squarings == kDefaultSquarings)
+    moment_span_impl<kDefaultSquarings, true>(a, y, xa, xb, acc);
+  else
+    moment_span_impl<-1, true>(a, y, xa, xb, acc);
+}
+#endif
+
+// The spatial moments with the widest vectors the CPU has (same bits either way).
+inline void moment_span(const MomentArgs& a, int y, int xa, int xb, float* acc, bool use_avx512 = true) {
+#if DHR_DENOISE_AVX512
+  if (use_avx512 && cpu_has_avx512()) return moment_span_16(a, y, xa, xb, acc);
+#else
+  (void)use_avx512;
+#endif
+  moment_span_8(a, y, xa, xb, acc);
 }
 
 // ---------------------------------------------------------------- the guide (G-buffer planes)
