@@ -1,8 +1,10 @@
 // Speed of the server's passes (core/trace.h) against a raw Embree ceiling measured in the same
 // run on the SAME rays: for each scene and pass, the rays the pass traces are collected into an
 // array first (collect_*_rays), then traced by the simplest loops -- rtcOccluded1 per ray,
-// rtcOccluded8 packets and rtcOccluded1M streams of 256 -- each over the array split between
-// the threads. The fastest of the three is the ceiling; the pass reports Mrays/s (rays it
+// rtcOccluded8 and rtcOccluded16 packets, rtcOccluded1M streams of 256 with the incoherent
+// (default) and the coherent context flag -- each over the array split between the threads,
+// on the pass's own scene (same flags, build quality, masks, tnear/tfar). The fastest is the
+// ceiling; the pass reports Mrays/s (rays it
 // traced / wall time of the whole pass: surface rebuild, ray generation, tracing, counting)
 // and its ratio to the ceiling. Goal: >= 0.9.
 //
@@ -136,6 +138,44 @@ void trace_8(RTCScene scene, const std::vector<RTCRay>& rays) {
   });
 }
 
+// 16-wide packets: native with Embree's AVX-512 kernels (emulated with 2x8 on AVX2 machines).
+void trace_16(RTCScene scene, const std::vector<RTCRay>& rays) {
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    RTCRay16 p;
+    alignas(64) int valid[16];
+    for (size_t i = r.begin(); i < r.end(); i += 16) {
+      const size_t n = std::min<size_t>(16, r.end() - i);
+      for (size_t k = 0; k < 16; ++k) {
+        valid[k] = k < n ? -1 : 0;
+        const RTCRay& s = rays[i + std::min(k, n - 1)];
+        p.org_x[k] = s.org_x, p.org_y[k] = s.org_y, p.org_z[k] = s.org_z, p.tnear[k] = s.tnear;
+        p.dir_x[k] = s.dir_x, p.dir_y[k] = s.dir_y, p.dir_z[k] = s.dir_z, p.time[k] = s.time;
+        p.tfar[k] = s.tfar, p.mask[k] = s.mask, p.id[k] = s.id, p.flags[k] = s.flags;
+      }
+      rtcOccluded16(valid, scene, &ctx, &p);
+      benchmark::DoNotOptimize(p.tfar[0]);
+    }
+  });
+}
+
+// Streams with the coherent context flag (Embree then sorts the stream into packets).
+void trace_1m_coherent(RTCScene scene, const std::vector<RTCRay>& rays) {
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    alignas(64) RTCRay buf[256];
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    for (size_t i = r.begin(); i < r.end(); i += 256) {
+      const unsigned n = unsigned(std::min<size_t>(256, r.end() - i));
+      std::memcpy(buf, &rays[i], n * sizeof(RTCRay));
+      rtcOccluded1M(scene, &ctx, buf, n, sizeof(RTCRay));
+      benchmark::DoNotOptimize(buf[0].tfar);
+    }
+  });
+}
+
 std::map<std::string, PassCase>& cases() {
   static std::map<std::string, PassCase> m;
   return m;
@@ -195,7 +235,7 @@ void register_scene(const std::string& file) {
   for (const std::string pass : {"hard", "soft", "ao8"}) {
     const std::string key = name + "/" + pass;
     // Ceilings first (registration order is run order), then the pass itself.
-    for (const std::string kind : {"occluded1", "occluded8", "occluded1M"}) {
+    for (const std::string kind : {"occluded1", "occluded8", "occluded16", "occluded1M", "occluded1M_coherent"}) {
       benchmark::RegisterBenchmark(("ceiling/" + key + "/" + kind).c_str(), [=](benchmark::State& state) {
         BenchScene* b = nullptr;
         try {
@@ -222,7 +262,9 @@ void register_scene(const std::string& file) {
           for (auto _ : state) {
             if (kind == "occluded1") trace_1(scene, c.rays);
             if (kind == "occluded8") trace_8(scene, c.rays);
+            if (kind == "occluded16") trace_16(scene, c.rays);
             if (kind == "occluded1M") trace_1m(scene, c.rays);
+            if (kind == "occluded1M_coherent") trace_1m_coherent(scene, c.rays);
           }
         });
         const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
