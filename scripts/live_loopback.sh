@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Live mode on one machine: dhrbench serve, relay and client over loopback UDP, then a summary.
-#   bash scripts/live_loopback.sh [OUT_DIR] [extra settings for both sides, e.g. --set width=640]
+#   bash scripts/live_loopback.sh [OUT_DIR] [settings for both sides, e.g. --set width=640]
+# (client-only options go in DHR_LIVE_CLIENT_ARGS, e.g. "--save-every 0 --score-every 30")
 # Environment:
 #   DHR_LIVE_SCENE     scene (default room)
 #   DHR_LIVE_FRAMES    frames the client displays (default 300: 5 s at 60 Hz)
@@ -24,23 +25,28 @@ pids=()
 cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done; }
 trap cleanup EXIT
 
-wait_port() {  # file, seconds
-  for _ in $(seq $(( $2 * 10 ))); do [ -s "$1" ] && { cat "$1"; return 0; }; sleep 0.1; done
+wait_port() {  # file, seconds, pid, log
+  for _ in $(seq $(( $2 * 10 ))); do
+    [ -s "$1" ] && { cat "$1"; return 0; }
+    kill -0 "$3" 2>/dev/null || { echo "live_loopback: the process writing $1 exited:" >&2; cat "$4" >&2; return 1; }
+    sleep 0.1
+  done
   echo "live_loopback: no port in $1 after $2 s" >&2; return 1
 }
 
 "$exe" serve --scene "$scene" "$@" --bind 127.0.0.1:0 --port-file "$out/server.port" --out "$out/server" \
   >"$out/server.log" 2>&1 &
 pids+=($!)
-port=$(wait_port "$out/server.port" 120)
+port=$(wait_port "$out/server.port" 120 "${pids[0]}" "$out/server.log")
 target=127.0.0.1:$port
 if [ "${DHR_LIVE_NO_RELAY:-0}" != 1 ]; then
   "$exe" relay --listen 127.0.0.1:0 --server "$target" --port-file "$out/relay.port" --out "$out/relay.json" \
     --downlink "$downlink" --uplink "$uplink" >"$out/relay.log" 2>&1 &
   pids+=($!)
-  target=127.0.0.1:$(wait_port "$out/relay.port" 30)
+  target=127.0.0.1:$(wait_port "$out/relay.port" 30 "${pids[1]}" "$out/relay.log")
 fi
-"$exe" client --scene "$scene" "$@" --server "$target" --frames "$frames" --out "$out/client" 2>&1 | tee "$out/client.log"
+# shellcheck disable=SC2086
+"$exe" client --scene "$scene" "$@" --server "$target" --frames "$frames" --out "$out/client" ${DHR_LIVE_CLIENT_ARGS:-} 2>&1 | tee "$out/client.log"
 wait "${pids[@]}" 2>/dev/null || true
 pids=()
 cat "$out/server.log"
