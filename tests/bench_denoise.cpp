@@ -13,6 +13,8 @@
 //   BM_Denoise/<name>/reset     : every frame with history_valid = false (a camera cut: the
 //                                 temporal denoisers take their spatial-variance path
 //                                 everywhere: the worst case, what disoccluded pixels cost)
+// The interleaved table also times svgf_ao with a 3x3 kernel, with 3x3 and 3 iterations, and
+// with one 5x5 iteration: what its default accuracy costs in time.
 // After the runs two tables print ms per frame and the ratio to one AO ray: the Google
 // Benchmark figures, and the fastest frame of --rounds=N (default 9) interleaved rounds of
 // every configuration (the fair comparison on a shared, fluctuating machine).
@@ -174,6 +176,7 @@ struct Config {
   std::string label;
   std::string denoiser;  // empty: trace one AO ray per pixel
   bool reset_every_frame = false;
+  nlohmann::json params = nlohmann::json::object();
 };
 
 struct Minima {
@@ -194,11 +197,16 @@ std::vector<Minima> interleaved_minima(int rounds) {
     configs.push_back({name + " (steady)", name, false});
     if (name != "none" && name != "atrous") configs.push_back({name + " (reset)", name, true});
   }
+  // What svgf_ao's accuracy costs: its default (five 5x5 iterations, as SVGF) against a 3x3
+  // kernel and fewer iterations (the paper's section 3.3 suggests both once history is long).
+  configs.push_back({"svgf_ao 3x3 kernel (steady)", "svgf_ao", false, {{"kernel_radius", 1}}});
+  configs.push_back({"svgf_ao 3x3 kernel, 3 iterations (steady)", "svgf_ao", false, {{"kernel_radius", 1}, {"iterations", 3}}});
+  configs.push_back({"svgf_ao 5x5 kernel, 1 iteration (steady)", "svgf_ao", false, {{"iterations", 1}}});
   std::vector<std::unique_ptr<Denoiser>> dens;
   std::vector<uint32_t> frames(configs.size(), 0);
   ImageU8 out;
   for (const auto& c : configs) {
-    dens.push_back(c.denoiser.empty() ? nullptr : registries().denoisers.create(c.denoiser, nlohmann::json::object()));
+    dens.push_back(c.denoiser.empty() ? nullptr : registries().denoisers.create(c.denoiser, c.params));
     if (dens.back())
       for (uint32_t f = 0; f < 40; ++f) dens.back()->denoise(DenoiseInput{s.gbuf, s.noisy[f % 4], s.rays, f, true}, out);
   }
