@@ -65,6 +65,7 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -239,6 +240,9 @@ std::vector<Minima> interleaved_minima(int rounds) {
 // ---- --accuracy: the accuracy-versus-time table.
 struct AccuracyOptions {
   std::vector<std::string> scenes;  // empty: every built-in and real scene
+  // empty: none, single_iteration, atrous, svgf_ao with defaults; an entry is a name, or a name
+  // followed by its parameters as JSON: svgf_ao{"kernel_radius":1}
+  std::vector<std::string> denoisers;
   std::string csv_path;             // empty: no CSV
   int reference_rays = 1024;
 };
@@ -276,7 +280,21 @@ void accuracy_table(const AccuracyOptions& opt) {
            "total_ms,threads\n";
   }
   const int threads = int(tbb::this_task_arena::max_concurrency());
-  const std::vector<std::string> denoisers = {"none", "single_iteration", "atrous", "svgf_ao"};
+  const std::vector<std::string> denoisers =
+      opt.denoisers.empty() ? std::vector<std::string>{"none", "single_iteration", "atrous", "svgf_ao"} : opt.denoisers;
+  // "name" or "name{params}"; the CSV label replaces commas by semicolons.
+  auto create = [](const std::string& spec) {
+    const size_t brace = spec.find('{');
+    const nlohmann::json params =
+        brace == std::string::npos ? nlohmann::json::object() : nlohmann::json::parse(spec.substr(brace));
+    return registries().denoisers.create(spec.substr(0, brace), params);
+  };
+  std::vector<std::string> labels;
+  for (std::string d : denoisers) {
+    std::replace(d.begin(), d.end(), ',', ';');
+    labels.push_back(d);
+  }
+  for (const auto& d : denoisers) create(d);  // unknown names and parameters fail before any work
   for (const auto& name : scenes) {
     const bool is_real = std::find(real.begin(), real.end(), name) != real.end();
     Scene scene;
@@ -340,7 +358,7 @@ void accuracy_table(const AccuracyOptions& opt) {
         trace_ms[ri] = std::min(trace_ms[ri], ms);
       }
       for (size_t di = 0; di < denoisers.size(); ++di) {
-        auto d = registries().denoisers.create(denoisers[di], nlohmann::json::object());
+        auto d = create(denoisers[di]);
         ImageU8 out;
         for (int f = 0; f < kFrames; ++f) {
           const auto t0 = std::chrono::steady_clock::now();
@@ -367,8 +385,8 @@ void accuracy_table(const AccuracyOptions& opt) {
       std::vector<std::unique_ptr<Denoiser>> steady, probe;
       ImageU8 out;
       for (const auto& dn : denoisers) {
-        steady.push_back(registries().denoisers.create(dn, nlohmann::json::object()));
-        probe.push_back(registries().denoisers.create(dn, nlohmann::json::object()));
+        steady.push_back(create(dn));
+        probe.push_back(create(dn));
         for (int f = 0; f < kFrames; ++f)
           steady.back()->denoise(DenoiseInput{g, last_noisy[size_t(f)], top, uint32_t(f), true}, out);
         probe.back()->denoise(DenoiseInput{g, last_noisy[0], top, 0, false}, out);  // allocates
@@ -396,10 +414,10 @@ void accuracy_table(const AccuracyOptions& opt) {
       const size_t ri = size_t(std::find(kRays.begin(), kRays.end(), r.rays) - kRays.begin());
       const double dms = r.frame == 1 ? first_ms[r.dn] : steady_ms[r.dn];
       const double tms = trace_ms[ri];
-      std::printf("| %d | %s | %d | %.4f | %.2f | %.2f | %.2f | %.2f |\n", r.rays, denoisers[r.dn].c_str(), r.frame,
+      std::printf("| %d | %s | %d | %.4f | %.2f | %.2f | %.2f | %.2f |\n", r.rays, labels[r.dn].c_str(), r.frame,
                   r.ssim, r.mae, tms, dms, tms + dms);
       if (csv)
-        csv << name << ',' << w << ',' << h << ',' << opt.reference_rays << ',' << r.rays << ',' << denoisers[r.dn]
+        csv << name << ',' << w << ',' << h << ',' << opt.reference_rays << ',' << r.rays << ',' << labels[r.dn]
             << ',' << r.frame << ',' << std::to_string(r.ssim) << ',' << std::to_string(r.mae) << ','
             << std::to_string(tms) << ',' << std::to_string(dms) << ',' << std::to_string(tms + dms) << ','
             << threads << '\n';
@@ -433,6 +451,10 @@ int main(int argc, char** argv) {
         if (comma > pos) acc.scenes.push_back(list.substr(pos, comma - pos));
         pos = comma + 1;
       }
+    } else if (std::strncmp(argv[i], "--denoisers=", 12) == 0) {
+      // Entries separated by spaces (JSON parameters contain commas).
+      std::stringstream list(argv[i] + 12);
+      for (std::string d; list >> d;) acc.denoisers.push_back(d);
     } else if (std::strncmp(argv[i], "--csv=", 6) == 0)
       acc.csv_path = argv[i] + 6;
     else if (std::strncmp(argv[i], "--reference_rays=", 17) == 0) {
