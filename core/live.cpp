@@ -70,13 +70,13 @@ Endpoint any_endpoint_like(const Endpoint& peer) {
   return resolve_endpoint(peer.addr.ss_family == AF_INET6 ? "[::]:0" : "0.0.0.0:0", true);
 }
 
+// Median and p95 as the simulator's stage statistics compute them (StageStats), plus max, mean, n.
 nlohmann::json percentiles(std::vector<double> v) {
   if (v.empty()) return nullptr;
-  std::sort(v.begin(), v.end());
-  auto at = [&](double q) { return v[std::min(v.size() - 1, size_t(q * double(v.size() - 1) + 0.5))]; };
-  double sum = 0;
-  for (double x : v) sum += x;
-  return {{"median", at(0.5)}, {"p95", at(0.95)}, {"max", v.back()}, {"mean", sum / double(v.size())}, {"n", v.size()}};
+  const StageStats s{std::move(v)};
+  const double max = *std::max_element(s.samples_ms.begin(), s.samples_ms.end());
+  const double n = double(s.samples_ms.size());
+  return {{"median", s.median()}, {"p95", s.p95()}, {"max", max}, {"mean", s.total() / n}, {"n", s.samples_ms.size()}};
 }
 
 int slot_of(PassKind k) {
