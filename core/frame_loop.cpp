@@ -500,20 +500,13 @@ class Simulation {
     return *rt_;
   }
 
-  TraceSettings trace_settings(int a) const {
-    TraceSettings t = c_.trace;
-    t.seed = c_.seed;
-    t.frame = uint32_t(a);
-    return t;
-  }
-
   // The traced passes of client frame a (cached: they depend on nothing but the scene, the
   // frame's camera and the settings).
   std::shared_ptr<const TraceCache::Entry> traced(int a, const GBuffer& gbuf) {
     const std::string key = trace_key(scene_key_, c_, a);
     if (auto hit = cache_.find(key)) return hit;
     auto entry = std::make_shared<TraceCache::Entry>();
-    TraceResult r = trace_passes(rt(), gbuf, trace_settings(a));
+    TraceResult r = trace_passes(rt(), gbuf, c_.trace_for_frame(uint32_t(a)));
     entry->visibility = std::move(r.visibility);
     entry->ao = std::move(r.ao);
     entry->stats = r.stats;

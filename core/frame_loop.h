@@ -84,6 +84,14 @@ struct SimConfig {
   std::string cache_dir;       // ground truths on disk; empty: default_cache_dir() (core/reference.h)
 
   nlohmann::json to_json() const;
+  // `trace` with this run's seed and client frame `frame`: what the server traces for that
+  // frame (the simulator, live mode and the local references all use it).
+  TraceSettings trace_for_frame(uint32_t frame) const {
+    TraceSettings t = trace;
+    t.seed = seed;
+    t.frame = frame;
+    return t;
+  }
 };
 
 // Per displayed frame (virtual times in ms).

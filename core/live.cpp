@@ -349,10 +349,7 @@ class LiveServer {
     s.prev_camera = cam.camera;
     s.prev_time_s = cam.scene_time_s;
     // The same seed and frame index as the simulator: the same camera gives the same passes.
-    TraceSettings ts = c_.trace;
-    ts.seed = c_.seed;
-    ts.frame = cam.frame;
-    TraceResult traced = trace_passes(*rt_, g, ts);
+    TraceResult traced = trace_passes(*rt_, g, c_.trace_for_frame(cam.frame));
     s.denoise->run(g, cam.frame, traced.visibility, traced.ao);
     std::optional<PassBuffer>* buffers[2] = {&traced.visibility, &traced.ao};
     std::vector<std::vector<uint8_t>> packets[2];
@@ -731,10 +728,7 @@ class LiveClient {
       prev = cam;
       prev_t = frame_time_s(row.frame);
       has_prev = true;
-      TraceSettings ts = c_.trace;
-      ts.seed = c_.seed;
-      ts.frame = uint32_t(row.frame);
-      TraceResult t = trace_passes(rt, g, ts);
+      TraceResult t = trace_passes(rt, g, c_.trace_for_frame(uint32_t(row.frame)));
       local.run(g, uint32_t(row.frame), t.visibility, t.ao);
       if (!row.scored) continue;
       const ImageRGB8 ref = composite(g, *scene_.scene, t.visibility ? &*t.visibility : nullptr, t.ao ? &*t.ao : nullptr);

@@ -895,9 +895,10 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
 
 // Sums per-chunk statistics (integer sums: the totals do not depend on the partition).
 struct AtomicStats {
-  std::atomic<uint64_t> rays{0}, invalid{0}, unres{0}, facing{0}, range{0}, inside{0}, cov{0};
+  std::atomic<uint64_t> shadow_rays{0}, ao_rays{0}, invalid{0}, unres{0}, facing{0}, range{0}, inside{0}, cov{0};
   void add(const TraceStats& s) {
-    rays += s.shadow_rays + s.ao_rays;
+    shadow_rays += s.shadow_rays;
+    ao_rays += s.ao_rays;
     invalid += s.invalid_rays;
     unres += s.unresolved_pixels;
     facing += s.shadow_skipped_facing;
@@ -906,6 +907,31 @@ struct AtomicStats {
     cov += s.covered_pixels;
   }
 };
+
+// Runs rows(y0, y1, stats) over blocks of the image's rows in the pass's thread arena and
+// returns the counts of every block summed (times are the caller's).
+template <class Rows>
+TraceStats trace_rows(RtScene& rt, const TraceSettings& settings, int w, int h, Rows&& rows) {
+  AtomicStats acc;
+  run_in_arena(rt, settings, [&] {
+    tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& r) {
+      TraceStats st;
+      rows(r.begin(), r.end(), st);
+      acc.add(st);
+    });
+  });
+  TraceStats st;
+  st.pixels = size_t(w) * size_t(h);
+  st.covered_pixels = acc.cov;
+  st.shadow_rays = acc.shadow_rays;
+  st.ao_rays = acc.ao_rays;
+  st.invalid_rays = acc.invalid;
+  st.unresolved_pixels = acc.unres;
+  st.shadow_skipped_facing = acc.facing;
+  st.shadow_skipped_range = acc.range;
+  st.shadow_inside_light = acc.inside;
+  return st;
+}
 
 VisibilityCounts visibility_impl(RtScene& rt, const GBuffer& g, const PassPlan& plan, const TraceSettings& settings,
                                  TraceStats& stats, std::vector<std::vector<RTCRay>>* rows_out) {
@@ -927,26 +953,11 @@ VisibilityCounts visibility_impl(RtScene& rt, const GBuffer& g, const PassPlan& 
   out.lights = nl;
   for (const auto& li : lights) out.samples.push_back(li.samples);
   out.visible.assign(npx * size_t(nl), 0);
-  AtomicStats acc;
   const bool wide = wide_packets(rt);
-
-  run_in_arena(rt, settings, [&] {
-    tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-      TraceStats st;
-      if (wide) visibility_rows<16>(rt, g, settings, lights, out, rows_out, rows.begin(), rows.end(), st);
-      else visibility_rows<8>(rt, g, settings, lights, out, rows_out, rows.begin(), rows.end(), st);
-      acc.add(st);
-    });
+  TraceStats st = trace_rows(rt, settings, w, h, [&](int y0, int y1, TraceStats& rs) {
+    if (wide) visibility_rows<16>(rt, g, settings, lights, out, rows_out, y0, y1, rs);
+    else visibility_rows<8>(rt, g, settings, lights, out, rows_out, y0, y1, rs);
   });
-  TraceStats st;
-  st.pixels = npx;
-  st.covered_pixels = acc.cov;
-  st.shadow_rays = acc.rays;
-  st.invalid_rays = acc.invalid;
-  st.unresolved_pixels = acc.unres;
-  st.shadow_skipped_facing = acc.facing;
-  st.shadow_skipped_range = acc.range;
-  st.shadow_inside_light = acc.inside;
   st.shadow_ms = ms_since(t0);
   stats.add(st);
   return out;
@@ -1015,23 +1026,11 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
   out.rays = ao_rays;
   // Background pixels read as unoccluded.
   out.unoccluded.assign(npx, uint16_t(ao_rays));
-  AtomicStats acc;
   const bool wide = wide_packets(rt);
-
-  run_in_arena(rt, settings, [&] {
-    tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-      TraceStats st;
-      if (wide) ao_rows<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, rows.begin(), rows.end(), st);
-      else ao_rows<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, rows.begin(), rows.end(), st);
-      acc.add(st);
-    });
+  TraceStats st = trace_rows(rt, settings, w, h, [&](int y0, int y1, TraceStats& rs) {
+    if (wide) ao_rows<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
+    else ao_rows<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
   });
-  TraceStats st;
-  st.pixels = npx;
-  st.covered_pixels = acc.cov;
-  st.ao_rays = acc.rays;
-  st.invalid_rays = acc.invalid;
-  st.unresolved_pixels = acc.unres;
   st.ao_ms = ms_since(t0);
   stats.add(st);
   return out;

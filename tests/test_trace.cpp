@@ -45,20 +45,9 @@ Scene base_scene() {
 }
 
 Light sphere_light(glm::vec3 p, float radius = 0.0f, float intensity = 10.0f) {
-  Light l;
-  l.position = p;
-  l.radius_m = radius;
-  l.intensity = intensity;
-  return l;
+  return test::sphere_light(p, radius, intensity);
 }
-
-Light distant_light(glm::vec3 dir, float angular_radius_deg = 0.0f) {
-  Light l;
-  l.type = LightType::Distant;
-  l.direction = glm::normalize(dir);
-  l.angular_radius_deg = angular_radius_deg;
-  return l;
-}
+using test::distant_light;
 
 Camera cam(glm::vec3 pos, glm::vec3 target) { return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f); }
 

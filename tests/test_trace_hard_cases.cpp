@@ -33,23 +33,8 @@ Scene base_scene() {
   return s;
 }
 
-Light point_light(glm::vec3 p, float radius = 0.0f) {
-  Light l;
-  l.type = LightType::Sphere;
-  l.position = p;
-  l.radius_m = radius;
-  l.intensity = 20.0f;
-  return l;
-}
-
-Light distant_light(glm::vec3 dir, float angular_radius_deg = 0.0f) {
-  Light l;
-  l.type = LightType::Distant;
-  l.direction = glm::normalize(dir);
-  l.angular_radius_deg = angular_radius_deg;
-  l.intensity = 1.0f;
-  return l;
-}
+Light point_light(glm::vec3 p, float radius = 0.0f) { return test::sphere_light(p, radius, 20.0f); }
+using test::distant_light;
 
 Camera cam(glm::vec3 pos, glm::vec3 target) { return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f); }
 

@@ -28,4 +28,21 @@ Object make_object(uint32_t id, Mesh mesh, glm::vec3 offset, uint32_t material) 
   return o;
 }
 
+Light sphere_light(glm::vec3 p, float radius_m, float intensity) {
+  Light l;
+  l.type = LightType::Sphere;
+  l.position = p;
+  l.radius_m = radius_m;
+  l.intensity = intensity;
+  return l;
+}
+
+Light distant_light(glm::vec3 dir, float angular_radius_deg) {
+  Light l;
+  l.type = LightType::Distant;
+  l.direction = glm::normalize(dir);
+  l.angular_radius_deg = angular_radius_deg;
+  return l;
+}
+
 }  // namespace dhr::test
