@@ -13,6 +13,17 @@
 //   compacted to the pairs that trace; rays in pixel order) so the square-root and division
 //   chains of neighbouring pixels overlap instead of running one after the other.
 // The rays, their order and every result are the same as the straightforward per-ray code's.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// GCC 12's AVX-512 intrinsics start from _mm512_undefined_*() and then warn, once inlined into
+// a caller, that the undefined value is "used uninitialized" (a false positive, reported at
+// the header's lines). The header is included first, with those two warnings off for its
+// lines only; this file's own code keeps them.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#include <immintrin.h>
+#pragma GCC diagnostic pop
+#endif
 #include "core/trace.h"
 
 #include "core/error.h"
@@ -24,9 +35,25 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
+// The AO pass's AVX-512 ray generator (ao_rays_x16) is compiled for AVX-512F/DQ by a target
+// attribute and chosen at run time; the rest of the file keeps the baseline ISA.
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#define DHR_TRACE_AVX512 1
+#if defined(__clang__)
+#define DHR_TRACE_TARGET_AVX512 __attribute__((target("avx512f,avx512dq")))
+#else
+// GCC's default -ffp-contract=fast would fuse a * b + c into the FMA instructions AVX-512
+// brings; off keeps every product and sum rounded separately, as in the SSE2 and scalar code.
+#define DHR_TRACE_TARGET_AVX512 __attribute__((target("avx512f,avx512dq"), optimize("fp-contract=off")))
+#endif
+#else
+#define DHR_TRACE_AVX512 0
+#endif
 
 #include <array>
 #include <atomic>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -141,8 +168,10 @@ std::vector<LightInfo> light_infos(const Scene& scene, const PassPlan& plan) {
 }
 
 // (cos 2 pi u, sin 2 pi u) for u in [0, 1) without libm: the quadrant from 4u, then
-// polynomials on [0, pi/2] (Taylor to degree 8/9: |error| < 4e-6, far below what a ray
-// direction needs; the results keep c^2 + s^2 = 1 within 1e-5). Deterministic: no
+// polynomials on [0, pi/2] (Taylor to degree 8/9; the truncation error is largest at pi/2:
+// (pi/2)^10 / 10! = 2.5e-5 for the cosine, (pi/2)^11 / 11! = 3.6e-6 for the sine -- a
+// direction off by at most 2.5e-5 rad, far below what a ray needs; c^2 + s^2 = 1 within 1e-5;
+// tests/test_trace.cpp pins directions to a double-precision reference within 3e-5). Deterministic: no
 // library or ISA dependence. Branch-free (the quarter turn is a swap and two sign flips, not
 // a table lookup) so that the loops below vectorize.
 // The scalar form is what the SSE2 code below reproduces lane by lane; it runs where SSE2 is absent.
@@ -374,16 +403,21 @@ struct Packet<16> {
   }
 };
 
-// A packet of up to W occlusion rays and, per ray, the counter it increments when unoccluded.
+// A packet of up to W occlusion rays and the counters they increment when unoccluded.
 // Rays are written straight into Embree's SoA layout and traced with rtcOccluded8/16 (W = 16
 // where Embree has native 16-wide kernels, i.e. AVX-512): packets of consecutive rays (the N AO
 // rays of neighbouring pixels, or neighbouring pixels' shadow rays) beat rtcOccluded1M streams
 // and rtcOccluded1 on this machine (see bench_trace). Lanes never mix in Embree's traversal,
 // so a ray's answer does not depend on its packet.
+// Consecutive rays of one counter (a pixel's AO rays, a light's samples) form a run; a flush
+// adds each run's unoccluded lanes with one popcount, instead of a read-modify-write of the
+// same counter per lane (a chain of store-to-load forwards that cost about 1.5 ns per AO ray).
 template <int W>
 struct Batch {
   alignas(64) typename Packet<W>::Ray packet;
-  std::array<uint16_t*, W> counter{};
+  std::array<uint16_t*, W> run_counter{};  // run k: lanes [run_start[k], run_start[k + 1])
+  std::array<uint8_t, W + 1> run_start{};
+  unsigned runs = 0;
   unsigned n = 0;
   RTCScene scene = nullptr;
   unsigned mask = 0;
@@ -407,9 +441,24 @@ struct Batch {
     alignas(64) int valid[W];
     for (unsigned k = 0; k < unsigned(W); ++k) valid[k] = k < n ? -1 : 0;
     Packet<W>::occluded(valid, scene, &ctx, &packet);
-    for (unsigned k = 0; k < n; ++k) *counter[k] += packet.tfar[k] < 0.0f ? 0 : 1;
+    // Embree sets tfar = -inf on an occluded ray; anything else (tfar untouched) reached.
+    uint32_t reached = 0;
+    for (unsigned k = 0; k < unsigned(W); ++k) reached |= uint32_t(!(packet.tfar[k] < 0.0f)) << k;
+    run_start[runs] = uint8_t(n);
+    for (unsigned k = 0; k < runs; ++k) {
+      const uint32_t lanes = ((1u << run_start[k + 1]) - 1u) & ~((1u << run_start[k]) - 1u);
+      *run_counter[k] = uint16_t(*run_counter[k] + std::popcount(reached & lanes));
+    }
     traced += n;
     n = 0;
+    runs = 0;
+  }
+  void begin_lane(uint16_t* count) {
+    if (runs == 0 || run_counter[runs - 1] != count) {
+      run_counter[runs] = count;
+      run_start[runs] = uint8_t(n);
+      ++runs;
+    }
   }
   void push(const glm::vec3& o, float dx, float dy, float dz, float tfar, uint16_t* count) {
     if (record) {
@@ -419,6 +468,7 @@ struct Batch {
       r.tfar = tfar, r.mask = mask, r.id = 0, r.flags = 0;
       return;
     }
+    begin_lane(count);
     packet.org_x[n] = o.x;
     packet.org_y[n] = o.y;
     packet.org_z[n] = o.z;
@@ -426,8 +476,27 @@ struct Batch {
     packet.dir_y[n] = dy;
     packet.dir_z[n] = dz;
     packet.tfar[n] = tfar;
-    counter[n] = count;
     if (++n == unsigned(W)) flush();
+  }
+  // m <= kChunk rays of one counter from one origin with one tfar (a pixel's AO chunk).
+  void push_chunk(const glm::vec3& o, const float* dx, const float* dy, const float* dz, float tfar, int m,
+                  uint16_t* count) {
+    if (record || n + unsigned(m) > unsigned(W)) {
+      for (int j = 0; j < m; ++j) push(o, dx[j], dy[j], dz[j], tfar, count);
+      return;
+    }
+    begin_lane(count);
+    for (int j = 0; j < m; ++j) {
+      packet.org_x[n + unsigned(j)] = o.x;
+      packet.org_y[n + unsigned(j)] = o.y;
+      packet.org_z[n + unsigned(j)] = o.z;
+      packet.dir_x[n + unsigned(j)] = dx[j];
+      packet.dir_y[n + unsigned(j)] = dy[j];
+      packet.dir_z[n + unsigned(j)] = dz[j];
+      packet.tfar[n + unsigned(j)] = tfar;
+    }
+    n += unsigned(m);
+    if (n == unsigned(W)) flush();
   }
 };
 
@@ -963,6 +1032,209 @@ VisibilityCounts visibility_impl(RtScene& rt, const GBuffer& g, const PassPlan& 
   return out;
 }
 
+// The AO pixels of one row that trace rays, compacted (stage 1 of ao_rows_x16): origin, basis
+// (t, b, n), per-pixel hash and counter. Arrays padded by 16 so that any 16-pixel window loads.
+struct AoPixels {
+  enum { kOx, kOy, kOz, kTx, kTy, kTz, kBx, kBy, kBz, kNx, kNy, kNz, kComponents };
+  std::array<std::vector<float>, kComponents> c;
+  std::vector<uint64_t> h;
+  std::vector<uint16_t*> count;
+  int n = 0;
+  explicit AoPixels(int width) : h(size_t(width) + 16, 0), count(size_t(width) + 16, nullptr) {
+    for (auto& v : c) v.assign(size_t(width) + 16, 0.0f);
+  }
+};
+
+#if DHR_TRACE_AVX512
+bool cpu_has_avx512dq() {
+  static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
+  return has;
+}
+
+DHR_TRACE_TARGET_AVX512 inline __m512i mix64_x8(__m512i z) {  // core/rng.h's mix64, 8 lanes
+  z = _mm512_add_epi64(z, _mm512_set1_epi64(int64_t(0x9E3779B97F4A7C15ull)));
+  z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 30)), _mm512_set1_epi64(int64_t(0xBF58476D1CE4E5B9ull)));
+  z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 27)), _mm512_set1_epi64(int64_t(0x94D049BB133111EBull)));
+  return _mm512_xor_si512(z, _mm512_srli_epi64(z, 31));
+}
+
+// float(bits >> 40) / 2^24 for 16 keys given as two halves of 8 (exact: the values fit 24 bits).
+DHR_TRACE_TARGET_AVX512 inline __m512 uniform_x16(__m512i lo, __m512i hi) {
+  const __m256 a = _mm512_cvtepi64_ps(_mm512_srli_epi64(lo, 40));
+  const __m256 b = _mm512_cvtepi64_ps(_mm512_srli_epi64(hi, 40));
+  return _mm512_mul_ps(_mm512_insertf32x8(_mm512_castps256_ps512(a), b, 1), _mm512_set1_ps(1.0f / 16777216.0f));
+}
+
+// sincos_2pi_x4 on 16 lanes: the same IEEE operations in the same order.
+DHR_TRACE_TARGET_AVX512 inline void sincos_2pi_x16(__m512 u, __m512& c, __m512& s) {
+  const __m512 one = _mm512_set1_ps(1.0f);
+  const __m512 sign = _mm512_castsi512_ps(_mm512_set1_epi32(int32_t(0x80000000u)));
+  const __m512 x = _mm512_mul_ps(_mm512_set1_ps(4.0f), u);
+  const __m512i q = _mm512_min_epi32(_mm512_cvttps_epi32(x), _mm512_set1_epi32(3));
+  const __m512 a = _mm512_mul_ps(_mm512_sub_ps(x, _mm512_cvtepi32_ps(q)), _mm512_set1_ps(std::numbers::pi_v<float> / 2.0f));
+  const __m512 a2 = _mm512_mul_ps(a, a);
+  __m512 sa = _mm512_add_ps(_mm512_set1_ps(-1.0f / 5040), _mm512_mul_ps(a2, _mm512_set1_ps(1.0f / 362880)));
+  sa = _mm512_add_ps(_mm512_set1_ps(1.0f / 120), _mm512_mul_ps(a2, sa));
+  sa = _mm512_add_ps(_mm512_set1_ps(-1.0f / 6), _mm512_mul_ps(a2, sa));
+  sa = _mm512_add_ps(one, _mm512_mul_ps(a2, sa));
+  sa = _mm512_mul_ps(a, sa);
+  __m512 ca = _mm512_add_ps(_mm512_set1_ps(-1.0f / 720), _mm512_mul_ps(a2, _mm512_set1_ps(1.0f / 40320)));
+  ca = _mm512_add_ps(_mm512_set1_ps(1.0f / 24), _mm512_mul_ps(a2, ca));
+  ca = _mm512_add_ps(_mm512_set1_ps(-0.5f), _mm512_mul_ps(a2, ca));
+  ca = _mm512_add_ps(one, _mm512_mul_ps(a2, ca));
+  const __m512i one_i = _mm512_set1_epi32(1), two_i = _mm512_set1_epi32(2);
+  const __mmask16 odd = _mm512_test_epi32_mask(q, one_i);
+  const __m512 c0 = _mm512_mask_blend_ps(odd, ca, sa);  // odd ? sa : ca
+  const __m512 s0 = _mm512_mask_blend_ps(odd, sa, ca);
+  const __mmask16 neg_c = _mm512_test_epi32_mask(_mm512_add_epi32(q, one_i), two_i);
+  const __mmask16 neg_s = _mm512_test_epi32_mask(q, two_i);
+  c = _mm512_mask_xor_ps(c0, neg_c, c0, sign);
+  s = _mm512_mask_xor_ps(s0, neg_s, s0, sign);
+}
+
+// Component comp of each lane's pixel: lane l reads pixel p0 + pick[l].
+DHR_TRACE_TARGET_AVX512 inline __m512 lane_values(const AoPixels& px, int comp, int p0, __m512i pick) {
+  return _mm512_permutexvar_ps(pick, _mm512_loadu_ps(px.c[size_t(comp)].data() + p0));
+}
+
+// One component of cosine_dirs_chunk's direction, t * (r c) + b * (r s) + n * z, for the
+// axis whose t component is comp_t (b's and n's follow at +3 and +6).
+DHR_TRACE_TARGET_AVX512 inline __m512 cosine_dir_x16(const AoPixels& px, int comp_t, int p0, __m512i pick, __m512 rc,
+                                                     __m512 rs, __m512 z) {
+  const __m512 t = lane_values(px, comp_t, p0, pick), b = lane_values(px, comp_t + 3, p0, pick);
+  const __m512 n = lane_values(px, comp_t + 6, p0, pick);
+  return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(t, rc), _mm512_mul_ps(b, rs)), _mm512_mul_ps(n, z));
+}
+
+// Stage 2 of ao_rows_x16: every ray of the row's compacted pixels, in pixel then sample order,
+// 16 rays per packet (rays per pixel divides 16 or is a multiple of it, so a packet holds whole
+// pixels or 16 samples of one). Per lane the pixel's values are picked from a 16-pixel window;
+// hashes, uniforms and cosine directions are cosine_dirs_chunk's and uniforms_chunk's
+// operations in the same order (bit-identical rays), computed 16 at a time and stored straight
+// into the packet. The unoccluded lanes of a pixel are added with one popcount.
+DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float radius_m, Batch<16>& batch) {
+  const int total = px.n * rays;
+  const bool one_pixel = rays % 16 == 0;  // else 16 % rays == 0: 16 / rays pixels per packet
+  alignas(64) int32_t lane_pixel[16];
+  alignas(64) uint64_t lane_key[16];  // (sample << 32) | stream, the packet's first sample = 0
+  for (int l = 0; l < 16; ++l) {
+    lane_pixel[l] = one_pixel ? 0 : l / rays;
+    lane_key[l] = (uint64_t(uint32_t(one_pixel ? l : l % rays)) << 32) | kStreamAo;
+  }
+  const __m512i pick = _mm512_load_si512(lane_pixel);
+  const __m512i pick_lo = _mm512_cvtepi32_epi64(_mm512_castsi512_si256(pick));
+  const __m512i pick_hi = _mm512_cvtepi32_epi64(_mm512_extracti64x4_epi64(pick, 1));
+  const __m512i key_lo = _mm512_load_si512(lane_key), key_hi = _mm512_load_si512(lane_key + 8);
+  const __m512 one = _mm512_set1_ps(1.0f);
+  auto& pk = batch.packet;
+  alignas(64) int valid[16];
+  for (int r0 = 0; r0 < total; r0 += 16) {
+    const int p0 = r0 / rays;
+    const int live = std::min(16, total - r0);
+    const __m512i first = _mm512_set1_epi64(int64_t(uint64_t(uint32_t(one_pixel ? r0 % rays : 0)) << 32));
+    const __m512i h0 = _mm512_loadu_si512(px.h.data() + p0), h1 = _mm512_loadu_si512(px.h.data() + p0 + 8);
+    const __m512i k_lo = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_lo, h1), _mm512_add_epi64(key_lo, first)));
+    const __m512i k_hi = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_hi, h1), _mm512_add_epi64(key_hi, first)));
+    const __m512i dim1 = _mm512_set1_epi64(1);
+    const __m512 u0 = uniform_x16(mix64_x8(k_lo), mix64_x8(k_hi));
+    const __m512 u1 = uniform_x16(mix64_x8(_mm512_xor_si512(k_lo, dim1)), mix64_x8(_mm512_xor_si512(k_hi, dim1)));
+    const __m512 r = _mm512_sqrt_ps(u0);
+    const __m512 z = _mm512_sqrt_ps(_mm512_sub_ps(one, u0));
+    __m512 c, s;
+    sincos_2pi_x16(u1, c, s);
+    const __m512 rc = _mm512_mul_ps(r, c), rs = _mm512_mul_ps(r, s);
+    _mm512_store_ps(pk.org_x, lane_values(px, AoPixels::kOx, p0, pick));
+    _mm512_store_ps(pk.org_y, lane_values(px, AoPixels::kOy, p0, pick));
+    _mm512_store_ps(pk.org_z, lane_values(px, AoPixels::kOz, p0, pick));
+    _mm512_store_ps(pk.dir_x, cosine_dir_x16(px, AoPixels::kTx, p0, pick, rc, rs, z));
+    _mm512_store_ps(pk.dir_y, cosine_dir_x16(px, AoPixels::kTy, p0, pick, rc, rs, z));
+    _mm512_store_ps(pk.dir_z, cosine_dir_x16(px, AoPixels::kTz, p0, pick, rc, rs, z));
+    _mm512_store_ps(pk.tfar, _mm512_set1_ps(radius_m));  // tfar = r: never trace further
+    if (batch.record) {
+      for (int l = 0; l < live; ++l) {
+        RTCRay& q = batch.record->emplace_back();
+        q.org_x = pk.org_x[l], q.org_y = pk.org_y[l], q.org_z = pk.org_z[l], q.tnear = 0.0f;
+        q.dir_x = pk.dir_x[l], q.dir_y = pk.dir_y[l], q.dir_z = pk.dir_z[l], q.time = 0.0f;
+        q.tfar = radius_m, q.mask = batch.mask, q.id = 0, q.flags = 0;
+      }
+      continue;
+    }
+    for (int l = 0; l < 16; ++l) valid[l] = l < live ? -1 : 0;
+    rtcOccluded16(valid, batch.scene, &batch.ctx, &pk);
+    // Embree sets tfar = -inf on an occluded ray; anything else reached (as Batch::flush).
+    const uint32_t reached = _mm512_cmp_ps_mask(_mm512_load_ps(pk.tfar), _mm512_setzero_ps(), _CMP_NLT_UQ);
+    if (one_pixel) {
+      uint16_t* count = px.count[size_t(p0)];
+      *count = uint16_t(*count + std::popcount(reached & ((1u << live) - 1u)));
+    } else {
+      const uint32_t lanes = (1u << rays) - 1u;
+      for (int g = 0; g * rays < live; ++g) {
+        uint16_t* count = px.count[size_t(p0 + g)];
+        *count = uint16_t(*count + std::popcount((reached >> (g * rays)) & lanes));
+      }
+    }
+    batch.traced += uint64_t(live);
+  }
+}
+#endif
+
+// A pixel's AO set-up shared by both row kernels: the surface, its basis and validation
+// (once per pixel: with a valid origin, a finite unit basis and 0 <= tfar = r, every direction
+// is a finite unit-length combination of the basis, so every ray of the pixel is valid --
+// ray_is_valid would pass each one). Returns false for background; sets valid.
+bool ao_surface(const RtScene& rt, const GBuffer& g, int x, int y, float radius_m, Surface& s, bool& valid,
+                uint64_t& unres, TriangleCache& cache) {
+  if (!surface_at(rt, g, x, y, s, unres, cache)) return false;
+  orthonormal_basis(s.n, s.t, s.b);
+  valid = ray_is_valid(s.origin, s.n, 0.0f, radius_m) && std::isfinite(s.t.x + s.t.y + s.t.z) &&
+          std::isfinite(s.b.x + s.b.y + s.b.z);
+  return true;
+}
+
+#if DHR_TRACE_AVX512
+// The AO rows with the AVX-512 ray generator: stage 1 gathers the row's tracing pixels
+// (scalar: surface, basis, validation, hash), stage 2 (ao_rays_x16) makes and traces the rays.
+void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
+                 AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st) {
+  const int w = g.width();
+  Batch<16> batch(rt.handle(), kMaskAll);
+  TriangleCache cache;
+  AoPixels px(w);
+  uint64_t invalid = 0, unres = 0, cov = 0;
+  for (int y = y0; y < y1; ++y) {
+    if (rows_out) batch.record = &(*rows_out)[size_t(y)];
+    px.n = 0;
+    for (int x = 0; x < w; ++x) {
+      Surface s;
+      bool valid = false;
+      if (!ao_surface(rt, g, x, y, radius_m, s, valid, unres, cache)) continue;
+      ++cov;
+      const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+      uint16_t* count = &out.unoccluded[pixel];
+      if (!valid) {
+        invalid += uint64_t(ao_rays);
+        *count = uint16_t(ao_rays);
+        continue;
+      }
+      *count = 0;
+      const size_t i = size_t(px.n++);
+      const float v[AoPixels::kComponents] = {s.origin.x, s.origin.y, s.origin.z, s.t.x, s.t.y, s.t.z,
+                                              s.b.x,      s.b.y,      s.b.z,      s.n.x, s.n.y, s.n.z};
+      for (int k = 0; k < AoPixels::kComponents; ++k) px.c[size_t(k)][i] = v[k];
+      px.h[i] = PixelRng(settings.seed, uint32_t(pixel), settings.frame).h;
+      px.count[i] = count;
+    }
+    ao_rays_x16(px, ao_rays, radius_m, batch);
+  }
+  if (rows_out)
+    for (int y = y0; y < y1; ++y) batch.traced += (*rows_out)[size_t(y)].size();
+  st.ao_rays = batch.traced;
+  st.invalid_rays = invalid;
+  st.unresolved_pixels = unres;
+  st.covered_pixels = cov;
+}
+#endif
+
 template <int W>
 void ao_rows(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings, AoCounts& out,
              std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st) {
@@ -975,17 +1247,12 @@ void ao_rows(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const T
     if (rows_out) batch.record = &(*rows_out)[size_t(y)];
     for (int x = 0; x < w; ++x) {
       Surface s;
-      if (!surface_at(rt, g, x, y, s, unres, cache)) continue;
+      bool valid = false;
+      if (!ao_surface(rt, g, x, y, radius_m, s, valid, unres, cache)) continue;
       ++cov;
       const size_t pixel = size_t(y) * size_t(w) + size_t(x);
       uint16_t* count = &out.unoccluded[pixel];
       *count = 0;
-      orthonormal_basis(s.n, s.t, s.b);
-      // Validation once per pixel: with a valid origin, a finite unit basis and
-      // 0 <= tfar = r, every direction below is a finite unit-length combination of the
-      // basis, so every ray of the pixel is valid (ray_is_valid would pass each one).
-      const bool valid = ray_is_valid(s.origin, s.n, 0.0f, radius_m) && std::isfinite(s.t.x + s.t.y + s.t.z) &&
-                         std::isfinite(s.b.x + s.b.y + s.b.z);
       if (!valid) {
         invalid += uint64_t(ao_rays);
         *count = uint16_t(ao_rays);
@@ -998,7 +1265,7 @@ void ao_rows(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const T
         uniforms_chunk(rng.h, uint32_t(k0), kStreamAo, u0, u1);
         cosine_dirs_chunk(t, b, n, u0, u1, dx, dy, dz);
         // tfar = r: "occluded if anything is hit within r", never trace further.
-        for (int j = 0; j < m; ++j) batch.push(s.origin, dx[j], dy[j], dz[j], radius_m, count);
+        batch.push_chunk(s.origin, dx, dy, dz, radius_m, m, count);
       }
     }
   }
@@ -1027,7 +1294,15 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
   // Background pixels read as unoccluded.
   out.unoccluded.assign(npx, uint16_t(ao_rays));
   const bool wide = wide_packets(rt);
+#if DHR_TRACE_AVX512
+  const bool x16 = wide && settings.wide_kernels && cpu_has_avx512dq() && (ao_rays % 16 == 0 || 16 % ao_rays == 0);
+#else
+  const bool x16 = false;
+#endif
   TraceStats st = trace_rows(rt, settings, w, h, [&](int y0, int y1, TraceStats& rs) {
+#if DHR_TRACE_AVX512
+    if (x16) return ao_rows_x16(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
+#endif
     if (wide) ao_rows<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
     else ao_rows<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
   });
@@ -1037,6 +1312,15 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
 }
 
 }  // namespace
+
+bool wide_kernels_available(const RtScene& rt) {
+#if DHR_TRACE_AVX512
+  return wide_packets(rt) && cpu_has_avx512dq();
+#else
+  (void)rt;
+  return false;
+#endif
+}
 
 VisibilityCounts trace_visibility_counts(RtScene& rt, const GBuffer& g, const PassPlan& plan,
                                          const TraceSettings& settings, TraceStats& stats) {

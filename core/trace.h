@@ -61,6 +61,10 @@ struct TraceSettings {
   // (SoftVisibility pass, full_scale = S, or 255 when S > 255).
   int samples_per_light = 1;
   int threads = 0;            // 0 = the RtScene's arena; else a dedicated arena of this size
+  // The AVX-512 ray generators where the CPU has them (the AO pass when its ray count divides
+  // 16 or is a multiple of it). They give the same rays and results bit for bit; false forces
+  // the baseline kernels (tests compare the two).
+  bool wide_kernels = true;
   // A run may switch a pass off (the paper's Table 2 adds the passes one at a time); it can
   // never switch on a pass the scene does not call for.
   bool visibility_pass = true;
@@ -149,6 +153,10 @@ VisibilityCounts trace_visibility_counts(RtScene& rt, const GBuffer& gbuf, const
                                          const TraceSettings& settings, TraceStats& stats);
 AoCounts trace_ao_counts(RtScene& rt, const GBuffer& gbuf, int ao_rays, float ao_radius_m,
                          const TraceSettings& settings, TraceStats& stats);
+
+// Whether TraceSettings::wide_kernels takes effect here: Embree's native 16-wide packets and
+// a CPU with AVX-512F/DQ (and a compiler that builds the kernels).
+bool wide_kernels_available(const RtScene& rt);
 
 // The exact rays (in row order) that trace_visibility_counts / trace_ao_counts would hand to
 // Embree, without tracing them: benchmarks trace them with a bare Embree loop as the ceiling.
