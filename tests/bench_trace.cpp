@@ -7,6 +7,13 @@
 // ceiling; the pass reports Mrays/s (rays it
 // traced / wall time of the whole pass: surface rebuild, ray generation, tracing, counting)
 // and its ratio to the ceiling. Goal: >= 0.9.
+// A floor beside it (floor/<scene>/<pass>): the least any pass must do besides tracing --
+// read the G-buffer layers a surface needs (object id everywhere; prim id, barycentrics and
+// normal where covered) and write its output (one 16-bit count per pixel and light, or per
+// pixel for AO) -- and nothing else. The pass's `bound` counter is ceiling time / (ceiling time
+// + floor time): the ratio a pass with free ray generation would reach. Where the bound is
+// below 0.9 (few rays per pixel: one light, most surfaces facing away) the goal cannot be
+// met by any implementation that reads its input.
 //
 // Scenes: the built-in scenes (scenes/*.json) and the real scenes (scenes/real/*.json, skipped
 // when ../shared/scenes is missing), at 1280x720, camera at t = 0, G-buffer from Embree
@@ -64,7 +71,30 @@ struct PassCase {
   std::vector<RTCRay> rays;  // exactly what the pass traces
   double ceiling_mrays = 0.0;
   std::string ceiling_kind;
+  double floor_cpu_s = 0.0;  // per pass: reading the G-buffer and writing the output
 };
+
+// The floor: read what a surface needs from the G-buffer and write `outputs` 16-bit counts
+// per pixel, nothing else (rows split between the threads like the passes').
+void floor_pass(const GBuffer& g, int outputs, std::vector<uint16_t>& out) {
+  const int w = g.width(), h = g.height();
+  const size_t npx = size_t(w) * size_t(h);
+  out.resize(npx * size_t(outputs));
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      for (int x = 0; x < w; ++x) {
+        uint16_t v = 0;
+        if (g.object_id(x, y) != kBackgroundId) {
+          const glm::vec2 b = g.bary(x, y);
+          const glm::vec3 n = g.geo_normal(x, y);
+          v = uint16_t(g.prim_id(x, y) + uint32_t(b.x + b.y + n.x + n.y + n.z > 0.5f));
+        }
+        const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+        for (int k = 0; k < outputs; ++k) out[size_t(k) * npx + pixel] = v;
+      }
+    }
+  });
+}
 
 std::map<std::string, std::unique_ptr<BenchScene>>& scenes() {
   static std::map<std::string, std::unique_ptr<BenchScene>> m;
@@ -281,6 +311,31 @@ void register_scene(const std::string& file) {
         }
       })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
     }
+    benchmark::RegisterBenchmark(("floor/" + key).c_str(), [=](benchmark::State& state) {
+      BenchScene* b = nullptr;
+      try {
+        b = &load(file, name);
+      } catch (const Error& e) {
+        state.SkipWithError(e.what());
+        for (auto _ : state) {
+        }
+        return;
+      }
+      auto& cs = cases();
+      if (!cs.count(key)) cs[key] = make_case(*b, pass);
+      PassCase& c = cs[key];
+      const int outputs = pass == "ao8" ? 1 : std::max(1, c.plan.lights);
+      std::vector<uint16_t> out;
+      const double c0 = cpu_seconds();
+      b->rt->arena().execute([&] {
+        for (auto _ : state) {
+          floor_pass(b->gbuf, outputs, out);
+          benchmark::DoNotOptimize(out.data());
+        }
+      });
+      c.floor_cpu_s = (cpu_seconds() - c0) / double(state.iterations());
+      state.counters["cpu_ms"] = c.floor_cpu_s * 1e3;
+    })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
     benchmark::RegisterBenchmark(("pass/" + key).c_str(), [=](benchmark::State& state) {
       auto& cs = cases();
       BenchScene* bp = nullptr;
@@ -304,6 +359,10 @@ void register_scene(const std::string& file) {
       const double rate = run_pass(b, c, state);
       state.counters["ceiling_Mrays_per_s"] = c.ceiling_mrays;
       state.counters["ratio"] = rate / c.ceiling_mrays;
+      if (c.floor_cpu_s > 0.0 && c.ceiling_mrays > 0.0) {
+        const double ceiling_s = double(c.rays.size()) * 1e-6 / c.ceiling_mrays;
+        state.counters["bound"] = ceiling_s / (ceiling_s + c.floor_cpu_s);
+      }
       state.SetLabel("ceiling: " + c.ceiling_kind);
     })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
   }
