@@ -9,6 +9,10 @@
 //   64-bit vector multiplies where the CPU has it; integer arithmetic only, same bits).
 // - directions: SSE2 kernels (sincos_2pi_x4, cone_x4, ...) doing the scalar code's IEEE
 //   operations in the same order, 4 lanes at a time, so results are bit-identical to it.
+// - the AO pass, where the CPU has AVX-512 and the ray count divides 16 or is a multiple of
+//   it: a row's tracing pixels are gathered first, then ao_rays_x16 makes 16 rays at a time
+//   (hashes, uniforms, cosine directions: the same operations again) straight into the packet
+//   and adds each pixel's unoccluded lanes by popcount. bench_trace: 0.93-1.0 of the ceiling.
 // - the visibility pass works a row at a time in stages (surfaces; each light over the row,
 //   compacted to the pairs that trace; rays in pixel order) so the square-root and division
 //   chains of neighbouring pixels overlap instead of running one after the other.

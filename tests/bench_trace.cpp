@@ -120,6 +120,19 @@ BenchScene& load(const std::string& file, const std::string& name, bool robust =
   return *m.emplace(key, std::move(b)).first->second;
 }
 
+// load(), or the benchmark skipped with the error (a real scene whose files are missing).
+BenchScene* load_or_skip(benchmark::State& state, const std::string& file, const std::string& name,
+                         bool robust = false) {
+  try {
+    return &load(file, name, robust);
+  } catch (const Error& e) {
+    state.SkipWithError(e.what());
+    for (auto _ : state) {
+    }
+    return nullptr;
+  }
+}
+
 // Fresh copies every iteration: Embree overwrites tfar of occluded rays.
 void trace_1m(RTCScene scene, const std::vector<RTCRay>& rays) {
   tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
@@ -267,15 +280,8 @@ void register_scene(const std::string& file) {
     // Ceilings first (registration order is run order), then the pass itself.
     for (const std::string kind : {"occluded1", "occluded8", "occluded16", "occluded1M", "occluded1M_coherent"}) {
       benchmark::RegisterBenchmark(("ceiling/" + key + "/" + kind).c_str(), [=](benchmark::State& state) {
-        BenchScene* b = nullptr;
-        try {
-          b = &load(file, name);
-        } catch (const Error& e) {
-          state.SkipWithError(e.what());
-          for (auto _ : state) {
-          }
-          return;
-        }
+        BenchScene* b = load_or_skip(state, file, name);
+        if (!b) return;
         auto& cs = cases();
         if (!cs.count(key)) cs[key] = make_case(*b, pass);
         PassCase& c = cs[key];
@@ -312,15 +318,8 @@ void register_scene(const std::string& file) {
       })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
     }
     benchmark::RegisterBenchmark(("floor/" + key).c_str(), [=](benchmark::State& state) {
-      BenchScene* b = nullptr;
-      try {
-        b = &load(file, name);
-      } catch (const Error& e) {
-        state.SkipWithError(e.what());
-        for (auto _ : state) {
-        }
-        return;
-      }
+      BenchScene* b = load_or_skip(state, file, name);
+      if (!b) return;
       auto& cs = cases();
       if (!cs.count(key)) cs[key] = make_case(*b, pass);
       PassCase& c = cs[key];
@@ -338,15 +337,8 @@ void register_scene(const std::string& file) {
     })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
     benchmark::RegisterBenchmark(("pass/" + key).c_str(), [=](benchmark::State& state) {
       auto& cs = cases();
-      BenchScene* bp = nullptr;
-      try {
-        bp = &load(file, name);
-      } catch (const Error& e) {
-        state.SkipWithError(e.what());
-        for (auto _ : state) {
-        }
-        return;
-      }
+      BenchScene* bp = load_or_skip(state, file, name);
+      if (!bp) return;
       BenchScene& b = *bp;
       if (!cs.count(key)) cs[key] = make_case(b, pass);  // filtered run without the ceilings
       PassCase& c = cs[key];
@@ -378,15 +370,8 @@ void register_robust(const std::string& file) {
   for (bool robust : {false, true}) {
     benchmark::RegisterBenchmark(fmt::format("robust_flag/{}/ao8/{}", name, robust ? "robust" : "default").c_str(),
                                  [=](benchmark::State& state) {
-                                   BenchScene* b = nullptr;
-                                   try {
-                                     b = &load(file, name, robust);
-                                   } catch (const Error& e) {
-                                     state.SkipWithError(e.what());
-                                     for (auto _ : state) {
-                                     }
-                                     return;
-                                   }
+                                   BenchScene* b = load_or_skip(state, file, name, robust);
+                                   if (!b) return;
                                    PassCase c;
                                    c.name = "ao8";
                                    c.settings.ao_rays = 8;
