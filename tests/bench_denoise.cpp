@@ -13,8 +13,9 @@
 //   BM_Denoise/<name>/reset     : every frame with history_valid = false (a camera cut: the
 //                                 temporal denoisers take their spatial-variance path
 //                                 everywhere: the worst case, what disoccluded pixels cost)
-// The interleaved table also times svgf_ao with a 3x3 kernel, with 3x3 and 3 iterations, and
-// with one 5x5 iteration: what its default accuracy costs in time.
+// The interleaved table also times svgf_ao with a 3x3 kernel, with 3x3 and 3 iterations, with
+// one 5x5 iteration (what its default accuracy costs in time), and with light_history 4, 8,
+// 16 (DHR-S 3.3's lightweight path for pixels with a long history).
 // After the runs two tables print ms per frame and the ratio to one AO ray: the Google
 // Benchmark figures, and the fastest frame of --rounds=N (default 9) interleaved rounds of
 // every configuration (the fair comparison on a shared, fluctuating machine).
@@ -35,12 +36,15 @@
 // rounds, for frame 8 the fastest steady frame (history >= 4 everywhere) of frames 5..8 of
 // every ray count and of the 5 rounds. Progress goes to stderr, the table to stdout and, with
 // --csv=PATH, to a CSV file (one row per scene, rays, denoiser, frame of history).
+//   --frames=N        score frame 1 and frame N of history instead of frame 8 (N frames are
+//                     traced per ray count; "steady" timing then takes frames 5..N)
 //   --scenes=a,b,...  the scenes (default: every built-in scene, scenes/*.json, then every
 //                     real one, scenes/real/*.json). A real scene whose files are missing
 //                     (../shared/scenes absent) is skipped with a message on stderr.
 //
 // Run: build-*/tests/bench_denoise [--rounds=9] [--benchmark_filter=...]
 //      build-*/tests/bench_denoise --accuracy [--scenes=room,temple] [--csv=PATH] [--reference_rays=1024]
+//          [--frames=8] [--denoisers='svgf_ao svgf_ao{"light_history":8}']
 #include "core/backend.h"
 #include "core/error.h"
 #include "core/gbuffer.h"
@@ -203,6 +207,14 @@ std::vector<Minima> interleaved_minima(int rounds) {
   configs.push_back({"svgf_ao 3x3 kernel (steady)", "svgf_ao", false, {{"kernel_radius", 1}}});
   configs.push_back({"svgf_ao 3x3 kernel, 3 iterations (steady)", "svgf_ao", false, {{"kernel_radius", 1}, {"iterations", 3}}});
   configs.push_back({"svgf_ao 5x5 kernel, 1 iteration (steady)", "svgf_ao", false, {{"iterations", 1}}});
+  // The paper's lightweight path for long history (light_history = L: one 3x3 iteration where
+  // the history has L frames or more). Steady: every pixel is at history_cap (32) >= L, so the
+  // whole image takes it; reset: no pixel does (history 1), the full path everywhere.
+  for (int l : {4, 8, 16}) {
+    const std::string label = "svgf_ao light_history " + std::to_string(l);
+    configs.push_back({label + " (steady)", "svgf_ao", false, {{"light_history", l}}});
+    configs.push_back({label + " (reset)", "svgf_ao", true, {{"light_history", l}}});
+  }
   std::vector<std::unique_ptr<Denoiser>> dens;
   std::vector<uint32_t> frames(configs.size(), 0);
   ImageU8 out;
@@ -245,6 +257,7 @@ struct AccuracyOptions {
   std::vector<std::string> denoisers;
   std::string csv_path;             // empty: no CSV
   int reference_rays = 1024;
+  int frames = 8;  // the frames of history scored: the first and this one
 };
 
 double ms_since(std::chrono::steady_clock::time_point t0) {
@@ -254,7 +267,7 @@ double ms_since(std::chrono::steady_clock::time_point t0) {
 std::string file_stem(const std::string& path) { return std::filesystem::path(path).stem().string(); }
 
 void accuracy_table(const AccuracyOptions& opt) {
-  const int w = 640, h = 360, kFrames = 8, kTimingRounds = 5;
+  const int w = 640, h = 360, kFrames = opt.frames, kTimingRounds = 5;
   const std::vector<int> kRays = {1, 2, 4, 8, 16, 32, 64};
   const double time_s = 1.0;
   std::vector<std::string> builtin, real;
@@ -457,7 +470,13 @@ int main(int argc, char** argv) {
       for (std::string d; list >> d;) acc.denoisers.push_back(d);
     } else if (std::strncmp(argv[i], "--csv=", 6) == 0)
       acc.csv_path = argv[i] + 6;
-    else if (std::strncmp(argv[i], "--reference_rays=", 17) == 0) {
+    else if (std::strncmp(argv[i], "--frames=", 9) == 0) {
+      acc.frames = std::atoi(argv[i] + 9);
+      if (acc.frames < 2 || acc.frames > 1000) {
+        std::fprintf(stderr, "bench_denoise: --frames=%s must be 2..1000\n", argv[i] + 9);
+        return 2;
+      }
+    } else if (std::strncmp(argv[i], "--reference_rays=", 17) == 0) {
       acc.reference_rays = std::atoi(argv[i] + 17);
       if (acc.reference_rays < 1 || acc.reference_rays > 65535) {
         std::fprintf(stderr, "bench_denoise: --reference_rays=%s must be 1..65535\n", argv[i] + 17);

@@ -81,6 +81,13 @@ std::unique_ptr<Denoiser> make(const std::string& name, const nlohmann::json& pa
   return registries().denoisers.create(name, params);
 }
 
+// "name" or "name{json params}".
+std::unique_ptr<Denoiser> make_spec(const std::string& spec) {
+  const size_t brace = spec.find('{');
+  if (brace == std::string::npos) return make(spec);
+  return make(spec.substr(0, brace), nlohmann::json::parse(spec.substr(brace)));
+}
+
 ImageU8 run(Denoiser& d, const Frame& fr, const ImageU8& noisy, int full_scale, uint32_t frame,
             bool history_valid = true) {
   ImageU8 out;
@@ -248,13 +255,14 @@ TEST(Denoisers, ResetAndInvalidHistoryGiveTheSpatialOnlyPath) {
   };
   const std::vector<Case> cases = {
       {"svgf_ao", "atrous", nlohmann::json::object(), 0},
+      {"svgf_ao{\"light_history\":8}", "atrous", nlohmann::json::object(), 0},
       {"single_iteration", "atrous", {{"iterations", 1}, {"kernel_radius", 1}}, 0},
       {"temporal", "none", nlohmann::json::object(), 1},  // float vs integer rounding
   };
   for (const auto& c : cases) {
     SCOPED_TRACE(c.name);
     for (int mode = 0; mode < 3; ++mode) {  // reset(), history_valid = false, size change
-      auto d = make(c.name);
+      auto d = make_spec(c.name);
       for (int f = 0; f < 6; ++f) {
         const Frame fr = make_frame(f, 1, 3);
         run(*d, fr, noisy_counts(fr.truth, 4, uint32_t(f)), 4, uint32_t(f));
@@ -325,18 +333,25 @@ TEST(Denoisers, StaticCameraErrorFallsFrameByFrame) {
 //   single_iteration  0.103 0.062 0.038 0.030  vs 0.026 0.023 0.021 0.022  -> within from j = 3
 //   temporal          0.203 0.145 0.108 0.090  vs 0.082 0.076 0.071 0.069  -> within from j = 3
 // ("within": <= max(1.5 x reference, reference + 0.01)); bias at most +0.005 (no ghost of
-// the box). Asserted with one frame of margin: F = 1, 4, 4.
+// the box). Asserted with one frame of margin: F = 1, 4, 4. svgf_ao with light_history 4 and 8
+// (the strip takes the full filter until its history is 4 / 8 frames long; the reference,
+// long history, the light path):
+//   light_history 4   0.016 0.015 0.018 0.026  vs 0.025 0.022 0.021 0.021  -> within from j = 0
+//   light_history 8   0.015 0.014 0.015 0.014  vs 0.013 0.015 0.017 0.019  -> within from j = 0
+// light_history 2 is not: its strip (one frame of full filter, then the 3x3 iteration on a
+// 2-frame history) measures 0.023 0.057 0.036 0.029 vs 0.026 0.023 0.021 0.022.
 TEST(Denoisers, GhostingAtDisocclusionsDiesOut) {
   struct Expect {
     std::string name;
     int frames;  // F: the strip error is within tolerance of the reference after F frames
   };
-  for (const Expect& ex : {Expect{"svgf_ao", 1}, Expect{"single_iteration", 4}, Expect{"temporal", 4}}) {
+  for (const Expect& ex : {Expect{"svgf_ao", 1}, Expect{"single_iteration", 4}, Expect{"temporal", 4},
+                           Expect{"svgf_ao{\"light_history\":4}", 1}, Expect{"svgf_ao{\"light_history\":8}", 1}}) {
     SCOPED_TRACE(ex.name);
     constexpr int kFirst = 3, kLast = 6, kFollow = 9;
     std::vector<double> strip_err(kFollow, 0.0), strip_bias(kFollow, 0.0), ref_err(kFollow, 0.0);
     for (int f0 = kFirst; f0 <= kLast; ++f0) {
-      auto d = make(ex.name);
+      auto d = make_spec(ex.name);
       for (int f = 0; f < f0 + kFollow; ++f) {
         const Frame fr = make_frame(f, 1, 3);
         const ImageU8 out = run(*d, fr, noisy_counts(fr.truth, 4, uint32_t(f)), 4, uint32_t(f));
@@ -485,7 +500,7 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
         a.inv_phi_l = ipl.data();
         a.v_in = v.data();
         a.var_in = var.data();
-        std::vector<float> acc(size_t(w) * 3), v8(n), var8(n), v16(n), var16(n);
+        std::vector<float> acc(size_t(w) * 4), v8(n), var8(n), v16(n), var16(n);
         a.v_out = v8.data();
         a.var_out = var8.data();
         denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/false);
@@ -499,6 +514,85 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
         for (size_t i = 0; i < n; ++i) changed += valid[i] && v8[i] != v[i];
         EXPECT_GT(changed, int(n) / 2);
       }
+  // The same with the options of svgf_ao's light_history path: only the pixels of one class
+  // filtered (the others left as they are), the AO phi computed inside the rows from the
+  // variance, copies of the output and the 8-bit output. Classes come in runs of random length
+  // (whole 8- and 16-pixel blocks skipped, blocks with both classes), so every way a block can
+  // be skipped or computed is taken.
+  {
+    std::vector<uint8_t> cls(n);
+    std::vector<float> ivk(n), vf(n);
+    for (uint32_t i = 0, run = 0, c = 0; i < n; ++i, --run) {
+      if (run == 0) {
+        run = 1 + uint32_t(u(i, 8) * 40.0f);
+        c ^= 1;
+      }
+      cls[i] = uint8_t(c);
+      vf[i] = valid[i] ? 1.0f : 0.0f;
+      ivk[i] = valid[i] ? 1.0f / (0.25f + 0.75f * u(i, 9)) : 0.0f;
+    }
+    for (int radius : {1, 2})
+      for (int step : {1, 8})
+        for (uint8_t active : {0, 1}) {
+          SCOPED_TRACE("classes: radius " + std::to_string(radius) + " step " + std::to_string(step) + " active " +
+                       std::to_string(active));
+          denoise::AtrousArgs a;
+          a.width = w;
+          a.height = h;
+          a.step = step;
+          a.radius = radius;
+          a.k1d = radius == 2 ? kB3 + 2 : k3 + 1;
+          a.depth = depth.data();
+          a.nx = nx.data();
+          a.ny = ny.data();
+          a.nz = nz.data();
+          a.valid = valid.data();
+          a.inv_phi_z = ipz.data();
+          a.inv_valid_k = ivk.data();
+          a.valid_f = vf.data();
+          a.sigma_l = 4.0f;
+          a.v_in = v.data();
+          a.var_in = var.data();
+          a.cls = cls.data();
+          a.active_cls = active;
+          std::vector<float> acc(size_t(w) * 4);
+          struct Out {
+            std::vector<float> v, var, v2, var2;
+            std::vector<uint8_t> u8;
+          };
+          auto run_width = [&](bool wide) {
+            Out o{std::vector<float>(n, -1.0f), std::vector<float>(n, -2.0f), std::vector<float>(n, -3.0f),
+                  std::vector<float>(n, -4.0f), std::vector<uint8_t>(n, 7)};
+            a.v_out = o.v.data();
+            a.var_out = o.var.data();
+            a.v_out2 = o.v2.data();
+            a.var_out2 = o.var2.data();
+            a.u8_out = o.u8.data();
+            denoise::atrous_rows(a, 0, h, acc.data(), wide);
+            return o;
+          };
+          const Out o8 = run_width(false), o16 = run_width(true);
+          a.cls = nullptr;  // every pixel filtered: a filtered pixel's result must not change
+          const Out all = run_width(false);
+          a.cls = cls.data();
+          EXPECT_TRUE(o8.v == o16.v);
+          EXPECT_TRUE(o8.var == o16.var);
+          EXPECT_TRUE(o8.u8 == o16.u8);
+          int filtered = 0, untouched = 0;
+          for (size_t i = 0; i < n; ++i) {
+            if (cls[i] != active) {  // left as it was; the 8-bit output is of that value
+              untouched += o8.v[i] == -1.0f && o8.var[i] == -2.0f && o8.v2[i] == -3.0f && o8.u8[i] == 0;
+            } else {
+              filtered += o8.v[i] >= 0.0f && o8.v2[i] == o8.v[i] && o8.var2[i] == o8.var[i] &&
+                          o8.u8[i] == denoise::to_u8(o8.v[i]) && o8.v[i] == all.v[i] && o8.var[i] == all.var[i];
+            }
+          }
+          int n_active = 0;
+          for (size_t i = 0; i < n; ++i) n_active += cls[i] == active;
+          EXPECT_EQ(filtered, n_active);
+          EXPECT_EQ(untouched, int(n) - n_active);
+        }
+  }
   // The spatial moments (variance estimate where history is short), over spans that start
   // anywhere in the row; m2 from a plane and m2 = m1^2.
   for (int with_m2 : {0, 1})
@@ -529,6 +623,121 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
           ASSERT_GT(sum_w, 0.5 * double(span / 3)) << "row " << y;
         }
       }
+}
+
+// ---------------------------------------------------------------- svgf_ao light_history
+
+// DHR-S 3.3's lightweight path: pixels with at least light_history frames of history get one
+// 3x3 a-trous iteration, the others the full filter.
+TEST(LightHistory, RangeIsChecked) {
+  EXPECT_THROW(make("svgf_ao", {{"light_history", -1}}), Error);
+  EXPECT_THROW(make("svgf_ao", {{"light_history", 1025}}), Error);
+  EXPECT_THROW(make("atrous", {{"light_history", 4}}), Error);  // svgf_ao's parameter only
+  EXPECT_NO_THROW(make("svgf_ao", {{"light_history", 0}}));
+  EXPECT_NO_THROW(make("svgf_ao", {{"light_history", 1024}}));
+}
+
+// Runs `d` over frames 0..n-1 of the moving scene (camera pan 1 px, box 3 px per frame; 4 rays)
+// with a camera cut (history_valid = false) at frame cut, and returns every output.
+std::vector<ImageU8> run_moving(Denoiser& d, int n, int cut = -1) {
+  std::vector<ImageU8> outs;
+  for (int f = 0; f < n; ++f) {
+    const Frame fr = make_frame(f, 1, 3);
+    outs.push_back(run(d, fr, noisy_counts(fr.truth, 4, uint32_t(f)), 4, uint32_t(f), f != cut));
+  }
+  return outs;
+}
+
+// Off (0) is the old filter, and a threshold no history reaches (above history_cap) runs the
+// light path's machinery (the class plane, the split first iteration, the skipped blocks) with
+// every pixel on the full path: the same bits. A threshold of 1 puts every pixel on the light
+// path: one 3x3 iteration fed back, which is exactly single_iteration. Feedback "accumulated"
+// and a 3x3 configured kernel take other branches of the same code.
+TEST(LightHistory, OffAndExtremesGiveKnownFilters) {
+  const int n = 12, cut = 7;
+  const auto base = run_moving(*make("svgf_ao"), n, cut);
+  const auto off = run_moving(*make("svgf_ao", {{"light_history", 0}}), n, cut);
+  const auto never = run_moving(*make("svgf_ao", {{"light_history", 1024}}), n, cut);
+  const auto always = run_moving(*make("svgf_ao", {{"light_history", 1}}), n, cut);
+  const auto single = run_moving(*make("single_iteration"), n, cut);
+  // One iteration in all: the 8-bit output comes from the first iteration's second run.
+  const auto always1 = run_moving(*make("svgf_ao", {{"light_history", 1}, {"iterations", 1}}), n, cut);
+  const auto some = run_moving(*make("svgf_ao", {{"light_history", 4}}), n, cut);
+  for (int f = 0; f < n; ++f) {
+    SCOPED_TRACE("frame " + std::to_string(f));
+    EXPECT_TRUE(off[size_t(f)] == base[size_t(f)]);
+    EXPECT_TRUE(never[size_t(f)] == base[size_t(f)]);
+    EXPECT_TRUE(always[size_t(f)] == single[size_t(f)]);
+    EXPECT_TRUE(always1[size_t(f)] == single[size_t(f)]);
+    // Not vacuous: once pixels have 4 frames of history the light path changes the output.
+    if (f >= 4 && f < cut) {
+      EXPECT_FALSE(some[size_t(f)] == base[size_t(f)]);
+    }
+  }
+  for (const nlohmann::json& extra : {nlohmann::json{{"feedback", "accumulated"}}, nlohmann::json{{"kernel_radius", 1}},
+                                      nlohmann::json{{"iterations", 1}}}) {
+    SCOPED_TRACE(extra.dump());
+    nlohmann::json never_p = extra;
+    never_p["light_history"] = 1024;
+    const auto b = run_moving(*make("svgf_ao", extra), 8);
+    const auto nv = run_moving(*make("svgf_ao", never_p), 8);
+    for (int f = 0; f < 8; ++f) EXPECT_TRUE(nv[size_t(f)] == b[size_t(f)]) << "frame " << f;
+  }
+}
+
+// Static camera, 4 rays, mean of 8 seeds (as StaticCameraErrorFallsFrameByFrame). The error
+// does NOT keep falling when the pixels cross the threshold: with light_history L, frames
+// before the history reaches L are svgf_ao's bits; from there on the one 3x3 iteration leaves
+// more noise than five 5x5 ones, and the error settles at single_iteration's level. Measured
+// MAE, frames 0..7:
+//   svgf_ao            0.0224 0.0169 0.0140 0.0130 0.0119 0.0116 0.0115 0.0115
+//   light_history 2    0.0224 0.0461 0.0348 0.0283 0.0238 0.0219 0.0214 0.0209
+//   light_history 4    0.0224 0.0169 0.0140 0.0258 0.0227 0.0214 0.0212 0.0208
+//   light_history 8    0.0224 0.0169 0.0140 0.0130 0.0119 0.0116 0.0115 0.0195
+//   single_iteration   0.0785 0.0486 0.0356 0.0286 0.0239 0.0220 0.0214 0.0209
+// Asserted: the bits before the threshold, the settled error no worse than single_iteration's
+// (+0.002), and falling again after the jump at the switch.
+TEST(LightHistory, StaticCameraSwitchesToTheSingleIterationLevel) {
+  constexpr int kSeeds = 8, kFrames = 8, kL = 4;
+  std::vector<double> err_light(kFrames, 0.0), err_single(kFrames, 0.0);
+  for (int seed = 1; seed <= kSeeds; ++seed) {
+    auto full = make("svgf_ao");
+    auto light = make("svgf_ao", {{"light_history", kL}});
+    auto single = make("single_iteration");
+    for (int f = 0; f < kFrames; ++f) {
+      const Frame fr = make_frame(0, 0, 0);
+      const ImageU8 noisy = noisy_counts(fr.truth, 4, uint32_t(f), uint64_t(seed));
+      const ImageU8 o_full = run(*full, fr, noisy, 4, uint32_t(f));
+      const ImageU8 o_light = run(*light, fr, noisy, 4, uint32_t(f));
+      const ImageU8 o_single = run(*single, fr, noisy, 4, uint32_t(f));
+      if (f + 1 < kL) {  // history f + 1 < L everywhere: the full filter
+        EXPECT_TRUE(o_light == o_full) << "seed " << seed << " frame " << f;
+      }
+      const auto mask = [](int, int y) { return y < 44; };
+      err_light[size_t(f)] += mae(o_light, fr.truth, mask) / kSeeds;
+      err_single[size_t(f)] += mae(o_single, fr.truth, mask) / kSeeds;
+    }
+  }
+  std::printf("light_history %d static MAE:", kL);
+  for (double e : err_light) std::printf(" %.4f", e);
+  std::printf("\n");
+  EXPECT_LE(err_light.back(), err_single.back() + 0.002);
+  EXPECT_LT(err_light.back(), err_light[kL - 1]);  // after the jump at the switch it falls again
+}
+
+// A pixel's result depends neither on the thread count nor on its neighbours' class: 1 and 2
+// threads give the same bits while pixels cross the threshold at different frames (camera pan,
+// moving box, a camera cut).
+TEST(LightHistory, SameBitsOnOneAndTwoThreads) {
+  for (int l : {2, 4, 8}) {
+    SCOPED_TRACE("light_history " + std::to_string(l));
+    auto outs = [&](int threads) {
+      tbb::global_control gc(tbb::global_control::max_allowed_parallelism, size_t(threads));
+      return run_moving(*make("svgf_ao", {{"light_history", l}}), 14, 9);
+    };
+    const auto one = outs(1), two = outs(2);
+    for (size_t f = 0; f < one.size(); ++f) EXPECT_TRUE(one[f] == two[f]) << "frame " << f;
+  }
 }
 
 }  // namespace

@@ -33,6 +33,20 @@
 // paper keeps "the variance calculated ... drive the weights in the kernel"); sigma_l = 0
 // removes it and leaves a purely depth/normal-guided filter.
 //
+// light_history = L (0 = off, the default): the lightweight path the paper proposes at the end
+// of section 3.3 ("switch to a more lightweight denoiser for ambient occlusion due to many of
+// the pixels having a high number of temporal samples ... just one iteration of filter and
+// also using a smaller kernel size"), per pixel: a pixel whose history is at least L frames
+// long gets ONE a-trous iteration with the 3x3 kernel (what single_iteration does) and keeps
+// its result; the others get all `iterations` with the configured kernel. Iterations 2.. run
+// only over the 8/16-pixel blocks of a row that hold a short-history pixel. Each pixel feeds
+// its own first-iteration output back into the history. A pixel's result depends neither on
+// its neighbours' path nor on the thread count or vector width. The first frame after a reset
+// (history 1) is the full filter for any L >= 2; L = 1 makes every frame single_iteration's;
+// L above history_cap never applies. The price (tests/test_denoisers.cpp, LightHistory...):
+// with a still camera the error settles at single_iteration's level (at 4 rays about 1.8x
+// that of the full filter) instead of falling further.
+//
 // Invalid pixels (background, or a NaN/Inf/zero depth or normal) pass through unfiltered and
 // never enter a neighbour's filter or the history. Values above full_scale count as
 // full_scale. history_valid = false, reset() and a change of image size drop the history;
@@ -41,8 +55,9 @@
 // Parameters: alpha 0.2, history_cap 32, depth_tolerance 0.1, normal_threshold 0.9,
 // iterations 5 (1..10), kernel_radius 2 (1: 3x3), sigma_l 4 (0 = no AO range term),
 // sigma_n 128 (a power of two), sigma_z 1 (0 = no depth term), variance_radius 3 (7x7),
-// feedback "first_iteration" | "accumulated".
+// feedback "first_iteration" | "accumulated", light_history 0 (0..1024 frames; 0 = off).
 // Example: {"denoiser": "svgf_ao", "params": {"iterations": 4, "alpha": 0.1}}
+//          {"denoiser": "svgf_ao", "params": {"light_history": 8}}
 #include "backends/denoise/filters.h"
 
 namespace dhr {
@@ -63,6 +78,10 @@ class SvgfAoDenoiser final : public Denoiser {
 DenoiserEntry make_svgf_ao_denoiser() {
   std::vector<ParamSpec> specs = denoise::temporal_param_specs();
   for (auto& s : denoise::spatial_param_specs(5, 2)) specs.push_back(std::move(s));
+  specs.push_back(ParamSpec::integer(
+      "light_history", 0, 0, 1024,
+      "DHR-S 3.3's lightweight path: pixels with at least this many frames of history get one 3x3 a-trous "
+      "iteration (the others the full `iterations`); 0 = off. Above history_cap it never applies"));
   specs.push_back(ParamSpec::choice("feedback", "first_iteration", {"first_iteration", "accumulated"},
                                     "what the value history keeps: the first a-trous iteration's output "
                                     "(SVGF) or the unfiltered temporal average"));
@@ -75,6 +94,7 @@ DenoiserEntry make_svgf_ao_denoiser() {
             denoise::read_temporal_params(p, s);
             denoise::read_spatial_params(p, s);
             s.feedback_filtered = p.get_string("feedback") == "first_iteration";
+            s.light_history = p.get_int("light_history");
             return std::make_unique<SvgfAoDenoiser>(s);
           }};
 }
