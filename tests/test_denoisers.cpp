@@ -479,27 +479,32 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
   }
   static constexpr float kB3[5] = {1.0f / 16, 1.0f / 4, 3.0f / 8, 1.0f / 4, 1.0f / 16};
   static constexpr float k3[3] = {0.25f, 0.5f, 0.25f};
+  // The arguments both comparisons share: the image, the guide, the kernel.
+  auto args = [&](int radius, int step) {
+    denoise::AtrousArgs a;
+    a.width = w;
+    a.height = h;
+    a.step = step;
+    a.radius = radius;
+    a.k1d = radius == 2 ? kB3 + 2 : k3 + 1;
+    a.depth = depth.data();
+    a.nx = nx.data();
+    a.ny = ny.data();
+    a.nz = nz.data();
+    a.valid = valid.data();
+    a.inv_phi_z = ipz.data();
+    a.v_in = v.data();
+    a.var_in = var.data();
+    return a;
+  };
   for (int radius : {1, 2})
     for (int step : {1, 2, 4})
       for (int nsq : {7, 3}) {
         SCOPED_TRACE("radius " + std::to_string(radius) + " step " + std::to_string(step) + " squarings " +
                      std::to_string(nsq));
-        denoise::AtrousArgs a;
-        a.width = w;
-        a.height = h;
-        a.step = step;
-        a.radius = radius;
+        denoise::AtrousArgs a = args(radius, step);
         a.normal_squarings = nsq;
-        a.k1d = radius == 2 ? kB3 + 2 : k3 + 1;
-        a.depth = depth.data();
-        a.nx = nx.data();
-        a.ny = ny.data();
-        a.nz = nz.data();
-        a.valid = valid.data();
-        a.inv_phi_z = ipz.data();
         a.inv_phi_l = ipl.data();
-        a.v_in = v.data();
-        a.var_in = var.data();
         std::vector<float> acc(size_t(w) * 4), v8(n), var8(n), v16(n), var16(n);
         a.v_out = v8.data();
         a.var_out = var8.data();
@@ -536,23 +541,10 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
         for (uint8_t active : {0, 1}) {
           SCOPED_TRACE("classes: radius " + std::to_string(radius) + " step " + std::to_string(step) + " active " +
                        std::to_string(active));
-          denoise::AtrousArgs a;
-          a.width = w;
-          a.height = h;
-          a.step = step;
-          a.radius = radius;
-          a.k1d = radius == 2 ? kB3 + 2 : k3 + 1;
-          a.depth = depth.data();
-          a.nx = nx.data();
-          a.ny = ny.data();
-          a.nz = nz.data();
-          a.valid = valid.data();
-          a.inv_phi_z = ipz.data();
+          denoise::AtrousArgs a = args(radius, step);
           a.inv_valid_k = ivk.data();
           a.valid_f = vf.data();
           a.sigma_l = 4.0f;
-          a.v_in = v.data();
-          a.var_in = var.data();
           a.cls = cls.data();
           a.active_cls = active;
           std::vector<float> acc(size_t(w) * 4);
