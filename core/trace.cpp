@@ -9,8 +9,7 @@
 //   64-bit vector multiplies where the CPU has it; integer arithmetic only, same bits).
 // - directions: SSE2 kernels (sincos_2pi_x4, cone_x4, ...) doing the scalar code's IEEE
 //   operations in the same order, 4 lanes at a time, so results are bit-identical to it.
-// - the AO pass, where the CPU has AVX-512 and the ray count divides 16 or is a multiple of
-//   it: a row's tracing pixels are gathered first, then ao_rays_x16 makes 16 rays at a time
+// - the AO pass, where the CPU has AVX-512: a row's tracing pixels are gathered first, then ao_rays_x16 makes 16 rays at a time
 //   (hashes, uniforms, cosine directions: the same operations again) straight into the packet
 //   and adds each pixel's unoccluded lanes by popcount. bench_trace: 0.93-1.0 of the ceiling.
 // - the visibility pass works a row at a time in stages (surfaces; each light over the row,
@@ -1121,34 +1120,39 @@ DHR_TRACE_TARGET_AVX512 inline __m512 cosine_dir_x16(const AoPixels& px, int com
 }
 
 // Stage 2 of ao_rows_x16: every ray of the row's compacted pixels, in pixel then sample order,
-// 16 rays per packet (rays per pixel divides 16 or is a multiple of it, so a packet holds whole
-// pixels or 16 samples of one). Per lane the pixel's values are picked from a 16-pixel window;
-// hashes, uniforms and cosine directions are cosine_dirs_chunk's and uniforms_chunk's
-// operations in the same order (bit-identical rays), computed 16 at a time and stored straight
-// into the packet. The unoccluded lanes of a pixel are added with one popcount.
+// 16 rays per packet (a packet may hold the end of one pixel's rays and the start of the next
+// ones). Lane l of the packet starting at ray r0 = p0 rays + s0 is ray s0 + l of the window
+// starting at pixel p0: pixel p0 + (s0 + l) / rays, sample (s0 + l) % rays. Per lane the pixel's
+// values are picked from a 16-pixel window; hashes, uniforms and cosine directions are
+// uniforms_chunk's and cosine_dirs_chunk's operations in the same order (bit-identical rays),
+// computed 16 at a time and stored straight into the packet. Each pixel's unoccluded lanes are
+// added with one popcount.
 DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float radius_m, Batch<16>& batch) {
   const int total = px.n * rays;
-  const bool one_pixel = rays % 16 == 0;  // else 16 % rays == 0: 16 / rays pixels per packet
-  alignas(64) int32_t lane_pixel[16];
-  alignas(64) uint64_t lane_key[16];  // (sample << 32) | stream, the packet's first sample = 0
-  for (int l = 0; l < 16; ++l) {
-    lane_pixel[l] = one_pixel ? 0 : l / rays;
-    lane_key[l] = (uint64_t(uint32_t(one_pixel ? l : l % rays)) << 32) | kStreamAo;
-  }
-  const __m512i pick = _mm512_load_si512(lane_pixel);
-  const __m512i pick_lo = _mm512_cvtepi32_epi64(_mm512_castsi512_si256(pick));
-  const __m512i pick_hi = _mm512_cvtepi32_epi64(_mm512_extracti64x4_epi64(pick, 1));
-  const __m512i key_lo = _mm512_load_si512(lane_key), key_hi = _mm512_load_si512(lane_key + 8);
+  const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512i rays_i = _mm512_set1_epi32(rays);
+  const __m512 rays_f = _mm512_set1_ps(float(rays));
+  const __m512i stream = _mm512_set1_epi64(kStreamAo);
   const __m512 one = _mm512_set1_ps(1.0f);
   auto& pk = batch.packet;
   alignas(64) int valid[16];
   for (int r0 = 0; r0 < total; r0 += 16) {
-    const int p0 = r0 / rays;
+    const int p0 = r0 / rays, s0 = r0 % rays;
     const int live = std::min(16, total - r0);
-    const __m512i first = _mm512_set1_epi64(int64_t(uint64_t(uint32_t(one_pixel ? r0 % rays : 0)) << 32));
+    // (s0 + l) / rays by float division: exact here (s0 + l < 2^17, quotient <= 16: the
+    // rounding error stays far below the 1 / rays that separates a quotient from the next).
+    const __m512i v = _mm512_add_epi32(_mm512_set1_epi32(s0), iota);
+    const __m512i pick = _mm512_cvttps_epi32(_mm512_div_ps(_mm512_cvtepi32_ps(v), rays_f));
+    const __m512i sample = _mm512_sub_epi32(v, _mm512_mullo_epi32(pick, rays_i));
+    const __m512i pick_lo = _mm512_cvtepi32_epi64(_mm512_castsi512_si256(pick));
+    const __m512i pick_hi = _mm512_cvtepi32_epi64(_mm512_extracti64x4_epi64(pick, 1));
+    // key = (sample << 32) | stream, as PixelRng::uniform2
+    const __m512i key_lo = _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_castsi512_si256(sample)), 32), stream);
+    const __m512i key_hi =
+        _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(sample, 1)), 32), stream);
     const __m512i h0 = _mm512_loadu_si512(px.h.data() + p0), h1 = _mm512_loadu_si512(px.h.data() + p0 + 8);
-    const __m512i k_lo = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_lo, h1), _mm512_add_epi64(key_lo, first)));
-    const __m512i k_hi = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_hi, h1), _mm512_add_epi64(key_hi, first)));
+    const __m512i k_lo = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_lo, h1), key_lo));
+    const __m512i k_hi = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_hi, h1), key_hi));
     const __m512i dim1 = _mm512_set1_epi64(1);
     const __m512 u0 = uniform_x16(mix64_x8(k_lo), mix64_x8(k_hi));
     const __m512 u1 = uniform_x16(mix64_x8(_mm512_xor_si512(k_lo, dim1)), mix64_x8(_mm512_xor_si512(k_hi, dim1)));
@@ -1176,16 +1180,13 @@ DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float rad
     for (int l = 0; l < 16; ++l) valid[l] = l < live ? -1 : 0;
     rtcOccluded16(valid, batch.scene, &batch.ctx, &pk);
     // Embree sets tfar = -inf on an occluded ray; anything else reached (as Batch::flush).
-    const uint32_t reached = _mm512_cmp_ps_mask(_mm512_load_ps(pk.tfar), _mm512_setzero_ps(), _CMP_NLT_UQ);
-    if (one_pixel) {
-      uint16_t* count = px.count[size_t(p0)];
-      *count = uint16_t(*count + std::popcount(reached & ((1u << live) - 1u)));
-    } else {
-      const uint32_t lanes = (1u << rays) - 1u;
-      for (int g = 0; g * rays < live; ++g) {
-        uint16_t* count = px.count[size_t(p0 + g)];
-        *count = uint16_t(*count + std::popcount((reached >> (g * rays)) & lanes));
-      }
+    const uint32_t live_mask = (1u << live) - 1u;
+    const uint32_t reached = _mm512_cmp_ps_mask(_mm512_load_ps(pk.tfar), _mm512_setzero_ps(), _CMP_NLT_UQ) & live_mask;
+    const int last = (s0 + live - 1) / rays;  // the packet's last pixel, relative to p0
+    for (int g = 0; g <= last; ++g) {
+      const uint32_t lanes = _mm512_cmpeq_epi32_mask(pick, _mm512_set1_epi32(g));
+      uint16_t* count = px.count[size_t(p0 + g)];
+      *count = uint16_t(*count + std::popcount(reached & lanes));
     }
     batch.traced += uint64_t(live);
   }
@@ -1309,7 +1310,7 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
   out.unoccluded.assign(npx, uint16_t(ao_rays));
   const bool wide = wide_packets(rt);
 #if DHR_TRACE_AVX512
-  const bool x16 = wide && settings.wide_kernels && cpu_has_avx512dq() && (ao_rays % 16 == 0 || 16 % ao_rays == 0);
+  const bool x16 = wide && settings.wide_kernels && cpu_has_avx512dq();
 #else
   const bool x16 = false;
 #endif

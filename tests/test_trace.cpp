@@ -278,8 +278,9 @@ TEST(TraceAo, DeterministicAcrossThreadCounts) {
   EXPECT_NE(trace_passes(rt, g, other).ao->bytes, r1.ao->bytes);
 }
 
-// The AVX-512 AO kernel (ray counts dividing 16 or multiples of 16) gives the baseline
-// kernel's rays, counts and statistics bit for bit, on any thread count.
+// The AVX-512 AO kernel gives the baseline kernel's rays, counts and statistics bit for bit,
+// on any thread count, for ray counts that fill packets with whole pixels (divisors and
+// multiples of 16) and for those whose packets split pixels.
 TEST(TraceAo, WideKernelsGiveTheSameBits) {
   Scene s = base_scene();
   s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
@@ -289,7 +290,7 @@ TEST(TraceAo, WideKernelsGiveTheSameBits) {
   RtScene rt(s);
   const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
   if (!wide_kernels_available(rt)) std::printf("note: no AVX-512 here; both settings run the baseline kernel\n");
-  for (int rays : {1, 2, 4, 8, 16, 32, 48, 5}) {
+  for (int rays : {1, 2, 4, 8, 16, 32, 48, 3, 5, 7, 13, 17, 100, 255}) {
     TraceSettings wide, base;
     wide.frame = base.frame = 7;
     base.wide_kernels = false;
@@ -520,7 +521,7 @@ TEST(TraceShadows, JitteredRaysFollowTheConeSampling) {
     }
   }
   // AO: cosine-weighted about the normal (0, 1, 0): (r cos phi, z, r sin phi) in the basis.
-  // 5 rays: the baseline kernel; 8: the AVX-512 one where the CPU has it.
+  // 5 rays (packets that split pixels) and 8 (whole pixels per packet).
   for (const int rays : {5, 8}) {
     const std::vector<RTCRay> ao = collect_ao_rays(rt, g, rays, 1.0f, one);
     ASSERT_EQ(ao.size(), size_t(n) * size_t(rays));
