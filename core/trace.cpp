@@ -9,21 +9,25 @@
 //   64-bit vector multiplies where the CPU has it; integer arithmetic only, same bits).
 // - directions: SSE2 kernels (sincos_2pi_x4, cone_x4, ...) doing the scalar code's IEEE
 //   operations in the same order, 4 lanes at a time, so results are bit-identical to it.
-// - the AO pass, where the CPU has AVX-512: a row's tracing pixels are gathered first, then ao_rays_x16 makes 16 rays at a time
-//   (hashes, uniforms, cosine directions: the same operations again) straight into the packet
-//   and adds each pixel's unoccluded lanes by popcount. bench_trace: 0.93-1.0 of the ceiling.
+// - the AO pass, where the CPU has AVX-512: a row's tracing pixels are gathered first, then
+//   ao_rays_x16 makes 16 rays at a time (hashes, uniforms, cosine directions: the same
+//   operations again) straight into the packet and adds each pixel's unoccluded lanes by
+//   popcount. bench_trace: 0.95-1.01 of the ceiling (0.85 on living-room, where Embree's
+//   incoherent streams beat its packets).
 // - the visibility pass works a row at a time in stages (surfaces; each light over the row,
 //   compacted to the pairs that trace; rays in pixel order) so the square-root and division
 //   chains of neighbouring pixels overlap instead of running one after the other.
 // The rays, their order and every result are the same as the straightforward per-ray code's.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#if defined(__x86_64__) && defined(__GNUC__)
 // GCC 12's AVX-512 intrinsics start from _mm512_undefined_*() and then warn, once inlined into
 // a caller, that the undefined value is "used uninitialized" (a false positive, reported at
 // the header's lines). The header is included first, with those two warnings off for its
 // lines only; this file's own code keeps them.
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wuninitialized"
+#if !defined(__clang__)
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 #include <immintrin.h>
 #pragma GCC diagnostic pop
 #endif
@@ -41,8 +45,7 @@
 // The AO pass's AVX-512 ray generator (ao_rays_x16) is compiled for AVX-512F/DQ by a target
 // attribute and chosen at run time; the rest of the file keeps the baseline ISA.
 #if defined(__x86_64__) && defined(__GNUC__)
-#include <immintrin.h>
-#define DHR_TRACE_AVX512 1
+#define DHR_TRACE_AVX512 1  // <immintrin.h>: included first, above
 #if defined(__clang__)
 #define DHR_TRACE_TARGET_AVX512 __attribute__((target("avx512f,avx512dq")))
 #else
@@ -56,7 +59,6 @@
 
 #include <array>
 #include <atomic>
-#include <bit>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -406,15 +408,6 @@ struct Packet<16> {
   }
 };
 
-// A packet of up to W occlusion rays and the counters they increment when unoccluded.
-// Rays are written straight into Embree's SoA layout and traced with rtcOccluded8/16 (W = 16
-// where Embree has native 16-wide kernels, i.e. AVX-512): packets of consecutive rays (the N AO
-// rays of neighbouring pixels, or neighbouring pixels' shadow rays) beat rtcOccluded1M streams
-// and rtcOccluded1 on this machine (see bench_trace). Lanes never mix in Embree's traversal,
-// so a ray's answer does not depend on its packet.
-// Consecutive rays of one counter (a pixel's AO rays, a light's samples) form a run; a flush
-// adds each run's unoccluded lanes with one popcount, instead of a read-modify-write of the
-// same counter per lane (a chain of store-to-load forwards that cost about 1.5 ns per AO ray).
 // Set bits of a 16-bit mask. Not std::popcount: the baseline x86-64 target has no POPCNT
 // instruction, and GCC then calls libgcc's __popcountdi2 (1.4 % of a hard-shadow pass).
 constexpr int popcount16(uint32_t v) {
@@ -425,6 +418,16 @@ constexpr int popcount16(uint32_t v) {
 }
 static_assert(popcount16(0xffffu) == 16 && popcount16(0x8001u) == 2 && popcount16(0) == 0 && popcount16(0x7ffeu) == 14);
 
+// A packet of up to W occlusion rays and the counters they increment when unoccluded.
+// Rays are written straight into Embree's SoA layout and traced with rtcOccluded8/16 (W = 16
+// where Embree has native 16-wide kernels, i.e. AVX-512): packets of consecutive rays (the N AO
+// rays of neighbouring pixels, or neighbouring pixels' shadow rays) beat rtcOccluded1 and, on
+// most scenes, rtcOccluded1M streams (see bench_trace). Lanes never mix in Embree's traversal,
+// so a ray's answer does not depend on its packet.
+// Consecutive rays of one counter (a pixel's AO rays, a light's samples) form a run; a flush
+// adds each run's unoccluded lanes with one popcount instead of one read-modify-write of the
+// same counter per lane (no measurable speed difference on its own; it removes a dependency
+// chain through memory).
 template <int W>
 struct Batch {
   alignas(64) typename Packet<W>::Ray packet;
@@ -1168,13 +1171,10 @@ DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float rad
     _mm512_store_ps(pk.dir_y, cosine_dir_x16(px, AoPixels::kTy, p0, pick, rc, rs, z));
     _mm512_store_ps(pk.dir_z, cosine_dir_x16(px, AoPixels::kTz, p0, pick, rc, rs, z));
     _mm512_store_ps(pk.tfar, _mm512_set1_ps(radius_m));  // tfar = r: never trace further
-    if (batch.record) {
-      for (int l = 0; l < live; ++l) {
-        RTCRay& q = batch.record->emplace_back();
-        q.org_x = pk.org_x[l], q.org_y = pk.org_y[l], q.org_z = pk.org_z[l], q.tnear = 0.0f;
-        q.dir_x = pk.dir_x[l], q.dir_y = pk.dir_y[l], q.dir_z = pk.dir_z[l], q.time = 0.0f;
-        q.tfar = radius_m, q.mask = batch.mask, q.id = 0, q.flags = 0;
-      }
+    if (batch.record) {  // collect_ao_rays: push() keeps the rays, traces nothing
+      for (int l = 0; l < live; ++l)
+        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l], radius_m,
+                   nullptr);
       continue;
     }
     for (int l = 0; l < 16; ++l) valid[l] = l < live ? -1 : 0;
@@ -1186,7 +1186,7 @@ DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float rad
     for (int g = 0; g <= last; ++g) {
       const uint32_t lanes = _mm512_cmpeq_epi32_mask(pick, _mm512_set1_epi32(g));
       uint16_t* count = px.count[size_t(p0 + g)];
-      *count = uint16_t(*count + std::popcount(reached & lanes));
+      *count = uint16_t(*count + popcount16(reached & lanes));  // the target has no POPCNT either
     }
     batch.traced += uint64_t(live);
   }
