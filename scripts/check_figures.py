@@ -1,0 +1,162 @@
+#!/usr/bin/env python3
+"""The refactoring guard: reruns committed experiments and diffs every non-timing figure.
+
+For each experiment NAME (default: every reports/NAME/ that has an experiments/NAME.json), runs
+  dhrbench run experiments/NAME.json --out OUT/NAME
+then compares OUT/NAME against reports/NAME (or against --baseline DIR/NAME):
+  - results.json: per run (matched by id), every value under "metrics" and "backends", except
+    wall-clock figures (keys listed in TIMING_KEYS: measured on this machine, they vary run to run)
+  - frames.csv: every column of every row (matched by run and frame), except client_wall_ms
+Values must be equal bit for bit (floats as written). Exits 1 and lists the differences when
+any figure changed; 0 when all are identical. A refactor that renames a key or column adds it to
+ALIASES (new name -> old name) in the same commit, so the guard keeps comparing it.
+
+Usage:
+  scripts/check_figures.py [--dhrbench build/experiments/dhrbench] [--out /tmp/dhr-guard]
+                           [--baseline reports] [--compare-only] [NAME ...]
+  --compare-only: do not run, compare OUT/NAME that exists already.
+  --cache DIR: the disk cache for the runs (default: OUT/cache, emptied first, so that no traced
+               buffer or ground truth of an older build hides a change).
+"""
+import argparse
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+import shutil
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+# Metric keys measured on the wall clock: they depend on the machine and its load.
+TIMING_KEYS = {"stages_wall", "client_frame_ms_median", "client_frame_ms_p95", "client_fps_wall", "wall_s"}
+TIMING_COLUMNS = {"client_wall_ms"}
+# Renamed keys and columns: new name -> the name in older results.
+ALIASES = {}
+
+
+def flatten(value, prefix, out):
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if k in TIMING_KEYS:
+                continue
+            flatten(v, f"{prefix}.{ALIASES.get(k, k)}" if prefix else ALIASES.get(k, k), out)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            # lists of records with a "pass" name are matched by that name, not by position
+            key = v.get("pass") if isinstance(v, dict) and "pass" in v else str(i)
+            flatten(v, f"{prefix}[{key}]", out)
+    else:
+        out[prefix] = value
+
+
+def same(a, b):
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return a == b and type(a) == type(b) or (isinstance(a, (int, float)) and isinstance(b, (int, float))
+                                             and not isinstance(a, bool) and not isinstance(b, bool) and a == b)
+
+
+def compare_results(new_path, old_path, problems):
+    try:
+        new = json.load(open(new_path))
+        old = json.load(open(old_path))
+    except (OSError, ValueError) as e:
+        problems.append(f"cannot read results: {e}")
+        return 0
+    new_runs = {r["id"]: r for r in new["runs"]}
+    old_runs = {r["id"]: r for r in old["runs"]}
+    if set(new_runs) != set(old_runs):
+        problems.append(f"runs differ: only new {sorted(set(new_runs) - set(old_runs))}, "
+                        f"only old {sorted(set(old_runs) - set(new_runs))}")
+    compared = 0
+    for rid in sorted(set(new_runs) & set(old_runs)):
+        for part in ("metrics", "backends"):
+            a, b = {}, {}
+            flatten(new_runs[rid].get(part, {}), part, a)
+            flatten(old_runs[rid].get(part, {}), part, b)
+            for k in sorted(set(a) | set(b)):
+                compared += 1
+                if k not in a or k not in b:
+                    problems.append(f"{rid} {k}: only in {'new' if k in a else 'old'}")
+                elif not same(a[k], b[k]):
+                    problems.append(f"{rid} {k}: new {a[k]!r}, old {b[k]!r}")
+    return compared
+
+
+def read_frames(path):
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    return {(r["run"], r["frame"]): {ALIASES.get(k, k): v for k, v in r.items() if k not in TIMING_COLUMNS}
+            for r in rows}
+
+
+def compare_frames(new_path, old_path, problems):
+    try:
+        new, old = read_frames(new_path), read_frames(old_path)
+    except OSError as e:
+        problems.append(f"cannot read frames.csv: {e}")
+        return 0
+    if set(new) != set(old):
+        problems.append(f"frames.csv rows differ: {len(set(new) - set(old))} only new, {len(set(old) - set(new))} only old")
+    compared = 0
+    for key in sorted(set(new) & set(old)):
+        a, b = new[key], old[key]
+        for col in sorted(set(a) | set(b)):
+            compared += 1
+            if a.get(col) != b.get(col):
+                problems.append(f"frames.csv {key[0]} frame {key[1]} {col}: new {a.get(col)!r}, old {b.get(col)!r}")
+    return compared
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("names", nargs="*", help="experiments to check (default: every committed report with an experiment file)")
+    ap.add_argument("--dhrbench", default=os.path.join(ROOT, "build/experiments/dhrbench"))
+    ap.add_argument("--out", default="/tmp/dhr-guard")
+    ap.add_argument("--baseline", default=os.path.join(ROOT, "reports"))
+    ap.add_argument("--compare-only", action="store_true")
+    ap.add_argument("--cache", help="disk cache folder, kept as it is (default: OUT/cache, emptied first)")
+    args = ap.parse_args()
+    env = dict(os.environ)
+    if args.cache:
+        env["DHR_CACHE_DIR"] = args.cache
+    else:
+        env["DHR_CACHE_DIR"] = os.path.join(args.out, "cache")
+        if not args.compare_only:
+            shutil.rmtree(env["DHR_CACHE_DIR"], ignore_errors=True)
+    names = args.names or sorted(n for n in os.listdir(os.path.join(ROOT, "reports"))
+                                 if os.path.exists(os.path.join(ROOT, "experiments", n + ".json"))
+                                 and os.path.exists(os.path.join(ROOT, "reports", n, "results.json")))
+    failed = False
+    for name in names:
+        out = os.path.join(args.out, name)
+        if not args.compare_only:
+            t0 = time.time()
+            cmd = [args.dhrbench, "run", os.path.join(ROOT, "experiments", name + ".json"), "--out", out]
+            r = subprocess.run(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            if r.returncode != 0:
+                print(f"{name}: FAILED to run ({' '.join(cmd)}):\n{r.stderr[-2000:]}")
+                failed = True
+                continue
+            print(f"{name}: ran in {time.time() - t0:.0f} s")
+        problems = []
+        base = os.path.join(args.baseline, name)
+        n = compare_results(os.path.join(out, "results.json"), os.path.join(base, "results.json"), problems)
+        n += compare_frames(os.path.join(out, "frames.csv"), os.path.join(base, "frames.csv"), problems)
+        if problems:
+            failed = True
+            print(f"{name}: {len(problems)} of {n} figures differ")
+            for p in problems[:40]:
+                print("  " + p)
+            if len(problems) > 40:
+                print(f"  ... {len(problems) - 40} more")
+        else:
+            print(f"{name}: all {n} non-timing figures identical")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
