@@ -1,0 +1,70 @@
+#include "core/json_io.h"
+
+#include "core/error.h"
+
+#include <fstream>
+#include <sstream>
+
+namespace dhr {
+
+int json_depth(std::string_view text, int limit) {
+  int depth = 0, deepest = 0;
+  bool in_string = false, escaped = false;
+  for (char ch : text) {
+    if (in_string) {
+      if (escaped) escaped = false;
+      else if (ch == '\\') escaped = true;
+      else if (ch == '"') in_string = false;
+      continue;
+    }
+    if (ch == '"') {
+      in_string = true;
+    } else if (ch == '[' || ch == '{') {
+      deepest = std::max(deepest, ++depth);
+      if (deepest > limit) return deepest;
+    } else if (ch == ']' || ch == '}') {
+      if (depth > 0) --depth;
+    }
+  }
+  return deepest;
+}
+
+namespace {
+
+// nlohmann's messages quote the token being read, which may be a whole long string: keep them short.
+std::string short_message(const std::string& what) {
+  constexpr size_t kMax = 240;
+  return what.size() <= kMax ? what : what.substr(0, kMax) + "...";
+}
+
+}  // namespace
+
+nlohmann::json parse_json(std::string_view text, const std::string& source, bool allow_comments, int max_depth) {
+  // Comments can hold brackets; the depth scan would count them, which only errs on the safe
+  // side for a file that also nests deeply.
+  if (json_depth(text, max_depth) > max_depth)
+    fail("{}: JSON nested deeper than {} levels of arrays and objects (the limit for every JSON dhrbench reads)",
+         source, max_depth);
+  try {
+    return nlohmann::json::parse(text.begin(), text.end(), nullptr, true, allow_comments);
+  } catch (const nlohmann::json::exception& e) {
+    fail("{}: not valid JSON: {}", source, short_message(e.what()));
+  }
+}
+
+nlohmann::json read_json_file(const std::string& path, bool allow_comments, int max_depth) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail("{}: cannot open the file", path);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  if (in.bad()) fail("{}: cannot read the file", path);
+  return parse_json(ss.str(), path, allow_comments, max_depth);
+}
+
+std::string json_excerpt(const nlohmann::json& value, size_t max_chars) {
+  std::string s = value.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+  if (s.size() > max_chars) s = s.substr(0, max_chars) + "...";
+  return s;
+}
+
+}  // namespace dhr
