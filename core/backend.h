@@ -61,9 +61,19 @@ struct DenoiseInput {
 class Denoiser {
  public:
   virtual ~Denoiser() = default;
-  // Writes `out` at the input's size with values 0..255 (255 = 1.0).
+  // Writes `out` at the input's size with values 0..output_full_scale(in.full_scale).
   virtual void denoise(const DenoiseInput& in, ImageU8& out) = 0;
   virtual void reset() = 0;
+  // The value that means 1.0 in the output for an input whose 1.0 is `input_full_scale`: 255
+  // for a filter; the input's own scale for one that passes the values through (none: the
+  // paper sends the raw counts).
+  virtual int output_full_scale(int input_full_scale) const {
+    (void)input_full_scale;
+    return 255;
+  }
+  // True when the output depends on earlier frames (a temporal filter): callers must then run
+  // it on every frame in order; false lets them skip frames whose output they do not need.
+  virtual bool keeps_history() const { return true; }
 };
 
 // ---- Predictor: turns the newest received server buffer (computed for an older client frame)

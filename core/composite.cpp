@@ -104,6 +104,20 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visi
       [&](size_t l, size_t pixel) { return std::min(1.0f, float(bytes[l * npx + pixel]) * vis_scale); }, ao_at);
 }
 
+ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const CompositePass> passes,
+                    const CompositeSettings& settings) {
+  const PassBuffer* visibility = nullptr;
+  const PassBuffer* ao = nullptr;
+  for (const CompositePass& p : passes) {
+    if (!p.buffer) continue;
+    const PassBuffer** slot = p.meaning == PassMeaning::Visibility ? &visibility : p.meaning == PassMeaning::Ao ? &ao : nullptr;
+    if (!slot) fail("composite: a {} pass is displayed as it is, not composited", pass_meaning_name(p.meaning));
+    if (*slot) fail("composite: two {} passes", pass_meaning_name(p.meaning));
+    *slot = p.buffer;
+  }
+  return composite(g, scene, visibility, ao, settings);
+}
+
 ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<const float> visibility,
                               std::span<const float> ao, const CompositeSettings& settings) {
   const size_t npx = size_t(g.width()) * size_t(g.height());

@@ -19,6 +19,7 @@
 #include "core/gbuffer.h"
 #include "core/image.h"
 #include "core/pass_buffer.h"
+#include "core/passes.h"
 #include "core/scene.h"
 
 #include <glm/glm.hpp>
@@ -46,6 +47,17 @@ glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::
 // SoftVisibility pass with one channel per scene light; `ao` an Ao pass. Throws dhr::Error when
 // a pass does not match the G-buffer's size, the scene's light count or its own byte size.
 ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
+                    const CompositeSettings& settings = {});
+
+// One received pass for the composite: its meaning picks its term (an absent pass of a meaning
+// is its neutral value: fully lit, AO = 1). A null buffer counts as absent.
+struct CompositePass {
+  PassMeaning meaning = PassMeaning::Ao;
+  const PassBuffer* buffer = nullptr;
+};
+// The composite of a pass list (at most one pass per meaning; colour passes are displayed as
+// they are, never composited: dhr::Error).
+ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, std::span<const CompositePass> passes,
                     const CompositeSettings& settings = {});
 
 // From float estimates (references): visibility planar [light][pixel] in [0, 1] (empty: fully

@@ -5,8 +5,7 @@
 #include "core/error.h"
 #include "core/metrics.h"
 #include "core/packet.h"
-#include "core/pass_denoisers.h"
-#include "core/pass_receiver.h"
+#include "core/pipeline.h"
 #include "core/raster.h"
 #include "core/reference.h"
 #include "core/rt_scene.h"
@@ -31,8 +30,6 @@ double ms_since(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
-enum PassSlot { kSlotVisibility = 0, kSlotAo = 1 };
-constexpr const char* kSlotName[2] = {"visibility", "ao"};
 
 // The camera uplink: one small datagram per client frame.
 constexpr uint64_t kCameraMessageBytes = 96;  // frame id, time, position, orientation, fov, flags
@@ -91,43 +88,6 @@ double StageStats::total() const {
   double t = 0;
   for (double v : samples_ms) t += v;
   return t;
-}
-
-nlohmann::json SimConfig::to_json() const {
-  auto backend = [](const BackendChoice& b) { return nlohmann::json{{"name", b.name}, {"params", b.params}}; };
-  return {{"mode", mode},
-          {"width", width},
-          {"height", height},
-          {"frames", frames},
-          {"warmup_frames", warmup_frames},
-          {"display_hz", display_hz},
-          {"start_time_s", start_time_s},
-          {"seed", seed},
-          {"trace",
-           {{"ao_rays", trace.ao_rays},
-            {"ao_radius_m", trace.ao_radius_m},
-            {"soft_shadows", trace.soft_shadows},
-            {"samples_per_light", trace.samples_per_light},
-            {"visibility_pass", trace.visibility_pass},
-            {"ao_pass", trace.ao_pass}}},
-          {"visibility_codec", backend(visibility_codec)},
-          {"ao_codec", backend(ao_codec)},
-          {"colour_codec", backend(colour_codec)},
-          {"ao_denoiser", backend(ao_denoiser)},
-          {"visibility_denoiser", backend(visibility_denoiser)},
-          {"predictor", backend(predictor)},
-          {"colour_predictor", backend(colour_predictor)},
-          {"server_timing", server_timing == ServerTiming::Fixed ? "fixed" : "measured"},
-          {"server_fixed_ms", server_fixed_ms},
-          {"uplink", uplink.to_json()},
-          {"downlink", downlink.to_json()},
-          {"max_payload_bytes", max_payload_bytes},
-          {"history_frames", history_frames},
-          {"score_every", score_every},
-          {"ground_truth_every", ground_truth_every},
-          {"ground_truth_ao_rays", ground_truth_ao_rays},
-          {"ground_truth_samples_per_light", ground_truth_samples_per_light},
-          {"cache_dir", cache_dir}};
 }
 
 std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key) {
@@ -340,14 +300,12 @@ nlohmann::json RunResult::metrics() const {
   m["client_frame_ms_median"] = client.median();
   m["client_frame_ms_p95"] = client.p95();
   m["client_fps_wall"] = client.median() > 0 ? 1000.0 / client.median() : 0.0;
-  for (int slot = 0; slot < 2; ++slot) {
-    StageStats age;
-    for (const auto& f : frames)
-      if (f.source_frame[slot] >= 0) age.samples_ms.push_back(f.age_ms[slot]);
-    if (!age.samples_ms.empty())
-      m[fmt::format("buffer_age_ms_{}", config.value("mode", "hybrid") == "remote" && slot == 0 ? "colour" : kSlotName[slot])] =
-          {{"median", age.median()}, {"p95", age.p95()}};
-  }
+  std::map<std::string, StageStats> ages;  // per pass name
+  for (const auto& f : frames)
+    for (const auto& p : f.passes)
+      if (p.source_frame >= 0) ages[p.pass].samples_ms.push_back(p.age_ms);
+  for (const auto& [pass, age] : ages)
+    m[fmt::format("buffer_age_ms_{}", pass)] = {{"median", age.median()}, {"p95", age.p95()}};
   nlohmann::json st = nlohmann::json::object();
   for (const auto& [name, s] : stages) st[name] = {{"median_ms", s.median()}, {"p95_ms", s.p95()}, {"count", s.samples_ms.size()}};
   m["stages_wall"] = st;
@@ -437,44 +395,27 @@ namespace {
 
 class Simulation {
  public:
-  Simulation(const SimConfig& c, const Scene& scene, const std::string& scene_key, TraceCache& cache)
+  Simulation(const SimConfig& c, const Scene& scene, const std::string& scene_key, TraceCache& cache,
+             const Registries& registries)
       : c_(c), scene_(scene), scene_key_(scene_key), cache_(cache), remote_(c.mode == "remote"),
         plan_(plan_passes(scene, c.trace)), uplink_(c.uplink, c.seed, 0), downlink_(c.downlink, c.seed, 1),
-        server_denoise_(c), local_denoise_(c) {
-    const Registries& r = registries();
+        server_(c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0),
+        client_(c, scene, registries), local_(c, scene, registries) {
     AssemblerConfig ac;
     ac.max_payload_bytes = c.max_payload_bytes;
     ac.timeout_ms = 500;
     assembler_ = Assembler(ac);
-    if (remote_) {
-      server_codec_[0] = r.codecs.create(c.colour_codec.name, c.colour_codec.params);
-      receivers_[0].codec = r.codecs.create(c.colour_codec.name, c.colour_codec.params);
-      predictor_[0] = r.predictors.create(c.colour_predictor.name, c.colour_predictor.params);
-      traffic_.push_back({"colour"});
-      codec_name_[0] = c.colour_codec.name;
-    } else {
-      if (plan_.visibility()) {
-        server_codec_[0] = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
-        receivers_[0].codec = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
-        predictor_[0] = r.predictors.create(c.predictor.name, c.predictor.params);
-        codec_name_[0] = c.visibility_codec.name;
-      }
-      if (plan_.ao) {
-        server_codec_[1] = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
-        receivers_[1].codec = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
-        predictor_[1] = r.predictors.create(c.predictor.name, c.predictor.params);
-        codec_name_[1] = c.ao_codec.name;
-      }
-      traffic_.push_back({"visibility"});
-      traffic_.push_back({"ao"});
-    }
+    // Hybrid runs report both pass streams, planned or not (zero traffic when not planned).
+    const std::vector<std::string> names =
+        remote_ ? std::vector<std::string>{"colour"} : std::vector<std::string>{"visibility", "ao"};
+    for (const auto& name : names) traffic_.push_back({name});
+    for (const PlannedPass& p : server_.passes()) traffic_index_.push_back(traffic_of(p.name));
     result_.config = c.to_json();
     result_.plan = plan_;
   }
 
   RunResult run(const ProgressFn& progress) {
     const int total = c_.warmup_frames + c_.frames;
-    first_scored_ms_ = frame_ms(c_.warmup_frames);
     for (int a = 0; a < total; ++a) {
       client_frame(a);
       if (progress) progress(a + 1, total);
@@ -494,6 +435,11 @@ class Simulation {
   void stage(const char* name, double ms, bool count) {
     if (count) stages_[name].samples_ms.push_back(ms);
   }
+  size_t traffic_of(const std::string& name) const {
+    for (size_t i = 0; i < traffic_.size(); ++i)
+      if (traffic_[i].pass == name) return i;
+    fail("internal: no traffic record for pass '{}'", name);
+  }
 
   RtScene& rt() {
     if (!rt_) rt_ = std::make_unique<RtScene>(scene_);
@@ -505,20 +451,9 @@ class Simulation {
   std::shared_ptr<const TraceCache::Entry> traced(int a, const GBuffer& gbuf) {
     const std::string key = trace_key(scene_key_, c_, a);
     if (auto hit = cache_.find(key)) return hit;
-    auto entry = std::make_shared<TraceCache::Entry>();
-    TraceResult r = trace_passes(rt(), gbuf, c_.trace_for_frame(uint32_t(a)));
-    entry->visibility = std::move(r.visibility);
-    entry->ao = std::move(r.ao);
-    entry->stats = r.stats;
+    auto entry = direct_tracer(rt(), c_)(uint32_t(a), gbuf);
     cache_.insert(key, entry);
     return entry;
-  }
-
-  GBuffer raster(int a, const Camera& cam, const Camera& prev_cam, double prev_time, RasterStats* stats = nullptr) {
-    GBuffer g;
-    RasterStats s = rasterize({&scene_, cam, frame_time_s(a), prev_cam, prev_time}, g);
-    if (stats) *stats = s;
-    return g;
   }
 
   // Ground truth: converged visibility and AO (no denoiser), composited (core/reference.h,
@@ -535,7 +470,7 @@ class Simulation {
     return img;
   }
 
-  // ---- server ----
+  // ---- server: the schedule (the stages are core/pipeline.h's ServerPipeline)
 
   void server_advance(double until_ms) {
     for (;;) {
@@ -562,86 +497,32 @@ class Simulation {
 
   void server_job(int j, double start_ms, bool keyframe) {
     const bool count = scored(j);
-    const Camera cam = camera(j);
-    double compute_ms = 0.0;
-    auto t0 = Clock::now();
-    GBuffer gbuf = raster(j, cam, server_has_prev_ ? server_prev_camera_ : cam,
-                          server_has_prev_ ? server_prev_time_ : frame_time_s(j));
-    double ms = ms_since(t0);
-    stage("server_rasterize", ms, count);
-    compute_ms += ms;
-    server_prev_camera_ = cam;
-    server_prev_time_ = frame_time_s(j);
-    server_has_prev_ = true;
-
-    auto entry = traced(j, gbuf);
-    stage("trace_shadows", entry->stats.shadow_ms, count && plan_.visibility());
-    stage("trace_ao", entry->stats.ao_ms, count && plan_.ao);
-    compute_ms += entry->stats.shadow_ms + entry->stats.ao_ms;
-    if (count) result_.trace_stats.add(entry->stats);
-
-    std::optional<PassBuffer> vis = entry->visibility, ao = entry->ao;
-    t0 = Clock::now();
-    server_denoise_.run(gbuf, uint32_t(j), vis, ao);
-    ms = ms_since(t0);
-    if (!server_denoise_.ao_is_none || !server_denoise_.soft_is_none) stage("denoise", ms, count);
-    compute_ms += ms;
-
-    std::vector<std::pair<int, PassBuffer>> outgoing;
-    if (remote_) {
-      t0 = Clock::now();
-      PassBuffer colour;
-      colour.desc = {PassKind::Colour, c_.width, c_.height, 3, 255};
-      const ImageRGB8 img = composite(gbuf, scene_, vis ? &*vis : nullptr, ao ? &*ao : nullptr);
-      colour.bytes.resize(colour.desc.byte_size());
-      std::memcpy(colour.bytes.data(), img.data(), colour.bytes.size());
-      ms = ms_since(t0);
-      stage("server_composite", ms, count);
-      compute_ms += ms;
-      outgoing.emplace_back(0, std::move(colour));
-    } else {
-      if (vis) outgoing.emplace_back(kSlotVisibility, std::move(*vis));
-      if (ao) outgoing.emplace_back(kSlotAo, std::move(*ao));
-    }
-
-    // Encode and packetize every pass; all packets leave when the server finishes.
-    std::vector<std::pair<int, std::vector<std::vector<uint8_t>>>> datagrams;
-    for (auto& [slot, buf] : outgoing) {
-      std::vector<uint8_t> encoded;
-      t0 = Clock::now();
-      server_codec_[slot]->encode(buf, {keyframe}, encoded);
-      ms = ms_since(t0);
-      stage("encode", ms, count);
-      compute_ms += ms;
-      PacketMeta meta;
-      meta.stream_id = 0;
-      meta.desc = buf.desc;
-      meta.frame_id = uint32_t(j);
-      meta.codec_id = codec_id(codec_name_[slot]);
-      meta.first_sequence = sequence_[slot];
-      auto packets = packetize(meta, encoded, c_.max_payload_bytes);
-      sequence_[slot] += uint32_t(packets.size());
-      PassTraffic& t = traffic_[size_t(slot)];
+    ServerFrame f = server_.run(uint32_t(j), camera(j), frame_time_s(j), keyframe);
+    for (const StageTime& s : f.stages) stage(s.name, s.ms, count);
+    if (count) result_.trace_stats.add(f.trace);
+    const double finish = start_ms + (c_.server_timing == SimConfig::ServerTiming::Fixed ? c_.server_fixed_ms : f.compute_ms);
+    for (size_t i = 0; i < f.passes.size(); ++i) {
+      SentPass& p = f.passes[i];
+      PassTraffic& t = traffic_[traffic_index_[i]];
       if (count) {
         ++t.server_frames;
-        t.encoded_bytes += encoded.size();
-        result_.server_log.push_back({j, t.pass, encoded.size(), packets.size(),
-                                      wire_bytes_of_pass(encoded.size(), c_.max_payload_bytes)});
+        t.encoded_bytes += p.encoded_bytes;
+        result_.server_log.push_back({j, t.pass, p.encoded_bytes, p.packets.size(),
+                                      wire_bytes_of_pass(p.encoded_bytes, c_.max_payload_bytes)});
       }
-      datagrams.emplace_back(slot, std::move(packets));
     }
-    const double finish = start_ms + (c_.server_timing == SimConfig::ServerTiming::Fixed ? c_.server_fixed_ms : compute_ms);
-    for (auto& [slot, packets] : datagrams) {
-      PassTraffic& t = traffic_[size_t(slot)];
+    // All packets leave when the server finishes.
+    for (size_t i = 0; i < f.passes.size(); ++i) {
+      PassTraffic& t = traffic_[traffic_index_[i]];
       bool dropped = false;
-      for (auto& p : packets) {
-        const uint64_t wire = p.size() + kIpUdpOverheadBytes;
+      for (auto& packet : f.passes[i].packets) {
+        const uint64_t wire = packet.size() + kIpUdpOverheadBytes;
         if (count) {
           t.wire_bytes += wire;
           ++t.packets;
         }
         const Delivery d = downlink_.send(wire, finish);
-        if (d.delivered) in_flight_.push({d.arrival_ms, send_order_++, std::move(p)});
+        if (d.delivered) in_flight_.push({d.arrival_ms, send_order_++, std::move(packet)});
         dropped = dropped || !d.delivered;
       }
       // The simulator knows which datagrams the link dropped: a frame with any of them lost
@@ -653,7 +534,7 @@ class Simulation {
     if (count) ++result_.server_frames;
   }
 
-  // ---- client ----
+  // ---- client: the clock and the links (the stages are core/pipeline.h's ClientPipeline)
 
   void receive(double now_ms, bool count) {
     while (!in_flight_.empty() && in_flight_.top().arrival_ms <= now_ms) {
@@ -663,15 +544,15 @@ class Simulation {
     }
     AssemblerEvents events = assembler_.poll(int64_t(std::floor(now_ms)));
     for (const LostFrame& lost : events.lost) {
-      const int slot = slot_of(lost.meta.desc.kind);
-      if (slot >= 0 && count) ++traffic_[size_t(slot)].frames_given_up;
+      const int pass = client_.pass_of(lost.meta.desc.kind);
+      if (pass >= 0 && count) ++traffic_[traffic_index_[size_t(pass)]].frames_given_up;
     }
     for (AssembledFrame& f : events.completed) {
-      const int slot = slot_of(f.meta.desc.kind);
-      if (slot < 0 || !receivers_[slot].codec) continue;
-      PassTraffic& t = traffic_[size_t(slot)];
+      const int pass = client_.pass_of(f.meta.desc.kind);
+      if (pass < 0) continue;
+      PassTraffic& t = traffic_[traffic_index_[size_t(pass)]];
       if (count) ++t.frames_completed;
-      const PassReceiver::Outcome o = receivers_[slot].on_frame(f);
+      const PassReceiver::Outcome o = client_.receive(pass, f);
       client_decode_ms_ += o.decode_ms;
       keyframe_request_ = keyframe_request_ || o.keyframe_request;
       if (count) {
@@ -679,19 +560,6 @@ class Simulation {
         t.keyframe_requests += o.gap_reset ? 1 : 0;
       }
     }
-  }
-
-  int slot_of(PassKind kind) const {
-    if (remote_) return kind == PassKind::Colour ? 0 : -1;
-    if (kind == PassKind::Visibility || kind == PassKind::SoftVisibility) return kSlotVisibility;
-    if (kind == PassKind::Ao) return kSlotAo;
-    return -1;
-  }
-
-  const GBuffer* history(int frame) const {
-    for (const auto& [f, g] : history_)
-      if (f == frame) return &g;
-    return nullptr;
   }
 
   void client_frame(int a) {
@@ -705,17 +573,15 @@ class Simulation {
     double client_ms = 0;
 
     auto t0 = Clock::now();
-    GBuffer rastered = raster(a, cam, prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a));
-    double ms = ms_since(t0);
+    GBuffer rastered;
+    rasterize({&scene_, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)}, rastered);
+    const double raster_ms = ms_since(t0);
     // The hybrid client keeps its G-buffers for predicting later frames (this one included:
     // with zero latency the server's frame for this very camera may arrive now).
-    if (!remote_) {
-      history_.emplace_back(a, std::move(rastered));
-      while (int(history_.size()) > c_.history_frames) history_.pop_front();
-    }
-    const GBuffer& gbuf = remote_ ? rastered : history_.back().second;
-    stage("rasterize", ms, count);
-    if (!remote_) client_ms += ms;  // the remote client does not rasterize
+    if (!remote_) client_.keep(a, std::move(rastered));
+    const GBuffer& gbuf = remote_ ? rastered : *client_.gbuffer(a);
+    stage("rasterize", raster_ms, count);
+    if (!remote_) client_ms += raster_ms;  // the remote client does not rasterize
 
     // Uplink: this frame's camera (and a keyframe request after a loss).
     const Delivery up = uplink_.send(kCameraMessageBytes + kIpUdpOverheadBytes, now);
@@ -733,66 +599,30 @@ class Simulation {
     client_ms += client_decode_ms_;
 
     // Local reference: this frame's own passes, denoised by the client-side sequence.
-    std::shared_ptr<const TraceCache::Entry> local_entry;
-    ImageRGB8 local_image;
     const bool score_now = count && (rec.frame % c_.score_every == 0);
-    if (!server_denoise_.ao_is_none || !server_denoise_.soft_is_none || score_now) {
-      local_entry = traced(a, gbuf);
-      std::optional<PassBuffer> vis = local_entry->visibility, ao = local_entry->ao;
-      local_denoise_.run(gbuf, uint32_t(a), vis, ao);
-      if (score_now) local_image = composite(gbuf, scene_, vis ? &*vis : nullptr, ao ? &*ao : nullptr);
-    }
+    std::optional<ImageRGB8> local_image;
+    if (local_.needs_every_frame() || score_now)
+      local_image = local_.frame(uint32_t(a), gbuf, *traced(a, gbuf), score_now);
 
     // Predict each pass and composite.
-    ImageRGB8 image;
-    if (remote_) {
-      t0 = Clock::now();
-      if (receivers_[0].frame >= 0) {
-        GBuffer src_cams, dst_cams;  // the remote client knows cameras only
-        src_cams.camera = camera(receivers_[0].frame);
-        dst_cams.camera = cam;
-        PassBuffer out;
-        predictor_[0]->predict({receivers_[0].buffer, src_cams, dst_cams}, out);
-        image = ImageRGB8(c_.width, c_.height);
-        std::memcpy(image.data(), out.bytes.data(), std::min(out.bytes.size(), image.size() * sizeof(Rgb8)));
-        rec.source_frame[0] = receivers_[0].frame;
-        rec.age_ms[0] = now - frame_ms(receivers_[0].frame);
-      } else {
-        image = ImageRGB8(c_.width, c_.height);  // nothing received yet: black
-        if (count) ++result_.frames_without_data;
-      }
-      ms = ms_since(t0);
-      stage("predict", ms, count);
-      client_ms += ms;
-    } else {
-      std::optional<PassBuffer> predicted[2];
-      t0 = Clock::now();
-      for (int slot = 0; slot < 2; ++slot) {
-        const bool planned = slot == kSlotVisibility ? plan_.visibility() : plan_.ao;
-        if (!planned) continue;
-        const PassReceiver& r = receivers_[slot];
-        const GBuffer* src = r.frame >= 0 ? history(r.frame) : nullptr;
-        if (!src) {
-          if (count) ++result_.frames_without_data;  // local fallback: fully lit / AO 1
-          continue;
-        }
-        rec.source_frame[slot] = r.frame;
-        rec.age_ms[slot] = now - frame_ms(r.frame);
-        predicted[slot] = predict_pass(*predictor_[slot], r, *src, gbuf, r.frame == a, rec.disoccluded[slot]);
-      }
-      ms = ms_since(t0);
-      stage("predict", ms, count);
-      client_ms += ms;
-      t0 = Clock::now();
-      image = composite(gbuf, scene_, predicted[0] ? &*predicted[0] : nullptr, predicted[1] ? &*predicted[1] : nullptr);
-      ms = ms_since(t0);
-      stage("composite", ms, count);
-      client_ms += ms;
+    ClientFrame shown = client_.display(a, gbuf, [this](int frame) { return camera(frame); });
+    stage("predict", shown.predict_ms, count);
+    client_ms += shown.predict_ms;
+    if (shown.composited) {
+      stage("composite", shown.composite_ms, count);
+      client_ms += shown.composite_ms;
+    }
+    if (count) result_.frames_without_data += uint64_t(shown.passes_without_data);
+    for (size_t i = 0; i < client_.passes().size(); ++i) {
+      PassFrameRecord p{client_.passes()[i].name, shown.source_frame[i], 0.0, shown.disoccluded[i]};
+      if (p.source_frame >= 0) p.age_ms = now - frame_ms(p.source_frame);
+      rec.passes.push_back(std::move(p));
     }
     rec.client_wall_ms = client_ms;
+    const ImageRGB8& image = shown.image;
 
     if (score_now) {
-      const QualityScores q = compare_images(local_image, image);
+      const QualityScores q = compare_images(*local_image, image);
       rec.scored = true;
       rec.ssim_local = q.ssim;
       rec.psnr_local = q.psnr_db;
@@ -808,7 +638,7 @@ class Simulation {
       // truth, of the last scored frame): one frame per run, for the report's image grids.
       if (c_.keep_images && (rec.scored_ground_truth || c_.ground_truth_every == 0)) {
         result_.images = {image};
-        result_.local_images = {local_image};
+        result_.local_images = {*local_image};
         result_.kept_frame = rec.frame;
       }
     }
@@ -822,33 +652,26 @@ class Simulation {
   bool remote_;
   PassPlan plan_;
   Link uplink_, downlink_;
-  PassDenoisers server_denoise_, local_denoise_;
   std::unique_ptr<RtScene> rt_;
-  std::unique_ptr<Codec> server_codec_[2];
-  std::unique_ptr<Predictor> predictor_[2];
-  std::string codec_name_[2];
+  ServerPipeline server_;
+  ClientPipeline client_;
+  LocalReference local_;
   std::vector<PassTraffic> traffic_;
+  std::vector<size_t> traffic_index_;  // per pass of the list: its record in traffic_
   Assembler assembler_;
   RunResult result_;
   std::map<std::string, StageStats> stages_;
-  double first_scored_ms_ = 0;
 
-  // server state
+  // server schedule
   std::vector<CameraMessage> inbox_;
   double server_free_ms_ = 0.0;
   int server_last_frame_ = -1;
-  Camera server_prev_camera_;
-  double server_prev_time_ = 0.0;
-  bool server_has_prev_ = false;
-  uint32_t sequence_[2] = {0, 0};
   std::priority_queue<Datagram, std::vector<Datagram>, std::greater<Datagram>> in_flight_;
   uint64_t send_order_ = 0;
 
   // client state
-  PassReceiver receivers_[2];
   bool keyframe_request_ = false;
   double client_decode_ms_ = 0.0;
-  std::deque<std::pair<int, GBuffer>> history_;
 };
 
 }  // namespace
@@ -856,7 +679,7 @@ class Simulation {
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key, TraceCache& cache,
                          const ProgressFn& progress) {
   validate_sim_config(config, scene);
-  Simulation sim(config, scene, scene_key, cache);
+  Simulation sim(config, scene, scene_key, cache, registries());
   return sim.run(progress);
 }
 

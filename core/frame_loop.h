@@ -30,6 +30,8 @@
 #include "core/backend.h"
 #include "core/gbuffer.h"
 #include "core/network.h"
+#include "core/pipeline.h"
+#include "core/run_config.h"
 #include "core/scene.h"
 #include "core/trace.h"
 
@@ -47,51 +49,12 @@ namespace dhr {
 
 class RtScene;
 
-struct BackendChoice {
-  std::string name;
-  nlohmann::json params = nlohmann::json::object();
-};
-
-struct SimConfig {
-  std::string mode = "hybrid";  // hybrid | remote
-  int width = 320;
-  int height = 180;
-  int frames = 60;           // displayed and scored frames
-  int warmup_frames = 0;     // run before them, not scored, not counted
-  double display_hz = 60.0;
-  double start_time_s = 0.0;  // scene time of the first (warm-up) frame
-  uint64_t seed = 1;
-
-  TraceSettings trace;  // seed and frame are set per frame from `seed` and the frame index
-  // Per pass: codec, denoiser (AO and soft visibility; bitmasks are never denoised) and
-  // predictor. Remote mode uses `colour` (codec and predictor) and the AO denoiser.
-  BackendChoice visibility_codec{"lz4"}, ao_codec{"lz4"}, colour_codec{"h264"};
-  BackendChoice ao_denoiser{"none"}, visibility_denoiser{"none"};
-  BackendChoice predictor{"reprojection"}, colour_predictor{"none"};
-
-  enum class ServerTiming { Fixed, Measured };
-  ServerTiming server_timing = ServerTiming::Fixed;
-  double server_fixed_ms = 10.0;  // Fixed: the server's compute time per frame (virtual)
-
-  LinkConfig uplink, downlink;
-  size_t max_payload_bytes = 1200;
-  int history_frames = 64;     // client G-buffers kept for prediction
-  int score_every = 1;         // quality against the local reference on every n-th frame
-  int ground_truth_every = 0;  // against the ground truth on every n-th frame (0: never)
-  int ground_truth_ao_rays = 256;
-  int ground_truth_samples_per_light = 64;
-  bool keep_images = false;    // keep one frame's images (RunResult::images) for image grids
-  std::string cache_dir;       // ground truths on disk; empty: default_cache_dir() (core/reference.h)
-
-  nlohmann::json to_json() const;
-  // `trace` with this run's seed and client frame `frame`: what the server traces for that
-  // frame (the simulator, live mode and the local references all use it).
-  TraceSettings trace_for_frame(uint32_t frame) const {
-    TraceSettings t = trace;
-    t.seed = seed;
-    t.frame = frame;
-    return t;
-  }
+// One pass of one displayed frame.
+struct PassFrameRecord {
+  std::string pass;        // the pass's name (visibility, ao; remote: colour)
+  int source_frame = -1;   // the client frame whose server buffer was displayed (-1: none)
+  double age_ms = 0.0;     // its age at composite (virtual)
+  uint64_t disoccluded = 0;
 };
 
 // Per displayed frame (virtual times in ms).
@@ -100,12 +63,14 @@ struct FrameRecord {
   double t_ms = 0.0;
   bool scored = false, scored_ground_truth = false;
   double ssim_local = 0, psnr_local = 0, ssim_gt = 0, psnr_gt = 0;
-  // Per pass (visibility, ao; remote: colour in slot 0): source client frame (-1: none) and
-  // its age at composite.
-  int source_frame[2] = {-1, -1};
-  double age_ms[2] = {0, 0};
-  uint64_t disoccluded[2] = {0, 0};
+  std::vector<PassFrameRecord> passes;  // in the order of the run's pass list
   double client_wall_ms = 0.0;  // rasterize + decode + predict + composite
+  // The record of the pass named `name`; an absent pass reads as nothing received.
+  PassFrameRecord pass(const std::string& name) const {
+    for (const auto& p : passes)
+      if (p.pass == name) return p;
+    return {name};
+  }
 };
 
 struct StageStats {
@@ -145,8 +110,8 @@ struct RunResult {
   std::vector<ServerPassRecord> server_log;  // every pass sent for a scored frame, in order
   std::map<std::string, StageStats> stages;  // wall time per stage
   uint64_t server_frames = 0, cameras_dropped = 0, cameras_lost = 0;
-  uint64_t frames_without_data = 0;
-  uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps  // (frame, pass) pairs composited with the local fallback
+  uint64_t frames_without_data = 0;    // (frame, pass) pairs composited with the local fallback
+  uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps
   TraceStats trace_stats;            // rays of the server frames
   double duration_ms = 0.0;          // virtual time of the scored frames
   // keep_images: the displayed image, local reference and ground truth of one frame (the last
@@ -160,10 +125,7 @@ struct RunResult {
 // Traced buffers and ground truths shared across runs of one process. Thread-safe.
 class TraceCache {
  public:
-  struct Entry {
-    std::optional<PassBuffer> visibility, ao;
-    TraceStats stats;  // with the wall time of the original trace
-  };
+  using Entry = TracedPasses;
   explicit TraceCache(size_t max_bytes = size_t(4) << 30) : max_bytes_(max_bytes) {}
   // Also keep traced buffers on disk in `dir` (created when needed), so that later processes
   // never trace the same frame twice. Files are checked (magic, key, sizes) when read; a bad

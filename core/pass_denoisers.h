@@ -6,7 +6,7 @@
 #pragma once
 
 #include "core/backend.h"
-#include "core/frame_loop.h"
+#include "core/run_config.h"
 #include "core/gbuffer.h"
 #include "core/pass_buffer.h"
 

@@ -241,9 +241,15 @@ Runner add_run_command(CLI::App& app) {
               << f.scored << ',' << (f.scored ? csv_number(f.ssim_local) : "") << ','
               << (f.scored ? csv_number(f.psnr_local) : "") << ',' << f.scored_ground_truth << ','
               << (f.scored_ground_truth ? csv_number(f.ssim_gt) : "") << ','
-              << (f.scored_ground_truth ? csv_number(f.psnr_gt) : "") << ',' << f.source_frame[0] << ','
-              << csv_number(f.age_ms[0]) << ',' << f.disoccluded[0] << ',' << f.source_frame[1] << ','
-              << csv_number(f.age_ms[1]) << ',' << f.disoccluded[1] << ',' << csv_number(f.client_wall_ms) << '\n';
+              << (f.scored_ground_truth ? csv_number(f.psnr_gt) : "") ;
+          // Column group 0: visibility (remote: colour); 1: ao. An absent pass: -1, 0, 0.
+          for (const char* group : {"visibility", "ao"}) {
+            PassFrameRecord p;
+            for (const auto& q : f.passes)
+              if (q.pass == group || (q.pass == "colour" && std::string_view(group) == "visibility")) p = q;
+            csv << ',' << p.source_frame << ',' << csv_number(p.age_ms) << ',' << p.disoccluded;
+          }
+          csv << ',' << csv_number(f.client_wall_ms) << '\n';
         }
         // Images of the last scored frame (downscaled): what was shown, the local reference,
         // the ground truth when scored, and the error against the best reference available.

@@ -52,8 +52,8 @@ TEST(FrameLoop, ZeroLatencyLosslessEqualsLocalReferenceBitForBit) {
       ASSERT_TRUE(f.scored);
       EXPECT_EQ(f.ssim_local, 1.0) << denoiser << " frame " << f.frame;
       EXPECT_TRUE(std::isinf(f.psnr_local)) << denoiser << " frame " << f.frame;
-      EXPECT_EQ(f.source_frame[1], f.frame) << "the server's AO of this very frame is shown";
-      EXPECT_EQ(f.age_ms[1], 0.0);
+      EXPECT_EQ(f.pass("ao").source_frame, f.frame) << "the server's AO of this very frame is shown";
+      EXPECT_EQ(f.pass("ao").age_ms, 0.0);
     }
     EXPECT_EQ(r.frames_without_data, 0u);
   }
@@ -104,8 +104,8 @@ TEST(FrameLoop, DeterministicAcrossRunsAndThreadCounts) {
     m.erase("client_fps_wall");
     nlohmann::json frames = nlohmann::json::array();
     for (const auto& f : r.frames)
-      frames.push_back({f.ssim_local, f.ssim_gt, f.source_frame[0], f.source_frame[1], f.age_ms[0], f.age_ms[1],
-                        f.disoccluded[0], f.disoccluded[1]});
+      frames.push_back({f.ssim_local, f.ssim_gt, f.pass("visibility").source_frame, f.pass("ao").source_frame, f.pass("visibility").age_ms, f.pass("ao").age_ms,
+                        f.pass("visibility").disoccluded, f.pass("ao").disoccluded});
     return nlohmann::json{{"m", m}, {"f", frames}}.dump();
   };
   const std::string a = run(2);
@@ -131,9 +131,9 @@ TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
   double max_age = 0, last_age = 0;
   for (const auto& f : r.frames) {
     EXPECT_TRUE(std::isfinite(f.ssim_local));
-    if (f.source_frame[1] >= 0) {
-      max_age = std::max(max_age, f.age_ms[1]);
-      last_age = f.age_ms[1];
+    if (f.pass("ao").source_frame >= 0) {
+      max_age = std::max(max_age, f.pass("ao").age_ms);
+      last_age = f.pass("ao").age_ms;
     }
   }
   EXPECT_GT(max_age, 20.0 + 1000.0 / 60.0) << "buffer age never grew past one frame beyond the latency";

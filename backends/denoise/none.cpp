@@ -1,7 +1,7 @@
-// none: no filtering. Rescales the noisy value from 0..full_scale to 0..255 (rounded), so that
-// every denoiser's output has the same meaning (255 = unoccluded / fully visible).
+// none: no filtering. The values pass through unchanged with their own scale (raw counts of
+// N rays stay 0..N, full scale N), as the paper sends them; clamped to the scale.
 //
-// Parameters: none.   Example: {"denoiser": "none"}
+// Parameters: none.   Example: {"name": "none"}
 #include "core/backend.h"
 
 namespace dhr {
@@ -10,20 +10,21 @@ namespace {
 class NoneDenoiser final : public Denoiser {
  public:
   void denoise(const DenoiseInput& in, ImageU8& out) override {
-    const int scale = in.full_scale < 1 ? 1 : in.full_scale;
+    const int scale = output_full_scale(in.full_scale);
     out.resize(in.noisy.width(), in.noisy.height());
-    for (size_t i = 0; i < in.noisy.size(); ++i) {
-      const int v = in.noisy[i] > scale ? scale : in.noisy[i];
-      out[i] = uint8_t((v * 255 + scale / 2) / scale);
-    }
+    for (size_t i = 0; i < in.noisy.size(); ++i) out[i] = in.noisy[i] > scale ? uint8_t(scale) : in.noisy[i];
   }
   void reset() override {}
+  int output_full_scale(int input_full_scale) const override {
+    return input_full_scale < 1 ? 1 : input_full_scale > 255 ? 255 : input_full_scale;
+  }
+  bool keeps_history() const override { return false; }
 };
 
 }  // namespace
 
 DenoiserEntry make_none_denoiser() {
-  return {"none", "no denoising: the traced values rescaled to 0..255", {},
+  return {"none", "no denoising: the traced values as they are, with their own scale (raw counts)", {},
           [](const Params&) { return std::make_unique<NoneDenoiser>(); }};
 }
 

@@ -1,0 +1,173 @@
+// The server's and the client's stage sequences, used by both the virtual-clock simulator
+// (core/frame_loop.h) and live mode (core/live.h), so that both run the same stages on the
+// same data (docs/architecture.md has the picture):
+//
+//   ServerPipeline::run   rasterize -> trace (cached by the caller) -> denoise -> [remote:
+//                         composite] -> encode -> packetize, per pass of the list, with the
+//                         wall time of every stage
+//   ClientPipeline        receive (decode each completed pass frame) ... display: predict each
+//                         pass's newest buffer to the displayed frame -> composite
+//   LocalReference        the client's ideal: this frame's own passes, denoised by a sequence of
+//                         its own, composited; what every displayed frame is scored against
+//
+// The callers keep only what differs: the simulator its clock, links and server schedule; live
+// mode its sockets and handshake.
+#pragma once
+
+#include "core/assembler.h"
+#include "core/backend.h"
+#include "core/camera.h"
+#include "core/gbuffer.h"
+#include "core/image.h"
+#include "core/pass_receiver.h"
+#include "core/passes.h"
+#include "core/run_config.h"
+#include "core/scene.h"
+#include "core/trace.h"
+
+#include <deque>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace dhr {
+
+class RtScene;
+
+// The traced passes of one frame (as traced: raw counts) with the trace's statistics.
+struct TracedPasses {
+  std::optional<PassBuffer> visibility, ao;
+  TraceStats stats;  // with the wall time of the original trace
+  const std::optional<PassBuffer>& of(PassMeaning meaning) const {
+    return meaning == PassMeaning::Visibility ? visibility : ao;
+  }
+};
+
+// The traced passes of frame `frame` for G-buffer `gbuf` (a cache lookup, or a trace).
+using TraceFn = std::function<std::shared_ptr<const TracedPasses>(uint32_t frame, const GBuffer& gbuf)>;
+// Traces with `rt` and no cache.
+TraceFn direct_tracer(RtScene& rt, const SimConfig& config);
+
+// The wall time of one stage (ms).
+struct StageTime {
+  const char* name;
+  double ms;
+};
+
+// The denoisers of one side: each 8-bit pass through its pass's denoiser (AO: one; soft
+// visibility: one per light, each with its own history). Bitmasks are never denoised.
+class DenoiseStage {
+ public:
+  DenoiseStage(const SimConfig& config, const PassPlan& plan, const Registries& registries);
+  // Denoises `buffer` (a traced pass of `meaning`) in place; its full scale becomes the
+  // denoiser's output scale.
+  void run(const GBuffer& gbuf, uint32_t frame, PassMeaning meaning, PassBuffer& buffer);
+  // True when a denoiser keeps history: then every frame must go through it, in order.
+  bool keeps_history() const;
+
+ private:
+  std::unique_ptr<Denoiser> ao_;
+  std::vector<std::unique_ptr<Denoiser>> soft_;  // per light (soft visibility only)
+};
+
+// ---- server
+
+struct SentPass {
+  std::string name;
+  PassDesc desc;
+  size_t encoded_bytes = 0;
+  std::vector<std::vector<uint8_t>> packets;  // ready to send, in order
+};
+
+struct ServerFrame {
+  uint32_t frame = 0;
+  std::vector<SentPass> passes;  // in the order of ServerPipeline::passes()
+  TraceStats trace;              // of this frame's trace (its wall time: when it was traced)
+  std::vector<StageTime> stages; // every stage run, in order ("encode" once per pass)
+  double compute_ms = 0.0;       // their sum
+};
+
+class ServerPipeline {
+ public:
+  // `stream_id` goes into every packet header (the simulator: 0; live mode: the session's).
+  ServerPipeline(const SimConfig& config, const Scene& scene, const Registries& registries, TraceFn trace,
+                 uint16_t stream_id);
+  const std::vector<PlannedPass>& passes() const { return sent_; }
+  const PassPlan& plan() const { return plan_; }
+  // Everything the server does for client frame `frame`, seen from `camera` at scene time
+  // `time_s`. The previous call's camera gives the motion vectors.
+  ServerFrame run(uint32_t frame, const Camera& camera, double time_s, bool keyframe);
+
+ private:
+  const SimConfig& c_;
+  const Scene& scene_;
+  PassPlan plan_;
+  std::vector<PlannedPass> traced_, sent_;
+  TraceFn trace_;
+  uint16_t stream_id_;
+  DenoiseStage denoise_;
+  std::vector<std::unique_ptr<Codec>> codecs_;  // per sent pass
+  std::vector<uint32_t> codec_ids_, sequence_;
+  bool has_prev_ = false;
+  Camera prev_camera_;
+  double prev_time_s_ = 0.0;
+};
+
+// ---- client
+
+struct ClientFrame {
+  ImageRGB8 image;
+  std::vector<int> source_frame;       // per pass: the server frame displayed (-1: none)
+  std::vector<uint64_t> disoccluded;   // per pass: the predictor's count
+  int passes_without_data = 0;         // passes shown with their local fallback
+  double predict_ms = 0.0, composite_ms = 0.0;
+  bool composited = false;             // false: a colour frame shown as it is (remote)
+};
+
+class ClientPipeline {
+ public:
+  ClientPipeline(const SimConfig& config, const Scene& scene, const Registries& registries);
+  const std::vector<PlannedPass>& passes() const { return passes_; }
+  bool remote() const { return remote_; }
+  // The pass a received frame of `kind` belongs to (-1: none of this run's).
+  int pass_of(PassKind kind) const;
+  // Decodes one completed frame of pass `pass` (its bytes are consumed).
+  PassReceiver::Outcome receive(int pass, AssembledFrame& frame) { return receivers_[size_t(pass)].on_frame(frame); }
+  const PassReceiver& receiver(int pass) const { return receivers_[size_t(pass)]; }
+  // The hybrid client keeps its G-buffers (the last history_frames) for prediction.
+  void keep(int frame, GBuffer gbuf);
+  const GBuffer* gbuffer(int frame) const;
+  // The displayed image of client frame `frame` with G-buffer `gbuf`: every pass's newest
+  // buffer predicted to it, composited (remote: the colour frame predicted with the cameras
+  // `camera_of` gives, nothing received yet: black). A pass with nothing usable (none received,
+  // or its G-buffer no longer kept) takes its local fallback: fully lit, AO 1.
+  ClientFrame display(int frame, const GBuffer& gbuf, const std::function<Camera(int)>& camera_of);
+
+ private:
+  const SimConfig& c_;
+  const Scene& scene_;
+  bool remote_;
+  std::vector<PlannedPass> passes_;
+  std::vector<PassReceiver> receivers_;
+  std::vector<std::unique_ptr<Predictor>> predictors_;
+  std::deque<std::pair<int, GBuffer>> history_;
+};
+
+// The local reference: what the client would show with zero latency and lossless passes.
+class LocalReference {
+ public:
+  LocalReference(const SimConfig& config, const Scene& scene, const Registries& registries);
+  // Whether frame `frame` must be fed although its image is not wanted (a temporal denoiser).
+  bool needs_every_frame() const { return denoise_.keeps_history(); }
+  // Denoises frame `frame`'s traced passes in sequence; returns the composite when `want_image`.
+  std::optional<ImageRGB8> frame(uint32_t frame, const GBuffer& gbuf, const TracedPasses& traced, bool want_image);
+
+ private:
+  const Scene& scene_;
+  std::vector<PlannedPass> traced_;
+  DenoiseStage denoise_;
+};
+
+}  // namespace dhr
