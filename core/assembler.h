@@ -1,6 +1,6 @@
 // The receiver side of core/packet.h: collects the packets of each (stream, pass, frame) back
 // into the encoded pass, with bounded memory, and reports which frames completed and which were
-// lost (design.md section 6: a pass of a frame is usable when all its packets arrived).
+// lost (docs/architecture.md, "Packets and the network": a pass of a frame is usable when all its packets arrived).
 //
 // Every limit is checked before anything is allocated: a packet's header must pass
 // parse_packet(), its chunk must be at most max_payload_bytes, its pass (total encoded bytes)

@@ -1,5 +1,5 @@
 // The composite: ONE shading function used by the client, the remote-rendering baseline, the
-// local reference and the ground truth (design.md section 1), so that they differ only in
+// local reference and the ground truth (docs/architecture.md, "The references"), so that they differ only in
 // their inputs.
 //
 // Lambertian, per pixel with G-buffer albedo a, shading normal n and position p:

@@ -1,4 +1,4 @@
-// The DHR frame loop on a virtual clock (design.md section 1): a client that rasterizes every
+// The DHR frame loop on a virtual clock (docs/architecture.md, "The frame loop"): a client that rasterizes every
 // frame, a server that traces, denoises, encodes and packetizes the passes for the newest
 // camera it has, and a simulated network between them (core/network.h). Every displayed frame
 // is composited and scored against the local reference and, every n-th frame, the ground truth.

@@ -1,6 +1,6 @@
 // Packets: one encoded pass of one server frame, cut into datagrams of at most `max_payload`
 // bytes, each with a fixed little-endian header that is checked before anything in it is used
-// (design.md section 6). Every packet repeats the pass description, so that any one packet
+// (docs/architecture.md, "Packets and the network"). Every packet repeats the pass description, so that any one packet
 // lets the receiver check its limits before allocating anything.
 //
 // Header layout (kPacketHeaderBytes = 44, all integers little-endian):

@@ -1,6 +1,7 @@
 // The client's CPU rasterizer: writes the G-buffer (core/gbuffer.h) of a scene for a camera,
-// the first stage of every client frame in the DHR frame loop (docs/design.md, "client"; the
-// paper's client rasterizes the scene itself and composites the server's shading terms).
+// the first stage of every client frame in the DHR frame loop (docs/architecture.md, "The frame
+// loop"; the paper's client rasterizes the scene itself and composites the server's shading
+// terms).
 //
 // Pipeline (tile-binned, sort-middle, after Larrabee/CUDA software rasterizers):
 //   1. vertices: moving objects are placed at time_s, every vertex goes to camera space

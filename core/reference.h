@@ -1,4 +1,4 @@
-// References for quality measurements (design.md section 1):
+// References for quality measurements (docs/architecture.md, "The references"):
 // - the ground truth: the composite (core/composite.h) with converged estimates -- many AO
 //   rays, many soft-shadow samples per area light, no denoiser -- at the client's G-buffer;
 //   cached on disk, so sweeps never pay for the same reference twice;

@@ -1,6 +1,6 @@
 // Denoiser cost at 1280x720 against the cost of tracing ONE more AO ray per pixel on the same
-// scene, measured in the same run (the project's ceiling rule: docs/design.md, "what
-// accuracy costs in time"). Goal (issue "Denoiser backends"): svgf_ao costs less than one
+// scene, measured in the same run (the project's ceiling rule: docs/architecture.md, "What is
+// measured"). Goal (issue "Denoiser backends"): svgf_ao costs less than one
 // extra AO ray per pixel.
 //
 // Scene: scenes/room.json (the built-in PINK ROOM stand-in), G-buffer by the rasterizer

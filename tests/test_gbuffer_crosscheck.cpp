@@ -1,6 +1,6 @@
 // The client's rasterized G-buffer (core/raster.h) and the server's Embree primary-ray
 // G-buffer (RtScene::primary_gbuffer) must agree: the server traces from the G-buffer it
-// recomputes, the client composites on its own (design.md section 1). For each built-in scene
+// recomputes, the client composites on its own (docs/architecture.md, "The frame loop"). For each built-in scene
 // at 160x90 and three times along its camera path: depth within 1e-3 relative, the same
 // object id and geometric and shading normals with dot > 0.99 on at least 99.5% of the
 // pixels; every disagreeing pixel lies on an edge: one of its 8 neighbours (in either

@@ -42,7 +42,7 @@
 //                                                    big, so a slice fits one 1200-byte packet
 //                                                    payload; 0 = one slice per picture default 1100
 //   threads               1..16                      x264 threads (1: deterministic)    default 1
-// Example: {"codec": "h264", "params": {"rate_control": "crf", "crf": 23, "preset": "ultrafast"}}
+// Example: {"name": "h264", "params": {"rate_control": "crf", "crf": 23, "preset": "ultrafast"}}
 #include "core/backend.h"
 
 extern "C" {

@@ -14,7 +14,7 @@
 //   level         3..12 (hc)           LZ4-HC level; LZ4F treats levels below 3   default 9
 //                                      as fast mode, so hc starts at 3
 //   layout        interleaved | planes how a Visibility buffer is coded           default planes
-// Example: {"codec": "lz4", "params": {"mode": "hc", "level": 9}}
+// Example: {"name": "lz4", "params": {"mode": "hc", "level": 9}}
 //
 // Decoding checks, before writing anything, that the frame declares checksums and exactly
 // the content size the buffer description implies; any library error, trailing bytes after

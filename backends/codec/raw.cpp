@@ -1,7 +1,7 @@
 // raw: the buffer's bytes as they are, no compression. The baseline every codec is measured
 // against, and the paper's uncompressed remote-rendering frame.
 //
-// Parameters: none.   Example: {"codec": "raw"}
+// Parameters: none.   Example: {"name": "raw"}
 #include "core/backend.h"
 
 #include <algorithm>

@@ -11,7 +11,7 @@
 // Parameters:
 //   level    1..19                  compression level                       default 1
 //   layout   interleaved | planes   how a Visibility buffer is coded        default planes
-// Example: {"codec": "zstd", "params": {"level": 3, "layout": "interleaved"}}
+// Example: {"name": "zstd", "params": {"level": 3, "layout": "interleaved"}}
 //
 // Decoding checks, before writing anything, that the frame declares exactly the content
 // size the buffer description implies (unknown or unreadable sizes are rejected), that it

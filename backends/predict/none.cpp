@@ -1,7 +1,7 @@
 // none: no prediction. The newest received buffer is shown as it is, in screen space, however
 // old it is (the paper's Fig. 6, "without prediction").
 //
-// Parameters: none.   Example: {"predictor": "none"}
+// Parameters: none.   Example: {"name": "none"}
 #include "core/backend.h"
 
 namespace dhr {

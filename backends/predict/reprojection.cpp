@@ -39,7 +39,7 @@
 // Parameters: filter (nearest|bilinear, default bilinear), fill (nearest_valid|local, default
 // nearest_valid), fill_radius_px (1..16, default 3), depth_tolerance (0.0001..1, default
 // 0.02), normal_threshold (-1..1, default 0.9).
-// Example: {"predictor": "reprojection", "filter": "nearest", "fill": "local"}
+// Example: {"name": "reprojection", "params": {"filter": "nearest", "fill": "local"}}
 #include "backends/predict/warp.h"
 
 #include <algorithm>

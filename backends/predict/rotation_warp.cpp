@@ -18,7 +18,7 @@
 // size. Rows in parallel (TBB); bit-identical at any thread count.
 //
 // Parameters: fill (clamp|black, default clamp).
-// Example: {"predictor": "rotation_warp", "fill": "black"}
+// Example: {"name": "rotation_warp", "params": {"fill": "black"}}
 #include "backends/predict/warp.h"
 
 #include <algorithm>
