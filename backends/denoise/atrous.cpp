@@ -1,6 +1,6 @@
 // atrous: the edge-aware a-trous wavelet filter alone, without any temporal part (Dammertz et
 // al. 2010, "Edge-Avoiding A-Trous Wavelet Transform for fast Global Illumination
-// Filtering", as used in SVGF, Schied et al. 2017, section 4.3). Kernels in filters.h.
+// Filtering", as used in SVGF, Schied et al. 2017, section 4.3). Filter in filters.h.
 //
 // Every frame stands alone: the variance of the AO value is estimated spatially from the
 // current frame (7x7 window weighted by depth and normal only, DHR-S section 3.3, boosted by 4

@@ -5,7 +5,7 @@
 // short), followed by ONE edge-aware a-trous iteration with the 3x3 kernel (1/4, 1/2, 1/4),
 // step 1; that iteration's output is fed back into the history, as in SVGF. Pixels with a
 // short history therefore get only a 3x3 spatial filter: the paper's trade of quality at
-// disocclusions for time. Kernels in filters.h; formula in svgf_ao.cpp.
+// disocclusions for time. Filter in filters.h; formula in svgf_ao.cpp.
 //
 // Parameters: alpha 0.2, history_cap 32, depth_tolerance 0.1, normal_threshold 0.9,
 // kernel_radius 1 (2 gives a 5x5 kernel), sigma_l 4, sigma_n 128, sigma_z 1, variance_radius 3.

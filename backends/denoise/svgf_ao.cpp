@@ -1,6 +1,6 @@
 // svgf_ao: the DHR-S paper's modified SVGF for ambient occlusion (section 3.3), after Schied
 // et al. 2017, "Spatiotemporal Variance-Guided Filtering: Real-Time Reconstruction for
-// Path-Traced Global Illumination" (HPG 2017). Kernels in filters.h.
+// Path-Traced Global Illumination" (HPG 2017). Filter in filters.h.
 //
 // Per frame: (1) temporal accumulation -- the pixel is reprojected through the G-buffer's
 // motion vector, the 2x2 previous taps are blended bilinearly, each accepted only when its

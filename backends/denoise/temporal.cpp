@@ -4,7 +4,7 @@
 // tolerance), normal (dot threshold) and object id agree; the output is the exponential moving
 // average with weight max(alpha, 1/history), history capped at history_cap. A disoccluded
 // pixel, the first frame and every frame after history_valid = false or reset() output the
-// rescaled input (what `none` gives, within rounding). Kernels in filters.h.
+// rescaled input (what `none` gives, within rounding). Filter in filters.h.
 //
 // Parameters: alpha 0.2, history_cap 32, depth_tolerance 0.1, normal_threshold 0.9.
 // Example: {"denoiser": "temporal", "params": {"alpha": 0.1, "history_cap": 64}}

@@ -1,0 +1,369 @@
+// The hot kernels of the SVGF-family filter (filters.h): one a-trous iteration over whole rows
+// (atrous_rows) and the depth/normal-weighted spatial moments of a row span (moment_span),
+// each with an 8-lane kernel cloned for AVX2 and the baseline and a 16-lane AVX-512 one
+// chosen at run time; all give the same bits (filters_simd.h; tests/test_denoisers.cpp,
+// AtrousKernelSameBitsOnEveryVectorWidth, checks it).
+//
+// Cost at 1280x720 (tests/bench_denoise.cpp): a-trous dominates (5 iterations x 24 taps per
+// pixel). Centre values and sums of 8 pixels (16 with AVX-512) stay in registers across the
+// 24 taps; the normal power is 7 squarings (sigma_n = 128 is compiled in; other powers of two
+// loop). Where the CPU has AVX-512 the a-trous and spatial-moment kernels take 16 lanes:
+// svgf_ao went from 189 to 131 CPU ms per frame on a 2-vCPU Zen 5 (room, 1280x720;
+// bench_denoise).
+#include "backends/denoise/filters.h"
+#include "backends/denoise/filters_simd.h"
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <type_traits>
+
+namespace dhr::denoise {
+namespace {
+
+// ---- AO phi of the a-trous weight: ipl = valid / (sigma_l sqrt(var) + eps), var = the 3x3
+// Gaussian of the variance over valid pixels (sum k var / sum k valid).
+template <class L>
+DHR_ALWAYS_INLINE void inv_phi_l_lanes(const float* sum_kv, const float* inv_valid_k, const float* valid_f, float sigma_l,
+                                       float eps, float* out) {
+  using T = typename L::T;
+  // 1/sqrt by the bit trick and two Newton steps (relative error < 1e-5); the floor keeps
+  // the steps finite (sqrt(1e-20) = 1e-10 is far below eps).
+  T v = L::load(sum_kv) * L::load(inv_valid_k);
+  v = v < T{} + 1e-20f ? T{} + 1e-20f : v;
+  T y;
+  if constexpr (std::is_same_v<T, float>) {
+    y = std::bit_cast<float>(int32_t(0x5f3759df) - (std::bit_cast<int32_t>(v) >> 1));
+  } else {
+    y = (VecF)(int32_t(0x5f3759df) - ((VecI)v >> 1));
+  }
+  y = y * (1.5f - 0.5f * v * y * y);
+  y = y * (1.5f - 0.5f * v * y * y);
+  L::store(out, L::load(valid_f) / (sigma_l * (v * y) + eps));
+}
+
+
+// ---- The a-trous rows (AtrousArgs, filters.h).
+
+// Whether [x, x + n) of a cls row holds a pixel of class c (n <= 16 and cls values 0/1).
+DHR_ALWAYS_INLINE bool block_has(const uint8_t* cls_row, int x, int n, uint8_t c) {
+  if (n == 16) {
+    uint64_t lo, hi;
+    std::memcpy(&lo, cls_row + x, 8);
+    std::memcpy(&hi, cls_row + x + 8, 8);
+    return c ? (lo | hi) != 0 : (lo & hi) != 0x0101010101010101ull;
+  }
+  if (n == 8) {
+    uint64_t lo;
+    std::memcpy(&lo, cls_row + x, 8);
+    return c ? lo != 0 : lo != 0x0101010101010101ull;
+  }
+  for (int i = 0; i < n; ++i)
+    if (cls_row[x + i] == c) return true;
+  return false;
+}
+
+struct AtrousTapPlanes {
+  const float *zc, *ncx, *ncy, *ncz, *ipz, *ipl, *lc;  // centre row, indexed by x
+  const float *zq, *nqx, *nqy, *nqz, *lq, *vq;         // neighbour row, indexed by x + off
+  float *sw, *sl, *sv;                                  // accumulators, indexed by x
+};
+
+template <int K, class L>
+DHR_ALWAYS_INLINE void atrous_tap(const AtrousTapPlanes& p, int x, int q, float hk, float inv_len, int nsq) {
+  using T = typename L::T;
+  const T d = L::load(p.ncx + x) * L::load(p.nqx + q) + L::load(p.ncy + x) * L::load(p.nqy + q) +
+              L::load(p.ncz + x) * L::load(p.nqz + q);
+  const T wn = pow_2k<K>(d, nsq);
+  const T wz = abs_f(L::load(p.zc + x) - L::load(p.zq + q)) * L::load(p.ipz + x) * inv_len;
+  const T lq = L::load(p.lq + q);
+  const T wl = abs_f(L::load(p.lc + x) - lq) * L::load(p.ipl + x);
+  const T wgt = (hk * wn) * exp_neg(-(wz + wl));
+  L::store(p.sw + x, L::load(p.sw + x) + wgt);
+  L::store(p.sl + x, L::load(p.sl + x) + wgt * lq);
+  L::store(p.sv + x, L::load(p.sv + x) + wgt * wgt * L::load(p.vq + q));
+}
+
+// The same taps for a block of pixels [x, x + lanes) whose neighbours are all inside the row
+// (x - r step >= 0, x + lanes - 1 + r step < width): centre values and sums stay in registers
+// across the taps. Same operations in the same order as atrous_tap, so the same bits.
+// ipl_row: the AO phi of row y, indexed by x.
+template <int K, class L>
+DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const float* ipl_row, const float (*hk)[5],
+                                    const float (*inv_len)[5], float* sw_out, float* sl_out, float* sv_out) {
+  using T = typename L::T;
+  const int r = a.radius, step = a.step, nsq = a.normal_squarings;
+  const size_t c = size_t(y) * size_t(a.width) + size_t(x);
+  const T zc = L::load(a.depth + c), ncx = L::load(a.nx + c), ncy = L::load(a.ny + c), ncz = L::load(a.nz + c);
+  const T ipz = L::load(a.inv_phi_z + c), ipl = L::load(ipl_row + x), lc = L::load(a.v_in + c);
+  const float hc = a.k1d[0] * a.k1d[0];
+  T sw = T{} + hc;
+  T sl = hc * lc;
+  T sv = (hc * hc) * L::load(a.var_in + c);
+  for (int ty = -r; ty <= r; ++ty) {
+    const int qy = y + ty * step;
+    if (qy < 0 || qy >= a.height) continue;
+    const size_t qrow = size_t(qy) * size_t(a.width) + size_t(x);
+    for (int tx = -r; tx <= r; ++tx) {
+      if (tx == 0 && ty == 0) continue;
+      const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here
+      const T d = ncx * L::load(a.nx + q) + ncy * L::load(a.ny + q) + ncz * L::load(a.nz + q);
+      const T wn = pow_2k<K>(d, nsq);
+      const T wz = abs_f(zc - L::load(a.depth + q)) * ipz * inv_len[ty + 2][tx + 2];
+      const T lq = L::load(a.v_in + q);
+      const T wl = abs_f(lc - lq) * ipl;
+      const T wgt = (hk[ty + 2][tx + 2] * wn) * exp_neg(-(wz + wl));
+      sw = sw + wgt;
+      sl = sl + wgt * lq;
+      sv = sv + wgt * wgt * L::load(a.var_in + q);
+    }
+  }
+  L::store(sw_out, sw);
+  L::store(sl_out, sl);
+  L::store(sv_out, sv);
+}
+
+// The AO phi of row y into out (w floats), from var_in (see AtrousArgs::inv_phi_l). The 3x3
+// sums are taken in the same order for every pixel (dy, then dx, from -1), starting from 0.
+DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) {
+  const int w = a.width, h = a.height;
+  const size_t row = size_t(y) * size_t(w);
+  if (!(a.sigma_l > 0.0f)) {
+    for (int x = 0; x < w; ++x) out[x] = 0.0f;
+    return;
+  }
+  for (int x = 0; x < w; ++x) out[x] = 0.0f;
+  for (int dy = -1; dy <= 1; ++dy) {
+    const int qy = y + dy;
+    if (qy < 0 || qy >= h) continue;
+    const float* vq = a.var_in + size_t(qy) * w;
+    for (int dx = -1; dx <= 1; ++dx) {
+      const float k = (dx == 0 ? 0.5f : 0.25f) * (dy == 0 ? 0.5f : 0.25f);
+      const int lo = std::max(0, -dx), hi = std::min(w, w - dx);
+      for (int x = lo; x < hi; ++x) out[x] += k * vq[x + dx];
+    }
+  }
+  int x = 0;
+  for (; x + kLanes <= w; x += kLanes)
+    inv_phi_l_lanes<VectorLane>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
+  for (; x < w; ++x)
+    inv_phi_l_lanes<ScalarLane>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
+}
+
+// Rows [y0, y1) of one a-trous iteration; acc holds 4 * width floats of scratch (need not be
+// initialised). Wide: the interior is done 16 pixels at a time where it can (AVX-512), the
+// rest 8 at a time.
+template <int K, bool Wide>
+DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, float* acc) {
+  const int w = a.width, h = a.height, r = a.radius, step = a.step;
+  float hk[5][5] = {}, inv_len[5][5] = {};
+  for (int ty = -r; ty <= r; ++ty)
+    for (int tx = -r; tx <= r; ++tx) {
+      hk[ty + 2][tx + 2] = a.k1d[tx] * a.k1d[ty];
+      inv_len[ty + 2][tx + 2] =
+          (tx == 0 && ty == 0) ? 0.0f : 1.0f / (float(step) * std::sqrt(float(tx * tx + ty * ty)));
+    }
+  // Interior blocks [xl, xm) use atrous_block; the borders [0, xl) and [xm, w) the row-wise taps.
+  const int xl = std::min(r * step, w);
+  const int interior_end = std::max(xl, w - r * step);
+  const int xm = xl + (interior_end - xl) / kLanes * kLanes;
+  const uint8_t ac = a.active_cls;
+  for (int y = y0; y < y1; ++y) {
+    const size_t row = size_t(y) * size_t(w);
+    const uint8_t* cls = a.cls ? a.cls + row : nullptr;
+    if (cls && std::memchr(cls, ac, size_t(w)) == nullptr) {  // nothing to filter in this row
+      if (a.u8_out)
+        for (int x = 0; x < w; ++x) a.u8_out[row + x] = to_u8(a.v_out[row + x]);
+      continue;
+    }
+    AtrousTapPlanes p;
+    p.sw = acc;
+    p.sl = acc + w;
+    p.sv = acc + 2 * w;
+    const float* ipl_row = a.inv_phi_l ? a.inv_phi_l + row : acc + 3 * w;
+    if (!a.inv_phi_l) inv_phi_l_of_row(a, y, acc + 3 * w);
+    int xb = xl;
+    if constexpr (Wide)
+      for (; xb + kLanes16 <= xm; xb += kLanes16)
+        if (!cls || block_has(cls, xb, kLanes16, ac))
+          atrous_block<K, VectorLane16>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
+    for (; xb < xm; xb += kLanes)
+      if (!cls || block_has(cls, xb, kLanes, ac))
+        atrous_block<K, VectorLane>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
+    const float hc = a.k1d[0] * a.k1d[0];
+    for (int x = 0; x < w; ++x) {  // centre tap of the border pixels: weight h_c
+      if (x == xl) x = xm;
+      if (x >= w) break;
+      p.sw[x] = hc;
+      p.sl[x] = hc * a.v_in[row + x];
+      p.sv[x] = (hc * hc) * a.var_in[row + x];
+    }
+    p.zc = a.depth + row;
+    p.ncx = a.nx + row;
+    p.ncy = a.ny + row;
+    p.ncz = a.nz + row;
+    p.ipz = a.inv_phi_z + row;
+    p.ipl = ipl_row;
+    p.lc = a.v_in + row;
+    for (int ty = -r; ty <= r; ++ty) {
+      const int qy = y + ty * step;
+      if (qy < 0 || qy >= h) continue;
+      const size_t qrow = size_t(qy) * size_t(w);
+      p.zq = a.depth + qrow;
+      p.nqx = a.nx + qrow;
+      p.nqy = a.ny + qrow;
+      p.nqz = a.nz + qrow;
+      p.lq = a.v_in + qrow;
+      p.vq = a.var_in + qrow;
+      for (int tx = -r; tx <= r; ++tx) {
+        if (tx == 0 && ty == 0) continue;
+        const int off = tx * step;
+        const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
+        for (int part = 0; part < 2; ++part) {  // the two border ranges
+          const int lo = std::max(part == 0 ? 0 : xm, -off), hi = std::min(part == 0 ? xl : w, w - off);
+          int x = lo;
+          for (; x + kLanes <= hi; x += kLanes) atrous_tap<K, VectorLane>(p, x, x + off, hkv, il, a.normal_squarings);
+          for (; x < hi; ++x) atrous_tap<K, ScalarLane>(p, x, x + off, hkv, il, a.normal_squarings);
+        }
+      }
+    }
+    for (int x = 0; x < w; ++x) {
+      const size_t i = row + x;
+      if (cls && cls[x] != ac) {
+        if (a.u8_out) a.u8_out[i] = to_u8(a.v_out[i]);
+        continue;
+      }
+      float v, var;
+      if (!a.valid[i]) {
+        v = a.v_in[i];
+        var = 0.0f;
+      } else {
+        const float inv = 1.0f / p.sw[x];  // sw >= h_c > 0 at a valid pixel
+        v = std::clamp(p.sl[x] * inv, 0.0f, 1.0f);
+        var = std::max(0.0f, p.sv[x] * inv * inv);
+      }
+      a.v_out[i] = v;
+      a.var_out[i] = var;
+      if (a.v_out2) a.v_out2[i] = v;
+      if (a.v_out3) a.v_out3[i] = v;
+      if (a.var_out2) a.var_out2[i] = var;
+      if (a.u8_out) a.u8_out[i] = to_u8(v);
+    }
+  }
+}
+
+DHR_DENOISE_TARGETS
+void atrous_rows_8(const AtrousArgs& a, int y0, int y1, float* acc) {
+  if (a.normal_squarings == kDefaultSquarings)
+    atrous_rows_impl<kDefaultSquarings, false>(a, y0, y1, acc);
+  else
+    atrous_rows_impl<-1, false>(a, y0, y1, acc);
+}
+
+#if DHR_DENOISE_AVX512
+DHR_DENOISE_TARGET_AVX512
+void atrous_rows_16(const AtrousArgs& a, int y0, int y1, float* acc) {
+  if (a.normal_squarings == kDefaultSquarings)
+    atrous_rows_impl<kDefaultSquarings, true>(a, y0, y1, acc);
+  else
+    atrous_rows_impl<-1, true>(a, y0, y1, acc);
+}
+#endif
+
+// ---- The spatial moments (MomentArgs, filters.h).
+
+template <int K, class L>
+DHR_ALWAYS_INLINE void moment_tap(const MomentArgs& a, size_t row, size_t qrow, int x, int dx, float inv_len,
+                                  float* a0, float* a1, float* a2) {
+  using T = typename L::T;
+  const size_t c = row + size_t(x), q = qrow + size_t(x + dx);
+  const T d = L::load(a.nx + c) * L::load(a.nx + q) + L::load(a.ny + c) * L::load(a.ny + q) +
+              L::load(a.nz + c) * L::load(a.nz + q);
+  const T wn = pow_2k<K>(d, a.normal_squarings);
+  const T wz = abs_f(L::load(a.depth + c) - L::load(a.depth + q)) * L::load(a.inv_phi_z + c) * inv_len;
+  const T wgt = wn * exp_neg(-wz);
+  const T v1 = L::load(a.m1 + q);
+  const T v2 = a.m2 ? L::load(a.m2 + q) : v1 * v1;
+  L::store(a0, L::load(a0) + wgt);
+  L::store(a1, L::load(a1) + wgt * v1);
+  L::store(a2, L::load(a2) + wgt * v2);
+}
+
+// acc: 3 * (xb - xa + 1) floats, zeroed by the caller: sum w, sum w m1, sum w m2. Wide: 16
+// lanes at a time first (AVX-512).
+template <int K, bool Wide>
+DHR_ALWAYS_INLINE void moment_span_impl(const MomentArgs& a, int y, int xa, int xb, float* acc) {
+  const int w = a.width, h = a.height, r = a.radius, n = xb - xa + 1;
+  const size_t row = size_t(y) * size_t(w);
+  for (int dy = -r; dy <= r; ++dy) {
+    const int qy = y + dy;
+    if (qy < 0 || qy >= h) continue;
+    const size_t qrow = size_t(qy) * size_t(w);
+    for (int dx = -r; dx <= r; ++dx) {
+      const int lo = std::max(xa, -dx), hi = std::min(xb + 1, w - dx);  // x + dx in [0, w)
+      if (lo >= hi) continue;
+      const float inv_len = (dx == 0 && dy == 0) ? 0.0f : 1.0f / std::sqrt(float(dx * dx + dy * dy));
+      int x = lo;
+      if constexpr (Wide)
+        for (; x + kLanes16 <= hi; x += kLanes16)
+          moment_tap<K, VectorLane16>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa),
+                                      acc + 2 * n + (x - xa));
+      for (; x + kLanes <= hi; x += kLanes)
+        moment_tap<K, VectorLane>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa), acc + 2 * n + (x - xa));
+      for (; x < hi; ++x)
+        moment_tap<K, ScalarLane>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa), acc + 2 * n + (x - xa));
+    }
+  }
+}
+
+
+DHR_DENOISE_TARGETS
+void moment_span_8(const MomentArgs& a, int y, int xa, int xb, float* acc) {
+  if (a.normal_squarings == kDefaultSquarings)
+    moment_span_impl<kDefaultSquarings, false>(a, y, xa, xb, acc);
+  else
+    moment_span_impl<-1, false>(a, y, xa, xb, acc);
+}
+
+#if DHR_DENOISE_AVX512
+DHR_DENOISE_TARGET_AVX512
+void moment_span_16(const MomentArgs& a, int y, int xa, int xb, float* acc) {
+  if (a.normal_squarings == kDefaultSquarings)
+    moment_span_impl<kDefaultSquarings, true>(a, y, xa, xb, acc);
+  else
+    moment_span_impl<-1, true>(a, y, xa, xb, acc);
+}
+#endif
+
+}  // namespace
+
+bool cpu_has_avx512() {
+#if DHR_DENOISE_AVX512
+  static const bool has = __builtin_cpu_supports("avx512f");
+  return has;
+#else
+  return false;
+#endif
+}
+
+void atrous_rows(const AtrousArgs& a, int y0, int y1, float* acc, bool use_avx512) {
+#if DHR_DENOISE_AVX512
+  if (use_avx512 && cpu_has_avx512()) return atrous_rows_16(a, y0, y1, acc);
+#else
+  (void)use_avx512;
+#endif
+  atrous_rows_8(a, y0, y1, acc);
+}
+
+void moment_span(const MomentArgs& a, int y, int xa, int xb, float* acc, bool use_avx512) {
+#if DHR_DENOISE_AVX512
+  if (use_avx512 && cpu_has_avx512()) return moment_span_16(a, y, xa, xb, acc);
+#else
+  (void)use_avx512;
+#endif
+  moment_span_8(a, y, xa, xb, acc);
+}
+
+}  // namespace dhr::denoise
