@@ -11,7 +11,7 @@
 //
 // Parameters: iterations 5 (1..10), kernel_radius 2 (1: 3x3, 2: 5x5), sigma_l 4, sigma_n 128,
 // sigma_z 1, variance_radius 3.
-// Example: {"denoiser": "atrous", "params": {"iterations": 3}}
+// Example: {"name": "atrous", "params": {"iterations": 3}}
 #include "backends/denoise/filters.h"
 
 namespace dhr {

@@ -9,7 +9,7 @@
 //
 // Parameters: alpha 0.2, history_cap 32, depth_tolerance 0.1, normal_threshold 0.9,
 // kernel_radius 1 (2 gives a 5x5 kernel), sigma_l 4, sigma_n 128, sigma_z 1, variance_radius 3.
-// Example: {"denoiser": "single_iteration", "params": {"alpha": 0.1}}
+// Example: {"name": "single_iteration", "params": {"alpha": 0.1}}
 #include "backends/denoise/filters.h"
 
 namespace dhr {

@@ -56,8 +56,8 @@
 // iterations 5 (1..10), kernel_radius 2 (1: 3x3), sigma_l 4 (0 = no AO range term),
 // sigma_n 128 (a power of two), sigma_z 1 (0 = no depth term), variance_radius 3 (7x7),
 // feedback "first_iteration" | "accumulated", light_history 0 (0..1024 frames; 0 = off).
-// Example: {"denoiser": "svgf_ao", "params": {"iterations": 4, "alpha": 0.1}}
-//          {"denoiser": "svgf_ao", "params": {"light_history": 8}}
+// Example: {"name": "svgf_ao", "params": {"iterations": 4, "alpha": 0.1}}
+//          {"name": "svgf_ao", "params": {"light_history": 8}}
 #include "backends/denoise/filters.h"
 
 namespace dhr {

@@ -7,7 +7,7 @@
 // rescaled input (what `none` gives, within rounding). Filter in filters.h.
 //
 // Parameters: alpha 0.2, history_cap 32, depth_tolerance 0.1, normal_threshold 0.9.
-// Example: {"denoiser": "temporal", "params": {"alpha": 0.1, "history_cap": 64}}
+// Example: {"name": "temporal", "params": {"alpha": 0.1, "history_cap": 64}}
 #include "backends/denoise/filters.h"
 
 namespace dhr {
