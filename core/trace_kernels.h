@@ -1,0 +1,285 @@
+// Internal to the tracer (core/trace.cpp, core/trace_rows.cpp, core/trace_avx512.cpp): what the
+// entry points and the row kernels share. Not part of the public API (core/trace.h).
+//
+// - Surface, TriangleCache, surface_at: a surface point rebuilt from the G-buffer
+//   (core/trace.h: "Surface points").
+// - LightInfo: a light's constants for the visibility pass.
+// - Batch<W>: Embree SoA packets of occlusion rays and the counters they increment.
+// - The row kernels: each traces the rows [y0, y1) of a pass into its counts (or, with
+//   rows_out, records the rays of each row instead of tracing them).
+#pragma once
+
+#include "core/trace.h"
+
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+// The AO pass's AVX-512 ray generator (core/trace_avx512.cpp) is compiled for AVX-512F/DQ by a
+// target attribute and chosen at run time; everything else keeps the baseline ISA.
+#if defined(__x86_64__) && defined(__GNUC__)
+#define DHR_TRACE_AVX512 1
+#else
+#define DHR_TRACE_AVX512 0
+#endif
+
+namespace dhr::trace_detail {
+
+// A surface point rebuilt from the G-buffer (core/trace.h: "Surface points").
+struct Surface {
+  glm::vec3 p{0.0f};       // on the triangle
+  glm::vec3 n{0.0f};       // unit geometric normal, oriented like the G-buffer's (camera side)
+  glm::vec3 origin{0.0f};  // p offset along n (Waechter-Binder)
+  glm::vec3 t{0.0f}, b{0.0f};  // orthonormal basis around n (AO only)
+};
+
+// The last triangle rebuilt (object id, prim id -> world vertices and unit normal, before
+// orientation): neighbouring pixels mostly see the same triangle, and the double-precision
+// transform, cross product and normalisation are then done once. Bit-identical to recomputing.
+struct TriangleCache {
+  uint32_t id = kBackgroundId;
+  uint32_t prim = 0;
+  bool resolved = false;
+  glm::dvec3 v[3];
+  glm::dvec3 n{0.0};
+};
+
+// False for background pixels. Unresolvable ids fall back to the G-buffer's position and
+// geometric normal (counted); a non-finite result then fails ray validation downstream.
+inline bool surface_at(const RtScene& rt, const GBuffer& g, int x, int y, Surface& s, uint64_t& unresolved,
+                       TriangleCache& cache) {
+  const uint32_t id = g.object_id(x, y);
+  if (id == kBackgroundId) return false;
+  const uint32_t prim = g.prim_id(x, y);
+  if (id != cache.id || prim != cache.prim) {
+    cache.id = id;
+    cache.prim = prim;
+    const int oi = rt.object_index(id);
+    cache.resolved = oi >= 0 && rt.triangle_world(oi, prim, cache.v);
+    if (cache.resolved) {
+      const glm::dvec3* v = cache.v;
+      glm::dvec3 n = glm::cross(v[1] - v[0], v[2] - v[0]);
+      n /= glm::length(n);  // non-degenerate: degenerate triangles were skipped at build
+      cache.n = n;
+    }
+  }
+  const glm::vec3 gn = g.geo_normal(x, y);
+  if (cache.resolved) {
+    const glm::dvec3* v = cache.v;
+    const glm::dvec2 bc(g.bary(x, y));
+    const glm::dvec3 p = (1.0 - bc.x - bc.y) * v[0] + bc.x * v[1] + bc.y * v[2];
+    glm::dvec3 n = cache.n;
+    // Orient towards the camera side, as the G-buffer's geometric normal is; without a usable
+    // G-buffer normal, towards the camera itself.
+    double side = glm::dot(n, glm::dvec3(gn));
+    if (!(std::abs(side) > 0.0)) side = glm::dot(n, glm::dvec3(g.camera.position) - p);
+    if (side < 0.0) n = -n;
+    s.p = glm::vec3(p);
+    s.n = glm::vec3(n);
+  } else {
+    ++unresolved;
+    s.p = g.position(x, y);
+    const float len = glm::length(gn);
+    s.n = gn / len;  // NaN for a zero normal: the rays then fail validation (counted)
+  }
+  s.origin = offset_ray_origin(s.p, s.n);
+  return true;
+}
+
+
+// A pixel's AO set-up shared by the row kernels: the surface, its basis and validation
+// (once per pixel: with a valid origin, a finite unit basis and 0 <= tfar = r, every direction
+// is a finite unit-length combination of the basis, so every ray of the pixel is valid --
+// ray_is_valid would pass each one). Returns false for background; sets valid.
+inline bool ao_surface(const RtScene& rt, const GBuffer& g, int x, int y, float radius_m, Surface& s, bool& valid,
+                       uint64_t& unres, TriangleCache& cache) {
+  if (!surface_at(rt, g, x, y, s, unres, cache)) return false;
+  orthonormal_basis(s.n, s.t, s.b);
+  valid = ray_is_valid(s.origin, s.n, 0.0f, radius_m) && std::isfinite(s.t.x + s.t.y + s.t.z) &&
+          std::isfinite(s.b.x + s.b.y + s.b.z);
+  return true;
+}
+
+// A light's constants for the visibility pass (filled by light_infos in core/trace.cpp).
+struct LightInfo {
+  bool sphere = true;
+  bool soft = false;
+  int samples = 1;
+  glm::vec3 centre{0.0f};     // sphere
+  glm::dvec3 centre_d{0.0};
+  float radius = 0.0f;
+  float range = 0.0f;
+  glm::vec3 dir{0.0f, 1.0f, 0.0f};  // distant: unit, towards the light
+  float one_minus_cos = 0.0f;       // distant: 1 - cos(angular radius)
+  float sin_alpha = 0.0f;           // distant: sin(angular radius)
+  glm::vec3 t{0.0f}, b{0.0f};       // distant: orthonormal basis around dir (cone sampling)
+};
+
+// Embree's packet type and call for a packet width.
+template <int W>
+struct Packet;
+template <>
+struct Packet<8> {
+  using Ray = RTCRay8;
+  static void occluded(const int* valid, RTCScene scene, RTCIntersectContext* ctx, Ray* rays) {
+    rtcOccluded8(valid, scene, ctx, rays);
+  }
+};
+template <>
+struct Packet<16> {
+  using Ray = RTCRay16;
+  static void occluded(const int* valid, RTCScene scene, RTCIntersectContext* ctx, Ray* rays) {
+    rtcOccluded16(valid, scene, ctx, rays);
+  }
+};
+
+// Set bits of a 16-bit mask. Not std::popcount: the baseline x86-64 target has no POPCNT
+// instruction, and GCC then calls libgcc's __popcountdi2 (1.4 % of a hard-shadow pass).
+constexpr int popcount16(uint32_t v) {
+  v = v - ((v >> 1) & 0x5555u);
+  v = (v & 0x3333u) + ((v >> 2) & 0x3333u);
+  v = (v + (v >> 4)) & 0x0f0fu;
+  return int((v + (v >> 8)) & 0x1fu);
+}
+static_assert(popcount16(0xffffu) == 16 && popcount16(0x8001u) == 2 && popcount16(0) == 0 && popcount16(0x7ffeu) == 14);
+
+// A packet of up to W occlusion rays and the counters they increment when unoccluded.
+// Rays are written straight into Embree's SoA layout and traced with rtcOccluded8/16 (W = 16
+// where Embree has native 16-wide kernels, i.e. AVX-512): packets of consecutive rays (the N AO
+// rays of neighbouring pixels, or neighbouring pixels' shadow rays) beat rtcOccluded1 and, on
+// most scenes, rtcOccluded1M streams (see bench_trace). Lanes never mix in Embree's traversal,
+// so a ray's answer does not depend on its packet.
+// Consecutive rays of one counter (a pixel's AO rays, a light's samples) form a run; a flush
+// adds each run's unoccluded lanes with one popcount instead of one read-modify-write of the
+// same counter per lane (no measurable speed difference on its own; it removes a dependency
+// chain through memory).
+template <int W>
+struct Batch {
+  alignas(64) typename Packet<W>::Ray packet;
+  std::array<uint16_t*, W> run_counter{};  // run k: lanes [run_start[k], run_start[k + 1])
+  std::array<uint8_t, W + 1> run_start{};
+  unsigned runs = 0;
+  unsigned n = 0;
+  RTCScene scene = nullptr;
+  unsigned mask = 0;
+  RTCIntersectContext ctx;
+  uint64_t traced = 0;
+  std::vector<RTCRay>* record = nullptr;  // collect_*_rays: keep the rays, trace nothing
+
+  Batch(RTCScene scene_, unsigned mask_) : scene(scene_), mask(mask_) {
+    rtcInitIntersectContext(&ctx);
+    // Occlusion queries write only tfar: the other fields are set once.
+    for (int k = 0; k < W; ++k) {
+      packet.tnear[k] = 0.0f;
+      packet.time[k] = 0.0f;
+      packet.mask[k] = mask;
+      packet.id[k] = unsigned(k);
+      packet.flags[k] = 0;
+    }
+  }
+  void flush() {
+    if (n == 0) return;
+    alignas(64) int valid[W];
+    for (unsigned k = 0; k < unsigned(W); ++k) valid[k] = k < n ? -1 : 0;
+    Packet<W>::occluded(valid, scene, &ctx, &packet);
+    // Embree sets tfar = -inf on an occluded ray; anything else (tfar untouched) reached.
+    uint32_t reached = 0;
+    for (unsigned k = 0; k < unsigned(W); ++k) reached |= uint32_t(!(packet.tfar[k] < 0.0f)) << k;
+    run_start[runs] = uint8_t(n);
+    for (unsigned k = 0; k < runs; ++k) {
+      const uint32_t lanes = ((1u << run_start[k + 1]) - 1u) & ~((1u << run_start[k]) - 1u);
+      *run_counter[k] = uint16_t(*run_counter[k] + popcount16(reached & lanes));
+    }
+    traced += n;
+    n = 0;
+    runs = 0;
+  }
+  void begin_lane(uint16_t* count) {
+    if (runs == 0 || run_counter[runs - 1] != count) {
+      run_counter[runs] = count;
+      run_start[runs] = uint8_t(n);
+      ++runs;
+    }
+  }
+  void push(const glm::vec3& o, float dx, float dy, float dz, float tfar, uint16_t* count) {
+    if (record) {
+      RTCRay& r = record->emplace_back();
+      r.org_x = o.x, r.org_y = o.y, r.org_z = o.z, r.tnear = 0.0f;
+      r.dir_x = dx, r.dir_y = dy, r.dir_z = dz, r.time = 0.0f;
+      r.tfar = tfar, r.mask = mask, r.id = 0, r.flags = 0;
+      return;
+    }
+    begin_lane(count);
+    packet.org_x[n] = o.x;
+    packet.org_y[n] = o.y;
+    packet.org_z[n] = o.z;
+    packet.dir_x[n] = dx;
+    packet.dir_y[n] = dy;
+    packet.dir_z[n] = dz;
+    packet.tfar[n] = tfar;
+    if (++n == unsigned(W)) flush();
+  }
+  // m <= kChunk rays of one counter from one origin with one tfar (a pixel's AO chunk).
+  void push_chunk(const glm::vec3& o, const float* dx, const float* dy, const float* dz, float tfar, int m,
+                  uint16_t* count) {
+    if (record || n + unsigned(m) > unsigned(W)) {
+      for (int j = 0; j < m; ++j) push(o, dx[j], dy[j], dz[j], tfar, count);
+      return;
+    }
+    begin_lane(count);
+    for (int j = 0; j < m; ++j) {
+      packet.org_x[n + unsigned(j)] = o.x;
+      packet.org_y[n + unsigned(j)] = o.y;
+      packet.org_z[n + unsigned(j)] = o.z;
+      packet.dir_x[n + unsigned(j)] = dx[j];
+      packet.dir_y[n + unsigned(j)] = dy[j];
+      packet.dir_z[n + unsigned(j)] = dz[j];
+      packet.tfar[n + unsigned(j)] = tfar;
+    }
+    n += unsigned(m);
+    if (n == unsigned(W)) flush();
+  }
+};
+
+// The AO pixels of one row that trace rays, compacted (stage 1 of ao_rows_x16): origin, basis
+// (t, b, n), per-pixel hash and counter. Arrays padded by 16 so that any 16-pixel window loads.
+struct AoPixels {
+  enum { kOx, kOy, kOz, kTx, kTy, kTz, kBx, kBy, kBz, kNx, kNy, kNz, kComponents };
+  std::array<std::vector<float>, kComponents> c;
+  std::vector<uint64_t> h;
+  std::vector<uint16_t*> count;
+  int n = 0;
+  explicit AoPixels(int width) : h(size_t(width) + 16, 0), count(size_t(width) + 16, nullptr) {
+    for (auto& v : c) v.assign(size_t(width) + 16, 0.0f);
+  }
+};
+
+// ---- The row kernels ----
+
+// core/trace_rows.cpp, instantiated for W = 8 and 16 (Embree's packet width).
+template <int W>
+void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& settings, const std::vector<LightInfo>& lights,
+                     VisibilityCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1,
+                     TraceStats& st);
+template <int W>
+void ao_rows(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings, AoCounts& out,
+             std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st);
+extern template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
+                                        VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+extern template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
+                                         VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+extern template void ao_rows<8>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
+                                std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+extern template void ao_rows<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
+                                 std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+
+#if DHR_TRACE_AVX512
+// core/trace_avx512.cpp: whether the CPU has AVX-512F and DQ (checked once), and the AO rows
+// with the AVX-512 ray generator (only where that holds and Embree has 16-wide packets).
+bool cpu_has_avx512dq();
+void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
+                 AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st);
+#endif
+
+}  // namespace dhr::trace_detail

@@ -1,0 +1,420 @@
+// The row kernels of the visibility pass (paper section 3.1) and the baseline AO pass (section
+// 3.2, Eq. 1-3): each turns rows of the G-buffer into rays in Embree packets (Batch,
+// core/trace_kernels.h) and counts the unoccluded ones. core/trace.cpp runs them over blocks of
+// rows; core/trace_avx512.cpp holds the AO pass's AVX-512 kernel.
+//
+// Speed (bench_trace compares every pass with a bare Embree loop over the same rays):
+// - rays go straight into SoA packets (Batch) traced with rtcOccluded16 where Embree has native
+//   16-wide kernels (AVX-512), else rtcOccluded8; Embree marks an occluded ray by setting tfar
+//   to -inf. Neighbouring pixels reuse the last triangle's rebuild (TriangleCache).
+// - random numbers: 8 keys at a time (uniforms_chunk / uniforms_pixels, an AVX-512 clone with
+//   64-bit vector multiplies where the CPU has it; integer arithmetic only, same bits).
+// - directions: SSE2 kernels (sincos_2pi_x4, cone_x4, ...) doing the scalar code's IEEE
+//   operations in the same order, 4 lanes at a time, so results are bit-identical to it.
+// - the AO pass, where the CPU has AVX-512: core/trace_avx512.cpp.
+// - the visibility pass works a row at a time in stages (surfaces; each light over the row,
+//   compacted to the pairs that trace; rays in pixel order) so the square-root and division
+//   chains of neighbouring pixels overlap instead of running one after the other.
+// The rays, their order and every result are the same as the straightforward per-ray code's.
+#include "core/trace_directions.h"
+#include "core/trace_kernels.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace dhr::trace_detail {
+
+namespace {
+
+// u0[j], u1[j] = PixelRng::uniform2(first + j, stream) for j < kChunk (core/rng.h dimensions 0
+// and 1), bit-identical to it. Integer hashing and exact conversions only (no float arithmetic
+// that a wider ISA could contract or reorder), so the AVX-512 clone -- 64-bit vector multiplies,
+// 8 keys at once -- gives the same bits as the baseline one.
+__attribute__((target_clones("default", "arch=x86-64-v4"))) void uniforms_chunk(uint64_t h, uint32_t first,
+                                                                                uint32_t stream, float* u0,
+                                                                                float* u1) {
+  for (int j = 0; j < kChunk; ++j) {
+    const uint64_t k = mix64(h ^ ((uint64_t(first + uint32_t(j)) << 32) | stream));
+    u0[j] = float(mix64(k ^ 0u) >> 40) * (1.0f / 16777216.0f);
+    u1[j] = float(mix64(k ^ 1u) >> 40) * (1.0f / 16777216.0f);
+  }
+}
+
+
+// uniforms_chunk for one sample of n pixels: u0[x], u1[x] from the per-pixel hashes h[x].
+__attribute__((target_clones("default", "arch=x86-64-v4"))) void uniforms_pixels(const uint64_t* h, int n,
+                                                                                 uint32_t sample, uint32_t stream,
+                                                                                 float* u0, float* u1) {
+  const uint64_t key = (uint64_t(sample) << 32) | stream;
+  for (int x = 0; x < n; ++x) {
+    const uint64_t k = mix64(h[x] ^ key);
+    u0[x] = float(mix64(k ^ 0u) >> 40) * (1.0f / 16777216.0f);
+    u1[x] = float(mix64(k ^ 1u) >> 40) * (1.0f / 16777216.0f);
+  }
+}
+
+// What a (pixel, light) pair does (core/trace.h): trace ray(s), or a known answer.
+enum PairCode : uint8_t { kPairRays = 0, kPairRange = 1, kPairInside = 2, kPairFacing = 3 };
+
+// Per-row working arrays of the visibility pass, by pixel (x) and by light and pixel
+// (l * w + x). The pass works a row at a time in stages -- surfaces, then one light at a time
+// over the whole row, then the rays in pixel order -- so that the long chains of square roots
+// and divisions of neighbouring pixels overlap (and vectorize) instead of running one after
+// the other. Values of uncovered pixels are computed on zeros and never used.
+struct VisibilityRow {
+  int w = 0;
+  std::vector<uint8_t> covered, origin_ok;
+  std::vector<float> px, py, pz, nx, ny, nz, ox, oy, oz;
+  std::vector<uint64_t> h;   // PixelRng hash per pixel
+  std::vector<int> idx;       // compacted pixel indices (sphere_light_row)
+  // Temporaries of the light stages, by compacted index (sphere) or pixel (distant); kChunk
+  // lanes of padding so that 4- and 8-lane loads and stores past the end stay inside.
+  std::vector<float> t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11, t12;
+  std::vector<float> u0, u1;  // one sample's uniforms per pixel
+  // Per light and pixel.
+  std::vector<uint8_t> code, ok;
+  std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
+  std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
+
+  VisibilityRow(int width, int lights) : w(width) {
+    const size_t n = size_t(width), nl = n * size_t(lights);
+    for (auto* v : {&covered, &origin_ok}) v->assign(n, 0);
+    for (auto* v : {&px, &py, &pz, &nx, &ny, &nz, &ox, &oy, &oz}) v->assign(n, 0.0f);
+    for (auto* v : {&u0, &u1, &t0, &t1, &t2, &t3, &t4, &t5, &t6, &t7, &t8, &t9, &t10, &t11, &t12})
+      v->assign(n + size_t(kChunk), 0.0f);
+    h.assign(n, 0);
+    idx.assign(n, 0);
+    for (auto* v : {&code, &ok}) v->assign(nl, 0);
+    for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
+  }
+};
+
+// Stage 2 for a sphere light over a row: classification in double precision (as the scalar
+// rules in core/trace.h), then the hard ray, the single jittered ray (S = 1) or the cone
+// (S > 1). Branch-free: every pixel computes everything, the code picks.
+void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
+  const int w = r.w;
+  const double cx = li.centre_d.x, cy = li.centre_d.y, cz = li.centre_d.z;
+  const double range = double(li.range), radius = double(li.radius);
+  const bool has_range = li.range > 0.0f;
+  const float r2 = li.radius * li.radius;
+  uint8_t* __restrict code = &r.code[base];
+  uint8_t* __restrict ok = &r.ok[base];
+  float* __restrict dx = &r.dx[base];
+  float* __restrict dy = &r.dy[base];
+  float* __restrict dz = &r.dz[base];
+  float* __restrict tfar = &r.tfar[base];
+  // Classification of every pixel (one double square root each), then the rays only for the
+  // covered pairs that trace (compacted: out-of-range and facing-away pairs cost nothing more).
+  int* __restrict idx = r.idx.data();
+  int m = 0;
+  for (int x = 0; x < w; ++x) {
+    const double tx = cx - double(r.px[size_t(x)]), ty = cy - double(r.py[size_t(x)]), tz = cz - double(r.pz[size_t(x)]);
+    const double d = std::sqrt(tx * tx + ty * ty + tz * tz);
+    const double n_dot = double(r.nx[size_t(x)]) * tx + double(r.ny[size_t(x)]) * ty + double(r.nz[size_t(x)]) * tz;
+    const bool out_of_range = has_range && d > range;
+    const bool inside = !(d > radius) && d == d;
+    // Hard: facing away from the centre. Soft: the whole sphere below the horizon.
+    const bool facing = li.soft ? n_dot <= -radius : n_dot <= 0.0;
+    const uint8_t c = out_of_range ? kPairRange : inside ? kPairInside : facing ? kPairFacing : kPairRays;
+    code[x] = c;
+    idx[m] = x;
+    m += (c == kPairRays) & (r.covered[size_t(x)] != 0);
+  }
+  // The rays of the compacted pairs, in short loops (loop fission): each keeps only a few
+  // dependent square roots and divisions per pair, so that the out-of-order core overlaps
+  // many pairs instead of waiting on one long chain.
+  float* __restrict ocx = r.t0.data();
+  float* __restrict ocy = r.t1.data();
+  float* __restrict ocz = r.t2.data();
+  for (int k = 0; k < m; ++k) {
+    const int x = idx[k];
+    ocx[k] = li.centre.x - r.ox[size_t(x)];
+    ocy[k] = li.centre.y - r.oy[size_t(x)];
+    ocz[k] = li.centre.z - r.oz[size_t(x)];
+  }
+  if (!li.soft) {
+    for (int k = 0; k < m; ++k) {
+      const int x = idx[k];
+      const float dist_o = std::sqrt(ocx[k] * ocx[k] + ocy[k] * ocy[k] + ocz[k] * ocz[k]);
+      dx[x] = ocx[k] / dist_o;
+      dy[x] = ocy[k] / dist_o;
+      dz[x] = ocz[k] / dist_o;
+      tfar[x] = std::max(0.0f, (dist_o - li.radius) * kShadowTfarScale);
+      ok[x] = direction_valid(dx[x], dy[x], dz[x], tfar[x]) && r.origin_ok[size_t(x)] != 0;
+    }
+    return;
+  }
+  // Cone subtended by the sphere from p: sin^2 = R^2 / d^2 (double precision).
+  float* __restrict omc = r.t3.data();
+  float* __restrict wx = r.t4.data();
+  float* __restrict wy = r.t5.data();
+  float* __restrict wz = r.t6.data();
+  for (int k = 0; k < m; ++k) {
+    const int x = idx[k];
+    const double tx = cx - double(r.px[size_t(x)]), ty = cy - double(r.py[size_t(x)]), tz = cz - double(r.pz[size_t(x)]);
+    const double d = std::sqrt(tx * tx + ty * ty + tz * tz);
+    const double s2 = radius * li.radius / (d * d);
+    omc[k] = float(s2 / (1.0 + std::sqrt(1.0 - s2)));
+    wx[k] = float(tx / d);
+    wy[k] = float(ty / d);
+    wz[k] = float(tz / d);
+  }
+  if (!one_sample) {
+    for (int k = 0; k < m; ++k) {
+      const size_t i = base + size_t(idx[k]);
+      r.wx[i] = wx[k], r.wy[i] = wy[k], r.wz[i] = wz[k];
+      r.ocx[i] = ocx[k], r.ocy[i] = ocy[k], r.ocz[i] = ocz[k];
+      r.omc[i] = omc[k];
+    }
+    return;
+  }
+  float* __restrict u0 = r.t7.data();
+  float* __restrict u1 = r.t8.data();
+  for (int k = 0; k < m; ++k) {
+    u0[k] = r.u0[size_t(idx[k])];
+    u1[k] = r.u1[size_t(idx[k])];
+  }
+  float* __restrict ex = r.t9.data();
+  float* __restrict ey = r.t10.data();
+  float* __restrict ez = r.t11.data();
+  float* __restrict et = r.t12.data();
+#if defined(__SSE2__)
+  // Lanes past m (up to the next multiple of 4) compute on stale finite values, unused.
+  for (int k = 0; k < m; k += 4) {
+    const Vec3x4 wv{_mm_loadu_ps(wx + k), _mm_loadu_ps(wy + k), _mm_loadu_ps(wz + k)};
+    Vec3x4 tv, bv;
+    orthonormal_basis_x4(wv, tv, bv);
+    const Vec3x4 d = cone_x4(tv, bv, wv, _mm_loadu_ps(omc + k), _mm_loadu_ps(u0 + k), _mm_loadu_ps(u1 + k));
+    const Vec3x4 oc{_mm_loadu_ps(ocx + k), _mm_loadu_ps(ocy + k), _mm_loadu_ps(ocz + k)};
+    _mm_storeu_ps(ex + k, d.x);
+    _mm_storeu_ps(ey + k, d.y);
+    _mm_storeu_ps(ez + k, d.z);
+    _mm_storeu_ps(et + k, sphere_tfar_x4(d, oc, _mm_set1_ps(r2)));
+  }
+#else
+  for (int k = 0; k < m; ++k) {
+    const glm::vec3 wd(wx[k], wy[k], wz[k]);
+    glm::vec3 tb, bb;
+    orthonormal_basis(wd, tb, bb);
+    float a0[kChunk] = {u0[k]}, a1[kChunk] = {u1[k]}, cx_[kChunk], cy_[kChunk], cz_[kChunk];
+    sample_cone_chunk(tb, bb, wd, omc[k], a0, a1, cx_, cy_, cz_);
+    const glm::vec3 d(cx_[0], cy_[0], cz_[0]);
+    ex[k] = d.x, ey[k] = d.y, ez[k] = d.z;
+    // Distance from the origin to the sphere along dir (nearest root); rounding at the cone's
+    // rim can leave no root: then the closest approach.
+    const float b = d.x * ocx[k] + d.y * ocy[k] + d.z * ocz[k];
+    const float qx = ocx[k] - b * d.x, qy = ocy[k] - b * d.y, qz = ocz[k] - b * d.z;
+    const float disc = r2 - (qx * qx + qy * qy + qz * qz);
+    const float t_hit = disc > 0.0f ? b - std::sqrt(disc) : b;
+    et[k] = std::max(0.0f, t_hit * kShadowTfarScale);
+  }
+#endif
+  for (int k = 0; k < m; ++k) {
+    const int x = idx[k];
+    dx[x] = ex[k], dy[x] = ey[k], dz[x] = ez[k], tfar[x] = et[k];
+    ok[x] = direction_valid(ex[k], ey[k], ez[k], et[k]) && r.origin_ok[size_t(x)] != 0;
+  }
+}
+
+// Stage 2 for a distant light over a row.
+void distant_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  const int w = r.w;
+  for (int x = 0; x < w; ++x) {
+    const size_t i = base + size_t(x);
+    const float n_dot = r.nx[size_t(x)] * li.dir.x + r.ny[size_t(x)] * li.dir.y + r.nz[size_t(x)] * li.dir.z;
+    r.code[i] = (li.soft ? n_dot <= -li.sin_alpha : n_dot <= 0.0f) ? kPairFacing : kPairRays;
+    r.dx[i] = li.dir.x, r.dy[i] = li.dir.y, r.dz[i] = li.dir.z;
+    r.tfar[i] = kInf;
+  }
+  if (li.soft && one_sample) {
+    // One jittered ray per pixel (all pixels of the row; uncovered ones are never used).
+    for (int x = 0; x < w; x += kChunk)
+      sample_cone_chunk(li.t, li.b, li.dir, li.one_minus_cos, &r.u0[size_t(x)], &r.u1[size_t(x)], &r.t9[size_t(x)],
+                        &r.t10[size_t(x)], &r.t11[size_t(x)]);
+    for (int x = 0; x < w; ++x) {
+      const size_t i = base + size_t(x);
+      r.dx[i] = r.t9[size_t(x)], r.dy[i] = r.t10[size_t(x)], r.dz[i] = r.t11[size_t(x)];
+    }
+  }
+  if (li.soft && !one_sample) return;
+  for (int x = 0; x < w; ++x) {
+    const size_t i = base + size_t(x);
+    r.ok[i] = direction_valid(r.dx[i], r.dy[i], r.dz[i], kInf) && r.origin_ok[size_t(x)] != 0;
+  }
+}
+
+}  // namespace
+
+template <int W>
+void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& settings, const std::vector<LightInfo>& lights,
+                     VisibilityCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1,
+                     TraceStats& st) {
+  const int w = g.width();
+  const size_t npx = size_t(w) * size_t(g.height());
+  const int nl = int(lights.size());
+  Batch<W> batch(rt.handle(), kMaskShadow);
+  TriangleCache cache;
+  VisibilityRow r(w, nl);
+  bool any_soft = false;  // hard lights need no random numbers
+  for (const LightInfo& li : lights) any_soft = any_soft || li.soft;
+  uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
+  alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk], tfar[kChunk];
+  alignas(64) bool ok[kChunk];
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  for (int y = y0; y < y1; ++y) {
+    if (rows_out) batch.record = &(*rows_out)[size_t(y)];
+    // Stage 1: surfaces.
+    bool any = false;
+    for (int x = 0; x < w; ++x) {
+      Surface s;
+      const size_t i = size_t(x);
+      r.covered[i] = surface_at(rt, g, x, y, s, unres, cache) ? 1 : 0;
+      if (!r.covered[i]) {
+        s = Surface{};
+      } else {
+        any = true;
+        ++cov;
+      }
+      r.px[i] = s.p.x, r.py[i] = s.p.y, r.pz[i] = s.p.z;
+      r.nx[i] = s.n.x, r.ny[i] = s.n.y, r.nz[i] = s.n.z;
+      r.ox[i] = s.origin.x, r.oy[i] = s.origin.y, r.oz[i] = s.origin.z;
+      r.origin_ok[i] = origin_valid(s.origin) ? 1 : 0;
+      if (any_soft) r.h[i] = PixelRng(settings.seed, uint32_t(size_t(y) * size_t(w) + i), settings.frame).h;
+    }
+    if (!any) continue;
+    // Stage 2: each light over the row.
+    for (int l = 0; l < nl; ++l) {
+      const LightInfo& li = lights[size_t(l)];
+      const bool one_sample = li.samples == 1;
+      if (li.soft && one_sample) uniforms_pixels(r.h.data(), w, 0, kStreamLightBase + uint32_t(l), r.u0.data(), r.u1.data());
+      if (li.sphere) sphere_light_row(r, li, size_t(l) * size_t(w), one_sample);
+      else distant_light_row(r, li, size_t(l) * size_t(w), one_sample);
+    }
+    // Stage 3: answers and rays in pixel order (pixel, light, sample).
+    for (int x = 0; x < w; ++x) {
+      if (!r.covered[size_t(x)]) continue;
+      const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+      const glm::vec3 origin(r.ox[size_t(x)], r.oy[size_t(x)], r.oz[size_t(x)]);
+      const bool origin_ok = r.origin_ok[size_t(x)] != 0;
+      for (int l = 0; l < nl; ++l) {
+        const LightInfo& li = lights[size_t(l)];
+        const size_t i = size_t(l) * size_t(w) + size_t(x);
+        uint16_t* count = &out.visible[size_t(l) * npx + pixel];
+        switch (r.code[i]) {
+          case kPairRange: ++range; continue;
+          case kPairInside: *count = uint16_t(li.samples), ++inside; continue;
+          case kPairFacing: ++facing; continue;
+          default: break;
+        }
+        if (li.samples == 1) {
+          if (r.ok[i]) {
+            batch.push(origin, r.dx[i], r.dy[i], r.dz[i], r.tfar[i], count);
+          } else {
+            ++invalid;
+            ++*count;
+          }
+          continue;
+        }
+        const uint32_t stream = kStreamLightBase + uint32_t(l);
+        const glm::vec3 w_dir = li.sphere ? glm::vec3(r.wx[i], r.wy[i], r.wz[i]) : li.dir;
+        glm::vec3 tb = li.t, bb = li.b;
+        if (li.sphere) orthonormal_basis(w_dir, tb, bb);
+        const float omc_max = li.sphere ? r.omc[i] : li.one_minus_cos;
+        const float ocx = r.ocx[i], ocy = r.ocy[i], ocz = r.ocz[i];
+        const float r2 = li.radius * li.radius;
+        for (int k0 = 0; k0 < li.samples; k0 += kChunk) {
+          const int n = std::min(kChunk, li.samples - k0);
+          uniforms_chunk(r.h[size_t(x)], uint32_t(k0), stream, u0, u1);
+          sample_cone_chunk(tb, bb, w_dir, omc_max, u0, u1, dx, dy, dz);
+          if (li.sphere) {
+            for (int j = 0; j < n; ++j) {
+              const float b = dx[j] * ocx + dy[j] * ocy + dz[j] * ocz;
+              const float qx = ocx - b * dx[j], qy = ocy - b * dy[j], qz = ocz - b * dz[j];
+              const float disc = r2 - (qx * qx + qy * qy + qz * qz);
+              const float t_hit = disc > 0.0f ? b - std::sqrt(disc) : b;
+              tfar[j] = std::max(0.0f, t_hit * kShadowTfarScale);
+            }
+          } else {
+            for (int j = 0; j < n; ++j) tfar[j] = kInf;
+          }
+          for (int j = 0; j < n; ++j) ok[j] = direction_valid(dx[j], dy[j], dz[j], tfar[j]);
+          for (int j = 0; j < n; ++j) {
+            if (origin_ok && ok[j]) {
+              batch.push(origin, dx[j], dy[j], dz[j], tfar[j], count);
+            } else {
+              ++invalid;
+              ++*count;
+            }
+          }
+        }
+      }
+    }
+  }
+  batch.flush();
+  if (rows_out)
+    for (int y = y0; y < y1; ++y) batch.traced += (*rows_out)[size_t(y)].size();
+  st.shadow_rays = batch.traced;
+  st.invalid_rays = invalid;
+  st.unresolved_pixels = unres;
+  st.shadow_skipped_facing = facing;
+  st.shadow_skipped_range = range;
+  st.shadow_inside_light = inside;
+  st.covered_pixels = cov;
+}
+
+template <int W>
+void ao_rows(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings, AoCounts& out,
+             std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st) {
+  const int w = g.width();
+  Batch<W> batch(rt.handle(), kMaskAll);
+  TriangleCache cache;
+  uint64_t invalid = 0, unres = 0, cov = 0;
+  alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk];
+  for (int y = y0; y < y1; ++y) {
+    if (rows_out) batch.record = &(*rows_out)[size_t(y)];
+    for (int x = 0; x < w; ++x) {
+      Surface s;
+      bool valid = false;
+      if (!ao_surface(rt, g, x, y, radius_m, s, valid, unres, cache)) continue;
+      ++cov;
+      const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+      uint16_t* count = &out.unoccluded[pixel];
+      *count = 0;
+      if (!valid) {
+        invalid += uint64_t(ao_rays);
+        *count = uint16_t(ao_rays);
+        continue;
+      }
+      const PixelRng rng(settings.seed, uint32_t(pixel), settings.frame);
+      const glm::vec3 t = s.t, b = s.b, n = s.n;
+      for (int k0 = 0; k0 < ao_rays; k0 += kChunk) {
+        const int m = std::min(kChunk, ao_rays - k0);
+        uniforms_chunk(rng.h, uint32_t(k0), kStreamAo, u0, u1);
+        cosine_dirs_chunk(t, b, n, u0, u1, dx, dy, dz);
+        // tfar = r: "occluded if anything is hit within r", never trace further.
+        batch.push_chunk(s.origin, dx, dy, dz, radius_m, m, count);
+      }
+    }
+  }
+  batch.flush();
+  if (rows_out)
+    for (int y = y0; y < y1; ++y) batch.traced += (*rows_out)[size_t(y)].size();
+  st.ao_rays = batch.traced;
+  st.invalid_rays = invalid;
+  st.unresolved_pixels = unres;
+  st.covered_pixels = cov;
+}
+
+template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
+                                 VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
+                                  VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+template void ao_rows<8>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
+                         std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+template void ao_rows<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
+                          std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+
+}  // namespace dhr::trace_detail
