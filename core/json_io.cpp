@@ -61,6 +61,10 @@ nlohmann::json read_json_file(const std::string& path, bool allow_comments, int 
   return parse_json(ss.str(), path, allow_comments, max_depth);
 }
 
+std::string text_excerpt(std::string_view text, size_t max_chars) {
+  return text.size() <= max_chars ? std::string(text) : std::string(text.substr(0, max_chars)) + "...";
+}
+
 std::string json_excerpt(const nlohmann::json& value, size_t max_chars) {
   std::string s = value.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
   if (s.size() > max_chars) s = s.substr(0, max_chars) + "...";

@@ -33,4 +33,7 @@ int json_depth(std::string_view text, int limit = kMaxJsonDepth);
 // A value for an error message: its JSON text, cut to `max_chars` with "..." when longer.
 std::string json_excerpt(const nlohmann::json& value, size_t max_chars = 60);
 
+// A string from a file for an error message (a key, a name): cut to `max_chars` with "..." when longer.
+std::string text_excerpt(std::string_view text, size_t max_chars = 60);
+
 }  // namespace dhr
