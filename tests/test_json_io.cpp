@@ -48,6 +48,17 @@ TEST(JsonDepth, CountsArraysAndObjectsOutsideStrings) {
   EXPECT_EQ(json_depth("[[[["), 4);
   // An unterminated string hides everything after it.
   EXPECT_EQ(json_depth(R"(["abc[[[[)"), 1);
+  // Comments are skipped: brackets inside do not count, and a quote inside starts no string
+  // (a quote in a comment once hid 100,000 levels of nesting from the scan: SIGSEGV).
+  EXPECT_EQ(json_depth("// [[[[\n[1]"), 1);
+  EXPECT_EQ(json_depth("/* [[[[ */ [1]"), 1);
+  EXPECT_EQ(json_depth("// \"\n[[[1]]]"), 3);
+  EXPECT_EQ(json_depth("// \"\r[[[1]]]"), 3);
+  EXPECT_EQ(json_depth("/* \" */ [[[1]]]"), 3);
+  EXPECT_EQ(json_depth("/*/ \" */ [[1]]"), 2);
+  EXPECT_EQ(json_depth(R"(["//", [[1]], "/*"])"), 3);  // inside strings, no comment
+  EXPECT_EQ(json_depth("[1] /* [[[[ never closed"), 1);
+  EXPECT_EQ(json_depth("[1] // [[[["), 1);
 }
 
 TEST(JsonDepth, StopsCountingPastTheLimit) {
@@ -138,6 +149,12 @@ TEST_F(ExperimentFiles, DeepNestingIsAClearError) {
        {std::string(n, '[') + std::string(n, ']'), std::string(n, '['), deep_object,
         R"({"version": 1, "scenes": ["room"], "run": )" + std::string(n, '[') + std::string(n, ']') + "}"}) {
     const std::string file = write("deep.json", text);
+    const std::string e = error_of([&] { load_experiment(file); });
+    EXPECT_TRUE(starts_with(e, file + ": JSON nested deeper than 64 levels")) << e.substr(0, 300);
+  }
+  // A quote in a comment does not hide the nesting after it.
+  for (const std::string& comment : {std::string("// \"\n"), std::string("/* \" */ ")}) {
+    const std::string file = write("comment.json", comment + std::string(n, '[') + std::string(n, ']'));
     const std::string e = error_of([&] { load_experiment(file); });
     EXPECT_TRUE(starts_with(e, file + ": JSON nested deeper than 64 levels")) << e.substr(0, 300);
   }
