@@ -1,10 +1,10 @@
 #include "core/experiment.h"
 
 #include "core/error.h"
+#include "core/json_io.h"
 
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <set>
 
@@ -26,12 +26,12 @@ struct Reader {
 
   void keys(const std::vector<std::string>& valid) {
     if (!j.is_object()) {
-      problems.push_back(fmt::format("{}: must be a JSON object, got {}", where, j.dump()));
+      problems.push_back(fmt::format("{}: must be a JSON object, got {}", where, json_excerpt(j)));
       return;
     }
     for (const auto& [k, v] : j.items())
       if (std::find(valid.begin(), valid.end(), k) == valid.end())
-        problems.push_back(fmt::format("{}.{}: unknown key (valid: {})", where, k, join_keys(valid)));
+        problems.push_back(fmt::format("{}.{}: unknown key (valid: {})", where, text_excerpt(k), join_keys(valid)));
   }
   bool has(const char* k) const { return j.is_object() && j.contains(k); }
   template <class T>
@@ -41,7 +41,7 @@ struct Reader {
     const bool integral = std::is_integral_v<T>;
     if (!v.is_number() || (integral && !v.is_number_integer()) || !std::isfinite(v.get<double>()) ||
         v.get<double>() < lo || v.get<double>() > hi) {
-      problems.push_back(fmt::format("{}.{} = {}: must be {} in {}..{}", where, k, v.dump(),
+      problems.push_back(fmt::format("{}.{} = {}: must be {} in {}..{}", where, k, json_excerpt(v),
                                      integral ? "an integer" : "a number", lo, hi));
       return;
     }
@@ -49,14 +49,14 @@ struct Reader {
   }
   void boolean(const char* k, bool& out) {
     if (!has(k)) return;
-    if (!j.at(k).is_boolean()) problems.push_back(fmt::format("{}.{} = {}: must be true or false", where, k, j.at(k).dump()));
+    if (!j.at(k).is_boolean()) problems.push_back(fmt::format("{}.{} = {}: must be true or false", where, k, json_excerpt(j.at(k))));
     else out = j.at(k).get<bool>();
   }
   void string(const char* k, std::string& out, const std::vector<std::string>& choices = {}) {
     if (!has(k)) return;
     const auto& v = j.at(k);
     if (!v.is_string() || (!choices.empty() && std::find(choices.begin(), choices.end(), v.get<std::string>()) == choices.end())) {
-      problems.push_back(fmt::format("{}.{} = {}: must be {}", where, k, v.dump(),
+      problems.push_back(fmt::format("{}.{} = {}: must be {}", where, k, json_excerpt(v),
                                      choices.empty() ? "a string" : "one of " + join_keys(choices)));
       return;
     }
@@ -154,7 +154,7 @@ void set_dotted(nlohmann::json& target, const std::string& dotted, const nlohman
   for (;;) {
     const size_t dot = dotted.find('.', start);
     const std::string key = dotted.substr(start, dot == std::string::npos ? std::string::npos : dot - start);
-    if (key.empty()) fail("'{}': empty component in a dotted key", dotted);
+    if (key.empty()) fail("'{}': empty component in a dotted key", text_excerpt(dotted));
     if (!node->is_object()) *node = nlohmann::json::object();
     if (dot == std::string::npos) {
       (*node)[key] = value;
@@ -170,16 +170,22 @@ void apply_override(nlohmann::json& experiment, const std::string& assignment) {
   if (eq == std::string::npos || eq == 0)
     fail("--set '{}': expected key=value, e.g. run.frames=10 or run.ao_codec.name=zstd", assignment);
   const std::string key = assignment.substr(0, eq), text = assignment.substr(eq + 1);
+  // A value nested too deeply is refused, not taken as a string: it was meant as JSON.
+  if (json_depth(text) > kMaxJsonDepth)
+    fail("--set '{}': the value is nested deeper than {} levels of arrays and objects (the limit for every JSON "
+         "dhrbench reads)", key, kMaxJsonDepth);
   nlohmann::json value = nlohmann::json::parse(text, nullptr, false);
   if (value.is_discarded()) value = text;  // a bare word: a string
-  set_dotted(experiment, key, value);
+  try {
+    set_dotted(experiment, key, value);
+  } catch (const Error& e) {
+    fail("--set {}", e.what());
+  }
 }
 
 Experiment load_experiment(const std::string& path, const std::vector<std::string>& overrides) {
-  std::ifstream in(path);
-  if (!in) fail("{}: experiment file not found or unreadable", path);
-  nlohmann::json j = nlohmann::json::parse(in, nullptr, false, true);
-  if (j.is_discarded()) fail("{}: not valid JSON", path);
+  // Depth-bounded, comments allowed; every parse error names the file.
+  nlohmann::json j = read_json_file(path, /*allow_comments=*/true);
   for (const auto& o : overrides) apply_override(j, o);
 
   Experiment e;
@@ -192,7 +198,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   if (!j.contains("version")) problems.push_back(fmt::format("{}: \"version\": {} is required", path, kExperimentVersion));
   else if (j.at("version") != kExperimentVersion)
     problems.push_back(fmt::format("{}: version {} is not supported (this dhrbench reads version {})", path,
-                                   j.at("version").dump(), kExperimentVersion));
+                                   json_excerpt(j.at("version")), kExperimentVersion));
   top.string("name", e.name);
   top.string("description", e.description);
   if (e.name.empty()) e.name = std::filesystem::path(path).stem().string();
@@ -200,7 +206,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
     problems.push_back(fmt::format("{}.scenes: must be a non-empty list of scene files or built-in names", path));
   } else {
     for (const auto& s : j.at("scenes")) {
-      if (!s.is_string()) problems.push_back(fmt::format("{}.scenes: {} is not a string", path, s.dump()));
+      if (!s.is_string()) problems.push_back(fmt::format("{}.scenes: {} is not a string", path, json_excerpt(s)));
       else e.scenes.push_back(s.get<std::string>());
     }
   }
@@ -234,7 +240,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
           else
             for (const auto& x : sc) {
               if (!x.is_string() || std::find(e.scenes.begin(), e.scenes.end(), x.get<std::string>()) == e.scenes.end())
-                problems.push_back(fmt::format("{}.configurations[{}].scenes: {} is not one of the experiment's scenes", path, i, x.dump()));
+                problems.push_back(fmt::format("{}.configurations[{}].scenes: {} is not one of the experiment's scenes", path, i, json_excerpt(x)));
               else
                 only.push_back(x.get<std::string>());
             }
@@ -252,7 +258,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
     if (!sweep.is_object()) problems.push_back(fmt::format("{}.sweep: must be an object of dotted key: [values]", path));
     else
       for (const auto& [k, v] : sweep.items()) {
-        if (!v.is_array() || v.empty()) problems.push_back(fmt::format("{}.sweep.{}: must be a non-empty list of values", path, k));
+        if (!v.is_array() || v.empty()) problems.push_back(fmt::format("{}.sweep.{}: must be a non-empty list of values", path, text_excerpt(k)));
         else axes.emplace_back(k, std::vector<nlohmann::json>(v.begin(), v.end()));
       }
   }
@@ -276,24 +282,28 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
           std::string label = config_name;
           for (const auto& [k, v] : settings.items()) {
             if (k == "network") {
-              const std::string name = v.is_string() ? v.get<std::string>() : v.dump();
+              const std::string name = v.is_string() ? v.get<std::string>() : json_excerpt(v);
               if (!networks.is_object() || !networks.contains(name)) {
-                problems.push_back(fmt::format("{}: network '{}' is not defined in \"networks\"", path, name));
+                problems.push_back(fmt::format("{}: network '{}' is not defined in \"networks\"", path, text_excerpt(name)));
                 continue;
               }
               const auto& net = networks.at(name);
               if (!net.is_object()) {
-                problems.push_back(fmt::format("{}.networks.{}: must be an object with uplink and/or downlink", path, name));
+                problems.push_back(fmt::format("{}.networks.{}: must be an object with uplink and/or downlink", path, text_excerpt(name)));
                 continue;
               }
               for (const auto& [nk, nv] : net.items()) {
                 if (nk != "uplink" && nk != "downlink")
-                  problems.push_back(fmt::format("{}.networks.{}.{}: unknown key (valid: uplink, downlink)", path, name, nk));
+                  problems.push_back(fmt::format("{}.networks.{}.{}: unknown key (valid: uplink, downlink)", path, text_excerpt(name), text_excerpt(nk)));
                 else
                   run[nk] = nv;
               }
             } else {
-              set_dotted(run, k, v);
+              try {
+                set_dotted(run, k, v);
+              } catch (const Error& err) {
+                problems.push_back(fmt::format("{}: {}", path, err.what()));
+              }
             }
             if (!axes.empty() || config_name.empty())
               label += fmt::format("{}{}={}", label.empty() ? "" : ", ", k, v.is_string() ? v.get<std::string>() : v.dump());
@@ -305,7 +315,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
           spec.settings = settings;
           std::vector<std::string> run_problems;
           spec.config = sim_config_from_json(run, path + ": run", run_problems);
-          for (auto& p : run_problems) per_run[p].push_back(fmt::format("{} on {}", spec.label, scene));
+          for (auto& p : run_problems) per_run[p].push_back(fmt::format("{} on {}", text_excerpt(spec.label, 120), text_excerpt(scene)));
           for (LinkConfig* link : {&spec.config.uplink, &spec.config.downlink})
             link->trace_file = resolve_data_path(link->trace_file, path);
           e.runs.push_back(std::move(spec));
@@ -322,7 +332,9 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
       problems.push_back(message + " (every run)");
     } else {
       std::string which;
-      for (const auto& l : labels) which += (which.empty() ? "" : "; ") + l;
+      // At most 10 runs named: a sweep can hold thousands.
+      for (size_t i = 0; i < std::min<size_t>(labels.size(), 10); ++i) which += (which.empty() ? "" : "; ") + labels[i];
+      if (labels.size() > 10) which += fmt::format("; and {} more", labels.size() - 10);
       problems.push_back(fmt::format("{} (in: {})", message, which));
     }
   }

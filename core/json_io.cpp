@@ -10,11 +10,25 @@ namespace dhr {
 int json_depth(std::string_view text, int limit) {
   int depth = 0, deepest = 0;
   bool in_string = false, escaped = false;
-  for (char ch : text) {
+  for (size_t i = 0; i < text.size(); ++i) {
+    const char ch = text[i];
     if (in_string) {
       if (escaped) escaped = false;
       else if (ch == '\\') escaped = true;
       else if (ch == '"') in_string = false;
+      continue;
+    }
+    if (ch == '/' && i + 1 < text.size() && (text[i + 1] == '/' || text[i + 1] == '*')) {
+      // A comment, skipped as nlohmann skips it: a quote inside must not start a string that
+      // would hide the brackets after it. (Outside strings '/' is never valid JSON, so this
+      // changes nothing for documents read without comments: their parse fails there.)
+      if (text[i + 1] == '/') {
+        i = text.find_first_of("\n\r", i + 2);
+      } else {
+        i = text.find("*/", i + 2);
+        if (i != std::string_view::npos) ++i;
+      }
+      if (i == std::string_view::npos) break;
       continue;
     }
     if (ch == '"') {
@@ -40,8 +54,7 @@ std::string short_message(const std::string& what) {
 }  // namespace
 
 nlohmann::json parse_json(std::string_view text, const std::string& source, bool allow_comments, int max_depth) {
-  // Comments can hold brackets; the depth scan would count them, which only errs on the safe
-  // side for a file that also nests deeply.
+  // The depth scan skips comments (and strings), so that neither can hide brackets from it.
   if (json_depth(text, max_depth) > max_depth)
     fail("{}: JSON nested deeper than {} levels of arrays and objects (the limit for every JSON dhrbench reads)",
          source, max_depth);
@@ -59,6 +72,10 @@ nlohmann::json read_json_file(const std::string& path, bool allow_comments, int 
   ss << in.rdbuf();
   if (in.bad()) fail("{}: cannot read the file", path);
   return parse_json(ss.str(), path, allow_comments, max_depth);
+}
+
+std::string text_excerpt(std::string_view text, size_t max_chars) {
+  return text.size() <= max_chars ? std::string(text) : std::string(text.substr(0, max_chars)) + "...";
 }
 
 std::string json_excerpt(const nlohmann::json& value, size_t max_chars) {

@@ -26,11 +26,14 @@ nlohmann::json parse_json(std::string_view text, const std::string& source, bool
 // Reads and parses the file at `path` (errors name the path; a missing or unreadable file too).
 nlohmann::json read_json_file(const std::string& path, bool allow_comments = false, int max_depth = kMaxJsonDepth);
 
-// The nesting depth of `text` (arrays and objects, outside strings), counted without parsing;
-// stops counting at `limit` + 1.
+// The nesting depth of `text` (arrays and objects, outside strings and // or /* */ comments),
+// counted without parsing; stops counting at `limit` + 1.
 int json_depth(std::string_view text, int limit = kMaxJsonDepth);
 
 // A value for an error message: its JSON text, cut to `max_chars` with "..." when longer.
 std::string json_excerpt(const nlohmann::json& value, size_t max_chars = 60);
+
+// A string from a file for an error message (a key, a name): cut to `max_chars` with "..." when longer.
+std::string text_excerpt(std::string_view text, size_t max_chars = 60);
 
 }  // namespace dhr

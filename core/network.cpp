@@ -1,6 +1,7 @@
 #include "core/network.h"
 
 #include "core/error.h"
+#include "core/json_io.h"
 #include "core/rng.h"
 
 #include <algorithm>
@@ -39,13 +40,13 @@ double normal01(double u1, double u2) {
 
 LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& where) {
   LinkConfig c;
-  if (!j.is_object()) fail("{}: a link must be a JSON object, got {}", where, j.dump());
+  if (!j.is_object()) fail("{}: a link must be a JSON object, got {}", where, json_excerpt(j));
   std::vector<std::string> problems;
   auto number = [&](const char* key, double& out, double lo, double hi) {
     if (!j.contains(key)) return;
     const auto& v = j.at(key);
     if (!v.is_number() || !std::isfinite(v.get<double>()) || v.get<double>() < lo || v.get<double>() > hi) {
-      problems.push_back(fmt::format("{}.{} = {}: must be a number in {}..{}", where, key, v.dump(), lo, hi));
+      problems.push_back(fmt::format("{}.{} = {}: must be a number in {}..{}", where, key, json_excerpt(v), lo, hi));
       return;
     }
     out = v.get<double>();
@@ -58,7 +59,7 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
     if (std::find(keys.begin(), keys.end(), key) == keys.end()) {
       std::string valid;
       for (const auto& k : keys) valid += (valid.empty() ? "" : ", ") + k;
-      problems.push_back(fmt::format("{}: unknown key '{}' (valid: {})", where, key, valid));
+      problems.push_back(fmt::format("{}: unknown key '{}' (valid: {})", where, text_excerpt(key), valid));
     }
   }
   if (j.contains("latency")) {
@@ -67,7 +68,7 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
     if (s == "constant") c.latency_model = Latency::Constant;
     else if (s == "normal") c.latency_model = Latency::Normal;
     else if (s == "trace") c.latency_model = Latency::Trace;
-    else problems.push_back(fmt::format("{}.latency = {}: must be one of constant, normal, trace", where, v.dump()));
+    else problems.push_back(fmt::format("{}.latency = {}: must be one of constant, normal, trace", where, json_excerpt(v)));
   }
   if (j.contains("loss")) {
     const auto& v = j.at("loss");
@@ -75,7 +76,7 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
     if (s == "none") c.loss_model = Loss::None;
     else if (s == "independent") c.loss_model = Loss::Independent;
     else if (s == "gilbert_elliott") c.loss_model = Loss::GilbertElliott;
-    else problems.push_back(fmt::format("{}.loss = {}: must be one of none, independent, gilbert_elliott", where, v.dump()));
+    else problems.push_back(fmt::format("{}.loss = {}: must be one of none, independent, gilbert_elliott", where, json_excerpt(v)));
   }
   number("latency_ms", c.latency_ms, 0.0, 1e5);
   number("jitter_ms", c.jitter_ms, 0.0, 1e5);

@@ -4,6 +4,7 @@
 #include "core/scene_load.h"
 
 #include "core/error.h"
+#include "core/json_io.h"
 #include "core/mesh_import.h"
 #include "core/shapes.h"
 
@@ -15,7 +16,6 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <sstream>
 
@@ -45,8 +45,11 @@ class Reader {
 
   const std::string& file() const { return file_; }
   const std::vector<std::string>& errors() const { return errors_; }
+  // Values and keys in `message` and `path` come from the file: each line is kept to a readable
+  // length, however long a key or string in the file is.
   void error(const std::string& path, const std::string& message) {
-    errors_.push_back(fmt::format("{}: {}: {}", file_, path.empty() ? "(top level)" : path, message));
+    errors_.push_back(fmt::format("{}: {}: {}", file_, path.empty() ? "(top level)" : text_excerpt(path, 300),
+                                  text_excerpt(message, 600)));
   }
 
   static std::string key_path(const std::string& path, const std::string& key) {
@@ -62,7 +65,7 @@ class Reader {
     }
     for (const auto& [key, value] : j.items()) {
       if (std::find(allowed.begin(), allowed.end(), key) == allowed.end())
-        error(key_path(path, key), fmt::format("unknown key (valid here: {})", join(allowed, ", ")));
+        error(key_path(path, text_excerpt(key)), fmt::format("unknown key (valid here: {})", join(allowed, ", ")));
     }
     return true;
   }
@@ -162,8 +165,9 @@ class Reader {
     return errors_.size() == before ? v : fallback;
   }
 
+  // A value in a message: at most 40 characters, however long or deep the value is.
   static std::string describe(const json& j) {
-    std::string s = j.dump();
+    std::string s = json_excerpt(j, 40);
     if (s.size() > 40) s = s.substr(0, 37) + "...";
     return s;
   }
@@ -679,16 +683,8 @@ Scene load_scene(const std::string& path, const SceneSearchPath& search) {
   if (!is_regular(path)) fail("{}: scene file not found", path);
   const uint64_t bytes = fs::file_size(path, ec);
   if (ec || bytes > kMaxSceneFileBytes) fail("{}: scene file unreadable or larger than {} bytes", path, kMaxSceneFileBytes);
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("{}: cannot open the scene file", path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  json root;
-  try {
-    root = json::parse(ss.str());
-  } catch (const json::parse_error& e) {
-    fail("{}: not valid JSON: {}", path, e.what());
-  }
+  // Depth-bounded; every parse error (a number out of range such as 1e400 too) names the file.
+  const json root = read_json_file(path);
   Loader loader(path, search);
   loader.read_root(root);
   throw_if_errors(loader.r.errors(), path);

@@ -5,6 +5,7 @@
 #include "core/error.h"
 #include "core/experiment.h"
 #include "core/image_io.h"
+#include "core/json_io.h"
 #include "core/metrics.h"
 #include "core/reference.h"
 #include "core/scene_load.h"
@@ -13,6 +14,7 @@
 
 #include <fmt/format.h>
 #include <tbb/global_control.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -137,19 +139,40 @@ std::string csv_number(double v) { return std::isfinite(v) ? fmt::format("{:.6g}
 int write_report(const std::string& dir) {
   const std::string script = std::string(DHR_SOURCE_DIR) + "/experiments/report.py";
   const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
-  const std::string check = python + " -c 'import matplotlib' >/dev/null 2>&1";
-  if (std::system(check.c_str()) != 0) {
+  const std::string cmd = python + " '" + script + "' '" + dir + "'";
+  const int rc = std::system(cmd.c_str());
+  if (rc == 0) return 0;
+  // Exit 2: the script found the results damaged and has said what is wrong, naming the file.
+  if (WIFEXITED(rc) && WEXITSTATUS(rc) == 2) return 2;
+  // Exit 3: no matplotlib (checked by the script once the results are found sound).
+  if (WIFEXITED(rc) && WEXITSTATUS(rc) == 3) {
     std::fprintf(stderr,
-                 "dhrbench: the report needs matplotlib for Debian's python3: apt-get install python3-matplotlib "
-                 "(or run scripts/setup.sh); the results in %s are complete, rebuild the report later with "
+                 "dhrbench: the results in %s are complete; rebuild the report once matplotlib is installed with "
                  "'dhrbench report %s'\n",
                  dir.c_str(), dir.c_str());
     return 3;
   }
-  const std::string cmd = python + " '" + script + "' '" + dir + "'";
-  const int rc = std::system(cmd.c_str());
-  if (rc != 0) std::fprintf(stderr, "dhrbench: the report script failed (exit %d): %s\n", rc, cmd.c_str());
-  return rc == 0 ? 0 : 3;
+  std::fprintf(stderr, "dhrbench: the report script failed (exit %d): %s\n", WIFEXITED(rc) ? WEXITSTATUS(rc) : rc,
+               cmd.c_str());
+  return 3;
+}
+
+// Reads DIR/results.json the way every JSON is read (depth-bounded, errors naming the file) and
+// checks the shape the report relies on at the top; report.py checks every field it reads.
+void check_results_file(const std::string& dir) {
+  const std::string path = (fs::path(dir) / "results.json").string();
+  if (!fs::exists(path)) fail("{}: no results.json here (was it written by 'dhrbench run'?)", dir);
+  const nlohmann::json r = read_json_file(path);
+  if (!r.is_object()) fail("{}: must be a JSON object (context, experiment, runs), got {}", path, json_excerpt(r));
+  for (const char* key : {"context", "experiment"})
+    if (!r.contains(key) || !r.at(key).is_object())
+      fail("{}: \"{}\" must be a JSON object, got {}", path, key, r.contains(key) ? json_excerpt(r.at(key)) : "nothing");
+  if (!r.contains("runs") || !r.at("runs").is_array())
+    fail("{}: \"runs\" must be a list of run records, got {}", path,
+         r.contains("runs") ? json_excerpt(r.at("runs")) : "nothing");
+  for (size_t i = 0; i < r.at("runs").size(); ++i)
+    if (!r.at("runs")[i].is_object())
+      fail("{}: runs[{}] must be a JSON object (a run record), got {}", path, i, json_excerpt(r.at("runs")[i]));
 }
 
 }  // namespace
@@ -326,10 +349,17 @@ Runner add_validate_command(CLI::App& app) {
 Runner add_report_command(CLI::App& app) {
   auto dir = std::make_shared<std::string>();
   auto* cmd = app.add_subcommand("report", "Rebuild DIR/report.md and its plots from DIR/results.json and DIR/frames.csv, "
-                                           "without running anything again");
+                                           "without running anything again. A damaged results.json (not JSON, nested deeper than\n"
+                                           "64 levels, a field of the wrong type) is reported naming the file and the field, with exit code 2.");
   cmd->add_option("dir", *dir, "A folder written by 'dhrbench run'")->required()->check(CLI::ExistingDirectory);
   return [dir] {
-    if (!fs::exists(fs::path(*dir) / "results.json")) fail("{}: no results.json here (was it written by 'dhrbench run'?)", *dir);
+    try {
+      check_results_file(*dir);
+    } catch (const Error& e) {
+      // Exit 2 for damaged results, as report.py does for what it finds.
+      std::fprintf(stderr, "dhrbench: error: %s\n", e.what());
+      return 2;
+    }
     const int rc = write_report(*dir);
     if (rc == 0) fmt::print("report: {}/report.md\n", *dir);
     return rc;

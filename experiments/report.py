@@ -14,14 +14,223 @@ import math
 import os
 import sys
 
-import matplotlib
+# matplotlib is imported once results.json and frames.csv have been checked (load_matplotlib):
+# a damaged file is reported without the second it takes to import.
+mpimg = plt = None
+EXIT_NO_MATPLOTLIB = 3
 
-matplotlib.use("Agg")
-import matplotlib.image as mpimg  # noqa: E402
-import matplotlib.pyplot as plt  # noqa: E402
+
+def load_matplotlib():
+    global mpimg, plt
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.image as mpimg
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("dhrbench report: error: the report needs matplotlib for Debian's python3: apt-get install "
+              "python3-matplotlib (or run scripts/setup.sh)", file=sys.stderr)
+        sys.exit(EXIT_NO_MATPLOTLIB)
 
 ERROR_SCALE_LEVELS = 32  # the runner writes |luma difference| 0..32 levels as 0..255 grey
 MAX_RUNS_PER_GRID = 8
+MAX_JSON_DEPTH = 64  # core/json_io.h kMaxJsonDepth: the limit for every JSON dhrbench reads
+EXIT_BAD_INPUT = 2
+
+
+class BadResults(Exception):
+    """Damaged input: the message names the file and what is wrong; main() prints it, exit 2."""
+
+
+def excerpt(v, limit=60):
+    try:
+        s = json.dumps(v, ensure_ascii=False)
+    except (TypeError, ValueError, RecursionError):
+        s = repr(v)
+    return s if len(s) <= limit else s[:limit] + "..."
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def _finite_float(text):
+    v = float(text)
+    if math.isinf(v):
+        raise ValueError(f"number out of range: {text[:40]}")
+    return v
+
+
+def load_json(path):
+    """results.json as dhrbench reads JSON: strict (no NaN/Infinity, no 1e400), depth-bounded."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+    except OSError as e:
+        raise BadResults(f"{path}: cannot read the file: {e.strerror}")
+    except UnicodeDecodeError as e:
+        raise BadResults(f"{path}: not UTF-8 text (byte {e.start})")
+    try:
+        value = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float)
+    except RecursionError:
+        raise BadResults(f"{path}: JSON nested deeper than {MAX_JSON_DEPTH} levels of arrays and objects "
+                         "(the limit for every JSON dhrbench reads)")
+    except ValueError as e:  # json.JSONDecodeError too
+        raise BadResults(f"{path}: not valid JSON: {str(e)[:240]}")
+    # The depth of what was parsed, without recursion.
+    stack = [(value, 0)]
+    while stack:
+        v, depth = stack.pop()
+        if isinstance(v, (list, dict)):
+            depth += 1
+            if depth > MAX_JSON_DEPTH:
+                raise BadResults(f"{path}: JSON nested deeper than {MAX_JSON_DEPTH} levels of arrays and objects "
+                                 "(the limit for every JSON dhrbench reads)")
+            stack.extend((c, depth) for c in (v.values() if isinstance(v, dict) else v))
+    return value
+
+
+class Checker:
+    """Checks the fields of results.json that the report reads; every problem names its JSON path."""
+
+    def __init__(self, path):
+        self.path = path
+
+    def fail(self, where, what, v):
+        raise BadResults(f"{self.path}: {where}: must be {what}, got {excerpt(v)}")
+
+    def obj(self, v, where):
+        if not isinstance(v, dict):
+            self.fail(where, "a JSON object", v)
+        return v
+
+    def lst(self, v, where):
+        if not isinstance(v, list):
+            self.fail(where, "a list", v)
+        return v
+
+    def num(self, v, where, none_ok=False):
+        if v is None and none_ok:
+            return
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool)
+        if ok:
+            try:
+                ok = math.isfinite(float(v))
+            except OverflowError:
+                ok = False
+        if not ok:
+            self.fail(where, "a finite number" + (" or null" if none_ok else ""), v)
+
+    def name(self, v, where, filename=False):
+        """A string; a name that becomes part of a file name has no path separator or NUL."""
+        if not isinstance(v, str) or not v or "\0" in v or (filename and ("/" in v or "\\" in v or v in (".", ".."))):
+            self.fail(where, "a non-empty string" + (" without / (it names image files)" if filename else ""), v)
+
+    def results(self, res):
+        self.obj(res, "(top level)")
+        for key in ("context", "experiment", "runs"):
+            if key not in res:
+                raise BadResults(f"{self.path}: \"{key}\" is missing (is this a results.json written by 'dhrbench run'?)")
+        ctx = self.obj(res["context"], "context")
+        if "libraries" in ctx:
+            self.obj(ctx["libraries"], "context.libraries")
+        exp = self.obj(res["experiment"], "experiment")
+        for key in ("name", "description"):
+            if key in exp and not isinstance(exp[key], str):
+                self.fail(f"experiment.{key}", "a string", exp[key])
+        notes = exp.get("notes")
+        if notes is not None and not isinstance(notes, str) and not (
+                isinstance(notes, list) and all(isinstance(n, str) for n in notes)):
+            self.fail("experiment.notes", "a string or a list of strings", notes)
+        if "experiment_path" in res and not isinstance(res["experiment_path"], str):
+            self.fail("experiment_path", "a string", res["experiment_path"])
+        if "wall_s" in res:
+            self.num(res["wall_s"], "wall_s")
+        for i, r in enumerate(self.lst(res["runs"], "runs")):
+            self.run(r, f"runs[{i}]")
+
+    def run(self, r, where):
+        self.obj(r, where)
+        for key in ("id", "scene", "label"):
+            if key not in r:
+                raise BadResults(f"{self.path}: {where}.{key} is missing")
+        self.name(r["id"], f"{where}.id", filename=True)
+        self.name(r["scene"], f"{where}.scene")
+        if not isinstance(r["label"], str):
+            self.fail(f"{where}.label", "a string", r["label"])
+        if "error" in r and not isinstance(r["error"], str):
+            self.fail(f"{where}.error", "a string", r["error"])
+        for key in ("config", "images"):
+            if key in r:
+                self.obj(r[key], f"{where}.{key}")
+        if "metrics" not in r:
+            return
+        m = self.obj(r["metrics"], f"{where}.metrics")
+        w = f"{where}.metrics"
+        for key in ("bandwidth_mbps", "server_fps_virtual", "client_fps_wall"):
+            if key not in m:
+                raise BadResults(f"{self.path}: {w}.{key} is missing")
+            self.num(m[key], f"{w}.{key}")
+        for key in ("ssim_local_mean", "ssim_ground_truth_mean", "psnr_local_mean_db"):
+            if key in m:
+                self.num(m[key], f"{w}.{key}", none_ok=True)
+        for key in ("passes", "stages_wall"):
+            if key not in m:
+                raise BadResults(f"{self.path}: {w}.{key} is missing")
+        for j, p in enumerate(self.lst(m["passes"], f"{w}.passes")):
+            pw = f"{w}.passes[{j}]"
+            self.obj(p, pw)
+            for key in ("pass", "bytes_per_frame", "server_frames", "frames_lost"):
+                if key not in p:
+                    raise BadResults(f"{self.path}: {pw}.{key} is missing")
+            for key in ("bytes_per_frame", "server_frames", "frames_lost"):
+                self.num(p[key], f"{pw}.{key}")
+            if "delivered_fps" in p:
+                self.num(p["delivered_fps"], f"{pw}.delivered_fps")
+        for stage, st in self.obj(m["stages_wall"], f"{w}.stages_wall").items():
+            sw = f"{w}.stages_wall.{stage}"
+            self.obj(st, sw)
+            for key in ("median_ms", "p95_ms"):
+                if key not in st:
+                    raise BadResults(f"{self.path}: {sw}.{key} is missing")
+                self.num(st[key], f"{sw}.{key}")
+        for key, v in m.items():
+            if key.startswith("buffer_age_ms_"):
+                self.obj(v, f"{w}.{key}")
+                if "median" not in v:
+                    raise BadResults(f"{self.path}: {w}.{key}.median is missing")
+                self.num(v["median"], f"{w}.{key}.median")
+
+
+def load_frames(path):
+    """frames.csv rows; the columns the report reads are checked (frame an integer, ssim_local a number)."""
+    try:
+        with open(path, encoding="utf-8", newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as e:
+        raise BadResults(f"{path}: cannot read the file: {e.strerror}")
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise BadResults(f"{path}: not a CSV file as 'dhrbench run' writes it: {str(e)[:120]}")
+    for n, row in enumerate(rows, start=2):
+        for key in ("run", "frame", "ssim_local"):
+            if row.get(key) is None:
+                raise BadResults(f"{path}: line {n}: the column \"{key}\" is missing")
+        try:
+            int(row["frame"])
+            if row["ssim_local"] != "":
+                if not math.isfinite(float(row["ssim_local"])):
+                    raise ValueError
+        except ValueError:
+            raise BadResults(f"{path}: line {n}: frame must be an integer and ssim_local a number or empty, got "
+                             f"{excerpt(row['frame'])} and {excerpt(row['ssim_local'])}")
+    return rows
+
+
+def read_image(path):
+    try:
+        return mpimg.imread(path)
+    except Exception as e:  # PIL and matplotlib raise several kinds for a damaged file
+        raise BadResults(f"{path}: not a readable PNG image: {str(e)[:120]}")
 
 
 def fmt(v, digits=4):
@@ -84,12 +293,13 @@ def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
 
 
 def main(d):
-    with open(os.path.join(d, "results.json")) as f:
-        res = json.load(f)
+    results_path = os.path.join(d, "results.json")
+    res = load_json(results_path)
+    Checker(results_path).results(res)
     frames = []
     if os.path.exists(os.path.join(d, "frames.csv")):
-        with open(os.path.join(d, "frames.csv")) as f:
-            frames = list(csv.DictReader(f))
+        frames = load_frames(os.path.join(d, "frames.csv"))
+    load_matplotlib()
     os.makedirs(os.path.join(d, "plots"), exist_ok=True)
     os.makedirs(os.path.join(d, "grids"), exist_ok=True)
     ctx = res["context"]
@@ -164,7 +374,7 @@ def main(d):
         have_fps = any("delivered_fps" in p for r in ok for p in r["metrics"]["passes"])
         fig, ax = plt.subplots(figsize=(7, 4.2))
         for mode, colour in (("hybrid", "tab:blue"), ("remote", "tab:orange")) if have_fps else ():
-            rs = [r for r in ok if r["config"].get("mode", "hybrid") == mode]
+            rs = [r for r in ok if r.get("config", {}).get("mode", "hybrid") == mode]
             xs, ys = [], []
             for r in rs:
                 passes = [p for p in r["metrics"]["passes"] if p["server_frames"]]
@@ -225,13 +435,13 @@ def main(d):
             for ax in axes.flat:
                 ax.axis("off")
             for c, (title, name) in enumerate(refs):
-                axes[0, c].imshow(mpimg.imread(os.path.join(img_dir, name)))
+                axes[0, c].imshow(read_image(os.path.join(img_dir, name)))
                 axes[0, c].set_title(title, fontsize=8)
             im = None
             for c, r in enumerate(chunk):
-                axes[1, c].imshow(mpimg.imread(os.path.join(img_dir, r["id"] + "_shown.png")))
+                axes[1, c].imshow(read_image(os.path.join(img_dir, r["id"] + "_shown.png")))
                 axes[1, c].set_title(f"{r['id']}: {r['label']}"[:44], fontsize=7)
-                err = mpimg.imread(os.path.join(img_dir, r["id"] + "_error.png"))
+                err = read_image(os.path.join(img_dir, r["id"] + "_error.png"))
                 if err.ndim == 3:
                     err = err[..., 0]
                 im = axes[2, c].imshow(err * ERROR_SCALE_LEVELS, cmap="viridis", vmin=0, vmax=ERROR_SCALE_LEVELS)
@@ -264,4 +474,16 @@ def main(d):
 if __name__ == "__main__":
     if len(sys.argv) != 2:
         sys.exit("usage: report.py RESULTS_DIR")
-    main(sys.argv[1])
+    try:
+        main(sys.argv[1])
+    except BadResults as e:
+        print(f"dhrbench report: error: {e}", file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RecursionError) as e:
+        # Content the checks above let through: still one line naming the folder, never a traceback.
+        tb = e.__traceback__
+        while tb.tb_next:
+            tb = tb.tb_next
+        print(f"dhrbench report: error: {sys.argv[1]}: results.json or frames.csv holds content the report cannot "
+              f"use ({type(e).__name__}: {str(e)[:160]}; report.py line {tb.tb_lineno})", file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)

@@ -11,9 +11,11 @@
 #                  corpus in build-fuzz/corpus/ across runs; use it to look for new bugs, then
 #                  add the input that found one to tests/fuzz/corpus/<target>/ with the fix
 #   DHR_FUZZ_RUNS      inputs per target in the default mode (default 50000 for the packet
-#                      header and the assembler, 4000 for the slower decoders; 0 only replays)
+#                      header and the assembler, 4000 for the slower decoders and for the
+#                      scene and experiment readers (~20 s each on 2 cores); 0 only replays)
 #   DHR_FUZZ_SEED      libFuzzer seed in the default mode (default 1)
-#   DHR_FUZZ_TARGETS   targets to run (default: fuzz_packet_header fuzz_assembler fuzz_decoders)
+#   DHR_FUZZ_TARGETS   targets to run (default: fuzz_packet_header fuzz_assembler fuzz_decoders
+#                      fuzz_scene_load fuzz_experiment)
 #   DHR_FUZZ_JOBS      build parallelism (default: nproc)
 #   DHR_FUZZ_WERROR    ON (default): clang's warnings are errors, as gcc's are in the main build
 # New inputs found while fuzzing go to build-fuzz/corpus/<target>/, never into the repository.
@@ -22,7 +24,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 seconds=${DHR_FUZZ_SECONDS:-0}
 seed=${DHR_FUZZ_SEED:-1}
-targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders"}
+targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders fuzz_scene_load fuzz_experiment"}
 jobs=${DHR_FUZZ_JOBS:-$(nproc 2>/dev/null || echo 2)}
 werror=${DHR_FUZZ_WERROR:-ON}
 build=$root/build-fuzz
@@ -57,7 +59,12 @@ for t in $targets; do
   # -rss_limit_mb bounds memory (the assembler and the decoders must not allocate from
   # untrusted sizes); -timeout catches hangs; the work corpus is listed first so that new
   # inputs go there and the seeds stay read-only.
-  case $t in fuzz_decoders) runs=${DHR_FUZZ_RUNS:-4000} ;; *) runs=${DHR_FUZZ_RUNS:-50000} ;; esac
+  # The scene and experiment readers build scenes and expand sweeps per input (a few hundred
+  # inputs a second): 4000 keep each near 20 s on 2 cores.
+  case $t in
+    fuzz_decoders | fuzz_scene_load | fuzz_experiment) runs=${DHR_FUZZ_RUNS:-4000} ;;
+    *) runs=${DHR_FUZZ_RUNS:-50000} ;;
+  esac
   if [ "$seconds" -gt 0 ]; then
     echo "== $t: fuzz for $seconds s (random seed, work corpus $work)"
     mode=(-max_total_time="$seconds")

@@ -4,9 +4,11 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <sys/wait.h>
 
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 
 namespace dhr {
@@ -111,6 +113,96 @@ TEST(Experiment, BadFilesAreErrors) {
   EXPECT_THROW(load_experiment(write("badnet.json", R"({"version": 1, "scenes": ["room"], "sweep": {"network": ["x"]}})")), Error);
   EXPECT_THROW(load_experiment((dir / "missing.json").string()), Error);
   fs::remove_all(dir);
+}
+
+// Issue 13: 100,000 levels of nesting in an experiment crashed dhrbench (SIGSEGV); through the
+// command it is now one message naming the file and the limit, exit 1.
+TEST(Runner, DeepNestingInAnExperimentOrASetValueIsAClearError) {
+  const fs::path dir = fs::temp_directory_path() / "dhr_runner_deep";
+  fs::create_directories(dir);
+  const int n = 100000;
+  std::ofstream(dir / "deep.json") << std::string(n, '[') << std::string(n, ']');
+  std::ofstream(dir / "huge.json") << R"({"version": 1, "scenes": ["room"], "run": {"frames": 1e400}})";
+  std::string log;
+  for (const char* cmd : {"validate", "run"}) {
+    const int rc = run(std::string(cmd) + " " + (dir / "deep.json").string(), &log);
+    ASSERT_TRUE(WIFEXITED(rc)) << "killed by a signal: " << rc;
+    EXPECT_EQ(WEXITSTATUS(rc), 1);
+    EXPECT_NE(log.find((dir / "deep.json").string() + ": JSON nested deeper than 64 levels"), std::string::npos) << log;
+    EXPECT_LT(log.size(), 400u) << log;
+    const int rc2 = run(std::string(cmd) + " " + (dir / "huge.json").string(), &log);
+    EXPECT_EQ(WEXITSTATUS(rc2), 1);
+    EXPECT_NE(log.find((dir / "huge.json").string() + ": not valid JSON"), std::string::npos) << log;
+  }
+  // A --set value (kept under the kernel's limit on one argument).
+  const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json";
+  const int rc = run("validate " + exp + " --set 'run.uplink=" + std::string(50000, '[') + std::string(50000, ']') + "'", &log);
+  ASSERT_TRUE(WIFEXITED(rc)) << "killed by a signal: " << rc;
+  EXPECT_EQ(WEXITSTATUS(rc), 1);
+  EXPECT_NE(log.find("--set 'run.uplink': the value is nested deeper than 64 levels"), std::string::npos) << log;
+  fs::remove_all(dir);
+}
+
+// 'dhrbench report' on a damaged results.json (or frames.csv): one message naming the file and
+// what is wrong, exit 2, no Python traceback, no report written.
+TEST(Runner, ReportOnDamagedResultsIsAClearError) {
+  if (std::system("/usr/bin/python3 -c 'import matplotlib' >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "python3-matplotlib is not installed (scripts/setup.sh installs it)";
+  std::ifstream in(std::string(DHR_SOURCE_DIR) + "/reports/quick/results.json");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const std::string text = ss.str();
+  const nlohmann::json good = nlohmann::json::parse(text);
+  ASSERT_FALSE(good.at("runs").empty());
+  auto with = [&](const std::function<void(nlohmann::json&)>& f) {
+    nlohmann::json r = good;
+    f(r);
+    return r.dump(1);
+  };
+  struct Case {
+    const char* name;
+    std::string results;
+    std::string frames_csv;  // empty: none
+    const char* expected;    // in the message
+  };
+  const std::vector<Case> cases = {
+      {"truncated", text.substr(0, text.size() / 2), "", "results.json: not valid JSON"},
+      {"empty", "", "", "results.json: not valid JSON"},
+      {"not_json", "this is not JSON", "", "results.json: not valid JSON"},
+      {"deep", std::string(100000, '[') + std::string(100000, ']'), "", "results.json: JSON nested deeper than 64 levels"},
+      {"huge_number", "{\"x\": 1e400, " + text.substr(text.find('{') + 1), "",
+       "results.json: not valid JSON"},
+      {"top_array", "[1, 2]", "", "results.json: must be a JSON object"},
+      {"no_runs", with([](auto& r) { r.erase("runs"); }), "", "results.json: \"runs\" must be a list"},
+      {"runs_object", with([](auto& r) { r["runs"] = {{"a", 1}}; }), "", "results.json: \"runs\" must be a list"},
+      {"run_not_object", with([](auto& r) { r["runs"][0] = 42; }), "", "results.json: runs[0] must be a JSON object"},
+      {"context_string", with([](auto& r) { r["context"] = "x"; }), "", "results.json: \"context\" must be a JSON object"},
+      {"metrics_wrong_type", with([](auto& r) { r["runs"][0]["metrics"]["bandwidth_mbps"] = "fast"; }), "",
+       "results.json: runs[0].metrics.bandwidth_mbps: must be a finite number, got \"fast\""},
+      {"metrics_missing_key", with([](auto& r) { r["runs"][0]["metrics"].erase("passes"); }), "",
+       "results.json: runs[0].metrics.passes is missing"},
+      {"id_path", with([](auto& r) { r["runs"][0]["id"] = "../../x"; }), "", "results.json: runs[0].id: must be"},
+      {"frames_csv", text, "run,scene,label,frame,ssim_local\nr000,room,x,abc,0.5\n", "frames.csv: line 2: frame must be"},
+  };
+  const fs::path base = fs::temp_directory_path() / "dhr_runner_damaged";
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    const fs::path dir = base / c.name;
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    std::ofstream(dir / "results.json") << c.results;
+    if (!c.frames_csv.empty()) std::ofstream(dir / "frames.csv") << c.frames_csv;
+    std::string log;
+    const int rc = run("report " + dir.string(), &log);
+    ASSERT_TRUE(WIFEXITED(rc)) << "killed by a signal: " << rc;
+    EXPECT_EQ(WEXITSTATUS(rc), 2) << log;
+    EXPECT_NE(log.find((dir / "").string()), std::string::npos) << log;
+    EXPECT_NE(log.find(c.expected), std::string::npos) << log;
+    EXPECT_EQ(log.find("Traceback"), std::string::npos) << log;
+    EXPECT_LT(log.size(), 600u) << log;
+    EXPECT_FALSE(fs::exists(dir / "report.md"));
+  }
+  fs::remove_all(base);
 }
 
 }  // namespace

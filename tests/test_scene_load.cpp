@@ -254,6 +254,65 @@ TEST(SceneFormat, VersionIsRequiredAndChecked) {
             std::string::npos);
 }
 
+// Hostile JSON (issue 13): 100,000 levels of nesting once crashed the loader (SIGSEGV while
+// printing the value in an error message), and a number out of range (1e400) escaped as a
+// library exception that named no file. Each is now one dhr::Error naming the file.
+TEST(SceneFormat, HostileJsonIsAClearErrorNamingTheFile) {
+  TempDir dir;
+  const int n = 100000;
+  const std::string deep_cases[] = {
+      std::string(n, '[') + std::string(n, ']'),                                        // the whole file
+      "{\"version\": 1, \"geometry\": " + std::string(n, '[') + std::string(n, ']') + "}",  // inside a key
+      std::string(n, '['),                                                              // never closed
+  };
+  int i = 0;
+  for (const auto& text : deep_cases) {
+    const std::string file = dir.write(fmt::format("deep{}.json", i++), text);
+    const std::string e = error_of([&] { load_scene(file, empty_search()); });
+    EXPECT_EQ(e.rfind(file + ": JSON nested deeper than 64 levels", 0), 0u) << e.substr(0, 300);
+  }
+  std::string deep_object;
+  for (int k = 0; k < n; ++k) deep_object += "{\"a\":";
+  deep_object += "1" + std::string(n, '}');
+  const std::string file = dir.write("deep_object.json", deep_object);
+  EXPECT_NE(error_of([&] { load_scene(file, empty_search()); }).find(file + ": JSON nested deeper than 64"),
+            std::string::npos);
+
+  // A number too large for a double, where a number belongs and in the version.
+  std::string huge = kMinimalScene;
+  huge.replace(huge.find("[1, 1, 1]"), 9, "[1e400, 1, 1]");
+  for (const std::string& text : {huge, std::string(R"({"version": 1e400})"), std::string("-1e400")}) {
+    const std::string f = dir.write("huge.json", text);
+    const std::string e = error_of([&] { load_scene(f, empty_search()); });
+    EXPECT_EQ(e.rfind(f + ": not valid JSON: ", 0), 0u) << e;
+    EXPECT_NE(e.find("1e400"), std::string::npos) << e;
+  }
+  // Just under the limit is still parsed (and then refused by the format, not the parser).
+  const std::string at_limit = dir.write("limit.json", std::string(64, '[') + std::string(64, ']'));
+  const std::string e = error_of([&] { load_scene(at_limit, empty_search()); });
+  EXPECT_EQ(e.find("nested deeper"), std::string::npos) << e;
+  EXPECT_NE(e.find("must be an object"), std::string::npos) << e;
+}
+
+TEST(SceneFormat, ErrorMessagesPrintOnlyAnExcerptOfAValue) {
+  TempDir dir;
+  std::string text = kMinimalScene;
+  const std::string long_value = "\"" + std::string(1 << 20, 'x') + "\"";
+  text.replace(text.find("[1, 1, 1]"), 9, long_value);
+  const std::string file = dir.write("long.json", text);
+  const std::string e = error_of([&] { load_scene(file, empty_search()); });
+  EXPECT_NE(e.find(file + ": geometry[0].size_m: must be an array of 3 numbers, got \"xxx"), std::string::npos) << e.substr(0, 300);
+  EXPECT_LT(e.size(), 400u);
+  // A long key and a long string where a name belongs.
+  const std::string name(1 << 20, 'k');
+  const std::string file2 = dir.write("long_key.json", R"({"version": 1, ")" + name + R"(": 1, "geometry": [{"type": ")" +
+                                                          name + R"("}], "camera": {"path": {"keys": []}}})");
+  const std::string e2 = error_of([&] { load_scene(file2, empty_search()); });
+  EXPECT_NE(e2.find(file2 + ": kkkk"), std::string::npos) << e2.substr(0, 300);
+  EXPECT_NE(e2.find(file2 + ": geometry[0].type: 'kkkk"), std::string::npos) << e2.substr(0, 300);
+  EXPECT_LT(e2.size(), 3000u) << e2.substr(0, 3000);
+}
+
 TEST(SceneFormat, AllValueErrorsAreReportedTogether) {
   TempDir dir;
   const std::string file = dir.write("room.json", R"({
