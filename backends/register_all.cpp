@@ -1,7 +1,7 @@
 // The list of every backend: one line each. To add a backend, write one .cpp in
 // backends/<kind>/ defining `dhr::CodecEntry make_<name>_codec()` (or DenoiserEntry /
 // PredictorEntry), then add its line here. See docs/adding-a-backend.md.
-#include "core/backend.h"
+#include "backends/register_all.h"
 
 // Declares the entry function and adds what it returns to the registry (one line each).
 #define DHR_CODEC(fn)     do { extern ::dhr::CodecEntry fn();  r.codecs.add(fn()); } while (0)

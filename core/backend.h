@@ -155,10 +155,5 @@ struct Registries {
   Registry<Predictor> predictors{"predictor"};
 };
 
-// Defined in backends/register_all.cpp: one line per backend.
-void register_all_backends(Registries& r);
-
-// All backends, registered on first use (thread-safe).
-const Registries& registries();
 
 }  // namespace dhr

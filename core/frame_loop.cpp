@@ -316,7 +316,7 @@ nlohmann::json RunResult::metrics() const {
 
 // ---- validation ----------------------------------------------------------------------------
 
-void validate_sim_config(const SimConfig& c, const Scene& scene) {
+void validate_sim_config(const SimConfig& c, const Scene& scene, const Registries& r) {
   std::vector<std::string> problems;
   auto check = [&](bool ok, std::string what) {
     if (!ok) problems.push_back(std::move(what));
@@ -359,7 +359,6 @@ void validate_sim_config(const SimConfig& c, const Scene& scene) {
       problems.push_back(fmt::format("{}: {}", role, e.what()));
     }
   };
-  const Registries& r = registries();
   backend(r.codecs, c.visibility_codec, "visibility_codec");
   backend(r.codecs, c.ao_codec, "ao_codec");
   backend(r.codecs, c.colour_codec, "colour_codec");
@@ -677,9 +676,9 @@ class Simulation {
 }  // namespace
 
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key, TraceCache& cache,
-                         const ProgressFn& progress) {
-  validate_sim_config(config, scene);
-  Simulation sim(config, scene, scene_key, cache, registries());
+                         const Registries& registries, const ProgressFn& progress) {
+  validate_sim_config(config, scene, registries);
+  Simulation sim(config, scene, scene_key, cache, registries);
   return sim.run(progress);
 }
 

@@ -157,9 +157,9 @@ using ProgressFn = std::function<void(int, int)>;
 // Validates the configuration against the scene and the registry (every problem at once),
 // then runs. `scene_key` identifies the scene's content for the cache (e.g. a hash of its file).
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key,
-                         TraceCache& cache, const ProgressFn& progress = {});
+                         TraceCache& cache, const Registries& registries, const ProgressFn& progress = {});
 
 // The checks run_simulation does first: throws dhr::Error listing every problem.
-void validate_sim_config(const SimConfig& config, const Scene& scene);
+void validate_sim_config(const SimConfig& config, const Scene& scene, const Registries& registries);
 
 }  // namespace dhr

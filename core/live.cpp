@@ -106,13 +106,13 @@ uint16_t stream_of(uint32_t session) { return uint16_t(session & 0xffffu); }
 
 // ---- the offer ---------------------------------------------------------------------------
 
-nlohmann::json session_offer(const SimConfig& c, const std::string& scene_name, const std::string& scene_key) {
+nlohmann::json session_offer(const SimConfig& c, const Registries& r, const std::string& scene_name,
+                             const std::string& scene_key) {
   auto effective = [](const auto& registry, const BackendChoice& b) {
     Params p;
     registry.create(b.name, b.params, &p);
     return nlohmann::json{{"name", b.name}, {"params", p.effective()}};
   };
-  const Registries& r = registries();
   return {{"protocol", kLiveProtocolVersion},
           {"scene", scene_name},
           {"scene_hash", scene_key},
@@ -170,8 +170,8 @@ namespace {
 
 class LiveServer {
  public:
-  LiveServer(const SimConfig& c, const LiveScene& s, const ServeOptions& o)
-      : c_(c), scene_(s), o_(o), offer_(session_offer(c, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
+  LiveServer(const SimConfig& c, const Registries& r, const LiveScene& s, const ServeOptions& o)
+      : c_(c), registries_(r), scene_(s), o_(o), offer_(session_offer(c, r, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
         socket_(o.bind) {
     if (c.mode != "hybrid") fail("live mode serves hybrid rendering only (mode '{}' given)", c.mode);
     rt_ = std::make_unique<RtScene>(*s.scene);
@@ -289,7 +289,7 @@ class LiveServer {
     // are told apart; 0 is reserved for "no session".
     s->id = uint32_t((uint64_t(Clock::now().time_since_epoch().count()) * 0x9E3779B97F4A7C15ull) >> 32) | 1u;
     s->peer = from;
-    const Registries& r = registries();
+    const Registries& r = registries_;
     if (plan_.visibility()) {
       s->codec[0] = r.codecs.create(c_.visibility_codec.name, c_.visibility_codec.params);
       s->codec_name[0] = c_.visibility_codec.name;
@@ -298,7 +298,7 @@ class LiveServer {
       s->codec[1] = r.codecs.create(c_.ao_codec.name, c_.ao_codec.params);
       s->codec_name[1] = c_.ao_codec.name;
     }
-    s->denoise = std::make_unique<PassDenoisers>(c_);
+    s->denoise = std::make_unique<PassDenoisers>(c_, registries_);
     s->started = s->last_heard = Clock::now();
     if (!o_.out_dir.empty()) {
       std::filesystem::create_directories(o_.out_dir);
@@ -418,6 +418,7 @@ class LiveServer {
   }
 
   const SimConfig& c_;
+  const Registries& registries_;
   LiveScene scene_;
   ServeOptions o_;
   nlohmann::json offer_;
@@ -434,10 +435,10 @@ class LiveServer {
 
 }  // namespace
 
-int run_live_server(const SimConfig& config, const LiveScene& scene, const ServeOptions& options,
-                    const std::atomic<bool>& stop) {
-  validate_sim_config(config, *scene.scene);
-  LiveServer server(config, scene, options);
+int run_live_server(const SimConfig& config, const Registries& registries, const LiveScene& scene,
+                    const ServeOptions& options, const std::atomic<bool>& stop) {
+  validate_sim_config(config, *scene.scene, registries);
+  LiveServer server(config, registries, scene, options);
   return server.run(stop);
 }
 
@@ -447,12 +448,11 @@ namespace {
 
 class LiveClient {
  public:
-  LiveClient(const SimConfig& c, const LiveScene& s, const ClientOptions& o)
-      : c_(c), scene_(s), o_(o), offer_(session_offer(c, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
+  LiveClient(const SimConfig& c, const Registries& r, const LiveScene& s, const ClientOptions& o)
+      : c_(c), registries_(r), scene_(s), o_(o), offer_(session_offer(c, r, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
         socket_(any_endpoint_like(o.server)) {
     if (c.mode != "hybrid") fail("live mode is hybrid rendering only (mode '{}' given)", c.mode);
     if (o.frames < 1) fail("client: --frames must be at least 1 (got {})", o.frames);
-    const Registries& r = registries();
     if (plan_.visibility()) {
       receivers_[0].codec = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
       predictor_[0] = r.predictors.create(c.predictor.name, c.predictor.params);
@@ -714,7 +714,7 @@ class LiveClient {
     say(o_.quiet, "client", "scoring {} frames against the local reference ...",
         std::count_if(rows_.begin(), rows_.end(), [](const Row& r) { return r.scored; }));
     RtScene rt(*scene_.scene);
-    PassDenoisers local(c_);
+    PassDenoisers local(c_, registries_);
     const bool every_frame = !local.ao_is_none || !local.soft_is_none;
     Camera prev;
     double prev_t = 0;
@@ -839,6 +839,7 @@ class LiveClient {
   };
 
   const SimConfig& c_;
+  const Registries& registries_;
   LiveScene scene_;
   ClientOptions o_;
   nlohmann::json offer_;
@@ -877,10 +878,10 @@ class LiveClient {
 
 }  // namespace
 
-int run_live_client(const SimConfig& config, const LiveScene& scene, const ClientOptions& options,
-                    const std::atomic<bool>& stop) {
-  validate_sim_config(config, *scene.scene);
-  LiveClient client(config, scene, options);
+int run_live_client(const SimConfig& config, const Registries& registries, const LiveScene& scene,
+                    const ClientOptions& options, const std::atomic<bool>& stop) {
+  validate_sim_config(config, *scene.scene, registries);
+  LiveClient client(config, registries, scene, options);
   return client.run(stop);
 }
 

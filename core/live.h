@@ -40,7 +40,8 @@ constexpr int kLiveProtocolVersion = 1;
 // What client and server must agree on, as JSON: the SimConfig fields that change what the
 // server sends or how the client reads it, with effective backend parameters, plus the scene's
 // name and content hash. Throws dhr::Error for an unknown backend or parameter.
-nlohmann::json session_offer(const SimConfig& config, const std::string& scene_name, const std::string& scene_key);
+nlohmann::json session_offer(const SimConfig& config, const Registries& registries, const std::string& scene_name,
+                             const std::string& scene_key);
 // Every field where the two offers disagree, as "field: client X, server Y" (empty: agree).
 std::vector<std::string> offer_mismatches(const nlohmann::json& client, const nlohmann::json& server);
 // The SimConfig fields live mode ignores, set to other than their defaults in `config` (the
@@ -64,8 +65,8 @@ struct ServeOptions {
 };
 // Runs until `sessions` sessions ended or `stop` becomes true (then a Bye is sent). Returns
 // the process exit code: 0 when every session ended by a Bye or silence.
-int run_live_server(const SimConfig& config, const LiveScene& scene, const ServeOptions& options,
-                    const std::atomic<bool>& stop);
+int run_live_server(const SimConfig& config, const Registries& registries, const LiveScene& scene,
+                    const ServeOptions& options, const std::atomic<bool>& stop);
 
 // ---- client ----
 struct ClientOptions {
@@ -81,8 +82,8 @@ struct ClientOptions {
 // Returns the exit code: 0 when the session ran (to the end, or until the server said Bye or
 // fell silent: the reason is printed and written); 2 when the server refused the offer; 1 when
 // no server answered.
-int run_live_client(const SimConfig& config, const LiveScene& scene, const ClientOptions& options,
-                    const std::atomic<bool>& stop);
+int run_live_client(const SimConfig& config, const Registries& registries, const LiveScene& scene,
+                    const ClientOptions& options, const std::atomic<bool>& stop);
 
 // ---- relay ----
 struct RelayOptions {

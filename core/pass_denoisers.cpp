@@ -4,10 +4,10 @@
 
 namespace dhr {
 
-PassDenoisers::PassDenoisers(const SimConfig& c) {
+PassDenoisers::PassDenoisers(const SimConfig& c, const Registries& r) : registries(r) {
   ao_is_none = c.ao_denoiser.name == "none";
   soft_is_none = c.visibility_denoiser.name == "none";
-  if (!ao_is_none) ao = registries().denoisers.create(c.ao_denoiser.name, c.ao_denoiser.params);
+  if (!ao_is_none) ao = registries.denoisers.create(c.ao_denoiser.name, c.ao_denoiser.params);
   soft_choice = c.visibility_denoiser;
 }
 
@@ -22,7 +22,7 @@ void PassDenoisers::run(const GBuffer& gbuf, uint32_t frame, std::optional<PassB
   }
   if (vis && vis->desc.kind == PassKind::SoftVisibility && !soft_is_none) {
     const int lights = vis->desc.channels;
-    while (int(soft.size()) < lights) soft.push_back(registries().denoisers.create(soft_choice.name, soft_choice.params));
+    while (int(soft.size()) < lights) soft.push_back(registries.denoisers.create(soft_choice.name, soft_choice.params));
     const size_t n = size_t(vis->desc.width) * size_t(vis->desc.height);
     for (int l = 0; l < lights; ++l) {
       ImageU8 out;

@@ -21,8 +21,9 @@ struct PassDenoisers {
   std::vector<std::unique_ptr<Denoiser>> soft;  // one per light
   bool ao_is_none = true, soft_is_none = true;
   BackendChoice soft_choice;
+  const Registries& registries;
 
-  explicit PassDenoisers(const SimConfig& c);
+  PassDenoisers(const SimConfig& c, const Registries& registries);
   // Denoises in place (either buffer may be absent).
   void run(const GBuffer& gbuf, uint32_t frame, std::optional<PassBuffer>& vis, std::optional<PassBuffer>& ao_buf);
 };

@@ -3,6 +3,7 @@
 // plus --set overrides) and refuse to start a session when they disagree.
 #include "core/error.h"
 #include "core/experiment.h"
+#include "backends/register_all.h"
 #include "core/live.h"
 #include "core/reference.h"
 #include "core/scene_load.h"
@@ -126,7 +127,7 @@ Runner add_serve_command(CLI::App& app) {
     so.sessions = o->sessions;
     so.quiet = o->common.quiet;
     install_signal_handlers();
-    return run_live_server(loaded->config, loaded->live, so, g_stop);
+    return run_live_server(loaded->config, registries(), loaded->live, so, g_stop);
   };
 }
 
@@ -178,7 +179,7 @@ Runner add_client_command(CLI::App& app) {
     co.idle_timeout_s = o->idle_timeout_s;
     co.quiet = o->common.quiet;
     install_signal_handlers();
-    return run_live_client(loaded->config, loaded->live, co, g_stop);
+    return run_live_client(loaded->config, registries(), loaded->live, co, g_stop);
   };
 }
 

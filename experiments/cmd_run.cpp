@@ -3,6 +3,7 @@
 // runs each configuration on each scene, records a failing configuration with its error and
 // goes on, and writes results.json, frames.csv, images and the report.
 #include "core/error.h"
+#include "backends/register_all.h"
 #include "core/experiment.h"
 #include "core/image_io.h"
 #include "core/json_io.h"
@@ -58,7 +59,7 @@ LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& s
     auto it = loaded.scenes.find(run.scene);
     if (it == loaded.scenes.end()) continue;
     try {
-      validate_sim_config(run.config, it->second);
+      validate_sim_config(run.config, it->second, registries());
     } catch (const Error& err) {
       std::string what = err.what();
       for (size_t pos = 0; (pos = what.find('\n', pos)) != std::string::npos; pos += 5) what.replace(pos, 1, "\n    ");
@@ -238,7 +239,7 @@ Runner add_run_command(CLI::App& app) {
         SimConfig config = spec.config;
         config.keep_images = true;
         const Scene& scene = loaded.scenes.at(spec.scene);
-        RunResult r = run_simulation(config, scene, loaded.keys.at(spec.scene), cache,
+        RunResult r = run_simulation(config, scene, loaded.keys.at(spec.scene), cache, registries(),
                                      [&](int f, int total) { progress.update(i, spec.label, f, total); });
         record["config"] = r.config;
         // Effective backend parameters (defaults filled in).

@@ -10,6 +10,7 @@
 // on a panning camera.
 //
 // Run: build-codec/tests/bench_codecs [--benchmark_repetitions=5 --benchmark_report_aggregates_only=true]
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/buffer_layout.h"
 #include "tests/support_buffers.h"

@@ -45,6 +45,7 @@
 // Run: build-*/tests/bench_denoise [--rounds=9] [--benchmark_filter=...]
 //      build-*/tests/bench_denoise --accuracy [--scenes=room,temple] [--csv=PATH] [--reference_rays=1024]
 //          [--frames=8] [--denoisers='svgf_ao svgf_ao{"light_history":8}']
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/error.h"
 #include "core/gbuffer.h"

@@ -5,6 +5,7 @@
 // precomputed (the nearest source pixel of each dst pixel), on the same TBB row split.
 // Each reprojection benchmark reports ms per frame and, as counters, the gather's ms and
 // the ratio (reprojection / gather).
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/rng.h"
 

@@ -10,6 +10,7 @@
 // the loops pick up whatever a registry holds. What the suite checks is chosen from the
 // codec itself: refuses(desc) skips the pass layouts it cannot carry, lossless() picks
 // bit-exact or bounded-error checks, stateful() the loss and keyframe behaviour.
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/buffer_layout.h"
 #include "core/checksum.h"

@@ -7,6 +7,7 @@
 // Measured figures the assertions are built on (Release, 64x48; printed by the tests): see
 // the comments at each test.
 #include "backends/denoise/filters.h"
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/error.h"
 #include "core/gbuffer.h"

@@ -2,6 +2,7 @@
 // network, the paper's latency claim (prediction beats none), determinism across runs and
 // thread counts, and survival under loss.
 #include "core/frame_loop.h"
+#include "backends/register_all.h"
 #include "core/scene_load.h"
 
 #include <gtest/gtest.h>
@@ -46,7 +47,7 @@ TEST(FrameLoop, ZeroLatencyLosslessEqualsLocalReferenceBitForBit) {
     c.ao_denoiser = {denoiser};
     c.visibility_codec = {"lz4"};
     c.ao_codec = {"zstd"};
-    RunResult r = run_simulation(c, scene("room"), "room", cache());
+    RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
     ASSERT_EQ(r.frames.size(), 30u);
     for (const FrameRecord& f : r.frames) {
       ASSERT_TRUE(f.scored);
@@ -75,7 +76,7 @@ TEST(FrameLoop, ReprojectionBeatsNoneUnderLatencyOnEveryBuiltinScene) {
         c.uplink.latency_ms = latency / 2;
         c.downlink.latency_ms = latency / 2;
         c.predictor = {predictor};
-        RunResult r = run_simulation(c, scene(name), name, cache());
+        RunResult r = run_simulation(c, scene(name), name, cache(), registries());
         ssim[i++] = r.metrics()["ssim_local_mean"].get<double>();
       }
       EXPECT_GT(ssim[1], ssim[0]) << name << " at " << latency << " ms: reprojection " << ssim[1] << " none " << ssim[0];
@@ -96,7 +97,7 @@ TEST(FrameLoop, DeterministicAcrossRunsAndThreadCounts) {
   auto run = [&](int threads) {
     tbb::global_control g(tbb::global_control::max_allowed_parallelism, size_t(threads));
     TraceCache fresh;  // no sharing: each run traces for itself
-    RunResult r = run_simulation(c, scene("street"), "street", fresh);
+    RunResult r = run_simulation(c, scene("street"), "street", fresh, registries());
     nlohmann::json m = r.metrics();
     m.erase("stages_wall");
     m.erase("client_frame_ms_median");
@@ -122,7 +123,7 @@ TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
   c.downlink.ge_p_bad_to_good = 0.5;
   c.downlink.ge_loss_bad = 1.0;
   c.ao_codec = {"h264", {{"rate_control", "crf"}, {"crf", 18}}};
-  RunResult r = run_simulation(c, scene("room"), "room", cache());
+  RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
   ASSERT_EQ(r.frames.size(), 60u);
   const nlohmann::json m = r.metrics();
   uint64_t lost = 0;
@@ -144,7 +145,7 @@ TEST(FrameLoop, RemoteBaselineShowsNewestColourFrame) {
   SimConfig c = small_config(6);
   c.mode = "remote";
   c.colour_codec = {"zstd"};
-  RunResult r = run_simulation(c, scene("temple"), "temple", cache());
+  RunResult r = run_simulation(c, scene("temple"), "temple", cache(), registries());
   for (const auto& f : r.frames) EXPECT_EQ(f.ssim_local, 1.0) << "zero latency, lossless colour";
   EXPECT_EQ(r.traffic.size(), 1u);
   EXPECT_GT(r.traffic[0].encoded_bytes, 0u);
@@ -157,7 +158,7 @@ TEST(FrameLoop, InvalidConfigurationReportsEveryProblem) {
   c.predictor = {"reprojection", {{"bogus", 1}}};
   c.visibility_codec = {"h264", {{"rate_control", "crf"}}};
   try {
-    run_simulation(c, scene("room"), "room", cache());
+    run_simulation(c, scene("room"), "room", cache(), registries());
     FAIL() << "no error";
   } catch (const Error& e) {
     const std::string m = e.what();
@@ -196,7 +197,7 @@ TEST(FrameLoop, EveryCodecUnderOneAndFivePercentLoss) {
       c.ao_denoiser = {"svgf_ao"};
       c.ao_codec = {codec};
       c.visibility_codec = {carries_bitmask ? codec : "zstd"};
-      RunResult r = run_simulation(c, scene("room"), "room", cache());
+      RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
       const nlohmann::json m = r.metrics();
       const auto& ao = m["passes"][1];
       const uint64_t sent = ao["server_frames"], lost = ao["frames_lost"], completed = ao["frames_completed"];

@@ -2,6 +2,7 @@
 // as three real processes over loopback UDP -- through loss, jitter, reordering and
 // duplication -- checked against the simulator's accounting of the same frames.
 #include "core/experiment.h"
+#include "backends/register_all.h"
 #include "core/live.h"
 #include "core/live_protocol.h"
 #include "core/packet.h"
@@ -112,8 +113,8 @@ TEST(LiveOffer, MismatchesNameEveryField) {
   SimConfig a, b;
   b.width = 640;
   b.ao_codec.name = "zstd";
-  const json oa = session_offer(a, "room", "abc"), ob = session_offer(b, "scenes/room.json", "abc");
-  EXPECT_TRUE(offer_mismatches(oa, session_offer(a, "other-name", "abc")).empty()) << "the name alone may differ";
+  const json oa = session_offer(a, registries(), "room", "abc"), ob = session_offer(b, registries(), "scenes/room.json", "abc");
+  EXPECT_TRUE(offer_mismatches(oa, session_offer(a, registries(), "other-name", "abc")).empty()) << "the name alone may differ";
   const auto why = offer_mismatches(oa, ob);
   // width, ao_codec.name, and each of the codecs' parameters that differ (lz4 and zstd have
   // different ones): every line names its dotted field.
@@ -130,8 +131,8 @@ TEST(LiveOffer, MismatchesNameEveryField) {
   // Effective parameters: an explicit default equals an omitted one.
   SimConfig c = a;
   c.ao_codec.params = {{"mode", "fast"}};
-  EXPECT_TRUE(offer_mismatches(oa, session_offer(c, "room", "abc")).empty());
-  const auto scene = offer_mismatches(oa, session_offer(a, "room", "def"));
+  EXPECT_TRUE(offer_mismatches(oa, session_offer(c, registries(), "room", "abc")).empty());
+  const auto scene = offer_mismatches(oa, session_offer(a, registries(), "room", "def"));
   ASSERT_FALSE(scene.empty());
   EXPECT_NE(scene[0].find("different content"), std::string::npos);
 }
@@ -357,7 +358,7 @@ TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
   sim.score_every = 1000000;
   const Scene scene = load_scene_or_model("room", SceneSearchPath::standard());
   TraceCache cache;
-  const RunResult rr = run_simulation(sim, scene, fmt::format("{:016x}", scene_content_hash(scene)), cache);
+  const RunResult rr = run_simulation(sim, scene, fmt::format("{:016x}", scene_content_hash(scene)), cache, registries());
   std::map<std::pair<int, std::string>, ServerPassRecord> simulated;
   for (const ServerPassRecord& p : rr.server_log) simulated[{p.frame, p.pass}] = p;
   int compared = 0;

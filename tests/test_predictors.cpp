@@ -2,6 +2,7 @@
 // tests over every registered predictor (one test per predictor, by name). The G-buffers come
 // from a tiny analytic scene (a finite ground plane and boxes) intersected with
 // Camera::primary_ray, so no rasterizer is needed and every pixel's world point is known exactly.
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/rng.h"
 

@@ -1,6 +1,7 @@
 // The registry: every expected backend is registered, names and parameters are validated,
 // every backend of every kind can be created with its defaults, and every example that
 // `dhrbench list` prints is accepted by the experiment loader and by --set.
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/experiment.h"
 #include "experiments/list_examples.h"

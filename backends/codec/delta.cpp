@@ -21,6 +21,7 @@
 //   layout             interleaved | planes   bitmask layout handed to the inner coder default planes
 //   keyframe_interval  1..100000              a keyframe every this many frames       default 30
 // Example: {"name": "delta", "params": {"inner": "zstd", "level": 1, "keyframe_interval": 30}}
+#include "backends/register_all.h"
 #include "core/backend.h"
 
 #include <cstring>

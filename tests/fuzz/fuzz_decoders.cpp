@@ -8,6 +8,7 @@
 // when it returns true the buffer has exactly the description's size. The input also drives a
 // round trip: the bytes, made a valid buffer of the first description, are encoded and
 // decoded, and a lossless codec must give them back exactly.
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "tests/fuzz/fuzz_common.h"
 

@@ -2,6 +2,7 @@
 // repository). Seeds are small valid inputs the fuzzer mutates from: real packets for the
 // header parser, programs that exercise every assembler operation, and each codec's own
 // output for the decoders. Usage: make_fuzz_corpus DIR (rerun after a format change).
+#include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/live_protocol.h"
 #include "core/packet.h"
