@@ -14,6 +14,7 @@
 #                      header and the assembler, 4000 for the slower decoders; 0 only replays)
 #   DHR_FUZZ_SEED      libFuzzer seed in the default mode (default 1)
 #   DHR_FUZZ_TARGETS   targets to run (default: fuzz_packet_header fuzz_assembler fuzz_decoders)
+#                      (and fuzz_live_control: live mode's control messages, 6000 inputs by default)
 #   DHR_FUZZ_JOBS      build parallelism (default: nproc)
 #   DHR_FUZZ_WERROR    ON (default): clang's warnings are errors, as gcc's are in the main build
 # New inputs found while fuzzing go to build-fuzz/corpus/<target>/, never into the repository.
@@ -23,6 +24,7 @@ cd "$root"
 seconds=${DHR_FUZZ_SECONDS:-0}
 seed=${DHR_FUZZ_SEED:-1}
 targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders"}
+[ -n "${DHR_FUZZ_TARGETS:-}" ] || targets="$targets fuzz_live_control"
 jobs=${DHR_FUZZ_JOBS:-$(nproc 2>/dev/null || echo 2)}
 werror=${DHR_FUZZ_WERROR:-ON}
 build=$root/build-fuzz
@@ -58,6 +60,7 @@ for t in $targets; do
   # untrusted sizes); -timeout catches hangs; the work corpus is listed first so that new
   # inputs go there and the seeds stay read-only.
   case $t in fuzz_decoders) runs=${DHR_FUZZ_RUNS:-4000} ;; *) runs=${DHR_FUZZ_RUNS:-50000} ;; esac
+  if [ "$t" = fuzz_live_control ]; then runs=${DHR_FUZZ_RUNS:-6000}; fi  # JSON bodies: ~25 s on a busy 2-core machine
   if [ "$seconds" -gt 0 ]; then
     echo "== $t: fuzz for $seconds s (random seed, work corpus $work)"
     mode=(-max_total_time="$seconds")
