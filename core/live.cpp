@@ -4,6 +4,7 @@
 #include "core/composite.h"
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/json_io.h"
 #include "core/live_protocol.h"
 #include "core/metrics.h"
 #include "core/packet.h"
@@ -79,11 +80,7 @@ nlohmann::json percentiles(std::vector<double> v) {
   return {{"median", s.median()}, {"p95", s.p95()}, {"max", max}, {"mean", s.total() / n}, {"n", s.samples_ms.size()}};
 }
 
-int slot_of(PassKind k) {
-  if (k == PassKind::Visibility || k == PassKind::SoftVisibility) return 0;
-  if (k == PassKind::Ao) return 1;
-  return -1;
-}
+int slot_of(PassKind k) { return pass_slot(k); }
 constexpr const char* kSlotName[2] = {"visibility", "ao"};
 
 ControlMessage msg(ControlType type, uint32_t session, std::string text = {}) {
@@ -101,6 +98,28 @@ ControlMessage camera_msg(uint32_t session, const CameraUpdate& cu) {
 }
 
 uint16_t stream_of(uint32_t session) { return uint16_t(session & 0xffffu); }
+
+// Bytes a datagram of `udp_payload_bytes` occupies on the wire: the simulator's definition
+// (core/packet.h): the IPv4 and UDP headers, kIpUdpOverheadBytes, are counted.
+uint64_t on_the_wire(uint64_t udp_payload_bytes, uint64_t datagrams) {
+  return udp_payload_bytes + datagrams * kIpUdpOverheadBytes;
+}
+
+std::optional<DatagramMac> load_key(const std::string& path) {
+  if (path.empty()) return std::nullopt;
+  return DatagramMac::from_file(path);
+}
+
+const char* authentication_name(const std::optional<DatagramMac>& mac) {
+  return mac ? "hmac-sha256-128" : "token";
+}
+
+// Map of counters by reason, as JSON.
+nlohmann::json counts_json(const std::map<std::string, uint64_t>& m) {
+  nlohmann::json out = nlohmann::json::object();
+  for (const auto& [k, v] : m) out[k] = v;
+  return out;
+}
 
 }  // namespace
 
@@ -143,12 +162,18 @@ std::vector<std::string> offer_mismatches(const nlohmann::json& client, const nl
       }
       return;
     }
-    if (a != b) out.push_back(fmt::format("{}: client {}, server {}", path, a.dump(), b.dump()));
+    if (a != b) out.push_back(fmt::format("{}: client {}, server {}", path, json_excerpt(a, 200), json_excerpt(b, 200)));
   };
   walk(walk, client, server, "");
-  if (!out.empty() && client.value("scene_hash", "") != server.value("scene_hash", ""))
-    out.insert(out.begin(), fmt::format("scene: client '{}', server '{}' (different content)", client.value("scene", "?"),
-                                        server.value("scene", "?")));
+  // Never throws, whatever the shapes: a field that is absent or not a string reads as "?".
+  auto text = [](const nlohmann::json& o, const char* key) {
+    if (!o.is_object()) return std::string("?");
+    const auto it = o.find(key);
+    return it != o.end() && it->is_string() ? json_excerpt(*it, 200) : std::string("?");
+  };
+  if (!out.empty() && text(client, "scene_hash") != text(server, "scene_hash"))
+    out.insert(out.begin(), fmt::format("scene: client {}, server {} (different content)", text(client, "scene"),
+                                        text(server, "scene")));
   return out;
 }
 
@@ -172,12 +197,13 @@ class LiveServer {
  public:
   LiveServer(const SimConfig& c, const Registries& r, const LiveScene& s, const ServeOptions& o)
       : c_(c), registries_(r), scene_(s), o_(o), offer_(session_offer(c, r, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
-        socket_(o.bind) {
+        socket_(o.bind), mac_(load_key(o.key_file)) {
     if (c.mode != "hybrid") fail("live mode serves hybrid rendering only (mode '{}' given)", c.mode);
     rt_ = std::make_unique<RtScene>(*s.scene);
     write_port_file(o.port_file, socket_.local());
-    say(o_.quiet, "serve", "listening on UDP {} (scene {}, {}x{} at {} Hz, passes:{}{})", socket_.local().to_string(),
-        s.name, c.width, c.height, c.display_hz, plan_.visibility() ? " visibility" : "", plan_.ao ? " ao" : "");
+    say(o_.quiet, "serve", "listening on UDP {} (scene {}, {}x{} at {} Hz, passes:{}{}; {})", socket_.local().to_string(),
+        s.name, c.width, c.height, c.display_hz, plan_.visibility() ? " visibility" : "", plan_.ao ? " ao" : "",
+        mac_ ? "every datagram authenticated (HMAC-SHA256)" : "no key: sessions bound by address and token");
   }
 
   int run(const std::atomic<bool>& stop) {
@@ -199,11 +225,13 @@ class LiveServer {
 
  private:
   struct Session {
-    uint32_t id = 0;
+    uint32_t id = 0;     // the session token (random, from the OS)
+    uint32_t nonce = 0;  // the client's Hello nonce (a repeated Hello gets the Welcome again)
     Endpoint peer;
     std::unique_ptr<Codec> codec[2];
     std::string codec_name[2];
     std::unique_ptr<PassDenoisers> denoise;
+    uint32_t first_sequence[2] = {0, 0};  // random, sent in the Welcome
     uint32_t sequence[2] = {0, 0};
     bool has_prev = false;
     Camera prev_camera;
@@ -219,7 +247,15 @@ class LiveServer {
   };
   static constexpr size_t kMaxSamples = 100000;
 
-  void send_control(const ControlMessage& m, const Endpoint& to) { socket_.send_to(encode_control(m), to); }
+  // Seals (with a key) and sends; the token is the session's for Camera/Bye/passes (mac_token).
+  SendResult send_datagram(std::vector<uint8_t> d, const Endpoint& to, uint32_t token) {
+    if (mac_) mac_->seal(d, Direction::ToClient, mac_token(d, token));
+    return socket_.send_to(d, to);
+  }
+  void send_control(const ControlMessage& m, const Endpoint& to) {
+    send_datagram(encode_control(m), to, session_ ? session_->id : 0);
+  }
+  size_t mac_bytes() const { return mac_ ? kMacBytes : 0; }
 
   void drain() {
     // At most this many datagrams before serving a frame again: a flood cannot starve it.
@@ -232,63 +268,98 @@ class LiveServer {
         ++bad_["truncated"];
         continue;
       }
-      handle(from);
+      // Every datagram's checks return outcomes; this only keeps a bug (or a full disk when a
+      // session opens its log) from ending the server: it is reported and counted.
+      try {
+        handle(from);
+      } catch (const std::exception& e) {
+        ++bad_["handler_error"];
+        say(false, "serve", "error handling a datagram from {}: {}", from.to_string(), e.what());
+      }
     }
   }
 
+  // The server's checks, cheapest first: the MAC (with a key), the header and the body's types
+  // (read_control); a Hello may come from anyone; everything else only from the session's peer,
+  // with its token.
   void handle(const Endpoint& from) {
-    ControlMessage m;
-    const ControlParse p = parse_control(buffer_, m);
-    if (p != ControlParse::Ok) {
-      ++bad_[p == ControlParse::NotControl ? "not_a_control_message" : control_parse_name(p)];
+    std::span<const uint8_t> d = buffer_;
+    if (mac_) {
+      if (d.size() < kMacBytes ||
+          !mac_->verify(d, Direction::ToServer, mac_token(d.first(d.size() - kMacBytes), session_ ? session_->id : 0))) {
+        ++bad_["bad_mac"];
+        return;
+      }
+      d = d.first(d.size() - kMacBytes);
+    }
+    TypedControl m;
+    if (const char* why = read_control(d, m)) {
+      ++bad_[std::strcmp(why, "not_control") == 0 ? "not_a_control_message" : why];
+      // The first few are told (a client with other settings learns which field); a flood is
+      // only counted.
+      if (!m.field.empty() && ++told_ <= 10)
+        say(o_.quiet, "serve", "dropped a datagram from {}: {} ({}){}", from.to_string(), why, m.field,
+            told_ == 10 ? "; further ones are only counted" : "");
       return;
     }
-    switch (m.type) {
-      case ControlType::Hello: return on_hello(m, from);
-      case ControlType::Camera: return on_camera(m);
-      case ControlType::Bye:
-        if (session_ && m.session == session_->id) end_session("the client said bye: " + m.text);
-        else ++bad_["bye_for_another_session"];
-        return;
-      default: ++bad_["unexpected_" + std::string(control_type_name(m.type))];
+    const ControlType type = m.message.type;
+    if (type == ControlType::Hello) return on_hello(m, from);
+    if (!session_) {
+      ++bad_[std::string(control_type_name(type)) + "_without_session"];
+      return;
+    }
+    if (!(from == session_->peer)) {
+      ++bad_["foreign_address"];
+      return;
+    }
+    if (m.message.session != session_->id) {
+      ++bad_["wrong_token"];
+      return;
+    }
+    switch (type) {
+      case ControlType::Camera: return on_camera(m.message);
+      case ControlType::Bye: return end_session("the client said bye: " + m.message.text);
+      default: ++bad_["unexpected_" + std::string(control_type_name(type))];
     }
   }
 
-  void on_hello(const ControlMessage& m, const Endpoint& from) {
-    nlohmann::json offer;
-    try {
-      offer = nlohmann::json::parse(m.text);
-    } catch (const std::exception&) {
-      ++bad_["hello_not_json"];
-      return;
-    }
-    std::vector<std::string> why = offer_mismatches(offer, offer_);
+  // The Refuse goes to an address nothing has verified: it is never longer than the Hello
+  // (at least 256 bytes), so that a spoofed Hello cannot make the server send more than it got.
+  void refuse(const Endpoint& to, uint32_t nonce, std::string text) {
+    const size_t limit = std::min(kMaxControlBody, std::max<size_t>(256, buffer_.size()) - kControlHeaderBytes);
+    if (text.size() > limit) text.resize(limit);
+    send_datagram(encode_control(msg(ControlType::Refuse, nonce, std::move(text))), to, 0);
+    ++refused_;
+  }
+
+  void on_hello(const TypedControl& m, const Endpoint& from) {
+    const uint32_t nonce = m.message.session;
+    std::vector<std::string> why = offer_mismatches(m.offer.json, offer_);
     if (!why.empty()) {
       std::string text = "the session offers differ: ";
       for (size_t i = 0; i < why.size(); ++i) text += (i ? "; " : "") + why[i];
       text += ". Start client and server with the same scene and settings.";
-      if (text.size() > kMaxControlBody) text.resize(kMaxControlBody);
-      say(o_.quiet, "serve", "refused {}: {}", from.to_string(), text);
-      send_control(msg(ControlType::Refuse, 0, text), from);
-      ++refused_;
+      say(o_.quiet, "serve", "refused {}: {}", from.to_string(), printable_reason(text));
+      refuse(from, nonce, text);
       return;
     }
     if (session_) {
-      if (from == session_->peer) {  // the Welcome was lost: send it again
-        send_control(msg(ControlType::Welcome, session_->id, welcome_text()), from);
+      if (from == session_->peer && nonce == session_->nonce) {  // the Welcome was lost: send it again
+        send_datagram(encode_control(msg(ControlType::Welcome, session_->id, welcome_body())), from, 0);
       } else {
-        send_control(msg(ControlType::Refuse, 0,
-                      fmt::format("the server is busy with another client ({})", session_->peer.to_string())),
-                     from);
-        ++refused_;
+        // Neither the peer's address nor anything else about the session is told.
+        refuse(from, nonce, "the server is busy with another client");
       }
       return;
     }
     auto s = std::make_unique<Session>();
-    // Session ids differ between sessions and servers, so stale packets of an earlier session
-    // are told apart; 0 is reserved for "no session".
-    s->id = uint32_t((uint64_t(Clock::now().time_since_epoch().count()) * 0x9E3779B97F4A7C15ull) >> 32) | 1u;
+    // The token and the first sequence numbers come from the OS's random source, so that an
+    // off-path sender cannot guess them (docs/live-security.md); they also tell stale packets
+    // of an earlier session apart. 0 is never a token.
+    s->id = os_random_u32();
+    s->nonce = nonce;
     s->peer = from;
+    for (int slot = 0; slot < 2; ++slot) s->sequence[slot] = s->first_sequence[slot] = os_random_u32();
     const Registries& r = registries_;
     if (plan_.visibility()) {
       s->codec[0] = r.codecs.create(c_.visibility_codec.name, c_.visibility_codec.params);
@@ -308,24 +379,34 @@ class LiveServer {
       if (first) s->log << "session,frame,pass,encoded_bytes,packets,wire_bytes\n";
     }
     session_ = std::move(s);
-    send_control(msg(ControlType::Welcome, session_->id, welcome_text()), from);
+    send_datagram(encode_control(msg(ControlType::Welcome, session_->id, welcome_body())), from, 0);
     say(o_.quiet, "serve", "session {:08x} with {}", session_->id, from.to_string());
   }
 
-  std::string welcome_text() const { return nlohmann::json{{"session", session_->id}, {"offer", offer_}}.dump(); }
+  std::string welcome_body() const {
+    WelcomeBody w;
+    w.session = session_->id;
+    w.client_nonce = session_->nonce;
+    w.first_sequence[0] = session_->first_sequence[0];
+    w.first_sequence[1] = session_->first_sequence[1];
+    w.offer.json = offer_;
+    return welcome_text(w);
+  }
 
   void on_camera(const ControlMessage& m) {
-    if (!session_ || m.session != session_->id) {
-      ++bad_["camera_for_another_session"];
-      return;
-    }
     Session& s = *session_;
-    s.last_heard = Clock::now();
-    ++s.cameras;
     if (m.camera.camera.width != c_.width || m.camera.camera.height != c_.height) {
       ++bad_["camera_wrong_size"];
       return;
     }
+    // A frame id far beyond the newest would make every later camera look stale.
+    if (int64_t(m.camera.frame) > std::max<int64_t>(s.last_frame, s.pending ? s.pending->frame : -1) +
+                                      int64_t(kMaxCameraFramesAhead)) {
+      ++bad_["camera_frame_ahead"];
+      return;
+    }
+    s.last_heard = Clock::now();
+    ++s.cameras;
     if (int64_t(m.camera.frame) <= s.last_frame || (s.pending && m.camera.frame <= s.pending->frame)) {
       ++s.cameras_stale;  // reordered or duplicated: a newer camera was seen already
       return;
@@ -368,15 +449,17 @@ class LiveServer {
       s.sequence[slot] += uint32_t(packets[slot].size());
       if (s.log.is_open())
         s.log << fmt::format("{:08x},{},{},{},{},{}\n", s.id, cam.frame, kSlotName[slot], encoded.size(),
-                             packets[slot].size(), wire_bytes_of_pass(encoded.size(), c_.max_payload_bytes));
+                             packets[slot].size(),
+                             wire_bytes_of_pass(encoded.size(), c_.max_payload_bytes) + packets[slot].size() * mac_bytes());
     }
     if (s.compute_ms.size() < kMaxSamples) s.compute_ms.push_back(ms_between(t0, Clock::now()));
     for (auto& list : packets)
-      for (const auto& p : list) {
-        const SendResult r = socket_.send_to(p, s.peer);
+      for (auto& p : list) {
+        const size_t bytes = p.size() + mac_bytes();
+        const SendResult r = send_datagram(std::move(p), s.peer, s.id);
         if (r == SendResult::Sent) {
           ++s.datagrams_sent;
-          s.bytes_sent += p.size();
+          s.bytes_sent += bytes;
         } else {
           ++s.send_dropped;  // the kernel's send buffer was full: a lost datagram
         }
@@ -394,8 +477,6 @@ class LiveServer {
     ++sessions_done_;
     if (!o_.out_dir.empty()) {
       std::filesystem::create_directories(o_.out_dir);
-      nlohmann::json bad = nlohmann::json::object();
-      for (const auto& [k, v] : bad_) bad[k] = v;
       summaries_.push_back({{"session", s.id},
                             {"client", s.peer.to_string()},
                             {"end_reason", reason},
@@ -406,12 +487,23 @@ class LiveServer {
                             {"frames_served", s.frames_served},
                             {"datagrams_sent", s.datagrams_sent},
                             {"bytes_sent", s.bytes_sent},
+                            {"wire_bytes_sent", on_the_wire(s.bytes_sent, s.datagrams_sent)},
+                            {"mbps_sent", seconds > 0 ? double(on_the_wire(s.bytes_sent, s.datagrams_sent)) * 8.0 / 1e6 / seconds : 0.0},
                             {"datagrams_dropped_by_send_buffer", s.send_dropped},
                             {"compute_ms", percentiles(s.compute_ms)},
-                            {"bad_or_foreign_datagrams", bad},
+                            {"bad_or_foreign_datagrams", counts_json(bad_)},
                             {"refused_hellos", refused_}});
-      write_text(o_.out_dir + "/server.json",
-                 nlohmann::json{{"role", "server"}, {"offer", offer_}, {"sessions", summaries_}}.dump(2) + "\n");
+      const nlohmann::json notes = {
+          {"bytes_sent", "pass packets' UDP payload bytes (dhrbench header, payload, and the MAC with a key)"},
+          {"wire_bytes_sent", "bytes_sent plus 28 bytes of IPv4 and UDP headers per datagram (kIpUdpOverheadBytes), as the simulator counts"},
+          {"mbps_sent", "wire_bytes_sent in Mb/s over duration_s"},
+          {"bad_or_foreign_datagrams", "datagrams dropped since the server started, by reason (docs/live-security.md)"}};
+      write_text(o_.out_dir + "/server.json", nlohmann::json{{"role", "server"},
+                                                             {"authentication", authentication_name(mac_)},
+                                                             {"offer", offer_},
+                                                             {"field_notes", notes},
+                                                             {"sessions", summaries_}}
+                                                      .dump(2) + "\n");
       s.log.close();
     }
     session_.reset();
@@ -424,11 +516,12 @@ class LiveServer {
   nlohmann::json offer_;
   PassPlan plan_;
   UdpSocket socket_;
+  std::optional<DatagramMac> mac_;
   std::unique_ptr<RtScene> rt_;
   std::unique_ptr<Session> session_;
   std::vector<uint8_t> buffer_;
   std::map<std::string, uint64_t> bad_;
-  uint64_t refused_ = 0;
+  uint64_t refused_ = 0, told_ = 0;
   int sessions_done_ = 0;
   std::vector<nlohmann::json> summaries_;
 };
@@ -450,7 +543,7 @@ class LiveClient {
  public:
   LiveClient(const SimConfig& c, const Registries& r, const LiveScene& s, const ClientOptions& o)
       : c_(c), registries_(r), scene_(s), o_(o), offer_(session_offer(c, r, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
-        socket_(any_endpoint_like(o.server)) {
+        socket_(any_endpoint_like(o.server)), mac_(load_key(o.key_file)) {
     if (c.mode != "hybrid") fail("live mode is hybrid rendering only (mode '{}' given)", c.mode);
     if (o.frames < 1) fail("client: --frames must be at least 1 (got {})", o.frames);
     if (plan_.visibility()) {
@@ -490,10 +583,13 @@ class LiveClient {
         end_reason_ = fmt::format("the server was silent for {:.1f} s", o_.idle_timeout_s);
     }
     const bool server_gone = end_reason_.rfind("the server", 0) == 0;
-    if (end_reason_.empty()) end_reason_ = fmt::format("all {} frames displayed", o_.frames);
+    if (end_reason_.empty()) {
+      end_reason_ = fmt::format("all {} frames displayed", o_.frames);
+      await_last_passes(stop);
+    }
     if (!server_gone)
       for (int i = 0; i < 3; ++i)  // UDP may lose one; the server's idle timeout is the fallback
-        socket_.send_to(encode_control(msg(ControlType::Bye, session_, "client done")), o_.server);
+        send_control(msg(ControlType::Bye, session_, "client done"));
     session_seconds_ = now_ms() / 1000.0;
     AssemblerEvents rest = assembler_.flush(int64_t(now_ms()));
     count_lost(rest);
@@ -518,40 +614,99 @@ class LiveClient {
   double frame_time_s(int a) const { return c_.start_time_s + double(a) / c_.display_hz; }
   Camera camera(int a) const { return scene_.scene->camera.at(frame_time_s(a), c_.width, c_.height); }
 
+  // Seals (with a key) and sends to the server.
+  SendResult send_control(const ControlMessage& m) {
+    std::vector<uint8_t> d = encode_control(m);
+    if (mac_) mac_->seal(d, Direction::ToServer, mac_token(d, session_));
+    return socket_.send_to(d, o_.server);
+  }
+
+  // The first checks of every datagram: its sender is the server (the address the client sends
+  // to: the server's or the relay's) and, with a key, its MAC. Returns the datagram without
+  // the MAC, or nullopt (counted).
+  std::optional<std::span<const uint8_t>> from_peer(const Endpoint& from) {
+    std::span<const uint8_t> d = buffer_;
+    if (!(from == o_.server)) {
+      ++bad_["foreign_address"];
+      return std::nullopt;
+    }
+    if (mac_) {
+      if (d.size() < kMacBytes ||
+          !mac_->verify(d, Direction::ToClient, mac_token(d.first(d.size() - kMacBytes), session_))) {
+        ++bad_["bad_mac"];
+        return std::nullopt;
+      }
+      d = d.first(d.size() - kMacBytes);
+    }
+    return d;
+  }
+
   int handshake(const std::atomic<bool>& stop) {
     const auto start = Clock::now();
-    const std::vector<uint8_t> hello = encode_control(msg(ControlType::Hello, 0, offer_.dump()));
+    // The nonce binds the answer to this Hello: a Welcome or Refuse must echo it.
+    const uint32_t nonce = os_random_u32();
     say(o_.quiet, "client", "connecting to {} ...", o_.server.to_string());
     double next_hello_ms = 0;
     while (!stop.load()) {
       const double t = ms_between(start, Clock::now());
       if (t > o_.connect_timeout_s * 1000.0) break;
       if (t >= next_hello_ms) {
-        socket_.send_to(hello, o_.server);
+        send_control(msg(ControlType::Hello, nonce, offer_.dump()));
         next_hello_ms = t + 250.0;  // Hello or its answer may be lost: repeat
       }
       if (!socket_.wait_readable(int(std::max(1.0, next_hello_ms - t)))) continue;
       Endpoint from;
-      while (socket_.receive(buffer_, from) == ReceiveResult::Received) {
-        ControlMessage m;
-        if (parse_control(buffer_, m) != ControlParse::Ok) continue;
-        if (m.type == ControlType::Refuse) {
-          fmt::print(stderr, "client: the server at {} refused the session: {}\n", o_.server.to_string(), m.text);
+      for (int i = 0; i < 4096; ++i) {
+        const ReceiveResult r = socket_.receive(buffer_, from);
+        if (r == ReceiveResult::Empty) break;
+        if (r != ReceiveResult::Received) {
+          ++bad_[r == ReceiveResult::Truncated ? "truncated" : "receive_error"];
+          continue;
+        }
+        const auto d = from_peer(from);
+        if (!d) continue;
+        TypedControl m;
+        if (const char* why = read_control(*d, m)) {
+          ++bad_[std::string("control_") + why];
+          continue;
+        }
+        if (m.message.type == ControlType::Refuse && m.message.session == nonce) {
+          fmt::print(stderr, "client: the server at {} refused the session: {}\n", o_.server.to_string(), m.message.text);
           return 2;
         }
-        if (m.type == ControlType::Welcome && m.session != 0) {
-          session_ = m.session;
+        if (m.message.type == ControlType::Welcome && m.welcome.client_nonce == nonce) {
+          if (const auto why = offer_mismatches(offer_, m.welcome.offer.json); !why.empty()) {
+            fmt::print(stderr, "client: the server at {} welcomed another session: {}\n", o_.server.to_string(),
+                       printable_reason(why.front()));
+            return 2;
+          }
+          start_session(m.welcome);
           say(o_.quiet, "client", "session {:08x} with {} after {:.0f} ms", session_, o_.server.to_string(),
               ms_between(start, Clock::now()));
+          write_port_file(o_.port_file, socket_.local());
           return 0;
         }
+        ++bad_[std::string("handshake_unexpected_") + control_type_name(m.message.type)];
       }
     }
     fmt::print(stderr,
                "client: no answer from a dhrbench server at {} within {:.1f} s (is 'dhrbench serve' running there, "
-               "and does UDP reach it?)\n",
-               o_.server.to_string(), o_.connect_timeout_s);
+               "does UDP reach it{}?)\n",
+               o_.server.to_string(), o_.connect_timeout_s, mac_ ? ", and does it use the same --key-file" : "");
     return 1;
+  }
+
+  void start_session(const WelcomeBody& w) {
+    session_ = w.session;
+    uint32_t codec_ids[kPassSlots] = {0, 0};
+    bool streams[kPassSlots] = {false, false};
+    const BackendChoice* codecs[kPassSlots] = {&c_.visibility_codec, &c_.ao_codec};
+    for (int slot = 0; slot < kPassSlots; ++slot) {
+      streams[slot] = receivers_[slot].codec != nullptr;
+      codec_ids[slot] = codec_id(codecs[slot]->name);
+      receivers_[slot].expected_sequence = w.first_sequence[slot];
+    }
+    gate_ = PassGate(session_, w.first_sequence, codec_ids, streams);
   }
 
   // Receives until `deadline_ms` (session time), or only what is waiting when it has passed.
@@ -564,62 +719,100 @@ class LiveClient {
     }
   }
 
+  // After the last displayed frame: the passes of the last camera are on their way. Receiving
+  // them (for at most a second) before the Bye makes what the client counts received equal
+  // to what the server sent on a link that loses nothing.
+  void await_last_passes(const std::atomic<bool>& stop) {
+    if (!gate_camera_sent_) return;
+    const double until = now_ms() + std::min(1000.0, o_.idle_timeout_s * 1000.0);
+    auto done = [&] {
+      for (int slot = 0; slot < kPassSlots; ++slot)
+        if (receivers_[slot].codec && newest_completed_[slot] < int64_t(last_camera_)) return false;
+      return true;
+    };
+    while (!done() && end_reason_.rfind("all ", 0) == 0 && !stop.load() && now_ms() < until) {
+      socket_.wait_readable(int(std::ceil(std::clamp(until - now_ms(), 1.0, 20.0))));
+      receive_waiting();
+    }
+  }
+
   void receive_waiting() {
     for (int i = 0; i < 65536; ++i) {
       Endpoint from;
       const ReceiveResult r = socket_.receive(buffer_, from);
       if (r == ReceiveResult::Empty) return;
-      if (r != ReceiveResult::Received) {
-        ++bad_[r == ReceiveResult::Truncated ? "truncated" : "receive_error"];
+      if (r == ReceiveResult::Error) {
+        ++bad_["receive_error"];
         continue;
       }
-      on_datagram();
+      const double t = now_ms();
+      const size_t second = size_t(std::max(0.0, t / 1000.0));
+      if (per_second_.size() <= second) per_second_.resize(second + 1);
+      per_second_[second].datagrams += 1;
+      per_second_[second].bytes += buffer_.size();
+      ++datagrams_;
+      bytes_ += buffer_.size();
+      if (r == ReceiveResult::Truncated) {
+        ++bad_["truncated"];
+        continue;
+      }
+      const auto d = from_peer(from);
+      if (!d) continue;
+      if (on_datagram(*d, t)) {
+        // The session's: from the peer, with its token (and MAC), inside the windows.
+        ++session_datagrams_;
+        session_bytes_ += buffer_.size();
+        per_second_[second].session_datagrams += 1;
+        per_second_[second].session_bytes += buffer_.size();
+        last_heard_ = Clock::now();
+      }
     }
   }
 
-  void on_datagram() {
-    const double t = now_ms();
-    const size_t second = size_t(std::max(0.0, t / 1000.0));
-    if (per_second_.size() <= second) per_second_.resize(second + 1);
-    per_second_[second].datagrams += 1;
-    per_second_[second].bytes += buffer_.size();
-    ++datagrams_;
-    bytes_ += buffer_.size();
-    if (looks_like_control(buffer_)) {
-      ControlMessage m;
-      const ControlParse p = parse_control(buffer_, m);
-      if (p != ControlParse::Ok) {
-        ++bad_[std::string("control_") + control_parse_name(p)];
-      } else if (m.session != session_) {
-        ++bad_["control_for_another_session"];
-      } else if (m.type == ControlType::Bye) {
-        end_reason_ = "the server ended the session: " + m.text;
-      } else if (m.type != ControlType::Welcome) {  // a repeated Welcome is harmless
-        ++bad_[std::string("unexpected_") + control_type_name(m.type)];
+  // `d`: a datagram from the server (MAC removed). True when it is the session's.
+  bool on_datagram(std::span<const uint8_t> d, double t) {
+    if (looks_like_control(d)) {
+      TypedControl m;
+      if (const char* why = read_control(d, m)) {
+        ++bad_[std::string("control_") + why];
+        return false;
       }
-      last_heard_ = Clock::now();
-      return;
+      if (m.message.session != session_) {
+        ++bad_["control_wrong_token"];
+        return false;
+      }
+      if (m.message.type == ControlType::Bye) {
+        end_reason_ = "the server ended the session: " + m.message.text;
+      } else if (m.message.type != ControlType::Welcome) {  // a repeated Welcome is harmless
+        ++bad_[std::string("unexpected_") + control_type_name(m.message.type)];
+        return false;
+      }
+      return true;
     }
     ParsedPacket pkt;
-    const ParseResult pr = parse_packet(buffer_, pkt);
+    const ParseResult pr = parse_packet(d, pkt);
     if (pr != ParseResult::Ok) {
       ++bad_[std::string("packet_") + parse_result_name(pr)];
-      return;
+      return false;
     }
-    if (pkt.meta.stream_id != stream_of(session_)) {
-      ++bad_["packet_for_another_session"];
-      return;
+    if (const char* why = gate_.check(pkt)) {
+      ++bad_[why];
+      return false;
     }
-    last_heard_ = Clock::now();
-    const PacketFate fate = assembler_.push(buffer_, int64_t(t));
+    ++session_pass_datagrams_;
+    session_pass_bytes_ += buffer_.size();
+    const PacketFate fate = assembler_.push(d, int64_t(t));
     if (fate == PacketFate::Accepted || fate == PacketFate::Completed) {
       const int slot = slot_of(pkt.meta.desc.kind);
       if (slot >= 0) {
         auto& b = socket_bytes_[{slot, pkt.meta.frame_id}];
         b.first += buffer_.size();
         b.second += 1;
+        if (fate == PacketFate::Completed)
+          newest_completed_[slot] = std::max(newest_completed_[slot], int64_t(pkt.meta.frame_id));
       }
     }
+    return true;
   }
 
   void count_lost(const AssemblerEvents& events) {
@@ -642,8 +835,10 @@ class LiveClient {
     cu.keyframe_request = keyframe_request_;
     cu.scene_time_s = frame_time_s(a);
     cu.camera = camera(a);
-    if (socket_.send_to(encode_control(camera_msg(session_, cu)), o_.server) == SendResult::Sent)
-      keyframe_request_ = false;
+    gate_.camera_sent(cu.frame);
+    gate_camera_sent_ = true;
+    last_camera_ = cu.frame;
+    if (send_control(camera_msg(session_, cu)) == SendResult::Sent) keyframe_request_ = false;
     send_ms_[size_t(a)] = row.t_ms;
 
     GBuffer g;
@@ -761,10 +956,14 @@ class LiveClient {
         if (r.source_frame[s] >= 0) age[s].push_back(r.age_ms[s]);
     }
     write_text(o_.out_dir + "/frames.csv", csv);
-    std::string sock = "second,datagrams,bytes,mbps\n";
-    for (size_t i = 0; i < per_second_.size(); ++i)
-      sock += fmt::format("{},{},{},{:.3f}\n", i, per_second_[i].datagrams, per_second_[i].bytes,
-                          double(per_second_[i].bytes) * 8.0 / 1e6);
+    // Per second: everything read from the socket, then the session's datagrams and their Mb/s
+    // on the wire (UDP payload + 28 bytes of IPv4/UDP headers each, as the simulator counts).
+    std::string sock = "second,datagrams,bytes,session_datagrams,session_bytes,mbps\n";
+    for (size_t i = 0; i < per_second_.size(); ++i) {
+      const Second& p = per_second_[i];
+      sock += fmt::format("{},{},{},{},{},{:.3f}\n", i, p.datagrams, p.bytes, p.session_datagrams, p.session_bytes,
+                          double(on_the_wire(p.session_bytes, p.session_datagrams)) * 8.0 / 1e6);
+    }
     write_text(o_.out_dir + "/socket.csv", sock);
     std::string passes_csv = "frame,pass,socket_bytes,packets\n";
     for (const auto& r : completed_log_)
@@ -772,8 +971,6 @@ class LiveClient {
     write_text(o_.out_dir + "/received_passes.csv", passes_csv);
 
     const AssemblerStats& as = assembler_.stats();
-    nlohmann::json bad = nlohmann::json::object();
-    for (const auto& [k, v] : bad_) bad[k] = v;
     nlohmann::json fates = nlohmann::json::object();
     for (int f = 0; f < kPacketFateCount; ++f)
       if (as.packets[size_t(f)]) fates[packet_fate_name(PacketFate(f))] = as.packets[size_t(f)];
@@ -790,6 +987,17 @@ class LiveClient {
                               {"round_trip_ms", percentiles(round_trip_ms_[s])}};
     }
     const uint64_t received_packets = as.count(PacketFate::Accepted) + as.count(PacketFate::Completed);
+    const uint64_t wire = on_the_wire(session_bytes_, session_datagrams_);
+    const nlohmann::json notes = {
+        {"socket.datagrams, socket.bytes", "everything read from the socket (UDP payload bytes), foreign datagrams included"},
+        {"socket.session_datagrams, socket.session_bytes",
+         "the session's datagrams: from the server's address, with the session's token (and MAC), inside the windows"},
+        {"socket.session_pass_datagrams, socket.session_pass_bytes",
+         "the pass packets among them; server.json's datagrams_sent and bytes_sent on a link that loses nothing"},
+        {"socket.wire_bytes", "session_bytes plus 28 bytes of IPv4 and UDP headers per datagram (kIpUdpOverheadBytes): "
+                              "bandwidth on the wire as the simulator counts it (with a key, the 16-byte MAC is in session_bytes)"},
+        {"socket.mbps, socket.bytes_per_s, socket.datagrams_per_s", "the session's, on the wire, over duration_s"},
+        {"socket.bad_or_foreign", "datagrams dropped, by reason (docs/live-security.md); none counts as loss"}};
     const double seconds = std::max(1e-9, session_seconds_);
     const nlohmann::json out = {
         {"role", "client"},
@@ -806,15 +1014,21 @@ class LiveClient {
           {"scored", ssim.size()}}},
         {"quality", {{"ssim_local", percentiles(ssim)}, {"psnr_local_db", percentiles(psnr)}}},
         {"client_ms", percentiles(client_ms)},
+        {"authentication", authentication_name(mac_)},
         {"socket",
          {{"duration_s", session_seconds_},
           {"datagrams", datagrams_},
           {"bytes", bytes_},
-          {"datagrams_per_s", double(datagrams_) / seconds},
-          {"bytes_per_s", double(bytes_) / seconds},
-          {"mbps", double(bytes_) * 8.0 / 1e6 / seconds},
+          {"session_datagrams", session_datagrams_},
+          {"session_bytes", session_bytes_},
+          {"session_pass_datagrams", session_pass_datagrams_},
+          {"session_pass_bytes", session_pass_bytes_},
+          {"wire_bytes", wire},
+          {"datagrams_per_s", double(session_datagrams_) / seconds},
+          {"bytes_per_s", double(wire) / seconds},
+          {"mbps", double(wire) * 8.0 / 1e6 / seconds},
           {"receive_buffer_bytes", socket_.receive_buffer_bytes()},
-          {"bad_or_foreign", bad}}},
+          {"bad_or_foreign", counts_json(bad_)}}},
         {"packets",
          {{"received", received_packets},
           {"fates", fates},
@@ -823,19 +1037,20 @@ class LiveClient {
                             ? double(as.packets_lost) / double(received_packets + as.packets_lost)
                             : 0.0},
           {"frames_lost_by_reason", lost_by}}},
-        {"passes", passes}};
+        {"passes", passes},
+        {"field_notes", notes}};
     write_text(o_.out_dir + "/live.json", out.dump(2) + "\n");
     say(o_.quiet, "client",
-        "{} of {} frames displayed ({} skipped late), {} without data; {:.2f} Mb/s, {} datagrams, {} packets lost "
+        "{} of {} frames displayed ({} skipped late), {} without data; {:.2f} Mb/s on the wire, {} datagrams, {} packets lost "
         "({:.2f} %); SSIM {}; results in {}",
-        rows_.size(), o_.frames, frames_skipped_, without_data_, out["socket"]["mbps"].get<double>(), datagrams_,
+        rows_.size(), o_.frames, frames_skipped_, without_data_, out["socket"]["mbps"].get<double>(), session_datagrams_,
         as.packets_lost, 100.0 * out["packets"]["loss_rate"].get<double>(),
         ssim.empty() ? std::string("not scored") : fmt::format("{:.4f} (mean of {})", out["quality"]["ssim_local"]["mean"].get<double>(), ssim.size()),
         o_.out_dir);
   }
 
   struct Second {
-    uint64_t datagrams = 0, bytes = 0;
+    uint64_t datagrams = 0, bytes = 0, session_datagrams = 0, session_bytes = 0;
   };
 
   const SimConfig& c_;
@@ -845,7 +1060,12 @@ class LiveClient {
   nlohmann::json offer_;
   PassPlan plan_;
   UdpSocket socket_;
+  std::optional<DatagramMac> mac_;
   uint32_t session_ = 0;
+  PassGate gate_;
+  bool gate_camera_sent_ = false;
+  uint32_t last_camera_ = 0;
+  int64_t newest_completed_[kPassSlots] = {-1, -1};  // per pass: the newest frame whose packets all arrived
   Clock::time_point t0_, last_heard_;
   std::string end_reason_;
   double session_seconds_ = 0;
@@ -872,6 +1092,7 @@ class LiveClient {
   std::vector<Second> per_second_;
   std::map<std::string, uint64_t> bad_;
   uint64_t datagrams_ = 0, bytes_ = 0, frames_skipped_ = 0, without_data_ = 0;
+  uint64_t session_datagrams_ = 0, session_bytes_ = 0, session_pass_datagrams_ = 0, session_pass_bytes_ = 0;
   uint64_t frames_completed_[2] = {0, 0}, frames_lost_[2] = {0, 0}, decode_errors_[2] = {0, 0};
   std::vector<double> round_trip_ms_[2];
 };
@@ -915,6 +1136,14 @@ struct DirectionStats {
   }
 };
 
+// Reads a datagram as a control message of `type`, as sent with or without a MAC trailer (the
+// relay holds no key: it reads headers only to find its peers and the end of the session).
+bool reads_as(std::span<const uint8_t> d, ControlType type, ControlMessage& m) {
+  if (!looks_like_control(d)) return false;
+  if (parse_control(d, m) == ControlParse::Ok) return m.type == type;
+  return d.size() >= kMacBytes && parse_control(d.first(d.size() - kMacBytes), m) == ControlParse::Ok && m.type == type;
+}
+
 }  // namespace
 
 int run_live_relay(const RelayOptions& o, const std::atomic<bool>& stop) {
@@ -928,7 +1157,9 @@ int run_live_relay(const RelayOptions& o, const std::atomic<bool>& stop) {
   DirectionStats stats[2];
   std::priority_queue<Scheduled, std::vector<Scheduled>, std::greater<Scheduled>> queue;
   size_t queued_bytes = 0, peak_queued_bytes = 0;
-  uint64_t order = 0, foreign = 0, duplicate_index = 0;
+  uint64_t order = 0, foreign = 0, duplicate_index = 0, byes_ignored = 0;
+  std::map<std::string, uint64_t> dropped;  // by reason
+  uint32_t token = 0;                       // the session's, from the server's Welcome
   Endpoint client;
   const auto t0 = Clock::now();
   auto last_traffic = t0;
@@ -943,11 +1174,16 @@ int run_live_relay(const RelayOptions& o, const std::atomic<bool>& stop) {
     s.received_bytes += buf.size();
     last_traffic = Clock::now();
     any_traffic = true;
-    if (looks_like_control(buf)) {
-      ControlMessage m;
-      if (parse_control(buf, m) == ControlParse::Ok && m.type == ControlType::Bye && bye_seen_ms < 0) {
+    ControlMessage m;
+    if (dir == 1 && token == 0 && reads_as(buf, ControlType::Welcome, m)) token = m.session;
+    if (reads_as(buf, ControlType::Bye, m)) {
+      // Only a Bye with the session's token ends the relay (it is forwarded either way: the
+      // endpoints decide whether it is the session's).
+      if (token != 0 && m.session == token && bye_seen_ms < 0) {
         bye_seen_ms = now;
         end_reason = fmt::format("the {} said bye", dir == 0 ? "client" : "server");
+      } else if (token == 0 || m.session != token) {
+        ++byes_ignored;
       }
     }
     const Delivery d = links[dir].send(buf.size() + kIpUdpOverheadBytes, now);
@@ -1006,16 +1242,26 @@ int run_live_relay(const RelayOptions& o, const std::atomic<bool>& stop) {
         const ReceiveResult r = in.receive(buf, from);
         if (r == ReceiveResult::Empty) break;
         if (r != ReceiveResult::Received) continue;
+        // Two fixed peers: the server, and the first address that sent a Hello. Anything from
+        // another address is dropped here, so no third party can send into the session through
+        // the relay (the endpoints check the token and MAC of what the peers send).
         if (side == 0) {
-          if (!client.valid()) {
+          ControlMessage m;
+          if (!client.valid() && reads_as(buf, ControlType::Hello, m)) {
             client = from;
             say(o.quiet, "relay", "client {}", client.to_string());
+          } else if (!client.valid()) {
+            ++foreign;
+            ++dropped["client_side_before_hello"];
+            continue;
           } else if (!(from == client)) {
-            ++foreign;  // a second client: this relay carries one session
+            ++foreign;  // another sender: this relay carries one session
+            ++dropped["client_side_foreign_address"];
             continue;
           }
         } else if (!(from == o.server)) {
           ++foreign;
+          ++dropped["server_side_foreign_address"];
           continue;
         }
         accept(side, ms_between(t0, Clock::now()));
@@ -1032,6 +1278,8 @@ int run_live_relay(const RelayOptions& o, const std::atomic<bool>& stop) {
                               {"duplicate_rate", o.duplicate_rate},
                               {"seed", o.seed},
                               {"foreign_datagrams", foreign},
+                              {"foreign_by_reason", counts_json(dropped)},
+                              {"byes_ignored", byes_ignored},
                               {"peak_queued_bytes", peak_queued_bytes}};
   if (!o.out_file.empty()) {
     const std::filesystem::path p(o.out_file);

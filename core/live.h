@@ -17,9 +17,15 @@
 //
 // Memory is bounded on every side: the server keeps only the newest camera (a slow or flooding
 // client cannot queue work); the client's assembler has fixed limits; the relay's queue is
-// capped in bytes; the kernel's socket buffers are fixed. Bad or foreign datagrams are counted
-// by reason and dropped. Either side ends the session with Bye, or by silence: the other side
-// notices after idle_timeout_s and ends cleanly with a message.
+// capped in bytes; the kernel's socket buffers are fixed.
+//
+// Trust (docs/live-security.md): a session is bound to its peer's address and to a random
+// token; with a key file, every datagram also carries an HMAC. Server and client accept data
+// and control only from the peer, with the token (and the MAC), inside bounded windows of
+// frame ids and sequence numbers; everything else is counted by reason and dropped, and never
+// changes what is displayed, counts as loss, or ends a session. No datagram ends a process.
+// Either side ends the session with Bye, or by silence: the other side notices after
+// idle_timeout_s and ends cleanly with a message.
 #pragma once
 
 #include "core/frame_loop.h"
@@ -35,7 +41,8 @@
 
 namespace dhr {
 
-constexpr int kLiveProtocolVersion = 1;
+// 2: the Hello carries a nonce, the Welcome a body with the first sequence numbers.
+constexpr int kLiveProtocolVersion = 2;
 
 // What client and server must agree on, as JSON: the SimConfig fields that change what the
 // server sends or how the client reads it, with effective backend parameters, plus the scene's
@@ -61,6 +68,7 @@ struct ServeOptions {
   std::string out_dir;          // when set: server.json and server_frames.csv per session
   double idle_timeout_s = 5.0;  // a session ends when its client is silent this long
   int sessions = 1;             // sessions to serve before exiting (0: until stopped)
+  std::string key_file;         // when set: every datagram carries an HMAC with this key
   bool quiet = false;
 };
 // Runs until `sessions` sessions ended or `stop` becomes true (then a Bye is sent). Returns
@@ -77,6 +85,8 @@ struct ClientOptions {
   int save_every = 30;             // PNG of every n-th displayed frame (0: none)
   double connect_timeout_s = 5.0;  // Hello is repeated until then
   double idle_timeout_s = 5.0;     // the server silent this long after Welcome ends the session
+  std::string key_file;            // when set: every datagram carries an HMAC with this key
+  std::string port_file;           // when set: the client's local port, written after the Welcome
   bool quiet = false;
 };
 // Returns the exit code: 0 when the session ran (to the end, or until the server said Bye or
@@ -86,6 +96,9 @@ int run_live_client(const SimConfig& config, const Registries& registries, const
                     const ClientOptions& options, const std::atomic<bool>& stop);
 
 // ---- relay ----
+// The relay carries one session between two fixed peers: the server, and the first address that
+// sends it a well-formed Hello. Datagrams from any other address are dropped and counted; a Bye
+// ends the relay only when it carries the session's token (learnt from the Welcome).
 struct RelayOptions {
   Endpoint listen;  // the client sends here
   Endpoint server;  // and the relay forwards to here

@@ -3,10 +3,25 @@
 #include "core/byte_order.h"
 #include "core/checksum.h"
 #include "core/error.h"
+#include "core/json_io.h"
 
+#include <fcntl.h>
+#include <openssl/core_names.h>
+#include <openssl/crypto.h>
+#include <openssl/evp.h>
+#include <openssl/params.h>
+#include <sys/random.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
 #include <bit>
+#include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <fstream>
+#include <iterator>
+#include <limits>
 
 namespace dhr {
 namespace {
@@ -152,6 +167,350 @@ ControlParse parse_control(std::span<const uint8_t> d, ControlMessage& out) {
     out.text.assign(body.begin(), body.end());
   }
   return ControlParse::Ok;
+}
+
+// ---- typed bodies --------------------------------------------------------------------------
+
+const char* body_reject_name(BodyReject r) {
+  switch (r) {
+    case BodyReject::Ok: return "ok";
+    case BodyReject::NotJson: return "not_json";
+    case BodyReject::TooDeep: return "too_deep";
+    case BodyReject::NotObject: return "not_an_object";
+    case BodyReject::MissingField: return "missing_field";
+    case BodyReject::WrongType: return "wrong_type";
+    case BodyReject::BadValue: return "bad_value";
+  }
+  return "?";
+}
+
+namespace {
+
+BodyCheck refuse(BodyReject r, std::string field = {}) { return {r, std::move(field)}; }
+
+// Parses a body as JSON without throwing: the depth is checked first (so that the reason can
+// be told), then dhr::parse_json.
+BodyCheck parse_body_json(std::string_view text, const char* what, nlohmann::json& out) {
+  if (json_depth(text) > kMaxJsonDepth) return refuse(BodyReject::TooDeep);
+  try {
+    out = parse_json(text, what);
+  } catch (const std::exception&) {
+    return refuse(BodyReject::NotJson);
+  }
+  return {};
+}
+
+// Typed getters over an object `o` (checked to be one by the caller). Each returns false and
+// fills `check` when the field is missing or of another type; none throws.
+struct Fields {
+  const nlohmann::json& o;
+  std::string prefix;
+  BodyCheck check;
+
+  const nlohmann::json* find(const char* key) {
+    if (!check.ok()) return nullptr;
+    const auto it = o.find(key);
+    if (it == o.end()) {
+      check = refuse(BodyReject::MissingField, prefix + key);
+      return nullptr;
+    }
+    return &*it;
+  }
+  bool wrong(const char* key) {
+    check = refuse(BodyReject::WrongType, prefix + key);
+    return false;
+  }
+  bool bad(const char* key) {
+    check = refuse(BodyReject::BadValue, prefix + key);
+    return false;
+  }
+  bool string(const char* key, std::string& out) {
+    const nlohmann::json* v = find(key);
+    if (!v) return false;
+    if (!v->is_string()) return wrong(key);
+    out = v->get_ref<const std::string&>();
+    return true;
+  }
+  bool int64(const char* key, int64_t& out, int64_t lo, int64_t hi) {
+    const nlohmann::json* v = find(key);
+    if (!v) return false;
+    if (v->is_number_unsigned()) {
+      const uint64_t u = v->get<uint64_t>();
+      if (u > uint64_t(hi)) return bad(key);
+      out = int64_t(u);
+    } else if (v->is_number_integer()) {
+      out = v->get<int64_t>();
+    } else {
+      return wrong(key);
+    }
+    if (out < lo || out > hi) return bad(key);
+    return true;
+  }
+  bool uint64(const char* key, uint64_t& out, uint64_t hi = std::numeric_limits<uint64_t>::max()) {
+    const nlohmann::json* v = find(key);
+    if (!v) return false;
+    if (v->is_number_unsigned()) out = v->get<uint64_t>();
+    else if (v->is_number_integer() && v->get<int64_t>() >= 0) out = uint64_t(v->get<int64_t>());
+    else if (v->is_number_integer()) return bad(key);
+    else return wrong(key);
+    if (out > hi) return bad(key);
+    return true;
+  }
+  bool uint32(const char* key, uint32_t& out) {
+    uint64_t v = 0;
+    if (!uint64(key, v, UINT32_MAX)) return false;
+    out = uint32_t(v);
+    return true;
+  }
+  bool number(const char* key, double& out) {
+    const nlohmann::json* v = find(key);
+    if (!v) return false;
+    if (!v->is_number()) return wrong(key);
+    out = v->get<double>();
+    if (!std::isfinite(out)) return bad(key);
+    return true;
+  }
+  bool object(const char* key, nlohmann::json& out) {
+    const nlohmann::json* v = find(key);
+    if (!v) return false;
+    if (!v->is_object()) return wrong(key);
+    out = *v;
+    return true;
+  }
+  bool backend(const char* key, OfferBackend& out) {
+    const nlohmann::json* v = find(key);
+    if (!v) return false;
+    if (!v->is_object()) return wrong(key);
+    Fields inner{*v, prefix + key + ".", {}};
+    nlohmann::json params;
+    const bool ok = inner.string("name", out.name) && inner.object("params", params);
+    if (!ok) {
+      check = inner.check;
+      return false;
+    }
+    out.params = std::move(params);
+    return true;
+  }
+};
+
+}  // namespace
+
+BodyCheck parse_offer_json(const nlohmann::json& j, SessionOffer& out) {
+  if (!j.is_object()) return refuse(BodyReject::NotObject);
+  Fields f{j, "", {}};
+  // The limits are the header's and the simulator's: a value outside them cannot be a real
+  // offer, and the typed copy must never overflow when used.
+  const bool ok =
+      f.int64("protocol", out.protocol, 0, 1 << 30) && f.string("scene", out.scene) &&
+      f.string("scene_hash", out.scene_hash) && f.int64("width", out.width, 1, 1 << 16) &&
+      f.int64("height", out.height, 1, 1 << 16) && f.number("display_hz", out.display_hz) &&
+      f.number("start_time_s", out.start_time_s) && f.uint64("seed", out.seed) && f.object("trace", out.trace) &&
+      f.backend("visibility_codec", out.visibility_codec) && f.backend("ao_codec", out.ao_codec) &&
+      f.backend("ao_denoiser", out.ao_denoiser) && f.backend("visibility_denoiser", out.visibility_denoiser) &&
+      f.int64("max_payload_bytes", out.max_payload_bytes, 1, int64_t(kMaxPayloadLimitBytes));
+  if (!ok) return f.check;
+  if (!(out.display_hz > 0.0)) return refuse(BodyReject::BadValue, "display_hz");
+  out.json = j;
+  return {};
+}
+
+BodyCheck parse_offer(std::string_view text, SessionOffer& out) {
+  nlohmann::json j;
+  if (BodyCheck c = parse_body_json(text, "hello offer", j); !c.ok()) return c;
+  return parse_offer_json(j, out);
+}
+
+int pass_slot(PassKind kind) {
+  if (kind == PassKind::Visibility || kind == PassKind::SoftVisibility) return 0;
+  if (kind == PassKind::Ao) return 1;
+  return -1;
+}
+
+std::string welcome_text(const WelcomeBody& w) {
+  return nlohmann::json{{"session", w.session},
+                        {"client_nonce", w.client_nonce},
+                        {"first_sequence", {{"visibility", w.first_sequence[0]}, {"ao", w.first_sequence[1]}}},
+                        {"offer", w.offer.json}}
+      .dump();
+}
+
+BodyCheck parse_welcome(std::string_view text, WelcomeBody& out) {
+  nlohmann::json j;
+  if (BodyCheck c = parse_body_json(text, "welcome", j); !c.ok()) return c;
+  if (!j.is_object()) return refuse(BodyReject::NotObject);
+  Fields f{j, "", {}};
+  nlohmann::json seq, offer;
+  if (!(f.uint32("session", out.session) && f.uint32("client_nonce", out.client_nonce) &&
+        f.object("first_sequence", seq) && f.object("offer", offer)))
+    return f.check;
+  Fields s{seq, "first_sequence.", {}};
+  if (!(s.uint32("visibility", out.first_sequence[0]) && s.uint32("ao", out.first_sequence[1]))) return s.check;
+  BodyCheck c = parse_offer_json(offer, out.offer);
+  if (!c.ok()) c.field = "offer." + c.field;
+  return c;
+}
+
+std::string printable_reason(std::string_view text) {
+  std::string out(text.substr(0, kMaxReasonChars));
+  for (char& ch : out)
+    if (static_cast<unsigned char>(ch) < 0x20 || static_cast<unsigned char>(ch) >= 0x7f) ch = '?';
+  if (text.size() > kMaxReasonChars) out += "...";
+  return out;
+}
+
+const char* read_control(std::span<const uint8_t> d, TypedControl& out) {
+  const ControlParse p = parse_control(d, out.message);
+  if (p != ControlParse::Ok) return control_parse_name(p);
+  out.field.clear();
+  BodyCheck c;
+  switch (out.message.type) {
+    case ControlType::Hello: c = parse_offer(out.message.text, out.offer); break;
+    case ControlType::Welcome:
+      c = parse_welcome(out.message.text, out.welcome);
+      if (c.ok() && out.welcome.session != out.message.session) c = refuse(BodyReject::BadValue, "session");
+      if (c.ok() && out.welcome.session == 0) c = refuse(BodyReject::BadValue, "session");
+      break;
+    case ControlType::Refuse:
+    case ControlType::Bye: out.message.text = printable_reason(out.message.text); break;
+    case ControlType::Camera: break;  // typed and checked by parse_control
+  }
+  if (c.ok()) return nullptr;
+  out.field = c.field;
+  // Fixed names: "<type>_<reason>" for the five types and seven reasons.
+  static const auto names = [] {
+    std::array<std::array<std::string, 7>, 6> n;
+    for (int t = 1; t <= 5; ++t)
+      for (int r = 0; r < 7; ++r)
+        n[size_t(t)][size_t(r)] = std::string(control_type_name(ControlType(t))) + "_" + body_reject_name(BodyReject(r));
+    return n;
+  }();
+  return names[size_t(out.message.type)][size_t(c.reject)].c_str();
+}
+
+// ---- the session's pass packets ------------------------------------------------------------
+
+PassGate::PassGate(uint32_t token, const uint32_t first_sequence[kPassSlots], const uint32_t codec_ids[kPassSlots],
+                   const bool streams[kPassSlots])
+    : stream_(uint16_t(token & 0xffffu)) {
+  for (int s = 0; s < kPassSlots; ++s) {
+    streams_[s] = streams[s];
+    codec_[s] = codec_ids[s];
+    first_[s] = first_sequence[s];
+  }
+}
+
+void PassGate::camera_sent(uint32_t frame) {
+  if (!any_camera_ || frame > newest_camera_) newest_camera_ = frame;
+  any_camera_ = true;
+}
+
+const char* PassGate::check(const ParsedPacket& p) {
+  if (p.meta.stream_id != stream_) return "packet_wrong_token";
+  const int slot = pass_slot(p.meta.desc.kind);
+  if (slot < 0 || !streams_[slot]) return "packet_unexpected_pass";
+  if (p.meta.codec_id != codec_[slot]) return "packet_wrong_codec";
+  if (!any_camera_ || p.meta.frame_id > newest_camera_) return "packet_frame_ahead";
+  // Offsets from the stream's first sequence number, modulo 2^32 (a session sends far fewer
+  // than 2^32 packets per stream); the packet's first sequence (its pass's packet 0) must lie in
+  // the window too, so that the assembler's view of the pass is inside it as well.
+  const uint64_t offset = uint32_t(p.sequence - first_[slot]);
+  const uint64_t pass_offset = uint32_t(p.meta.first_sequence - first_[slot]);
+  const uint64_t limit = newest_offset_[slot] + kSequenceWindow;
+  if (offset >= limit || pass_offset > offset) return "packet_sequence_out_of_window";
+  newest_offset_[slot] = std::max(newest_offset_[slot], offset + 1);
+  return nullptr;
+}
+
+// ---- randomness and authentication -----------------------------------------------------------
+
+uint32_t os_random_u32() {
+  for (;;) {
+    uint32_t v = 0;
+    ssize_t n = -1;
+    do {
+      n = ::getrandom(&v, sizeof v, 0);
+    } while (n < 0 && errno == EINTR);
+    if (n != ssize_t(sizeof v)) {
+      const int fd = ::open("/dev/urandom", O_RDONLY | O_CLOEXEC);
+      if (fd < 0) fail("no random source: getrandom() and /dev/urandom both failed ({})", std::strerror(errno));
+      n = ::read(fd, &v, sizeof v);
+      ::close(fd);
+      if (n != ssize_t(sizeof v)) fail("no random source: a short read from /dev/urandom");
+    }
+    if (v != 0) return v;
+  }
+}
+
+namespace {
+
+// The HMAC-SHA256 context with the key set, copied (EVP_MAC_CTX_dup) for every datagram.
+EVP_MAC_CTX* hmac_ctx(const std::shared_ptr<void>& p) { return static_cast<EVP_MAC_CTX*>(p.get()); }
+
+}  // namespace
+
+DatagramMac::DatagramMac(std::span<const uint8_t> key) {
+  if (key.size() < kMinKeyBytes || key.size() > kMaxKeyBytes)
+    fail("a MAC key of {} bytes: it must have {}..{} bytes (e.g. head -c 32 /dev/urandom > live.key)", key.size(),
+         kMinKeyBytes, kMaxKeyBytes);
+  EVP_MAC* mac = EVP_MAC_fetch(nullptr, OSSL_MAC_NAME_HMAC, nullptr);
+  if (!mac) fail("OpenSSL has no HMAC");
+  EVP_MAC_CTX* ctx = EVP_MAC_CTX_new(mac);
+  EVP_MAC_free(mac);  // the context holds its own reference
+  if (!ctx) fail("OpenSSL: cannot create an HMAC context");
+  ctx_ = std::shared_ptr<void>(ctx, [](void* c) { EVP_MAC_CTX_free(static_cast<EVP_MAC_CTX*>(c)); });
+  char digest[] = "SHA256";
+  const OSSL_PARAM params[] = {OSSL_PARAM_construct_utf8_string(OSSL_MAC_PARAM_DIGEST, digest, 0),
+                               OSSL_PARAM_construct_end()};
+  if (EVP_MAC_init(ctx, key.data(), key.size(), params) != 1) fail("OpenSSL: cannot set the HMAC-SHA256 key");
+}
+
+DatagramMac DatagramMac::from_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail("--key-file '{}': cannot open the file", path);
+  std::vector<uint8_t> key;
+  char ch = 0;
+  while (key.size() <= kMaxKeyBytes && in.get(ch)) key.push_back(uint8_t(ch));
+  if (in.bad()) fail("--key-file '{}': cannot read the file", path);
+  if (key.size() < kMinKeyBytes || key.size() > kMaxKeyBytes)
+    fail("--key-file '{}': {}{} bytes; a key has {}..{} bytes (make one with: head -c 32 /dev/urandom > {})", path,
+         key.size() > kMaxKeyBytes ? "more than " : "", std::min(key.size(), kMaxKeyBytes), kMinKeyBytes, kMaxKeyBytes,
+         path);
+  return DatagramMac(key);
+}
+
+bool DatagramMac::mac(std::span<const uint8_t> inner, Direction dir, uint32_t token, uint8_t out[32]) const {
+  EVP_MAC_CTX* c = EVP_MAC_CTX_dup(hmac_ctx(ctx_));
+  if (!c) return false;
+  uint8_t prefix[5] = {uint8_t(dir), 0, 0, 0, 0};
+  put32(prefix + 1, token);
+  size_t len = 0;
+  const bool ok = EVP_MAC_update(c, prefix, sizeof prefix) == 1 && EVP_MAC_update(c, inner.data(), inner.size()) == 1 &&
+                  EVP_MAC_final(c, out, &len, 32) == 1 && len == 32;
+  EVP_MAC_CTX_free(c);
+  return ok;
+}
+
+void DatagramMac::seal(std::vector<uint8_t>& d, Direction dir, uint32_t token) const {
+  uint8_t m[32];
+  if (!mac(d, dir, token, m)) fail("OpenSSL: computing an HMAC failed");
+  d.insert(d.end(), m, m + kMacBytes);
+}
+
+bool DatagramMac::verify(std::span<const uint8_t> d, Direction dir, uint32_t token) const {
+  if (d.size() < kMacBytes) return false;
+  const std::span<const uint8_t> inner = d.first(d.size() - kMacBytes);
+  uint8_t m[32];
+  if (!mac(inner, dir, token, m)) return false;
+  return CRYPTO_memcmp(m, d.data() + inner.size(), kMacBytes) == 0;
+}
+
+uint32_t mac_token(std::span<const uint8_t> inner, uint32_t session_token) {
+  if (inner.size() > kOffType && looks_like_control(inner)) {
+    const uint8_t t = inner[kOffType];
+    if (t == uint8_t(ControlType::Hello) || t == uint8_t(ControlType::Welcome) || t == uint8_t(ControlType::Refuse))
+      return 0;
+  }
+  return session_token;
 }
 
 }  // namespace dhr

@@ -4,6 +4,7 @@
 #include "core/error.h"
 #include "core/experiment.h"
 #include "backends/register_all.h"
+#include "core/json_io.h"
 #include "core/live.h"
 #include "core/reference.h"
 #include "core/scene_load.h"
@@ -61,13 +62,7 @@ struct Loaded {
 std::unique_ptr<Loaded> load(const Common& c, const char* who) {
   nlohmann::json run = nlohmann::json::object();
   if (!c.config.empty()) {
-    std::ifstream f(c.config);
-    if (!f) fail("{}: cannot open --config '{}'", who, c.config);
-    try {
-      run = nlohmann::json::parse(f);
-    } catch (const std::exception& e) {
-      fail("{}: --config '{}' is not valid JSON: {}", who, c.config, e.what());
-    }
+    run = read_json_file(c.config);  // errors name the file
     if (!run.is_object()) fail("{}: --config '{}' must hold a JSON object (the run settings)", who, c.config);
   }
   nlohmann::json wrapper{{"run", run}};
@@ -95,6 +90,7 @@ Runner add_serve_command(CLI::App& app) {
     std::string bind = "0.0.0.0:47000", port_file, out;
     double idle_timeout_s = 5.0;
     int sessions = 1;
+    std::string key_file;
   };
   auto o = std::make_shared<Options>();
   auto* cmd = app.add_subcommand(
@@ -102,6 +98,8 @@ Runner add_serve_command(CLI::App& app) {
       "Live mode, server side: listen on UDP for a dhrbench client, agree on the session (scene, resolution,\n"
       "passes, codecs), then for the newest camera the client sent: rasterize, trace, denoise, encode and send\n"
       "the passes as packets. Ends a session on the client's bye or after --idle-timeout s of silence.\n"
+      "A session accepts datagrams only from its client's address with its random token (and, with --key-file,\n"
+      "a valid HMAC); everything else is dropped and counted (docs/live-security.md).\n"
       "Examples:\n"
       "  dhrbench serve --scene room\n"
       "  dhrbench serve --scene living-room --set width=640 --set height=360 --bind 0.0.0.0:47000 --out out/serve\n"
@@ -117,6 +115,9 @@ Runner add_serve_command(CLI::App& app) {
   cmd->add_option("--sessions", o->sessions, "Sessions to serve before exiting (0: until Ctrl-C)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  cmd->add_option("--key-file", o->key_file,
+                  "Authenticate every datagram with HMAC-SHA256 keyed by this file's bytes (16..4096; the client "
+                  "needs the same file; make one with: head -c 32 /dev/urandom > live.key). See docs/live-security.md");
   return [o]() {
     auto loaded = load(o->common, "serve");
     ServeOptions so;
@@ -125,6 +126,7 @@ Runner add_serve_command(CLI::App& app) {
     so.out_dir = o->out;
     so.idle_timeout_s = o->idle_timeout_s;
     so.sessions = o->sessions;
+    so.key_file = o->key_file;
     so.quiet = o->common.quiet;
     install_signal_handlers();
     return run_live_server(loaded->config, registries(), loaded->live, so, g_stop);
@@ -134,7 +136,7 @@ Runner add_serve_command(CLI::App& app) {
 Runner add_client_command(CLI::App& app) {
   struct Options {
     Common common;
-    std::string server, out = "out/live";
+    std::string server, out = "out/live", key_file, port_file;
     int frames = 300, score_every = 10, save_every = 30;
     double connect_timeout_s = 5.0, idle_timeout_s = 5.0;
   };
@@ -167,6 +169,10 @@ Runner add_client_command(CLI::App& app) {
   cmd->add_option("--idle-timeout", o->idle_timeout_s, "Seconds of server silence that end the session")
       ->check(CLI::Range(0.1, 3600.0))
       ->capture_default_str();
+  cmd->add_option("--key-file", o->key_file,
+                  "Authenticate every datagram with HMAC-SHA256 keyed by this file's bytes (the server's --key-file). "
+                  "See docs/live-security.md");
+  cmd->add_option("--port-file", o->port_file, "Write the client's local UDP port to this file once the session started");
   return [o]() {
     auto loaded = load(o->common, "client");
     ClientOptions co;
@@ -177,6 +183,8 @@ Runner add_client_command(CLI::App& app) {
     co.save_every = o->save_every;
     co.connect_timeout_s = o->connect_timeout_s;
     co.idle_timeout_s = o->idle_timeout_s;
+    co.key_file = o->key_file;
+    co.port_file = o->port_file;
     co.quiet = o->common.quiet;
     install_signal_handlers();
     return run_live_client(loaded->config, registries(), loaded->live, co, g_stop);
@@ -200,7 +208,9 @@ Runner add_relay_command(CLI::App& app) {
       "Links are JSON objects with the simulator's keys (latency: constant|normal|trace, latency_ms, jitter_ms,\n"
       "loss: none|independent|gilbert_elliott, loss_rate, bandwidth_mbps, queue_limit_bytes, preserve_order, ...),\n"
       "given inline or as a file name.\n"
-      "Exits after a bye has passed and the queue drained, or after --idle-timeout s without traffic.\n"
+      "It carries one session between two fixed peers, the server and the first address that sends it a Hello:\n"
+      "datagrams from any other address are dropped and counted (docs/live-security.md).\n"
+      "Exits after the session's bye has passed and the queue drained, or after --idle-timeout s without traffic.\n"
       "Example:\n"
       "  dhrbench relay --listen 0.0.0.0:47001 --server 127.0.0.1:47000 \\\n"
       "    --downlink '{\"latency_ms\": 20, \"loss\": \"independent\", \"loss_rate\": 0.02}' \\\n"
@@ -225,19 +235,10 @@ Runner add_relay_command(CLI::App& app) {
   return [o]() {
     auto link = [](const std::string& text, const char* name) {
       if (text.empty()) return LinkConfig{};
-      nlohmann::json j;
       const bool inline_json = text.find('{') != std::string::npos;
-      try {
-        if (inline_json) {
-          j = nlohmann::json::parse(text);
-        } else {
-          std::ifstream f(text);
-          if (!f) fail("relay: --{}: cannot open '{}' (give a JSON object or a file holding one)", name, text);
-          j = nlohmann::json::parse(f);
-        }
-      } catch (const nlohmann::json::exception& e) {
-        fail("relay: --{} '{}' is not valid JSON: {}", name, text, e.what());
-      }
+      if (!inline_json && !std::ifstream(text))
+        fail("relay: --{}: cannot open '{}' (give a JSON object or a file holding one)", name, text);
+      const nlohmann::json j = inline_json ? parse_json(text, fmt::format("relay: --{}", name)) : read_json_file(text);
       return LinkConfig::from_json(j, std::string("--") + name);
     };
     RelayOptions ro;

@@ -15,7 +15,7 @@
 #                      scene and experiment readers (~20 s each on 2 cores); 0 only replays)
 #   DHR_FUZZ_SEED      libFuzzer seed in the default mode (default 1)
 #   DHR_FUZZ_TARGETS   targets to run (default: fuzz_packet_header fuzz_assembler fuzz_decoders
-#                      fuzz_scene_load fuzz_experiment)
+#                      fuzz_scene_load fuzz_experiment fuzz_live_control)
 #   DHR_FUZZ_JOBS      build parallelism (default: nproc)
 #   DHR_FUZZ_WERROR    ON (default): clang's warnings are errors, as gcc's are in the main build
 # New inputs found while fuzzing go to build-fuzz/corpus/<target>/, never into the repository.
@@ -24,7 +24,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 seconds=${DHR_FUZZ_SECONDS:-0}
 seed=${DHR_FUZZ_SEED:-1}
-targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders fuzz_scene_load fuzz_experiment"}
+targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders fuzz_scene_load fuzz_experiment fuzz_live_control"}
 jobs=${DHR_FUZZ_JOBS:-$(nproc 2>/dev/null || echo 2)}
 werror=${DHR_FUZZ_WERROR:-ON}
 build=$root/build-fuzz
@@ -60,9 +60,11 @@ for t in $targets; do
   # untrusted sizes); -timeout catches hangs; the work corpus is listed first so that new
   # inputs go there and the seeds stay read-only.
   # The scene and experiment readers build scenes and expand sweeps per input (a few hundred
-  # inputs a second): 4000 keep each near 20 s on 2 cores.
+  # inputs a second): 4000 keep each near 20 s on 2 cores; live control messages carry JSON
+  # bodies: 6000 are about 25 s.
   case $t in
     fuzz_decoders | fuzz_scene_load | fuzz_experiment) runs=${DHR_FUZZ_RUNS:-4000} ;;
+    fuzz_live_control) runs=${DHR_FUZZ_RUNS:-6000} ;;
     *) runs=${DHR_FUZZ_RUNS:-50000} ;;
   esac
   if [ "$seconds" -gt 0 ]; then

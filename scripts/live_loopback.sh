@@ -8,6 +8,8 @@
 #   DHR_LIVE_DOWNLINK  relay downlink JSON (default: 20 ms +- 5 ms normal latency, reordering
 #                      allowed, 1 % independent loss); DHR_LIVE_UPLINK (default 20 ms)
 #   DHR_LIVE_NO_RELAY=1  client straight to the server
+#   DHR_LIVE_KEY_FILE  a key file for both sides: every datagram authenticated (HMAC-SHA256;
+#                      docs/live-security.md); e.g. head -c 32 /dev/urandom > out/live.key
 # Needs a built ./build/experiments/dhrbench (bash scripts/build.sh build).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
@@ -19,6 +21,8 @@ scene=${DHR_LIVE_SCENE:-room}
 frames=${DHR_LIVE_FRAMES:-300}
 downlink=${DHR_LIVE_DOWNLINK:-'{"latency": "normal", "latency_ms": 20, "jitter_ms": 5, "preserve_order": false, "loss": "independent", "loss_rate": 0.01}'}
 uplink=${DHR_LIVE_UPLINK:-'{"latency_ms": 20}'}
+key=()
+[ -n "${DHR_LIVE_KEY_FILE:-}" ] && key=(--key-file "$DHR_LIVE_KEY_FILE")
 mkdir -p "$out"
 rm -f "$out/server.port" "$out/relay.port"
 pids=()
@@ -34,7 +38,7 @@ wait_port() {  # file, seconds, pid, log
   echo "live_loopback: no port in $1 after $2 s" >&2; return 1
 }
 
-"$exe" serve --scene "$scene" "$@" --bind 127.0.0.1:0 --port-file "$out/server.port" --out "$out/server" \
+"$exe" serve --scene "$scene" "$@" "${key[@]}" --bind 127.0.0.1:0 --port-file "$out/server.port" --out "$out/server" \
   >"$out/server.log" 2>&1 &
 pids+=($!)
 port=$(wait_port "$out/server.port" 120 "${pids[0]}" "$out/server.log")
@@ -46,7 +50,7 @@ if [ "${DHR_LIVE_NO_RELAY:-0}" != 1 ]; then
   target=127.0.0.1:$(wait_port "$out/relay.port" 30 "${pids[1]}" "$out/relay.log")
 fi
 # shellcheck disable=SC2086
-"$exe" client --scene "$scene" "$@" --server "$target" --frames "$frames" --out "$out/client" ${DHR_LIVE_CLIENT_ARGS:-} 2>&1 | tee "$out/client.log"
+"$exe" client --scene "$scene" "$@" "${key[@]}" --server "$target" --frames "$frames" --out "$out/client" ${DHR_LIVE_CLIENT_ARGS:-} 2>&1 | tee "$out/client.log"
 wait "${pids[@]}" 2>/dev/null || true
 pids=()
 cat "$out/server.log"

@@ -12,6 +12,8 @@ PACKAGES=(
   libopencv-dev libopencv-contrib-dev
   libbenchmark-dev nlohmann-json3-dev libglm-dev libassimp-dev libcli11-dev libtbb-dev libfmt-dev
   libgtest-dev libgmock-dev
+  # live mode's datagram authentication (HMAC-SHA256, --key-file)
+  libssl-dev
   # tests: the broken models that the loader must reject
   assimp-testmodels
   # fuzz targets (libFuzzer) and sanitizer runtimes for clang
