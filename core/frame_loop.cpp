@@ -261,11 +261,11 @@ nlohmann::json RunResult::metrics() const {
   auto finite_or_null = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
   m["ssim_local_mean"] = finite_or_null(mean_of([](const FrameRecord& f) { return f.ssim_local; },
                                                 [](const FrameRecord& f) { return f.scored; }));
-  m["psnr_local_mean_db"] = finite_or_null(mean_of([](const FrameRecord& f) { return std::min(f.psnr_local, 100.0); },
+  m["psnr_local_mean_db"] = finite_or_null(mean_of([](const FrameRecord& f) { return psnr_for_mean(f.psnr_local); },
                                                    [](const FrameRecord& f) { return f.scored; }));
   m["ssim_ground_truth_mean"] = finite_or_null(mean_of([](const FrameRecord& f) { return f.ssim_gt; },
                                                        [](const FrameRecord& f) { return f.scored_ground_truth; }));
-  m["psnr_ground_truth_mean_db"] = finite_or_null(mean_of([](const FrameRecord& f) { return std::min(f.psnr_gt, 100.0); },
+  m["psnr_ground_truth_mean_db"] = finite_or_null(mean_of([](const FrameRecord& f) { return psnr_for_mean(f.psnr_gt); },
                                                           [](const FrameRecord& f) { return f.scored_ground_truth; }));
   m["psnr_note"] = "PSNR of identical frames is counted as 100 dB in the means";
   const double seconds = duration_ms / 1000.0;

@@ -8,7 +8,7 @@
 #include "core/live_protocol.h"
 #include "core/metrics.h"
 #include "core/packet.h"
-#include "core/pass_denoisers.h"
+#include "core/pipeline.h"
 #include "core/pass_receiver.h"
 #include "core/raster.h"
 #include "core/rng.h"
@@ -81,6 +81,8 @@ nlohmann::json percentiles(std::vector<double> v) {
 }
 
 int slot_of(PassKind k) { return pass_slot(k); }
+// The stream (0: visibility, 1: ao) of a planned pass: the protocol's slots (core/live_protocol.h).
+int stream_slot(const PlannedPass& p) { return p.meaning == PassMeaning::Visibility ? 0 : 1; }
 constexpr const char* kSlotName[2] = {"visibility", "ao"};
 
 ControlMessage msg(ControlType type, uint32_t session, std::string text = {}) {
@@ -228,14 +230,8 @@ class LiveServer {
     uint32_t id = 0;     // the session token (random, from the OS)
     uint32_t nonce = 0;  // the client's Hello nonce (a repeated Hello gets the Welcome again)
     Endpoint peer;
-    std::unique_ptr<Codec> codec[2];
-    std::string codec_name[2];
-    std::unique_ptr<PassDenoisers> denoise;
-    uint32_t first_sequence[2] = {0, 0};  // random, sent in the Welcome
-    uint32_t sequence[2] = {0, 0};
-    bool has_prev = false;
-    Camera prev_camera;
-    double prev_time_s = 0;
+    std::unique_ptr<ServerPipeline> pipeline;  // core/pipeline.h: the simulator's server stages
+    uint32_t first_sequence[2] = {0, 0};       // per stream (visibility, ao): random, sent in the Welcome
     int64_t last_frame = -1;
     std::optional<CameraUpdate> pending;
     bool keyframe = false;
@@ -359,17 +355,10 @@ class LiveServer {
     s->id = os_random_u32();
     s->nonce = nonce;
     s->peer = from;
-    for (int slot = 0; slot < 2; ++slot) s->sequence[slot] = s->first_sequence[slot] = os_random_u32();
-    const Registries& r = registries_;
-    if (plan_.visibility()) {
-      s->codec[0] = r.codecs.create(c_.visibility_codec.name, c_.visibility_codec.params);
-      s->codec_name[0] = c_.visibility_codec.name;
-    }
-    if (plan_.ao) {
-      s->codec[1] = r.codecs.create(c_.ao_codec.name, c_.ao_codec.params);
-      s->codec_name[1] = c_.ao_codec.name;
-    }
-    s->denoise = std::make_unique<PassDenoisers>(c_, registries_);
+    for (int slot = 0; slot < 2; ++slot) s->first_sequence[slot] = os_random_u32();
+    s->pipeline = std::make_unique<ServerPipeline>(c_, *scene_.scene, registries_, direct_tracer(*rt_, c_), stream_of(s->id));
+    for (size_t i = 0; i < s->pipeline->passes().size(); ++i)
+      s->pipeline->set_next_sequence(i, s->first_sequence[stream_slot(s->pipeline->passes()[i])]);
     s->started = s->last_heard = Clock::now();
     if (!o_.out_dir.empty()) {
       std::filesystem::create_directories(o_.out_dir);
@@ -422,39 +411,16 @@ class LiveServer {
     const bool keyframe = s.keyframe;
     s.keyframe = false;
     const auto t0 = Clock::now();
-    GBuffer g;
-    rasterize({scene_.scene, cam.camera, cam.scene_time_s, s.has_prev ? s.prev_camera : cam.camera,
-               s.has_prev ? s.prev_time_s : cam.scene_time_s},
-              g);
-    s.has_prev = true;
-    s.prev_camera = cam.camera;
-    s.prev_time_s = cam.scene_time_s;
-    // The same seed and frame index as the simulator: the same camera gives the same passes.
-    TraceResult traced = trace_passes(*rt_, g, c_.trace_for_frame(cam.frame));
-    s.denoise->run(g, cam.frame, traced.visibility, traced.ao);
-    std::optional<PassBuffer>* buffers[2] = {&traced.visibility, &traced.ao};
-    std::vector<std::vector<uint8_t>> packets[2];
-    for (int slot = 0; slot < 2; ++slot) {
-      if (!*buffers[slot] || !s.codec[slot]) continue;
-      const PassBuffer& buf = **buffers[slot];
-      std::vector<uint8_t> encoded;
-      s.codec[slot]->encode(buf, {keyframe}, encoded);
-      PacketMeta meta;
-      meta.stream_id = stream_of(s.id);
-      meta.desc = buf.desc;
-      meta.frame_id = cam.frame;
-      meta.codec_id = codec_id(s.codec_name[slot]);
-      meta.first_sequence = s.sequence[slot];
-      packets[slot] = packetize(meta, encoded, c_.max_payload_bytes);
-      s.sequence[slot] += uint32_t(packets[slot].size());
-      if (s.log.is_open())
-        s.log << fmt::format("{:08x},{},{},{},{},{}\n", s.id, cam.frame, kSlotName[slot], encoded.size(),
-                             packets[slot].size(),
-                             wire_bytes_of_pass(encoded.size(), c_.max_payload_bytes) + packets[slot].size() * mac_bytes());
-    }
+    // The same stages, seed and frame index as the simulator: the same camera gives the same
+    // passes and the same bytes.
+    ServerFrame f = s.pipeline->run(cam.frame, cam.camera, cam.scene_time_s, keyframe);
+    if (s.log.is_open())
+      for (const SentPass& p : f.passes)
+        s.log << fmt::format("{:08x},{},{},{},{},{}\n", s.id, cam.frame, p.name, p.encoded_bytes, p.packets.size(),
+                             wire_bytes_of_pass(p.encoded_bytes, c_.max_payload_bytes) + p.packets.size() * mac_bytes());
     if (s.compute_ms.size() < kMaxSamples) s.compute_ms.push_back(ms_between(t0, Clock::now()));
-    for (auto& list : packets)
-      for (auto& p : list) {
+    for (SentPass& pass : f.passes)
+      for (auto& p : pass.packets) {
         const size_t bytes = p.size() + mac_bytes();
         const SendResult r = send_datagram(std::move(p), s.peer, s.id);
         if (r == SendResult::Sent) {
@@ -543,17 +509,10 @@ class LiveClient {
  public:
   LiveClient(const SimConfig& c, const Registries& r, const LiveScene& s, const ClientOptions& o)
       : c_(c), registries_(r), scene_(s), o_(o), offer_(session_offer(c, r, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
-        socket_(any_endpoint_like(o.server)), mac_(load_key(o.key_file)) {
+        socket_(any_endpoint_like(o.server)), mac_(load_key(o.key_file)), client_(c, *s.scene, r) {
     if (c.mode != "hybrid") fail("live mode is hybrid rendering only (mode '{}' given)", c.mode);
     if (o.frames < 1) fail("client: --frames must be at least 1 (got {})", o.frames);
-    if (plan_.visibility()) {
-      receivers_[0].codec = r.codecs.create(c.visibility_codec.name, c.visibility_codec.params);
-      predictor_[0] = r.predictors.create(c.predictor.name, c.predictor.params);
-    }
-    if (plan_.ao) {
-      receivers_[1].codec = r.codecs.create(c.ao_codec.name, c.ao_codec.params);
-      predictor_[1] = r.predictors.create(c.predictor.name, c.predictor.params);
-    }
+    for (size_t i = 0; i < client_.passes().size(); ++i) pass_of_slot_[stream_slot(client_.passes()[i])] = int(i);
     AssemblerConfig ac;
     ac.max_payload_bytes = c.max_payload_bytes;
     ac.timeout_ms = 500;
@@ -702,9 +661,9 @@ class LiveClient {
     bool streams[kPassSlots] = {false, false};
     const BackendChoice* codecs[kPassSlots] = {&c_.visibility_codec, &c_.ao_codec};
     for (int slot = 0; slot < kPassSlots; ++slot) {
-      streams[slot] = receivers_[slot].codec != nullptr;
+      streams[slot] = pass_of_slot_[slot] >= 0;
       codec_ids[slot] = codec_id(codecs[slot]->name);
-      receivers_[slot].expected_sequence = w.first_sequence[slot];
+      if (streams[slot]) client_.receiver(pass_of_slot_[slot]).expected_sequence = w.first_sequence[slot];
     }
     gate_ = PassGate(session_, w.first_sequence, codec_ids, streams);
   }
@@ -727,7 +686,7 @@ class LiveClient {
     const double until = now_ms() + std::min(1000.0, o_.idle_timeout_s * 1000.0);
     auto done = [&] {
       for (int slot = 0; slot < kPassSlots; ++slot)
-        if (receivers_[slot].codec && newest_completed_[slot] < int64_t(last_camera_)) return false;
+        if (pass_of_slot_[slot] >= 0 && newest_completed_[slot] < int64_t(last_camera_)) return false;
       return true;
     };
     while (!done() && end_reason_.rfind("all ", 0) == 0 && !stop.load() && now_ms() < until) {
@@ -848,21 +807,20 @@ class LiveClient {
     has_prev_ = true;
     prev_camera_ = cu.camera;
     prev_time_s_ = cu.scene_time_s;
-    history_.emplace_back(a, std::move(g));
-    while (int(history_.size()) > c_.history_frames) history_.pop_front();
-    const GBuffer& gbuf = history_.back().second;
+    client_.keep(a, std::move(g));
+    const GBuffer& gbuf = *client_.gbuffer(a);
 
     receive_waiting();
     AssemblerEvents events = assembler_.poll(int64_t(now_ms()));
     count_lost(events);
     for (AssembledFrame& f : events.completed) {
       const int slot = slot_of(f.meta.desc.kind);
-      if (slot < 0 || !receivers_[slot].codec) continue;
+      if (slot < 0 || pass_of_slot_[slot] < 0) continue;
       ++frames_completed_[slot];
       const uint32_t frame_id = f.meta.frame_id;
       if (frame_id < send_ms_.size() && send_ms_[frame_id] >= 0)
         round_trip_ms_[slot].push_back(double(f.completed_ms) - send_ms_[frame_id]);
-      const PassReceiver::Outcome out = receivers_[slot].on_frame(f);
+      const PassReceiver::Outcome out = client_.receive(pass_of_slot_[slot], f);
       keyframe_request_ = keyframe_request_ || out.keyframe_request;
       decode_errors_[slot] += out.decode_error ? 1 : 0;
       auto it = socket_bytes_.find({slot, frame_id});
@@ -875,23 +833,16 @@ class LiveClient {
     while (!socket_bytes_.empty() && int64_t(socket_bytes_.begin()->first.second) + 4 * c_.history_frames < a)
       socket_bytes_.erase(socket_bytes_.begin());
 
-    std::optional<PassBuffer> predicted[2];
-    for (int slot = 0; slot < 2; ++slot) {
-      if (!receivers_[slot].codec) continue;
-      const PassReceiver& r = receivers_[slot];
-      const GBuffer* src = nullptr;
-      for (const auto& [f, hg] : history_)
-        if (f == r.frame) src = &hg;
-      if (!src) {
-        ++without_data_;  // the local fallback: fully lit / AO 1
-        continue;
-      }
-      row.source_frame[slot] = r.frame;
-      row.age_ms[slot] = double(a - r.frame) * 1000.0 / c_.display_hz;
-      predicted[slot] = predict_pass(*predictor_[slot], r, *src, gbuf, r.frame == a, row.disoccluded[slot]);
+    // Predict and composite: the simulator's client stages (core/pipeline.h).
+    ClientFrame shown = client_.display(a, gbuf, [this](int frame) { return camera(frame); });
+    without_data_ += uint64_t(shown.passes_without_data);
+    for (size_t i = 0; i < client_.passes().size(); ++i) {
+      const int slot = stream_slot(client_.passes()[i]);
+      row.source_frame[slot] = shown.source_frame[i];
+      row.disoccluded[slot] = shown.disoccluded[i];
+      if (shown.source_frame[i] >= 0) row.age_ms[slot] = double(a - shown.source_frame[i]) * 1000.0 / c_.display_hz;
     }
-    ImageRGB8 image = composite(gbuf, *scene_.scene, predicted[0] ? &*predicted[0] : nullptr,
-                                predicted[1] ? &*predicted[1] : nullptr);
+    ImageRGB8& image = shown.image;
     row.client_ms = ms_between(start, Clock::now());
     if (o_.score_every > 0 && a % o_.score_every == 0) {
       row.scored = true;
@@ -902,34 +853,32 @@ class LiveClient {
   }
 
   // Quality after the session (so that scoring never slows the real-time loop): each scored
-  // frame against the local reference, the frame's own passes traced and denoised as the
-  // simulator does. With a temporal denoiser its history runs over every displayed frame.
+  // frame against the local reference, defined as in the simulator (core/pipeline.h,
+  // LocalReference): the frame's own passes traced for its camera and denoised by a sequence of
+  // their own that, with a temporal denoiser, runs over every frame index in order.
   void score() {
     if (o_.score_every <= 0 || rows_.empty()) return;
     say(o_.quiet, "client", "scoring {} frames against the local reference ...",
         std::count_if(rows_.begin(), rows_.end(), [](const Row& r) { return r.scored; }));
     RtScene rt(*scene_.scene);
-    PassDenoisers local(c_, registries_);
-    const bool every_frame = !local.ao_is_none || !local.soft_is_none;
-    Camera prev;
-    double prev_t = 0;
-    bool has_prev = false;
-    for (Row& row : rows_) {
-      if (!row.scored && !every_frame) continue;
-      const Camera cam = camera(row.frame);
+    const TraceFn trace = direct_tracer(rt, c_);
+    LocalReference local(c_, *scene_.scene, registries_);
+    std::map<int, Row*> scored;
+    for (Row& row : rows_)
+      if (row.scored) scored[row.frame] = &row;
+    if (scored.empty()) return;
+    const int last = scored.rbegin()->first;
+    for (int a = local.needs_every_frame() ? 0 : scored.begin()->first; a <= last; ++a) {
+      auto it = scored.find(a);
+      if (it == scored.end() && !local.needs_every_frame()) continue;
+      const Camera cam = camera(a), prev = a > 0 ? camera(a - 1) : cam;
       GBuffer g;
-      rasterize({scene_.scene, cam, frame_time_s(row.frame), has_prev ? prev : cam, has_prev ? prev_t : frame_time_s(row.frame)},
-                g);
-      prev = cam;
-      prev_t = frame_time_s(row.frame);
-      has_prev = true;
-      TraceResult t = trace_passes(rt, g, c_.trace_for_frame(uint32_t(row.frame)));
-      local.run(g, uint32_t(row.frame), t.visibility, t.ao);
-      if (!row.scored) continue;
-      const ImageRGB8 ref = composite(g, *scene_.scene, t.visibility ? &*t.visibility : nullptr, t.ao ? &*t.ao : nullptr);
-      const QualityScores q = compare_images(ref, kept_.at(row.frame));
-      row.ssim = q.ssim;
-      row.psnr = q.psnr_db;
+      rasterize({scene_.scene, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)}, g);
+      const std::optional<ImageRGB8> ref = local.frame(uint32_t(a), g, *trace(uint32_t(a), g), it != scored.end());
+      if (!ref) continue;
+      const QualityScores q = compare_images(*ref, kept_.at(a));
+      it->second->ssim = q.ssim;
+      it->second->psnr = q.psnr_db;
     }
   }
 
@@ -950,7 +899,7 @@ class LiveClient {
       client_ms.push_back(r.client_ms);
       if (r.scored) {
         ssim.push_back(r.ssim);
-        psnr.push_back(std::isfinite(r.psnr) ? r.psnr : 99.0);
+        psnr.push_back(psnr_for_mean(r.psnr));
       }
       for (int s = 0; s < 2; ++s)
         if (r.source_frame[s] >= 0) age[s].push_back(r.age_ms[s]);
@@ -979,7 +928,7 @@ class LiveClient {
       if (as.frames_lost[size_t(r)]) lost_by[loss_reason_name(LossReason(r))] = as.frames_lost[size_t(r)];
     nlohmann::json passes = nlohmann::json::object();
     for (int s = 0; s < 2; ++s) {
-      if (!receivers_[s].codec) continue;
+      if (pass_of_slot_[s] < 0) continue;
       passes[kSlotName[s]] = {{"frames_completed", frames_completed_[s]},
                               {"frames_lost", frames_lost_[s]},
                               {"decode_errors", decode_errors_[s]},
@@ -1071,13 +1020,12 @@ class LiveClient {
   double session_seconds_ = 0;
   std::vector<uint8_t> buffer_;
   Assembler assembler_;
-  PassReceiver receivers_[2];
-  std::unique_ptr<Predictor> predictor_[2];
+  ClientPipeline client_;       // core/pipeline.h: decode, predict, composite, the G-buffer history
+  int pass_of_slot_[2] = {-1, -1};  // per stream (visibility, ao): its pass in client_, -1: none
   bool keyframe_request_ = false;
   bool has_prev_ = false;
   Camera prev_camera_;
   double prev_time_s_ = 0;
-  std::deque<std::pair<int, GBuffer>> history_;
   std::vector<double> send_ms_;
   std::vector<Row> rows_;
   std::map<int, ImageRGB8> kept_;  // bounded: frames / score_every + frames / save_every images

@@ -1,13 +1,15 @@
 // Live mode: the DHR server and client as two processes over real UDP sockets, with an
-// optional impairment relay between them (dhrbench serve / client / relay). The same stages
-// as the simulator (core/frame_loop.h) run on the wall clock instead of the virtual one:
+// optional impairment relay between them (dhrbench serve / client / relay). The simulator's
+// stages (core/pipeline.h: ServerPipeline, ClientPipeline, LocalReference) run on the wall
+// clock instead of the virtual one; live mode adds only the sockets and the handshake:
 //
 //   client, every 1/display_hz s:  camera -> Camera message (uplink); rasterize; receive and
-//          reassemble pass packets (core/assembler.h), decode (core/pass_receiver.h); predict
-//          the newest buffer of each pass to this frame; composite; record
+//          reassemble pass packets (core/assembler.h); ClientPipeline decodes, predicts the
+//          newest buffer of each pass to this frame and composites; record. After the session
+//          each scored frame is compared with the LocalReference, as in the simulator
 //   server, for the newest camera that arrived (older ones are dropped, counted):
-//          rasterize, trace (core/trace.h), denoise (core/pass_denoisers.h), encode,
-//          packetize (core/packet.h) and send every packet at once
+//          ServerPipeline rasterizes, traces, denoises, encodes and packetizes; every packet
+//          is sent at once
 //   relay: each datagram through a seeded core/network.h Link per direction (loss, delay,
 //          jitter, reordering, bandwidth cap with a bounded queue), plus duplication
 //

@@ -22,6 +22,11 @@ struct QualityScores {
   double mean_abs_error = 0.0;  // mean |a - b| over all channels, in 8-bit levels
 };
 
+// PSNR as averaged over frames, in both the simulator and live mode: identical frames (+inf)
+// count as 100 dB, so that a mean stays finite and comparable.
+constexpr double kPsnrOfIdenticalDb = 100.0;
+inline double psnr_for_mean(double psnr_db) { return psnr_db < kPsnrOfIdenticalDb ? psnr_db : kPsnrOfIdenticalDb; }
+
 // Throws dhr::Error when sizes differ or an image is empty.
 QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel channel = SsimChannel::Luma,
                              ImageF* ssim_map = nullptr);

@@ -96,6 +96,9 @@ class ServerPipeline {
                  uint16_t stream_id);
   const std::vector<PlannedPass>& passes() const { return sent_; }
   const PassPlan& plan() const { return plan_; }
+  // The sequence number of the next packet of pass `pass` (0 at the start; live mode starts
+  // each session's streams at random numbers).
+  void set_next_sequence(size_t pass, uint32_t sequence) { sequence_.at(pass) = sequence; }
   // Everything the server does for client frame `frame`, seen from `camera` at scene time
   // `time_s`. The previous call's camera gives the motion vectors.
   ServerFrame run(uint32_t frame, const Camera& camera, double time_s, bool keyframe);
@@ -136,6 +139,7 @@ class ClientPipeline {
   // Decodes one completed frame of pass `pass` (its bytes are consumed).
   PassReceiver::Outcome receive(int pass, AssembledFrame& frame) { return receivers_[size_t(pass)].on_frame(frame); }
   const PassReceiver& receiver(int pass) const { return receivers_[size_t(pass)]; }
+  PassReceiver& receiver(int pass) { return receivers_[size_t(pass)]; }
   // The hybrid client keeps its G-buffers (the last history_frames) for prediction.
   void keep(int frame, GBuffer gbuf);
   const GBuffer* gbuffer(int frame) const;
