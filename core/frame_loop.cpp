@@ -285,7 +285,8 @@ nlohmann::json RunResult::metrics() const {
                       {"frames_lost", t.frames_lost},
                       {"frames_given_up_by_receiver", t.frames_given_up},
                       {"decode_errors", t.decode_errors},
-                      {"keyframe_requests", t.keyframe_requests}});
+                      {"keyframe_requests", t.keyframe_requests},
+                      {"frames_without_data", t.frames_without_data}});
   }
   m["passes"] = passes;
   m["bandwidth_mbps"] = seconds > 0 ? double(wire) * 8 / 1e6 / seconds : 0.0;
@@ -611,7 +612,11 @@ class Simulation {
       stage("composite", shown.composite_ms, count);
       client_ms += shown.composite_ms;
     }
-    if (count) result_.frames_without_data += uint64_t(shown.passes_without_data);
+    if (count) {
+      result_.frames_without_data += shown.passes_without_data > 0 ? 1 : 0;
+      for (size_t i = 0; i < shown.without_data.size(); ++i)
+        traffic_[traffic_index_[i]].frames_without_data += shown.without_data[i] ? 1 : 0;
+    }
     for (size_t i = 0; i < client_.passes().size(); ++i) {
       PassFrameRecord p{client_.passes()[i].name, shown.source_frame[i], 0.0, shown.disoccluded[i]};
       if (p.source_frame >= 0) p.age_ms = now - frame_ms(p.source_frame);

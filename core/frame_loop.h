@@ -90,6 +90,7 @@ struct PassTraffic {
   uint64_t frames_lost = 0;        // server frames with a datagram dropped on the link
   uint64_t frames_given_up = 0;    // partial frames the receiver's assembler gave up
   uint64_t decode_errors = 0, keyframe_requests = 0;
+  uint64_t frames_without_data = 0;  // displayed frames that showed this pass's local fallback
   double bytes_per_frame() const { return server_frames ? double(encoded_bytes) / double(server_frames) : 0.0; }
 };
 
@@ -110,7 +111,7 @@ struct RunResult {
   std::vector<ServerPassRecord> server_log;  // every pass sent for a scored frame, in order
   std::map<std::string, StageStats> stages;  // wall time per stage
   uint64_t server_frames = 0, cameras_dropped = 0, cameras_lost = 0;
-  uint64_t frames_without_data = 0;    // (frame, pass) pairs composited with the local fallback
+  uint64_t frames_without_data = 0;    // displayed frames with at least one pass shown with its local fallback
   uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps
   TraceStats trace_stats;            // rays of the server frames
   double duration_ms = 0.0;          // virtual time of the scored frames

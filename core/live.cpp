@@ -835,7 +835,9 @@ class LiveClient {
 
     // Predict and composite: the simulator's client stages (core/pipeline.h).
     ClientFrame shown = client_.display(a, gbuf, [this](int frame) { return camera(frame); });
-    without_data_ += uint64_t(shown.passes_without_data);
+    without_data_ += shown.passes_without_data > 0 ? 1 : 0;
+    for (size_t i = 0; i < client_.passes().size(); ++i)
+      pass_without_data_[stream_slot(client_.passes()[i])] += shown.without_data[i] ? 1 : 0;
     for (size_t i = 0; i < client_.passes().size(); ++i) {
       const int slot = stream_slot(client_.passes()[i]);
       row.source_frame[slot] = shown.source_frame[i];
@@ -931,6 +933,7 @@ class LiveClient {
       if (pass_of_slot_[s] < 0) continue;
       passes[kSlotName[s]] = {{"frames_completed", frames_completed_[s]},
                               {"frames_lost", frames_lost_[s]},
+                              {"frames_without_data", pass_without_data_[s]},
                               {"decode_errors", decode_errors_[s]},
                               {"age_ms", percentiles(age[s])},
                               {"round_trip_ms", percentiles(round_trip_ms_[s])}};
@@ -1042,6 +1045,7 @@ class LiveClient {
   uint64_t datagrams_ = 0, bytes_ = 0, frames_skipped_ = 0, without_data_ = 0;
   uint64_t session_datagrams_ = 0, session_bytes_ = 0, session_pass_datagrams_ = 0, session_pass_bytes_ = 0;
   uint64_t frames_completed_[2] = {0, 0}, frames_lost_[2] = {0, 0}, decode_errors_[2] = {0, 0};
+  uint64_t pass_without_data_[2] = {0, 0};  // displayed frames that showed the pass's local fallback
   std::vector<double> round_trip_ms_[2];
 };
 

@@ -179,6 +179,7 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
   ClientFrame out;
   out.source_frame.assign(passes_.size(), -1);
   out.disoccluded.assign(passes_.size(), 0);
+  out.without_data.assign(passes_.size(), false);
   auto t0 = Clock::now();
   if (remote_) {
     out.image = ImageRGB8(c_.width, c_.height);  // nothing received yet: black
@@ -194,6 +195,7 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
       out.source_frame[0] = r.frame;
     } else {
       ++out.passes_without_data;
+      out.without_data[0] = true;
     }
     out.predict_ms = ms_since(t0);
     return out;
@@ -204,6 +206,7 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
     const GBuffer* src = r.frame >= 0 ? gbuffer(r.frame) : nullptr;
     if (!src) {
       ++out.passes_without_data;  // the local fallback: fully lit / AO 1
+      out.without_data[i] = true;
       continue;
     }
     out.source_frame[i] = r.frame;

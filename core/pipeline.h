@@ -124,7 +124,8 @@ struct ClientFrame {
   ImageRGB8 image;
   std::vector<int> source_frame;       // per pass: the server frame displayed (-1: none)
   std::vector<uint64_t> disoccluded;   // per pass: the predictor's count
-  int passes_without_data = 0;         // passes shown with their local fallback
+  std::vector<bool> without_data;      // per pass: shown with its local fallback (nothing usable)
+  int passes_without_data = 0;         // how many passes were
   double predict_ms = 0.0, composite_ms = 0.0;
   bool composited = false;             // false: a colour frame shown as it is (remote)
 };

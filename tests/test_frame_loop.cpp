@@ -84,6 +84,35 @@ TEST(FrameLoop, ReprojectionBeatsNoneUnderLatencyOnEveryBuiltinScene) {
   }
 }
 
+// frames_without_data counts displayed frames (not (frame, pass) pairs); the per-pass counts
+// are the frames that showed that pass's local fallback.
+TEST(FrameLoop, FramesWithoutDataCountsFramesAndEachPass) {
+  SimConfig c = small_config(20);
+  c.width = 96;
+  c.height = 54;
+  c.uplink.latency_ms = 60;  // the first frames have nothing from the server yet
+  c.downlink.latency_ms = 60;
+  RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
+  uint64_t frames = 0, vis = 0, ao = 0;
+  for (const FrameRecord& f : r.frames) {
+    const bool v = f.pass("visibility").source_frame < 0, a = f.pass("ao").source_frame < 0;
+    frames += (v || a) ? 1 : 0;
+    vis += v ? 1 : 0;
+    ao += a ? 1 : 0;
+  }
+  ASSERT_GT(frames, 1u) << "the latency left no frame without data: the test tests nothing";
+  EXPECT_EQ(r.frames_without_data, frames);
+  EXPECT_LE(r.frames_without_data, r.frames.size());
+  const nlohmann::json m = r.metrics();
+  for (const auto& p : m["passes"]) {
+    if (p["pass"] == "visibility") {
+      EXPECT_EQ(p["frames_without_data"].get<uint64_t>(), vis);
+    } else if (p["pass"] == "ao") {
+      EXPECT_EQ(p["frames_without_data"].get<uint64_t>(), ao);
+    }
+  }
+}
+
 TEST(FrameLoop, DeterministicAcrossRunsAndThreadCounts) {
   SimConfig c = small_config(10);
   c.uplink.latency_ms = 20;
