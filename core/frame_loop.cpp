@@ -51,7 +51,7 @@ struct Datagram {
 
 // Bump when tracing, rasterizing or the cache file format changes: disk entries written by an
 // older version are then never read (the key is stored in the file and compared).
-constexpr int kTraceCacheVersion = 1;
+constexpr int kTraceCacheVersion = 2;  // 2: ray offsets scaled by the hit triangle's own error (issue 13)
 
 std::string trace_key(const std::string& scene_key, const SimConfig& c, int frame) {
   const TraceSettings& t = c.trace;

@@ -11,6 +11,9 @@
 // scene's vertices at the G-buffer's time (in double precision), and ray origins are offset
 // along the geometric normal (oriented like the G-buffer's, i.e. towards the camera) with
 // Waechter & Binder's integer-ULP method (Ray Tracing Gems, ch. 6); there is no global epsilon.
+// Where the hit triangle's own float error in Embree is larger than that offset (a triangle
+// large against the hit point's coordinates, e.g. a big plane through the world origin), the
+// point first moves that error off the plane (triangle_error_m in core/trace_kernels.h).
 //
 // Rays are validated before Embree sees them (ray_is_valid in core/rt_scene.h). An invalid
 // ray is counted in TraceStats::invalid_rays and never traced; its answer is "unoccluded":

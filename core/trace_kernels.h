@@ -11,6 +11,7 @@
 
 #include "core/trace.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -30,7 +31,7 @@ namespace dhr::trace_detail {
 struct Surface {
   glm::vec3 p{0.0f};       // on the triangle
   glm::vec3 n{0.0f};       // unit geometric normal, oriented like the G-buffer's (camera side)
-  glm::vec3 origin{0.0f};  // p offset along n (Waechter-Binder)
+  glm::vec3 origin{0.0f};  // p offset along n (Waechter-Binder; see surface_at)
   glm::vec3 t{0.0f}, b{0.0f};  // orthonormal basis around n (AO only)
 };
 
@@ -43,7 +44,58 @@ struct TriangleCache {
   bool resolved = false;
   glm::dvec3 v[3];
   glm::dvec3 n{0.0};
+  double error_m = 0.0;  // triangle_error_m: how far off the plane a ray origin must start
+  bool check_error = false;  // error_m may exceed the offset somewhere on the triangle
 };
+
+// Embree intersects a ray with a triangle in float (Moeller-Trumbore: the distance along the
+// ray is Ng . (v0 - o) / Ng . d, with the edges and Ng = e1 x e2 rounded to float). The offset
+// origin o is meant to lie on the far side of the plane, so the ray leaves it; rounding can put
+// it back on the near side (a self-hit) when the error of Ng . (v0 - o) exceeds the offset. That
+// error grows with the triangle, not with o: Ng's direction is off by about 2^-24 emax^2 / |Ng|
+// radians (emax: the longest edge; the ratio is 1 / sin of the angle between the edges,
+// >= 1), and |v0 - o| <= emax. So the origin must start at least
+//   triangle_error_m = kTriangleErrorUlps * 2^-24 * emax * emax^2 / |Ng|
+// off the plane, with kTriangleErrorUlps covering the few roundings of each term and a margin:
+// tests/test_trace_hard_cases.cpp (LargeTiltedPlane, 1 m to 100 km) self-hits below 0.5 and
+// passes from there, so 16 leaves a factor of 32 where the planes need it.
+// The Waechter-Binder offset (core/trace.h) scales with the hit point's coordinates instead:
+// big triangles near the world origin (a 1 km plane through it) got far too little.
+inline double triangle_error_m(const glm::dvec3 v[3], double cross_length) {
+  constexpr double kTriangleErrorUlps = 16.0;
+  const double e2 = std::max({glm::dot(v[1] - v[0], v[1] - v[0]), glm::dot(v[2] - v[1], v[2] - v[1]),
+                              glm::dot(v[0] - v[2], v[0] - v[2])});
+  return kTriangleErrorUlps * 0x1p-24 * std::sqrt(e2) * e2 / cross_length;
+}
+
+// A lower bound on how far offset_ray_origin(p, n) moves p along unit n: per component
+// n_i * 2^-16 within 1/32 of the origin, else int(256 n_i) ULPs of p_i, and one ULP of p_i is at
+// least 2^-25 |p_i| (2^-24 |p_i| rounded down to a power of two, on the smaller side of a
+// binade's edge).
+inline float offset_lower_bound_axis_m(float a, float m) {  // a = |p_i|, m = |n_i|
+  return a < 1.0f / 32.0f ? m * m * (1.0f / 65536.0f) : std::max(0.0f, m * (256.0f * m - 1.0f)) * 0x1p-25f * a;
+}
+inline float offset_lower_bound_m(const glm::vec3& p, const glm::vec3& n) {
+  float d = 0.0f;
+  for (int i = 0; i < 3; ++i) d += offset_lower_bound_axis_m(std::abs(p[i]), std::abs(n[i]));
+  return d;
+}
+
+// Whether error_m can exceed offset_lower_bound_m anywhere on the triangle (else no pixel of it
+// needs the per-pixel test): a bound from the normal's dominant axis alone, at the triangle's
+// smallest |coordinate| on that axis (0 where it spans 0; the axis bound is smallest just above
+// 1/32 or at its least |coordinate|).
+inline bool triangle_needs_check(const glm::dvec3 v[3], const glm::dvec3& n, double error_m) {
+  int k = 0;
+  for (int i = 1; i < 3; ++i) k = std::abs(n[i]) > std::abs(n[k]) ? i : k;
+  const double lo = std::min({v[0][k], v[1][k], v[2][k]}), hi = std::max({v[0][k], v[1][k], v[2][k]});
+  // The float hit point may round past a vertex of a moving object (vertices in double).
+  const float a = lo <= 0.0 && hi >= 0.0 ? 0.0f : float(std::min(std::abs(lo), std::abs(hi)) * (1.0 - 0x1p-20));
+  const float m = float(std::abs(n[k]));
+  float least = offset_lower_bound_axis_m(a, m);
+  if (a < 1.0f / 32.0f) least = std::min(least, offset_lower_bound_axis_m(1.0f / 32.0f, m));
+  return error_m > double(least);
+}
 
 // False for background pixels. Unresolvable ids fall back to the G-buffer's position and
 // geometric normal (counted); a non-finite result then fails ray validation downstream.
@@ -60,8 +112,11 @@ inline bool surface_at(const RtScene& rt, const GBuffer& g, int x, int y, Surfac
     if (cache.resolved) {
       const glm::dvec3* v = cache.v;
       glm::dvec3 n = glm::cross(v[1] - v[0], v[2] - v[0]);
-      n /= glm::length(n);  // non-degenerate: degenerate triangles were skipped at build
+      const double len = glm::length(n);
+      n /= len;  // non-degenerate: degenerate triangles were skipped at build
       cache.n = n;
+      cache.error_m = triangle_error_m(v, len);
+      cache.check_error = triangle_needs_check(v, n, cache.error_m);
     }
   }
   const glm::vec3 gn = g.geo_normal(x, y);
@@ -77,6 +132,12 @@ inline bool surface_at(const RtScene& rt, const GBuffer& g, int x, int y, Surfac
     if (side < 0.0) n = -n;
     s.p = glm::vec3(p);
     s.n = glm::vec3(n);
+    // Where the triangle's own error is larger than the Waechter-Binder offset, the point first
+    // moves that far off the plane (in double), then gets the offset for its own rounding.
+    if (cache.check_error && cache.error_m > double(offset_lower_bound_m(s.p, s.n))) {
+      s.origin = offset_ray_origin(glm::vec3(p + n * cache.error_m), s.n);
+      return true;
+    }
   } else {
     ++unresolved;
     s.p = g.position(x, y);

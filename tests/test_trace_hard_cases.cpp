@@ -1,7 +1,7 @@
-// Numerically hard cases for the server's tracing (design.md section 7): surfaces far from the
-// origin, grazing lights, degenerate and non-finite triangles, lights touching or inside
-// geometry, zero-radius lights, a camera inside geometry, an empty view and invalid rays.
-// Every case asserts no NaN, no crash and the documented answer (core/trace.h).
+// Numerically hard cases for the server's tracing (the rules are in core/trace.h): surfaces far
+// from the origin, large tilted surfaces, grazing lights, degenerate and non-finite triangles,
+// lights touching or inside geometry, zero-radius lights, a camera inside geometry, an empty
+// view and invalid rays. Every case asserts no NaN, no crash and the documented answer.
 #include "core/composite.h"
 #include "core/error.h"
 #include "core/rt_scene.h"
@@ -12,8 +12,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
+#include <tuple>
 
 namespace dhr {
 namespace {
@@ -96,6 +98,69 @@ TEST_P(FarFromOrigin, LitPlaneStaysFullyLit) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Offsets, FarFromOrigin, ::testing::Values(0.0f, 1e5f, 1e6f));
+
+// A lone plane rotated (30, 0, 20) degrees (a scene's rotate_deg: x, then y, then z), 1 m to
+// 100 km across, centred on the world origin or far from it, with nothing to occlude it: no
+// pixel may be shadowed (hard or soft) or occluded (AO). Embree's intersection error grows with
+// the triangle (its edges and normal are rounded to float), not with the hit point, so an
+// origin offset scaled by the hit point's coordinates alone shadowed big planes near the world
+// origin (issue 13, item 4). Two views: the whole plane, and a close-up of its centre.
+class LargeTiltedPlane : public ::testing::TestWithParam<std::tuple<float, float>> {};
+
+TEST_P(LargeTiltedPlane, UnoccludedPlaneIsNeverShadowed) {
+  const auto [size, far] = GetParam();
+  const glm::vec3 r = glm::radians(glm::vec3(30.0f, 0.0f, 20.0f));
+  const glm::quat q = glm::angleAxis(r.z, glm::vec3(0, 0, 1)) * glm::angleAxis(r.y, glm::vec3(0, 1, 0)) *
+                      glm::angleAxis(r.x, glm::vec3(1, 0, 0));
+  const glm::vec3 centre = glm::vec3(2.0f, 1.0f, -3.0f) * far;
+  const glm::vec3 n = q * glm::vec3(0, 1, 0), t = q * glm::vec3(1, 0, 0);
+  Mesh plane = make_plane(size, size);
+  for (auto& p : plane.positions) p = q * p;
+  for (auto& v : plane.normals) v = q * v;
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, plane, centre));
+  // Every light well above the plane's horizon from every point of it.
+  s.lights.push_back(point_light(centre + n * size));
+  s.lights.push_back(point_light(centre + (n + 0.3f * t) * size, 0.1f * size));
+  s.lights.push_back(distant_light(n + 0.2f * t, 2.0f));
+  s.ao = AoSettings{0.1f * size, 16};
+  RtScene rt(s);
+  const float close = std::min(size, 2.0f);  // the close-up: a few metres around the centre
+  for (const float d : {size, close}) {
+    const Camera c = Camera::look_at(centre + (0.7f * n + 0.5f * t) * d, centre, {0, 1, 0}, 60.0f, kW, kH,
+                                     1e-3f * d, 10.0f * d);
+    const GBuffer g = rt.primary_gbuffer(c, 0.0);
+    const size_t cov = covered(g);
+    ASSERT_GT(cov, size_t(kW * kH / 4)) << "size " << size << " view " << d;
+    TraceSettings hard, soft;
+    hard.soft_shadows = false;
+    soft.samples_per_light = 4;
+    const TraceResult rh = trace_passes(rt, g, hard), rs = trace_passes(rt, g, soft);
+    ASSERT_TRUE(rh.visibility && rs.visibility && rh.ao);
+    ASSERT_EQ(rs.visibility->desc.kind, PassKind::SoftVisibility);
+    EXPECT_EQ(rh.stats.invalid_rays + rs.stats.invalid_rays, 0u);
+    const size_t npx = g.depth.size();
+    size_t hard_dark = 0, soft_dark = 0, ao_dark = 0;
+    for (size_t i = 0; i < npx; ++i) {
+      if (g.object_id[i] == kBackgroundId) continue;
+      bool h = false, so = false;
+      for (int l = 0; l < 3; ++l) {
+        h = h || !bit(*rh.visibility, l, i);
+        so = so || rs.visibility->bytes[size_t(l) * npx + i] != 4;
+      }
+      hard_dark += h;
+      soft_dark += so;
+      ao_dark += rh.ao->bytes[i] != 16;
+    }
+    EXPECT_EQ(hard_dark, 0u) << "size " << size << " m, centre " << far << ", view " << d << " m: " << cov << " px";
+    EXPECT_EQ(soft_dark, 0u) << "size " << size << " m, centre " << far << ", view " << d << " m: " << cov << " px";
+    EXPECT_EQ(ao_dark, 0u) << "size " << size << " m, centre " << far << ", view " << d << " m: " << cov << " px";
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(SizesAndPlaces, LargeTiltedPlane,
+                         ::testing::Combine(::testing::Values(1.0f, 100.0f, 300.0f, 1e3f, 1e4f, 1e5f),
+                                            ::testing::Values(0.0f, 1e5f)));
 
 // Lights nearly in the plane: every pixel with n.l > 0 stays lit.
 TEST(TraceHardCases, GrazingLightsStayLit) {
