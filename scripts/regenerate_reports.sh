@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Regenerates every published report (reports/README.md) from one clean commit, with a fresh
+# disk cache, and says how long each took. Refuses to run on a tree with uncommitted changes
+# (a report records the commit it came from, and "dirty" would make it unreproducible).
+#   bash scripts/regenerate_reports.sh [NAME ...]     default: every experiments/NAME.json with a
+#                                                     reports/NAME/, then the live report
+# Needs a Release build of this commit in ./build (bash scripts/build.sh build).
+# Environment: DHR_CACHE_DIR (default: a fresh folder under /tmp, removed first).
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+cd "$root"
+exe=./build/experiments/dhrbench
+[ -x "$exe" ] || { echo "regenerate_reports: $exe not found: bash scripts/build.sh build" >&2; exit 1; }
+if [ -n "$(git status --porcelain --untracked-files=no)" ]; then
+  echo "regenerate_reports: the tree has uncommitted changes; commit them first (reports name their commit)" >&2
+  exit 1
+fi
+export DHR_CACHE_DIR=${DHR_CACHE_DIR:-/tmp/dhr-regenerate-cache}
+rm -rf "$DHR_CACHE_DIR"
+names=("$@")
+if [ ${#names[@]} -eq 0 ]; then
+  for d in reports/*/; do
+    n=$(basename "$d")
+    [ -f "experiments/$n.json" ] && names+=("$n")
+  done
+  names+=(live)
+fi
+echo "regenerate_reports: commit $(git rev-parse --short HEAD), cache $DHR_CACHE_DIR (cold)"
+for n in "${names[@]}"; do
+  start=$(date +%s)
+  if [ "$n" = live ]; then
+    rm -rf reports/live/client reports/live/server reports/live/*.log reports/live/relay.json
+    DHR_LIVE_CLIENT_ARGS="--save-every 300" DHR_LIVE_FRAMES=600 bash scripts/live_loopback.sh reports/live >/dev/null
+  else
+    "$exe" run "experiments/$n.json" --out "reports/$n" >/dev/null
+  fi
+  echo "regenerate_reports: $n took $(( $(date +%s) - start )) s"
+done
