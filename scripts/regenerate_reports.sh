@@ -25,14 +25,28 @@ if [ ${#names[@]} -eq 0 ]; then
   done
   names+=(live)
 fi
-echo "regenerate_reports: commit $(git rev-parse --short HEAD), cache $DHR_CACHE_DIR (cold)"
+scratch=$(mktemp -d /tmp/dhr-regenerate.XXXXXX)
+echo "regenerate_reports: commit $(git rev-parse --short HEAD), cache $DHR_CACHE_DIR (cold), scratch $scratch"
 for n in "${names[@]}"; do
   start=$(date +%s)
+  # Each run writes to a scratch folder first: overwriting reports/ while it runs would make the
+  # next report's context record a dirty tree.
+  tmp=$scratch/$n
   if [ "$n" = live ]; then
-    rm -rf reports/live/client reports/live/server reports/live/*.log reports/live/relay.json
-    DHR_LIVE_CLIENT_ARGS="--save-every 300" DHR_LIVE_FRAMES=600 bash scripts/live_loopback.sh reports/live >/dev/null
+    DHR_LIVE_CLIENT_ARGS="--save-every 300" DHR_LIVE_FRAMES=600 bash scripts/live_loopback.sh "$tmp" >/dev/null
   else
-    "$exe" run "experiments/$n.json" --out "reports/$n" >/dev/null
+    "$exe" run "experiments/$n.json" --out "$tmp" >/dev/null
   fi
   echo "regenerate_reports: $n took $(( $(date +%s) - start )) s"
 done
+# Every run done: replace the published folders (report.md of live is written by hand and kept).
+for n in "${names[@]}"; do
+  if [ "$n" = live ]; then
+    rm -rf reports/live/client reports/live/server reports/live/*.log reports/live/relay.json
+    cp -r "$scratch/live/." reports/live/
+  else
+    rm -rf "reports/$n"
+    cp -r "$scratch/$n" "reports/$n"
+  fi
+done
+echo "regenerate_reports: reports/ updated from $scratch"
