@@ -3,6 +3,7 @@
 #include "core/assembler.h"
 #include "core/composite.h"
 #include "core/error.h"
+#include "core/frame_loop.h"
 #include "core/image_io.h"
 #include "core/json_io.h"
 #include "core/live_protocol.h"
