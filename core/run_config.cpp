@@ -171,9 +171,9 @@ std::vector<RunSetting> make_settings() {
                    kInLiveOffer));
   v.push_back(ranged("history_frames", SettingType::Integer, 1, 1024, "client G-buffers kept for prediction",
                      [](auto& c) -> auto& { return c.history_frames; }));
-  v.push_back(ranged("score_every", SettingType::Integer, 1, 100000, "score against the local reference on every n-th frame",
+  v.push_back(ranged("score_every", SettingType::Integer, 1, 1e9, "score against the local reference on every n-th frame",
                      [](auto& c) -> auto& { return c.score_every; }));
-  v.push_back(with(ranged("ground_truth_every", SettingType::Integer, 0, 100000,
+  v.push_back(with(ranged("ground_truth_every", SettingType::Integer, 0, 1e9,
                           "score against the ground truth on every n-th frame (0: never)",
                           [](auto& c) -> auto& { return c.ground_truth_every; }),
                    0, "the client scores against the local reference only"));
