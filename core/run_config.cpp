@@ -282,7 +282,7 @@ std::string RunSetting::range_text() const {
   return "?";
 }
 
-std::optional<std::string> RunSetting::check_value(const nlohmann::json& v) const {
+std::optional<std::string> RunSetting::check_value(const nlohmann::json& v, const std::string& at) const {
   bool ok = true;
   switch (type) {
     case SettingType::Integer:
@@ -302,23 +302,23 @@ std::optional<std::string> RunSetting::check_value(const nlohmann::json& v) cons
       }
       std::vector<std::string> why;
       for (const auto& [k, x] : v.items())
-        if (k != "name" && k != "params") why.push_back(fmt::format(".{}: unknown key (valid: name, params)", text_excerpt(k)));
+        if (k != "name" && k != "params") why.push_back(fmt::format("{}.{}: unknown key (valid: name, params)", at, text_excerpt(k)));
       if (v.contains("name") && !v.at("name").is_string())
-        why.push_back(fmt::format(".name = {}: must be a string", json_excerpt(v.at("name"))));
-      if (v.contains("params") && !v.at("params").is_object()) why.push_back(".params: must be a JSON object");
+        why.push_back(fmt::format("{}.name = {}: must be a string", at, json_excerpt(v.at("name"))));
+      if (v.contains("params") && !v.at("params").is_object()) why.push_back(at + ".params: must be a JSON object");
       if (why.empty()) return std::nullopt;
       return join(why, "\n");
     }
     case SettingType::Link:
       try {
-        (void)LinkConfig::from_json(v, key);
+        (void)LinkConfig::from_json(v, at);
         return std::nullopt;
       } catch (const Error& e) {
         return std::string(e.what());
       }
   }
   if (ok) return std::nullopt;
-  return fmt::format(" = {}: must be {}", json_excerpt(v), range_text());
+  return fmt::format("{} = {}: must be {}", at, json_excerpt(v), range_text());
 }
 
 const std::vector<RunSetting>& run_settings() {
@@ -378,17 +378,10 @@ SimConfig sim_config_from_json(const nlohmann::json& j, const std::string& where
       at = s.v1_key;
     }
     if (!v) continue;
-    if (auto why = s.check_value(*v)) {
-      // A Link's message names its own location; the others are completed here.
-      if (s.type == SettingType::Link) {
-        problems.push_back(fmt::format("{}: {}", where, *why));
-      } else {
-        size_t start = 0;
-        for (size_t nl; start <= why->size(); start = nl + 1) {
-          nl = why->find('\n', start);
-          if (nl == std::string::npos) nl = why->size();
-          problems.push_back(fmt::format("{}.{}{}", where, at, why->substr(start, nl - start)));
-        }
+    if (auto why = s.check_value(*v, where + "." + at)) {
+      for (size_t start = 0, nl; start <= why->size(); start = nl + 1) {  // a Backend's may be several lines
+        nl = std::min(why->find('\n', start), why->size());
+        problems.push_back(why->substr(start, nl - start));
       }
       continue;
     }
@@ -406,7 +399,7 @@ nlohmann::json SimConfig::to_json() const {
 std::vector<std::string> setting_range_problems(const SimConfig& c) {
   std::vector<std::string> out;
   for (const RunSetting& s : run_settings())
-    if (auto why = s.check_value(s.get(c))) out.push_back(s.type == SettingType::Link ? *why : s.key + *why);
+    if (auto why = s.check_value(s.get(c), s.key)) out.push_back(*why);
   return out;
 }
 

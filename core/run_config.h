@@ -123,9 +123,10 @@ struct RunSetting {
   nlohmann::json default_value() const { return get(SimConfig{}); }
   // "an integer in 8..7680", "one of hybrid, remote", "a backend {name, params} (codec)".
   std::string range_text() const;
-  // Why `value` is not valid for this setting (its shape for Backend and Link, whose names and
-  // fields are checked elsewhere), or nothing.
-  std::optional<std::string> check_value(const nlohmann::json& value) const;
+  // Why `value`, found at `at` ("run.width"), is not valid for this setting, as messages that
+  // name `at` (several lines for a Backend), or nothing. A Backend's shape is checked here, its
+  // name and parameters by validate_sim_config (with the registries).
+  std::optional<std::string> check_value(const nlohmann::json& value, const std::string& at) const;
 };
 
 // Every setting, in the order `dhrbench settings` lists them.
