@@ -189,9 +189,6 @@ std::vector<std::string> live_ignored_fields(const SimConfig& c) {
   // The settings with a live_ignored reason (core/run_config.cpp), set to other than their defaults.
   for (const RunSetting& s : run_settings())
     if (!s.live_ignored.empty() && s.get(c) != s.get(d)) out.push_back(fmt::format("{} ({})", s.key, s.live_ignored));
-  // The client predicts both passes with the visibility pass's predictor.
-  if (c.ao_predictor.name != c.predictor.name || c.ao_predictor.params != c.predictor.params)
-    out.push_back("passes.ao.predictor (the live client predicts both passes with passes.visibility.predictor)");
   return out;
 }
 
@@ -961,7 +958,8 @@ class LiveClient {
         {"session", session_},
         {"end_reason", end_reason_},
         {"offer", offer_},
-        {"predictor", {{"name", c_.predictor.name}, {"params", c_.predictor.params}}},
+        {"predictor", {{"visibility", {{"name", c_.predictor.name}, {"params", c_.predictor.params}}},
+                       {"ao", {{"name", c_.ao_predictor.name}, {"params", c_.ao_predictor.params}}}}},
         {"frames",
          {{"requested", o_.frames},
           {"displayed", rows_.size()},
