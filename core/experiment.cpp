@@ -34,24 +34,6 @@ struct Reader {
         problems.push_back(fmt::format("{}.{}: unknown key (valid: {})", where, text_excerpt(k), join_keys(valid)));
   }
   bool has(const char* k) const { return j.is_object() && j.contains(k); }
-  template <class T>
-  void number(const char* k, T& out, double lo, double hi) {
-    if (!has(k)) return;
-    const auto& v = j.at(k);
-    const bool integral = std::is_integral_v<T>;
-    if (!v.is_number() || (integral && !v.is_number_integer()) || !std::isfinite(v.get<double>()) ||
-        v.get<double>() < lo || v.get<double>() > hi) {
-      problems.push_back(fmt::format("{}.{} = {}: must be {} in {}..{}", where, k, json_excerpt(v),
-                                     integral ? "an integer" : "a number", lo, hi));
-      return;
-    }
-    out = v.get<T>();
-  }
-  void boolean(const char* k, bool& out) {
-    if (!has(k)) return;
-    if (!j.at(k).is_boolean()) problems.push_back(fmt::format("{}.{} = {}: must be true or false", where, k, json_excerpt(j.at(k))));
-    else out = j.at(k).get<bool>();
-  }
   void string(const char* k, std::string& out, const std::vector<std::string>& choices = {}) {
     if (!has(k)) return;
     const auto& v = j.at(k);
@@ -61,27 +43,6 @@ struct Reader {
       return;
     }
     out = v.get<std::string>();
-  }
-  void backend(const char* k, BackendChoice& out) {
-    if (!has(k)) return;
-    const auto& v = j.at(k);
-    Reader r{v, where + "." + k, problems};
-    r.keys({"name", "params"});
-    r.string("name", out.name);
-    if (r.has("params")) {
-      if (!v.at("params").is_object()) problems.push_back(fmt::format("{}.{}.params: must be a JSON object", where, k));
-      else out.params = v.at("params");
-    } else {
-      out.params = nlohmann::json::object();
-    }
-  }
-  void link(const char* k, LinkConfig& out) {
-    if (!has(k)) return;
-    try {
-      out = LinkConfig::from_json(j.at(k), where + "." + k);
-    } catch (const Error& e) {
-      problems.push_back(e.what());
-    }
   }
 };
 
@@ -96,57 +57,29 @@ std::string resolve_data_path(const std::string& file, const std::string& experi
   return file;  // validation reports it missing
 }
 
-}  // namespace
-
-SimConfig sim_config_from_json(const nlohmann::json& j, const std::string& where, std::vector<std::string>& problems) {
-  SimConfig c;
-  Reader r{j, where, problems};
-  r.keys({"mode", "width", "height", "frames", "warmup_frames", "display_hz", "start_time_s", "seed", "trace",
-          "visibility_codec", "ao_codec", "colour_codec", "ao_denoiser", "visibility_denoiser", "predictor",
-          "colour_predictor", "server_timing", "server_fixed_ms", "uplink", "downlink", "max_payload_bytes",
-          "history_frames", "score_every", "ground_truth_every", "ground_truth_ao_rays",
-          "ground_truth_samples_per_light", "cache_dir"});
-  if (!j.is_object()) return c;
-  r.string("mode", c.mode, {"hybrid", "remote"});
-  r.number("width", c.width, 8, 7680);
-  r.number("height", c.height, 8, 4320);
-  r.number("frames", c.frames, 1, 100000);
-  r.number("warmup_frames", c.warmup_frames, 0, 100000);
-  r.number("display_hz", c.display_hz, 1, 1000);
-  r.number("start_time_s", c.start_time_s, 0, 1e6);
-  r.number("seed", c.seed, 0, 9.007e15);
-  if (r.has("trace")) {
-    Reader t{j.at("trace"), where + ".trace", problems};
-    t.keys({"ao_rays", "ao_radius_m", "soft_shadows", "samples_per_light", "visibility_pass", "ao_pass"});
-    t.boolean("visibility_pass", c.trace.visibility_pass);
-    t.boolean("ao_pass", c.trace.ao_pass);
-    t.number("ao_rays", c.trace.ao_rays, 0, 255);
-    t.number("ao_radius_m", c.trace.ao_radius_m, 0, 1e6);
-    t.boolean("soft_shadows", c.trace.soft_shadows);
-    t.number("samples_per_light", c.trace.samples_per_light, 1, 1024);
-  }
-  r.backend("visibility_codec", c.visibility_codec);
-  r.backend("ao_codec", c.ao_codec);
-  r.backend("colour_codec", c.colour_codec);
-  r.backend("ao_denoiser", c.ao_denoiser);
-  r.backend("visibility_denoiser", c.visibility_denoiser);
-  r.backend("predictor", c.predictor);
-  r.backend("colour_predictor", c.colour_predictor);
-  std::string timing = c.server_timing == SimConfig::ServerTiming::Fixed ? "fixed" : "measured";
-  r.string("server_timing", timing, {"fixed", "measured"});
-  c.server_timing = timing == "fixed" ? SimConfig::ServerTiming::Fixed : SimConfig::ServerTiming::Measured;
-  r.number("server_fixed_ms", c.server_fixed_ms, 0, 1e5);
-  r.link("uplink", c.uplink);
-  r.link("downlink", c.downlink);
-  r.number("max_payload_bytes", c.max_payload_bytes, 1, 65000);
-  r.number("history_frames", c.history_frames, 1, 1024);
-  r.number("score_every", c.score_every, 1, 100000);
-  r.number("ground_truth_every", c.ground_truth_every, 0, 100000);
-  r.number("ground_truth_ao_rays", c.ground_truth_ao_rays, 1, 65535);
-  r.number("ground_truth_samples_per_light", c.ground_truth_samples_per_light, 1, 65535);
-  r.string("cache_dir", c.cache_dir);
-  return c;
+// How a version-1 file's keys for per-pass backends are written in version 2, one line per key
+// used (in "run", in configurations' "set" and in "sweep").
+std::vector<std::string> v1_key_hints(const nlohmann::json& j) {
+  std::vector<std::string> hints;
+  auto note = [&](const std::string& where, const std::string& key) {
+    const std::string v2 = v2_spelling(key);
+    if (v2.empty()) return;
+    const std::string hint = fmt::format("{}: \"{}\" is written \"{}\" in version 2", where, key, v2);
+    if (std::find(hints.begin(), hints.end(), hint) == hints.end()) hints.push_back(hint);
+  };
+  if (!j.is_object()) return hints;
+  if (j.contains("run") && j.at("run").is_object())
+    for (const auto& [k, v] : j.at("run").items()) note("run", k);
+  if (j.contains("configurations") && j.at("configurations").is_array())
+    for (const auto& c : j.at("configurations"))
+      if (c.is_object() && c.contains("set") && c.at("set").is_object())
+        for (const auto& [k, v] : c.at("set").items()) note("configurations", k);
+  if (j.contains("sweep") && j.at("sweep").is_object())
+    for (const auto& [k, v] : j.at("sweep").items()) note("sweep", k);
+  return hints;
 }
+
+}  // namespace
 
 void set_dotted(nlohmann::json& target, const std::string& dotted, const nlohmann::json& value) {
   nlohmann::json* node = &target;
@@ -195,10 +128,17 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   Reader top{j, path, problems};
   top.keys({"version", "name", "description", "scenes", "run", "networks", "sweep", "configurations", "notes"});
   if (!j.is_object()) fail("{}: an experiment must be a JSON object", path);
-  if (!j.contains("version")) problems.push_back(fmt::format("{}: \"version\": {} is required", path, kExperimentVersion));
-  else if (j.at("version") != kExperimentVersion)
-    problems.push_back(fmt::format("{}: version {} is not supported (this dhrbench reads version {})", path,
+  int version = kExperimentVersion;
+  if (!j.contains("version")) {
+    problems.push_back(fmt::format("{}: \"version\": {} is required", path, kExperimentVersion));
+  } else if (!j.at("version").is_number_integer() || j.at("version").get<int64_t>() < 1 ||
+             j.at("version").get<int64_t>() > kExperimentVersion) {
+    problems.push_back(fmt::format("{}: version {} is not supported (this dhrbench reads versions 1..{})", path,
                                    json_excerpt(j.at("version")), kExperimentVersion));
+  } else {
+    version = j.at("version").get<int>();
+  }
+  if (version == 1) e.hints = v1_key_hints(j);
   top.string("name", e.name);
   top.string("description", e.description);
   if (e.name.empty()) e.name = std::filesystem::path(path).stem().string();
@@ -314,7 +254,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
           spec.label = label.empty() ? "default" : label;
           spec.settings = settings;
           std::vector<std::string> run_problems;
-          spec.config = sim_config_from_json(run, path + ": run", run_problems);
+          spec.config = sim_config_from_json(run, path + ": run", run_problems, version);
           for (auto& p : run_problems) per_run[p].push_back(fmt::format("{} on {}", text_excerpt(spec.label, 120), text_excerpt(scene)));
           for (LinkConfig* link : {&spec.config.uplink, &spec.config.downlink})
             link->trace_file = resolve_data_path(link->trace_file, path);

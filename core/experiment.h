@@ -1,19 +1,25 @@
 // Experiment files: a versioned JSON description of a sweep, expanded into runs.
 //
 // {
-//   "version": 1,
+//   "version": 2,
 //   "name": "quick",
 //   "description": "what this experiment shows",
 //   "scenes": ["room", "scenes/real/living-room.json"],
-//   "run": { SimConfig fields (see SimConfig::to_json): width, height, frames, warmup_frames,
-//            display_hz, seed, trace {...}, visibility_codec {"name", "params"}, ...,
-//            uplink {...}, downlink {...} }           the base of every run
+//   "run": { the settings of core/run_config.h (`dhrbench settings` lists them): width, height,
+//            frames, display_hz, seed, trace {...},
+//            passes {"visibility": {"codec", "denoiser", "predictor"}, "ao": {...},
+//                    "colour": {"codec", "predictor"}}   each {"name", "params"},
+//            uplink {...}, downlink {...}, ... }      the base of every run
 //   "networks": { "5g": {"uplink": {...}, "downlink": {...}}, ... }   named networks
 //   "sweep": { "dotted.key": [values...], ... }      Cartesian product over the keys, or
 //   "configurations": [ {"name": "...", "set": {"dotted.key": value, ...}}, ... ]
 // }
-// A dotted key addresses a field of "run" (e.g. "ao_denoiser.name", "trace.ao_rays",
-// "downlink.latency_ms"); the key "network" picks a named network. Runs = scenes x
+// A dotted key addresses a field of "run" (e.g. "passes.ao.denoiser.name", "trace.ao_rays",
+// "downlink.latency_ms"); the key "network" picks a named network.
+// Version 1 (every committed experiment) writes the per-pass backends as top-level keys:
+// visibility_codec, ao_codec, colour_codec, visibility_denoiser, ao_denoiser, predictor (both
+// the visibility and the AO pass's) and colour_predictor, also in dotted keys ("ao_denoiser.name");
+// `dhrbench validate` prints how to write them in version 2, where they are errors. Runs = scenes x
 // configurations (or the sweep's product; both may be given: each configuration is swept).
 // Every problem in the file (unknown keys, bad values, unknown backends or parameters,
 // missing scenes) is reported at once, before anything runs.
@@ -29,7 +35,8 @@
 
 namespace dhr {
 
-constexpr int kExperimentVersion = 1;
+// The newest version; every version from 1 is read.
+constexpr int kExperimentVersion = 2;
 
 struct RunSpec {
   std::string id;          // r000, r001, ...
@@ -46,11 +53,11 @@ struct Experiment {
   nlohmann::json source;    // the file's JSON after --set overrides
   std::vector<std::string> scenes;
   std::vector<RunSpec> runs;
+  // Version 1 files: how each version-1 key used is written in version 2 (not problems).
+  std::vector<std::string> hints;
 };
 
-// Reads a SimConfig from a JSON object shaped like SimConfig::to_json (all keys optional;
-// unknown keys are errors). Problems are appended to `problems`, each prefixed by `where`.
-SimConfig sim_config_from_json(const nlohmann::json& j, const std::string& where, std::vector<std::string>& problems);
+// sim_config_from_json (a "run" object -> SimConfig) is declared in core/run_config.h.
 
 // Sets `value` at a dotted path inside `target` (creating objects on the way).
 void set_dotted(nlohmann::json& target, const std::string& dotted, const nlohmann::json& value);

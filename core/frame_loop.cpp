@@ -53,17 +53,14 @@ struct Datagram {
 // older version are then never read (the key is stored in the file and compared).
 constexpr int kTraceCacheVersion = 2;  // 2: ray offsets scaled by the hit triangle's own error (issue 13)
 
+// The cache keys: the settings flagged in core/run_config.cpp as changing the traced buffers
+// (kInTraceKey) or the ground truth (kInTruthKey), plus the scene and the frame.
 std::string trace_key(const std::string& scene_key, const SimConfig& c, int frame) {
-  const TraceSettings& t = c.trace;
-  return fmt::format("trace{}|{}|{}x{}|f{}|s{}|ao{}:{}|soft{}|spl{}|hz{}|t0{}|p{}{}", kTraceCacheVersion, scene_key, c.width,
-                     c.height, frame, c.seed, t.ao_rays, t.ao_radius_m, t.soft_shadows, t.samples_per_light, c.display_hz,
-                     c.start_time_s, t.visibility_pass, t.ao_pass);
+  return fmt::format("trace{}|{}|f{}|{}", kTraceCacheVersion, scene_key, frame, settings_key(c, kInTraceKey));
 }
 
 std::string truth_key(const std::string& scene_key, const SimConfig& c, int frame) {
-  return fmt::format("truth|{}|{}x{}|f{}|s{}|ao{}:{}|gt{}:{}|hz{}|t0{}", scene_key, c.width, c.height, frame, c.seed,
-                     c.trace.ao_rays, c.trace.ao_radius_m, c.ground_truth_ao_rays, c.ground_truth_samples_per_light,
-                     c.display_hz, c.start_time_s);
+  return fmt::format("truth|{}|f{}|{}", scene_key, frame, settings_key(c, kInTruthKey));
 }
 
 }  // namespace
@@ -322,24 +319,11 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
   auto check = [&](bool ok, std::string what) {
     if (!ok) problems.push_back(std::move(what));
   };
-  check(c.mode == "hybrid" || c.mode == "remote", fmt::format("mode '{}': must be hybrid or remote", c.mode));
-  check(c.width >= 8 && c.width <= 7680 && c.height >= 8 && c.height <= 4320,
-        fmt::format("resolution {}x{}: each side must be 8..7680 x 8..4320", c.width, c.height));
-  check(c.frames >= 1 && c.frames <= 100000, fmt::format("frames {}: must be 1..100000", c.frames));
-  check(c.warmup_frames >= 0 && c.warmup_frames <= 100000, fmt::format("warmup_frames {}: must be 0..100000", c.warmup_frames));
-  check(c.display_hz > 0 && c.display_hz <= 1000, fmt::format("display_hz {}: must be in (0, 1000]", c.display_hz));
-  check(c.server_fixed_ms >= 0 && c.server_fixed_ms <= 1e5, fmt::format("server_fixed_ms {}: must be 0..100000", c.server_fixed_ms));
-  check(c.max_payload_bytes >= 1 && c.max_payload_bytes <= kMaxPayloadLimitBytes,
-        fmt::format("max_payload_bytes {}: must be 1..{}", c.max_payload_bytes, kMaxPayloadLimitBytes));
+  // Ranges and choices: the table of settings (core/run_config.cpp).
+  for (std::string& p : setting_range_problems(c)) problems.push_back(std::move(p));
   check(c.max_payload_bytes + kPacketHeaderBytes + kIpUdpOverheadBytes <= size_t(c.downlink.mtu_bytes),
         fmt::format("max_payload_bytes {} + {} header + {} IP/UDP exceeds the downlink MTU {}", c.max_payload_bytes,
                     kPacketHeaderBytes, kIpUdpOverheadBytes, c.downlink.mtu_bytes));
-  check(c.history_frames >= 1 && c.history_frames <= 1024, fmt::format("history_frames {}: must be 1..1024", c.history_frames));
-  check(c.score_every >= 1, fmt::format("score_every {}: must be >= 1", c.score_every));
-  check(c.ground_truth_every >= 0, fmt::format("ground_truth_every {}: must be >= 0", c.ground_truth_every));
-  check(c.ground_truth_ao_rays >= 1 && c.ground_truth_ao_rays <= 65535, "ground_truth_ao_rays: must be 1..65535");
-  check(c.ground_truth_samples_per_light >= 1 && c.ground_truth_samples_per_light <= 65535,
-        "ground_truth_samples_per_light: must be 1..65535");
   for (const LinkConfig* link : {&c.uplink, &c.downlink}) {
     if (link->latency_model != LinkConfig::Latency::Trace) continue;
     try {
@@ -360,13 +344,14 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
       problems.push_back(fmt::format("{}: {}", role, e.what()));
     }
   };
-  backend(r.codecs, c.visibility_codec, "visibility_codec");
-  backend(r.codecs, c.ao_codec, "ao_codec");
-  backend(r.codecs, c.colour_codec, "colour_codec");
-  backend(r.denoisers, c.ao_denoiser, "ao_denoiser");
-  backend(r.denoisers, c.visibility_denoiser, "visibility_denoiser");
-  backend(r.predictors, c.predictor, "predictor");
-  backend(r.predictors, c.colour_predictor, "colour_predictor");
+  for (const RunSetting& s : run_settings()) {
+    if (s.type != SettingType::Backend) continue;
+    const nlohmann::json v = s.get(c);
+    const BackendChoice b{v.at("name").get<std::string>(), v.at("params")};
+    if (s.kind == "codec") backend(r.codecs, b, s.key.c_str());
+    else if (s.kind == "denoiser") backend(r.denoisers, b, s.key.c_str());
+    else backend(r.predictors, b, s.key.c_str());
+  }
   if (problems.empty()) {
     // A lossy codec must not be asked to carry a bitmask.
     const PassPlan plan = plan_passes(scene, c.trace);
@@ -376,10 +361,10 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
         problems.push_back(fmt::format("{} '{}' cannot carry the {} pass: {}", role, b.name, pass_kind_name(d.kind), why));
     };
     if (c.mode == "hybrid") {
-      if (plan.visibility()) refuses(c.visibility_codec, plan.visibility_desc(c.width, c.height), "visibility_codec");
-      if (plan.ao) refuses(c.ao_codec, plan.ao_desc(c.width, c.height), "ao_codec");
+      if (plan.visibility()) refuses(c.visibility_codec, plan.visibility_desc(c.width, c.height), "passes.visibility.codec");
+      if (plan.ao) refuses(c.ao_codec, plan.ao_desc(c.width, c.height), "passes.ao.codec");
     } else {
-      refuses(c.colour_codec, {PassKind::Colour, c.width, c.height, 3, 255}, "colour_codec");
+      refuses(c.colour_codec, {PassKind::Colour, c.width, c.height, 3, 255}, "passes.colour.codec");
     }
   }
   if (!problems.empty()) {

@@ -3,6 +3,7 @@
 #include "core/assembler.h"
 #include "core/composite.h"
 #include "core/error.h"
+#include "core/frame_loop.h"
 #include "core/image_io.h"
 #include "core/json_io.h"
 #include "core/live_protocol.h"
@@ -129,25 +130,28 @@ nlohmann::json counts_json(const std::map<std::string, uint64_t>& m) {
 
 nlohmann::json session_offer(const SimConfig& c, const Registries& r, const std::string& scene_name,
                              const std::string& scene_key) {
-  auto effective = [](const auto& registry, const BackendChoice& b) {
-    Params p;
-    registry.create(b.name, b.params, &p);
-    return nlohmann::json{{"name", b.name}, {"params", p.effective()}};
-  };
-  return {{"protocol", kLiveProtocolVersion},
-          {"scene", scene_name},
-          {"scene_hash", scene_key},
-          {"width", c.width},
-          {"height", c.height},
-          {"display_hz", c.display_hz},
-          {"start_time_s", c.start_time_s},
-          {"seed", c.seed},
-          {"trace", c.to_json()["trace"]},
-          {"visibility_codec", effective(r.codecs, c.visibility_codec)},
-          {"ao_codec", effective(r.codecs, c.ao_codec)},
-          {"ao_denoiser", effective(r.denoisers, c.ao_denoiser)},
-          {"visibility_denoiser", effective(r.denoisers, c.visibility_denoiser)},
-          {"max_payload_bytes", c.max_payload_bytes}};
+  nlohmann::json offer{{"protocol", kLiveProtocolVersion}, {"scene", scene_name}, {"scene_hash", scene_key}};
+  // The settings flagged kInLiveOffer (core/run_config.cpp), backends with their effective
+  // parameters. A backend goes under its version-1 key ("ao_codec"): the offer's wire format
+  // (parse_offer_json) is unchanged by the per-pass keys of experiment files.
+  for (const RunSetting& s : run_settings()) {
+    if (!s.has(kInLiveOffer)) continue;
+    nlohmann::json value = s.get(c);
+    if (s.type == SettingType::Backend) {
+      const std::string name = value.at("name").get<std::string>();
+      Params p;
+      if (s.kind == "codec") r.codecs.create(name, value.at("params"), &p);
+      else if (s.kind == "denoiser") r.denoisers.create(name, value.at("params"), &p);
+      else r.predictors.create(name, value.at("params"), &p);
+      value = {{"name", name}, {"params", p.effective()}};
+    }
+    const std::string key = s.v1_key.empty() ? s.key : s.v1_key;
+    nlohmann::json* node = &offer;
+    size_t start = 0;
+    for (size_t dot; (dot = key.find('.', start)) != std::string::npos; start = dot + 1) node = &(*node)[key.substr(start, dot - start)];
+    (*node)[key.substr(start)] = std::move(value);
+  }
+  return offer;
 }
 
 std::vector<std::string> offer_mismatches(const nlohmann::json& client, const nlohmann::json& server) {
@@ -182,12 +186,9 @@ std::vector<std::string> offer_mismatches(const nlohmann::json& client, const nl
 std::vector<std::string> live_ignored_fields(const SimConfig& c) {
   const SimConfig d;
   std::vector<std::string> out;
-  if (c.uplink.to_json() != d.uplink.to_json() || c.downlink.to_json() != d.downlink.to_json())
-    out.push_back("uplink/downlink (the network is the real one, or dhrbench relay's)");
-  if (c.warmup_frames != d.warmup_frames) out.push_back("warmup_frames");
-  if (c.server_timing != d.server_timing || c.server_fixed_ms != d.server_fixed_ms)
-    out.push_back("server_timing/server_fixed_ms (the server takes the time it takes)");
-  if (c.ground_truth_every != d.ground_truth_every) out.push_back("ground_truth_every");
+  // The settings with a live_ignored reason (core/run_config.cpp), set to other than their defaults.
+  for (const RunSetting& s : run_settings())
+    if (!s.live_ignored.empty() && s.get(c) != s.get(d)) out.push_back(fmt::format("{} ({})", s.key, s.live_ignored));
   return out;
 }
 
@@ -957,7 +958,8 @@ class LiveClient {
         {"session", session_},
         {"end_reason", end_reason_},
         {"offer", offer_},
-        {"predictor", {{"name", c_.predictor.name}, {"params", c_.predictor.params}}},
+        {"predictor", {{"visibility", {{"name", c_.predictor.name}, {"params", c_.predictor.params}}},
+                       {"ao", {{"name", c_.ao_predictor.name}, {"params", c_.ao_predictor.params}}}}},
         {"frames",
          {{"requested", o_.frames},
           {"displayed", rows_.size()},

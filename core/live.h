@@ -30,8 +30,9 @@
 // idle_timeout_s and ends cleanly with a message.
 #pragma once
 
-#include "core/frame_loop.h"
+#include "core/backend.h"
 #include "core/network.h"
+#include "core/run_config.h"
 #include "core/scene.h"
 #include "core/udp.h"
 

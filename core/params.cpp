@@ -1,6 +1,7 @@
 #include "core/params.h"
 
 #include "core/error.h"
+#include "core/json_io.h"
 
 #include <cmath>
 
@@ -99,7 +100,7 @@ Params::Params(const std::string& owner, const std::vector<ParamSpec>& specs, co
     : owner_(owner) {
   std::vector<std::string> problems;
   if (!given.is_null() && !given.is_object()) {
-    fail("{}: parameters must be a JSON object, got {}", owner, given.dump());
+    fail("{}: parameters must be a JSON object, got {}", owner, json_excerpt(given));
   }
   std::string valid_keys;
   for (const auto& s : specs) valid_keys += (valid_keys.empty() ? "" : ", ") + s.name;
@@ -115,7 +116,7 @@ Params::Params(const std::string& owner, const std::vector<ParamSpec>& specs, co
       }
       const std::string why = check_value(*spec, value);
       if (!why.empty()) {
-        problems.push_back(fmt::format("parameter '{}' = {} {} (valid: {})", key, value.dump(), why,
+        problems.push_back(fmt::format("parameter '{}' = {} {} (valid: {})", key, json_excerpt(value), why,
                                        spec->range_text()));
       }
     }

@@ -1,5 +1,8 @@
 // The settings of one run (one simulation, or one live session): what the experiment files'
-// "run" object holds (core/experiment.h reads it; docs/architecture.md lists the keys).
+// "run" object holds. Every setting is declared once, in run_settings() (core/run_config.cpp):
+// its key, type, range or choices, default (SimConfig's), doc and flags; the JSON reader and
+// writer, validate_sim_config's ranges, the trace and ground-truth cache keys, live mode's
+// offer and `dhrbench settings` are all driven by that table.
 #pragma once
 
 #include "core/network.h"
@@ -9,7 +12,10 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
+#include <functional>
+#include <optional>
 #include <string>
+#include <vector>
 
 namespace dhr {
 
@@ -39,7 +45,9 @@ struct SimConfig {
   // predictor. Remote mode uses `colour` (codec and predictor) and the AO denoiser.
   BackendChoice visibility_codec{"lz4"}, ao_codec{"lz4"}, colour_codec{"h264"};
   BackendChoice ao_denoiser{"none"}, visibility_denoiser{"none"};
-  BackendChoice predictor{"reprojection"}, colour_predictor{"none"};
+  // `predictor` is the visibility pass's (passes.visibility.predictor), `ao_predictor` the AO
+  // pass's (passes.ao.predictor); a version-1 file's "predictor" sets both.
+  BackendChoice predictor{"reprojection"}, ao_predictor{"reprojection"}, colour_predictor{"none"};
 
   enum class ServerTiming { Fixed, Measured };
   ServerTiming server_timing = ServerTiming::Fixed;
@@ -61,7 +69,7 @@ struct SimConfig {
   PassChoice choice(PassMeaning meaning) const {
     switch (meaning) {
       case PassMeaning::Visibility: return {visibility_codec, visibility_denoiser, predictor};
-      case PassMeaning::Ao: return {ao_codec, ao_denoiser, predictor};
+      case PassMeaning::Ao: return {ao_codec, ao_denoiser, ao_predictor};
       case PassMeaning::Colour: break;
     }
     return {colour_codec, {"none"}, colour_predictor};
@@ -75,5 +83,76 @@ struct SimConfig {
     return t;
   }
 };
+
+// ---- the table of settings -------------------------------------------------------------------
+
+enum class SettingType {
+  Integer,  // a JSON integer in lo..hi
+  Number,   // a finite JSON number in lo..hi
+  Boolean,
+  Choice,   // one of `choices`
+  String,
+  Backend,  // {"name", "params"}: a backend of the registry `kind` ("codec", "denoiser", "predictor")
+  Link,     // a LinkConfig object (core/network.h checks its fields)
+};
+const char* setting_type_name(SettingType type);
+
+// Flags of a setting.
+enum SettingFlag : unsigned {
+  kInLiveOffer = 1u << 0,    // client and server of a live session must agree on it (session_offer)
+  kInTraceKey = 1u << 1,     // changes the traced buffers: part of the trace cache key
+  kInTruthKey = 1u << 2,     // changes the ground truth: part of its cache key
+};
+
+struct RunSetting {
+  std::string key;   // dotted, inside "run": "width", "trace.ao_rays", "passes.ao.codec"
+  SettingType type;
+  double lo = 0, hi = 0;             // Integer and Number
+  std::vector<std::string> choices;  // Choice
+  std::string kind;                  // Backend: the registry's kind
+  std::string doc;                   // one line
+  unsigned flags = 0;
+  std::string live_ignored;  // non-empty: live mode ignores it, and why
+  // The version-1 key this setting was read from (empty: the same key). `predictor` set both
+  // passes.visibility.predictor and passes.ao.predictor.
+  std::string v1_key;
+  std::function<nlohmann::json(const SimConfig&)> get;
+  std::function<void(SimConfig&, const nlohmann::json&)> set;  // a value that check_value accepted
+
+  bool has(SettingFlag f) const { return (flags & f) != 0; }
+  nlohmann::json default_value() const { return get(SimConfig{}); }
+  // "an integer in 8..7680", "one of hybrid, remote", "a backend {name, params} (codec)".
+  std::string range_text() const;
+  // Why `value`, found at `at` ("run.width"), is not valid for this setting, as messages that
+  // name `at` (several lines for a Backend), or nothing. A Backend's shape is checked here, its
+  // name and parameters by validate_sim_config (with the registries).
+  std::optional<std::string> check_value(const nlohmann::json& value, const std::string& at) const;
+};
+
+// Every setting, in the order `dhrbench settings` lists them.
+const std::vector<RunSetting>& run_settings();
+// The setting with `key`, or nullptr.
+const RunSetting* find_run_setting(const std::string& key);
+
+// Version-1 keys (the top-level keys of "run" that version 2 writes under "passes") -> the
+// keys that replace them ("predictor" -> passes.visibility.predictor and passes.ao.predictor).
+const std::vector<std::pair<std::string, std::vector<std::string>>>& v1_run_keys();
+// A dotted key of "run" written with a version-1 key ("ao_denoiser.name"), in version 2's
+// words ("passes.ao.denoiser.name", or two keys joined by " and "); empty for any other key.
+std::string v2_spelling(const std::string& dotted);
+
+// Reads a SimConfig from a JSON object shaped like SimConfig::to_json (all keys optional;
+// unknown keys are errors). Problems are appended to `problems`, each prefixed by `where`.
+// `version` is the experiment file's: 1 also accepts the version-1 keys (v1_run_keys), which
+// version 2 refuses naming the new key. Live mode's --config reads as version 1.
+SimConfig sim_config_from_json(const nlohmann::json& j, const std::string& where, std::vector<std::string>& problems,
+                               int version = 1);
+
+// The range and choice problems of `config` (run_settings' check_value on every setting),
+// each as "key = value: must be ...".
+std::vector<std::string> setting_range_problems(const SimConfig& config);
+
+// The settings with `flag`, as "key=value|key=value|..." (the cache keys use it).
+std::string settings_key(const SimConfig& config, SettingFlag flag);
 
 }  // namespace dhr

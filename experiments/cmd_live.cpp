@@ -46,9 +46,10 @@ void add_common(CLI::App* cmd, Common& c) {
       ->required();
   cmd->add_option("--config", c.config,
                   "JSON file with the run settings, shaped like an experiment's \"run\" object: width, height, "
-                  "display_hz, seed, trace {...}, visibility_codec/ao_codec {name, params}, ao_denoiser, predictor, "
+                  "display_hz, seed, trace {...}, passes {visibility, ao: {codec, denoiser, predictor}} each {name, params}, "
                   "max_payload_bytes, ... (see core/experiment.h)");
-  cmd->add_option("--set", c.sets, "Override one setting: dotted.key=value (repeatable), e.g. --set width=640 --set ao_codec.name=zstd");
+  cmd->add_option("--set", c.sets, "Override one setting: dotted.key=value (repeatable), e.g. --set width=640 --set passes.ao.codec.name=zstd "
+                  "(every key: dhrbench settings; the version-1 keys such as ao_codec are accepted too)");
   cmd->add_option("--scene-path", c.scene_path, "Folder to look for scene assets in (repeatable)");
   cmd->add_flag("--quiet", c.quiet, "Only errors on stderr");
 }

@@ -194,7 +194,7 @@ Runner add_run_command(CLI::App& app) {
       "is recorded with its error and the sweep goes on. Examples:\n"
       "  dhrbench run experiments/quick.json\n"
       "  dhrbench run experiments/paper.json --out out/paper --set run.frames=30 --threads 2");
-  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1 or 2)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--out", o->out, "Output folder (default: out/<experiment name>)");
   cmd->add_option("--set", o->sets, "Override a key of the experiment: key=value, dotted from the top (repeatable), "
                                     "e.g. --set run.frames=10 --set 'scenes=[\"room\"]'");
@@ -242,20 +242,20 @@ Runner add_run_command(CLI::App& app) {
         RunResult r = run_simulation(config, scene, loaded.keys.at(spec.scene), cache, registries(),
                                      [&](int f, int total) { progress.update(i, spec.label, f, total); });
         record["config"] = r.config;
-        // Effective backend parameters (defaults filled in).
+        // Effective backend parameters (defaults filled in), one entry per backend setting of
+        // core/run_config.cpp, under its key ("passes.ao.codec").
         const Registries& reg = registries();
-        auto effective = [&](const auto& registry, const BackendChoice& b) {
+        record["backends"] = nlohmann::json::object();
+        for (const RunSetting& s : run_settings()) {
+          if (s.type != SettingType::Backend) continue;
+          const nlohmann::json v = s.get(config);
+          const std::string name = v.at("name").get<std::string>();
           Params p;
-          registry.create(b.name, b.params, &p);
-          return nlohmann::json{{"name", b.name}, {"params", p.effective()}};
-        };
-        record["backends"] = {{"visibility_codec", effective(reg.codecs, config.visibility_codec)},
-                              {"ao_codec", effective(reg.codecs, config.ao_codec)},
-                              {"colour_codec", effective(reg.codecs, config.colour_codec)},
-                              {"ao_denoiser", effective(reg.denoisers, config.ao_denoiser)},
-                              {"visibility_denoiser", effective(reg.denoisers, config.visibility_denoiser)},
-                              {"predictor", effective(reg.predictors, config.predictor)},
-                              {"colour_predictor", effective(reg.predictors, config.colour_predictor)}};
+          if (s.kind == "codec") reg.codecs.create(name, v.at("params"), &p);
+          else if (s.kind == "denoiser") reg.denoisers.create(name, v.at("params"), &p);
+          else reg.predictors.create(name, v.at("params"), &p);
+          record["backends"][s.key] = {{"name", name}, {"params", p.effective()}};
+        }
         record["metrics"] = r.metrics();
         record["server_time_model"] = config.server_timing == SimConfig::ServerTiming::Fixed
                                           ? fmt::format("fixed {} ms per server frame (virtual)", config.server_fixed_ms)
@@ -333,7 +333,7 @@ Runner add_validate_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("validate",
                                  "Check an experiment without running it: the file, every backend name and parameter, "
                                  "every scene and path. Prints every problem at once.");
-  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1 or 2)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--set", o->sets, "Override a key (as for run)");
   cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
   return [o] {
@@ -342,6 +342,11 @@ Runner add_validate_command(CLI::App& app) {
     int frames = 0;
     for (const auto& r : e.runs) frames += r.config.frames + r.config.warmup_frames;
     fmt::print("{}: valid: {} runs over {} scene(s), {} frames in all\n", o->experiment, e.runs.size(), e.scenes.size(), frames);
+    if (!e.hints.empty()) {
+      fmt::print("hint: this is a version-1 file; version 2 writes the per-pass backends under \"passes\" "
+                 "(`dhrbench settings` lists every key):\n");
+      for (const auto& h : e.hints) fmt::print("  {}\n", h);
+    }
     for (const auto& r : e.runs) fmt::print("  {}  {:<22} {}\n", r.id, r.scene, r.label);
     return 0;
   };

@@ -34,7 +34,14 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TIMING_KEYS = {"stages_wall", "client_frame_ms_median", "client_frame_ms_p95", "client_fps_wall", "wall_s"}
 TIMING_COLUMNS = {"client_wall_ms"}
 # Renamed keys and columns: new name -> the name in older results.
-ALIASES = {}
+ALIASES = {
+    # the backends record's keys are the run settings' keys (core/run_config.cpp) since the
+    # per-pass keys; the old record had one "predictor" for the visibility and the AO pass.
+    "passes.visibility.codec": "visibility_codec", "passes.ao.codec": "ao_codec",
+    "passes.colour.codec": "colour_codec", "passes.visibility.denoiser": "visibility_denoiser",
+    "passes.ao.denoiser": "ao_denoiser", "passes.visibility.predictor": "predictor",
+    "passes.ao.predictor": "predictor", "passes.colour.predictor": "colour_predictor",
+}
 
 
 def flatten(value, prefix, out):

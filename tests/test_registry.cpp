@@ -140,17 +140,14 @@ std::string joined(const std::vector<std::string>& problems) {
 }
 
 // The SimConfig field a run key sets.
-const BackendChoice& choice_at(const SimConfig& c, const std::string& key) {
-  if (key == "visibility_codec") return c.visibility_codec;
-  if (key == "ao_codec") return c.ao_codec;
-  if (key == "colour_codec") return c.colour_codec;
-  if (key == "ao_denoiser") return c.ao_denoiser;
-  if (key == "visibility_denoiser") return c.visibility_denoiser;
-  if (key == "predictor") return c.predictor;
-  if (key == "colour_predictor") return c.colour_predictor;
-  ADD_FAILURE() << "no SimConfig field for run key '" << key << "'";
-  static const BackendChoice none;
-  return none;
+BackendChoice choice_at(const SimConfig& c, const std::string& key) {
+  const RunSetting* s = find_run_setting(key);
+  if (!s || s->type != SettingType::Backend) {
+    ADD_FAILURE() << "no backend setting for run key '" << key << "'";
+    return {};
+  }
+  const nlohmann::json v = s->get(c);
+  return {v.at("name").get<std::string>(), v.at("params")};
 }
 
 void expect_created(const cli::BackendExample& ex, const nlohmann::json& params) {

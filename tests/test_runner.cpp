@@ -56,10 +56,10 @@ TEST(Runner, TinyExperimentEndToEnd) {
     EXPECT_GE(m.at("stages_wall").at("rasterize").at("p95_ms").get<double>(),
               m.at("stages_wall").at("rasterize").at("median_ms").get<double>());
     // Effective parameters: defaults filled in.
-    EXPECT_TRUE(run.at("backends").at("ao_codec").at("params").is_object());
+    EXPECT_TRUE(run.at("backends").at("passes.ao.codec").at("params").is_object());
     EXPECT_EQ(run.at("config").at("downlink").at("latency_ms"), 40.0);
   }
-  EXPECT_EQ(r.at("runs")[2].at("backends").at("ao_codec").at("params").at("level"), 3);
+  EXPECT_EQ(r.at("runs")[2].at("backends").at("passes.ao.codec").at("params").at("level"), 3);
   // frames.csv: a header and one row per displayed frame per run.
   std::ifstream csv(out / "frames.csv");
   std::string line;
@@ -107,7 +107,7 @@ TEST(Experiment, BadFilesAreErrors) {
     return (dir / name).string();
   };
   EXPECT_THROW(load_experiment(write("noversion.json", R"({"scenes": ["room"]})")), Error);
-  EXPECT_THROW(load_experiment(write("v2.json", R"({"version": 2, "scenes": ["room"]})")), Error);
+  EXPECT_THROW(load_experiment(write("v3.json", R"({"version": 3, "scenes": ["room"]})")), Error);
   EXPECT_THROW(load_experiment(write("notjson.json", "{")), Error);
   EXPECT_THROW(load_experiment(write("noscenes.json", R"({"version": 1, "scenes": []})")), Error);
   EXPECT_THROW(load_experiment(write("badnet.json", R"({"version": 1, "scenes": ["room"], "sweep": {"network": ["x"]}})")), Error);
