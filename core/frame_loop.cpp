@@ -332,8 +332,9 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
       problems.push_back(fmt::format("{}: {}", link == &c.uplink ? "uplink" : "downlink", e.what()));
     }
   }
+  std::optional<PassPlan> plan;
   try {
-    plan_passes(scene, c.trace);
+    plan = plan_passes(scene, c.trace);
   } catch (const Error& e) {
     problems.push_back(e.what());
   }
@@ -354,17 +355,11 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
   }
   if (problems.empty()) {
     // A lossy codec must not be asked to carry a bitmask.
-    const PassPlan plan = plan_passes(scene, c.trace);
-    auto refuses = [&](const BackendChoice& b, const PassDesc& d, const char* role) {
-      auto codec = r.codecs.create(b.name, b.params);
-      if (std::string why = codec->refuses(d); !why.empty())
-        problems.push_back(fmt::format("{} '{}' cannot carry the {} pass: {}", role, b.name, pass_kind_name(d.kind), why));
-    };
-    if (c.mode == "hybrid") {
-      if (plan.visibility()) refuses(c.visibility_codec, plan.visibility_desc(c.width, c.height), "passes.visibility.codec");
-      if (plan.ao) refuses(c.ao_codec, plan.ao_desc(c.width, c.height), "passes.ao.codec");
-    } else {
-      refuses(c.colour_codec, {PassKind::Colour, c.width, c.height, 3, 255}, "passes.colour.codec");
+    for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", c.width, c.height)) {
+      const BackendChoice codec = c.choice(p.meaning).codec;
+      if (std::string why = r.codecs.create(codec.name, codec.params)->refuses(p.desc); !why.empty())
+        problems.push_back(fmt::format("passes.{}.codec '{}' cannot carry the {} pass: {}", p.name, codec.name,
+                                       pass_kind_name(p.desc.kind), why));
     }
   }
   if (!problems.empty()) {
@@ -383,7 +378,7 @@ class Simulation {
   Simulation(const SimConfig& c, const Scene& scene, const std::string& scene_key, TraceCache& cache,
              const Registries& registries)
       : c_(c), scene_(scene), scene_key_(scene_key), cache_(cache), remote_(c.mode == "remote"),
-        plan_(plan_passes(scene, c.trace)), uplink_(c.uplink, c.seed, 0), downlink_(c.downlink, c.seed, 1),
+        uplink_(c.uplink, c.seed, 0), downlink_(c.downlink, c.seed, 1),
         server_(c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0),
         client_(c, scene, registries), local_(c, scene, registries) {
     AssemblerConfig ac;
@@ -396,7 +391,7 @@ class Simulation {
     for (const auto& name : names) traffic_.push_back({name});
     for (const PlannedPass& p : server_.passes()) traffic_index_.push_back(traffic_of(p.name));
     result_.config = c.to_json();
-    result_.plan = plan_;
+    result_.plan = server_.plan();
   }
 
   RunResult run(const ProgressFn& progress) {
@@ -639,7 +634,6 @@ class Simulation {
   std::string scene_key_;
   TraceCache& cache_;
   bool remote_;
-  PassPlan plan_;
   Link uplink_, downlink_;
   std::unique_ptr<RtScene> rt_;
   ServerPipeline server_;

@@ -226,8 +226,8 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
 // ---- local reference
 
 LocalReference::LocalReference(const SimConfig& c, const Scene& scene, const Registries& r)
-    : scene_(scene), traced_(traced_passes(plan_passes(scene, c.trace), c.width, c.height)),
-      denoise_(c, plan_passes(scene, c.trace), r) {}
+    : scene_(scene), plan_(plan_passes(scene, c.trace)), traced_(traced_passes(plan_, c.width, c.height)),
+      denoise_(c, plan_, r) {}
 
 std::optional<ImageRGB8> LocalReference::frame(uint32_t frame, const GBuffer& gbuf, const TracedPasses& traced,
                                                bool want_image) {

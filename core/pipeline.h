@@ -171,6 +171,7 @@ class LocalReference {
 
  private:
   const Scene& scene_;
+  PassPlan plan_;
   std::vector<PlannedPass> traced_;
   DenoiseStage denoise_;
 };

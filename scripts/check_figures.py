@@ -60,10 +60,12 @@ def flatten(value, prefix, out):
 
 
 def same(a, b):
+    """Equal as written: numbers by value (an int may match a float), booleans only booleans, NaN NaN."""
+    if isinstance(a, bool) or isinstance(b, bool):
+        return a is b
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
-    return a == b and type(a) == type(b) or (isinstance(a, (int, float)) and isinstance(b, (int, float))
-                                             and not isinstance(a, bool) and not isinstance(b, bool) and a == b)
+    return a == b
 
 
 def compare_results(new_path, old_path, problems, notes):

@@ -3,6 +3,7 @@
 
 #include "core/scene.h"
 
+#include <functional>
 #include <string>
 
 namespace dhr::test {
@@ -19,5 +20,8 @@ Object make_object(uint32_t id, Mesh mesh, glm::vec3 offset, uint32_t material =
 // (angular radius 0: hard), as the trace tests build them.
 Light sphere_light(glm::vec3 p, float radius_m, float intensity);
 Light distant_light(glm::vec3 dir, float angular_radius_deg = 0.0f);
+
+// The message of the dhr::Error that `f` throws; "" when it throws none.
+std::string error_of(const std::function<void()>& f);
 
 }  // namespace dhr::test

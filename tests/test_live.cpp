@@ -502,12 +502,17 @@ fs::path fresh_dir(const std::string& name) {
   return d;
 }
 
+// dhrbench serve with the test's settings on a loopback port the kernel picks, its port in
+// DIR/server.port and its output in DIR/server.log; `extra` options are appended.
+Process start_server(const fs::path& dir, const std::vector<std::string>& extra = {}) {
+  return Process::start(with({"serve"}, with(kSettings, with({"--bind", "127.0.0.1:0", "--port-file",
+                                                              (dir / "server.port").string()}, extra))),
+                        (dir / "server.log").string());
+}
+
 TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
   const fs::path dir = fresh_dir("relay");
-  Process server = Process::start(with({"serve"}, with(kSettings, {"--bind", "127.0.0.1:0", "--port-file",
-                                                                    (dir / "server.port").string(), "--out",
-                                                                    (dir / "server").string(), "--idle-timeout", "20"})),
-                                  (dir / "server.log").string());
+  Process server = start_server(dir, {"--out", (dir / "server").string(), "--idle-timeout", "20"});
   ASSERT_GT(server.pid, 0);
   const int server_port = wait_port(dir / "server.port", server);
   ASSERT_GT(server_port, 0);
@@ -628,9 +633,7 @@ TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
 
 TEST(LiveMode, AMismatchedOfferIsRefusedWithTheReason) {
   const fs::path dir = fresh_dir("refuse");
-  Process server = Process::start(with({"serve"}, with(kSettings, {"--bind", "127.0.0.1:0", "--port-file",
-                                                                    (dir / "server.port").string()})),
-                                  (dir / "server.log").string());
+  Process server = start_server(dir);
   const int port = wait_port(dir / "server.port", server);
   ASSERT_GT(port, 0);
   Process client = Process::start({"client", "--scene", "room", "--set", "width=128", "--set", "height=64", "--set",
@@ -651,9 +654,7 @@ TEST(LiveMode, AMismatchedOfferIsRefusedWithTheReason) {
 
 TEST(LiveMode, TheClientEndsCleanlyWhenTheServerDies) {
   const fs::path dir = fresh_dir("dies");
-  Process server = Process::start(with({"serve"}, with(kSettings, {"--bind", "127.0.0.1:0", "--port-file",
-                                                                    (dir / "server.port").string()})),
-                                  (dir / "server.log").string());
+  Process server = start_server(dir);
   const int port = wait_port(dir / "server.port", server);
   ASSERT_GT(port, 0);
   Process client = Process::start(with({"client"}, with(kSettings, {"--server", "127.0.0.1:" + std::to_string(port),
@@ -699,10 +700,7 @@ uint64_t sum_counts(const json& counts) {
 
 TEST(LiveTrust, ASessionUnderAttackFromAThirdSocketEndsAsACleanOne) {
   const fs::path dir = fresh_dir("attack");
-  Process server = Process::start(with({"serve"}, with(kSettings, {"--bind", "127.0.0.1:0", "--port-file",
-                                                                    (dir / "server.port").string(), "--out",
-                                                                    (dir / "server").string(), "--idle-timeout", "20"})),
-                                  (dir / "server.log").string());
+  Process server = start_server(dir, {"--out", (dir / "server").string(), "--idle-timeout", "20"});
   const int server_port = wait_port(dir / "server.port", server);
   ASSERT_GT(server_port, 0);
   // A relay that impairs nothing: the loopback link loses nothing, so a clean session counts
@@ -897,11 +895,7 @@ TEST(LiveTrust, AKeyedSessionAuthenticatesEveryDatagram) {
   const fs::path key = dir / "live.key", other = dir / "other.key";
   std::ofstream(key, std::ios::binary) << "0123456789abcdef0123456789abcdef";
   std::ofstream(other, std::ios::binary) << "fedcba9876543210fedcba9876543210";
-  Process server = Process::start(with({"serve"}, with(kSettings, {"--bind", "127.0.0.1:0", "--port-file",
-                                                                    (dir / "server.port").string(), "--out",
-                                                                    (dir / "server").string(), "--idle-timeout", "20",
-                                                                    "--key-file", key.string()})),
-                                  (dir / "server.log").string());
+  Process server = start_server(dir, {"--out", (dir / "server").string(), "--idle-timeout", "20", "--key-file", key.string()});
   const int port = wait_port(dir / "server.port", server);
   ASSERT_GT(port, 0);
   const std::string at = "127.0.0.1:" + std::to_string(port);
