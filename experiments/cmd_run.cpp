@@ -77,7 +77,7 @@ LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& s
 // Progress: a bar on a terminal, plain lines otherwise.
 class Progress {
  public:
-  Progress(size_t runs, int frames_per_run) : runs_(runs), frames_(frames_per_run), tty_(isatty(fileno(stderr))) {}
+  explicit Progress(size_t runs) : runs_(runs), tty_(isatty(fileno(stderr))) {}
   void update(size_t run, const std::string& label, int frame, int total) {
     const double done = (double(run) + double(frame) / std::max(total, 1)) / double(runs_);
     const double elapsed = std::chrono::duration<double>(Clock::now() - start_).count();
@@ -102,7 +102,6 @@ class Progress {
     return s < 90 ? fmt::format("{:.0f} s", s) : fmt::format("{:.0f} min {:02.0f} s", std::floor(s / 60), std::fmod(s, 60));
   }
   size_t runs_;
-  int frames_;
   bool tty_;
   Clock::time_point start_ = Clock::now();
 };
@@ -229,7 +228,7 @@ Runner add_run_command(CLI::App& app) {
 
     TraceCache cache;
     if (!o->no_disk_cache) cache.set_disk_dir((fs::path(default_cache_dir()) / "trace").string());
-    Progress progress(e.runs.size(), 0);
+    Progress progress(e.runs.size());
     int failed = 0;
     for (size_t i = 0; i < e.runs.size(); ++i) {
       const RunSpec& spec = e.runs[i];
