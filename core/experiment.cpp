@@ -101,12 +101,12 @@ void set_dotted(nlohmann::json& target, const std::string& dotted, const nlohman
 void apply_override(nlohmann::json& experiment, const std::string& assignment) {
   const size_t eq = assignment.find('=');
   if (eq == std::string::npos || eq == 0)
-    fail("--set '{}': expected key=value, e.g. run.frames=10 or run.ao_codec.name=zstd", assignment);
+    fail("--set '{}': expected key=value, e.g. run.frames=10 or run.ao_codec.name=zstd", text_excerpt(assignment));
   const std::string key = assignment.substr(0, eq), text = assignment.substr(eq + 1);
   // A value nested too deeply is refused, not taken as a string: it was meant as JSON.
   if (json_depth(text) > kMaxJsonDepth)
     fail("--set '{}': the value is nested deeper than {} levels of arrays and objects (the limit for every JSON "
-         "dhrbench reads)", key, kMaxJsonDepth);
+         "dhrbench reads)", text_excerpt(key), kMaxJsonDepth);
   nlohmann::json value = nlohmann::json::parse(text, nullptr, false);
   if (value.is_discarded()) value = text;  // a bare word: a string
   try {
