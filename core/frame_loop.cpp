@@ -67,26 +67,6 @@ std::string truth_key(const std::string& scene_key, const SimConfig& c, int fram
 
 // ---- small pieces ---------------------------------------------------------------------------
 
-double StageStats::median() const {
-  if (samples_ms.empty()) return 0.0;
-  std::vector<double> s = samples_ms;
-  std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
-  return s[s.size() / 2];
-}
-
-double StageStats::p95() const {
-  if (samples_ms.empty()) return 0.0;
-  std::vector<double> s = samples_ms;
-  std::sort(s.begin(), s.end());
-  return s[std::min(s.size() - 1, size_t(std::ceil(0.95 * double(s.size()))) - 1)];
-}
-
-double StageStats::total() const {
-  double t = 0;
-  for (double v : samples_ms) t += v;
-  return t;
-}
-
 std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key) {
   {
     std::lock_guard lock(mutex_);
@@ -241,75 +221,6 @@ void TraceCache::evict_locked() {
       images_.erase(i);
     }
   }
-}
-
-nlohmann::json RunResult::metrics() const {
-  nlohmann::json m;
-  auto mean_of = [&](auto field, auto pred) {
-    double s = 0;
-    int n = 0;
-    for (const auto& f : frames)
-      if (pred(f)) {
-        s += field(f);
-        ++n;
-      }
-    return n ? s / n : std::nan("");
-  };
-  auto finite_or_null = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
-  m["ssim_local_mean"] = finite_or_null(mean_of([](const FrameRecord& f) { return f.ssim_local; },
-                                                [](const FrameRecord& f) { return f.scored; }));
-  m["psnr_local_mean_db"] = finite_or_null(mean_of([](const FrameRecord& f) { return psnr_for_mean(f.psnr_local); },
-                                                   [](const FrameRecord& f) { return f.scored; }));
-  m["ssim_ground_truth_mean"] = finite_or_null(mean_of([](const FrameRecord& f) { return f.ssim_gt; },
-                                                       [](const FrameRecord& f) { return f.scored_ground_truth; }));
-  m["psnr_ground_truth_mean_db"] = finite_or_null(mean_of([](const FrameRecord& f) { return psnr_for_mean(f.psnr_gt); },
-                                                          [](const FrameRecord& f) { return f.scored_ground_truth; }));
-  m["psnr_note"] = "PSNR of identical frames is counted as 100 dB in the means";
-  const double seconds = duration_ms / 1000.0;
-  uint64_t wire = 0;
-  nlohmann::json passes = nlohmann::json::array();
-  for (const auto& t : traffic) {
-    wire += t.wire_bytes;
-    passes.push_back({{"pass", t.pass},
-                      {"server_frames", t.server_frames},
-                      {"bytes_per_frame", t.bytes_per_frame()},
-                      {"encoded_bytes", t.encoded_bytes},
-                      {"wire_bytes", t.wire_bytes},
-                      {"packets", t.packets},
-                      {"bandwidth_mbps", seconds > 0 ? double(t.wire_bytes) * 8 / 1e6 / seconds : 0.0},
-                      {"frames_completed", t.frames_completed},
-                      {"delivered_fps", seconds > 0 ? double(t.frames_completed) / seconds : 0.0},
-                      {"frames_lost", t.frames_lost},
-                      {"frames_given_up_by_receiver", t.frames_given_up},
-                      {"decode_errors", t.decode_errors},
-                      {"keyframe_requests", t.keyframe_requests},
-                      {"frames_without_data", t.frames_without_data}});
-  }
-  m["passes"] = passes;
-  m["bandwidth_mbps"] = seconds > 0 ? double(wire) * 8 / 1e6 / seconds : 0.0;
-  m["server_fps_virtual"] = seconds > 0 ? double(server_frames) / seconds : 0.0;
-  m["server_frames"] = server_frames;
-  m["cameras_dropped"] = cameras_dropped;
-  m["cameras_lost"] = cameras_lost;
-  m["frames_without_data"] = frames_without_data;
-  m["receiver_packets_lost"] = receiver_packets_lost;
-  StageStats client;
-  for (const auto& f : frames) client.samples_ms.push_back(f.client_wall_ms);
-  m["client_frame_ms_median"] = client.median();
-  m["client_frame_ms_p95"] = client.p95();
-  m["client_fps_wall"] = client.median() > 0 ? 1000.0 / client.median() : 0.0;
-  std::map<std::string, StageStats> ages;  // per pass name
-  for (const auto& f : frames)
-    for (const auto& p : f.passes)
-      if (p.source_frame >= 0) ages[p.pass].samples_ms.push_back(p.age_ms);
-  for (const auto& [pass, age] : ages)
-    m[fmt::format("buffer_age_ms_{}", pass)] = {{"median", age.median()}, {"p95", age.p95()}};
-  nlohmann::json st = nlohmann::json::object();
-  for (const auto& [name, s] : stages) st[name] = {{"median_ms", s.median()}, {"p95_ms", s.p95()}, {"count", s.samples_ms.size()}};
-  m["stages_wall"] = st;
-  m["rays"] = {{"shadow", trace_stats.shadow_rays}, {"ao", trace_stats.ao_rays}, {"invalid", trace_stats.invalid_rays}};
-  m["passes_planned"] = plan.describe();
-  return m;
 }
 
 // ---- validation ----------------------------------------------------------------------------
@@ -606,16 +517,12 @@ class Simulation {
     const ImageRGB8& image = shown.image;
 
     if (score_now) {
-      const QualityScores q = compare_images(*local_image, image);
       rec.scored = true;
-      rec.ssim_local = q.ssim;
-      rec.psnr_local = q.psnr_db;
+      rec.local = score_frame(*local_image, image);
       if (c_.ground_truth_every > 0 && rec.frame % c_.ground_truth_every == 0) {
         auto truth = ground_truth(a, gbuf);
-        const QualityScores g = compare_images(*truth, image);
         rec.scored_ground_truth = true;
-        rec.ssim_gt = g.ssim;
-        rec.psnr_gt = g.psnr_db;
+        rec.ground_truth = score_frame(*truth, image);
         if (c_.keep_images) result_.ground_truth_images = {*truth};
       }
       // Keep the images of the last frame scored against the ground truth (or, without ground

@@ -31,6 +31,7 @@
 #include "core/gbuffer.h"
 #include "core/network.h"
 #include "core/pipeline.h"
+#include "core/results.h"
 #include "core/run_config.h"
 #include "core/scene.h"
 #include "core/trace.h"
@@ -48,80 +49,6 @@
 namespace dhr {
 
 class RtScene;
-
-// One pass of one displayed frame.
-struct PassFrameRecord {
-  std::string pass;        // the pass's name (visibility, ao; remote: colour)
-  int source_frame = -1;   // the client frame whose server buffer was displayed (-1: none)
-  double age_ms = 0.0;     // its age at composite (virtual)
-  uint64_t disoccluded = 0;
-};
-
-// Per displayed frame (virtual times in ms).
-struct FrameRecord {
-  int frame = 0;
-  double t_ms = 0.0;
-  bool scored = false, scored_ground_truth = false;
-  double ssim_local = 0, psnr_local = 0, ssim_gt = 0, psnr_gt = 0;
-  std::vector<PassFrameRecord> passes;  // in the order of the run's pass list
-  double client_wall_ms = 0.0;  // rasterize + decode + predict + composite
-  // The record of the pass named `name`; an absent pass reads as nothing received.
-  PassFrameRecord pass(const std::string& name) const {
-    for (const auto& p : passes)
-      if (p.pass == name) return p;
-    return {name};
-  }
-};
-
-struct StageStats {
-  std::vector<double> samples_ms;
-  double median() const;
-  double p95() const;
-  double total() const;
-};
-
-struct PassTraffic {
-  std::string pass;  // visibility | ao | colour
-  uint64_t server_frames = 0;
-  uint64_t encoded_bytes = 0;   // codec output
-  uint64_t wire_bytes = 0;      // packets incl. dhrbench header + 28 IP/UDP
-  uint64_t packets = 0;
-  uint64_t frames_completed = 0;   // assembled and handed to the decoder
-  uint64_t frames_lost = 0;        // server frames with a datagram dropped on the link
-  uint64_t frames_given_up = 0;    // partial frames the receiver's assembler gave up
-  uint64_t decode_errors = 0, keyframe_requests = 0;
-  uint64_t frames_without_data = 0;  // displayed frames that showed this pass's local fallback
-  double bytes_per_frame() const { return server_frames ? double(encoded_bytes) / double(server_frames) : 0.0; }
-};
-
-// One pass of one server frame as sent (the packet layer's accounting).
-struct ServerPassRecord {
-  int frame = 0;     // the client frame whose camera it was traced for
-  std::string pass;  // visibility | ao | colour
-  uint64_t encoded_bytes = 0;
-  uint64_t packets = 0;
-  uint64_t wire_bytes = 0;  // packets incl. dhrbench header + 28 IP/UDP
-};
-
-struct RunResult {
-  nlohmann::json config;  // SimConfig::to_json with backends' effective parameters
-  PassPlan plan;
-  std::vector<FrameRecord> frames;
-  std::vector<PassTraffic> traffic;
-  std::vector<ServerPassRecord> server_log;  // every pass sent for a scored frame, in order
-  std::map<std::string, StageStats> stages;  // wall time per stage
-  uint64_t server_frames = 0, cameras_dropped = 0, cameras_lost = 0;
-  uint64_t frames_without_data = 0;    // displayed frames with at least one pass shown with its local fallback
-  uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps
-  TraceStats trace_stats;            // rays of the server frames
-  double duration_ms = 0.0;          // virtual time of the scored frames
-  // keep_images: the displayed image, local reference and ground truth of one frame (the last
-  // scored against the ground truth, or the last scored when there is no ground truth).
-  std::vector<ImageRGB8> images, local_images, ground_truth_images;
-  int kept_frame = -1;
-
-  nlohmann::json metrics() const;  // the per-run summary written to results.json
-};
 
 // Traced buffers and ground truths shared across runs of one process. Thread-safe.
 class TraceCache {

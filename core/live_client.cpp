@@ -1,6 +1,8 @@
 // dhrbench client: the live client (core/live.h).
 #include "core/live.h"
 #include "core/live_detail.h"
+#include "core/passes.h"
+#include "core/results.h"
 
 namespace dhr {
 
@@ -64,15 +66,9 @@ class LiveClient {
   }
 
  private:
-  struct Row {
-    int frame = 0;
-    double t_ms = 0, client_ms = 0;
-    int source_frame[2] = {-1, -1};
-    double age_ms[2] = {0, 0};
-    uint64_t disoccluded[2] = {0, 0};
-    bool scored = false;
-    double ssim = 0, psnr = 0;
-  };
+  // A displayed frame is recorded as the simulator records it (core/results.h), t_ms and ages in
+  // wall time since the session began.
+  using Row = FrameRecord;
 
   double now_ms() const { return ms_between(t0_, Clock::now()); }
   double frame_time_s(int a) const { return c_.start_time_s + double(a) / c_.display_hz; }
@@ -344,13 +340,12 @@ class LiveClient {
     for (size_t i = 0; i < client_.passes().size(); ++i)
       pass_without_data_[stream_slot(client_.passes()[i])] += shown.without_data[i] ? 1 : 0;
     for (size_t i = 0; i < client_.passes().size(); ++i) {
-      const int slot = stream_slot(client_.passes()[i]);
-      row.source_frame[slot] = shown.source_frame[i];
-      row.disoccluded[slot] = shown.disoccluded[i];
-      if (shown.source_frame[i] >= 0) row.age_ms[slot] = double(a - shown.source_frame[i]) * 1000.0 / c_.display_hz;
+      PassFrameRecord p{client_.passes()[i].name, shown.source_frame[i], 0.0, shown.disoccluded[i]};
+      if (p.source_frame >= 0) p.age_ms = double(a - p.source_frame) * 1000.0 / c_.display_hz;
+      row.passes.push_back(std::move(p));
     }
     ImageRGB8& image = shown.image;
-    row.client_ms = ms_between(start, Clock::now());
+    row.client_wall_ms = ms_between(start, Clock::now());
     if (o_.score_every > 0 && a % o_.score_every == 0) {
       row.scored = true;
       kept_[a] = image;
@@ -383,9 +378,7 @@ class LiveClient {
       rasterize({scene_.scene, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)}, g);
       const std::optional<ImageRGB8> ref = local.frame(uint32_t(a), g, *trace(uint32_t(a), g), it != scored.end());
       if (!ref) continue;
-      const QualityScores q = compare_images(*ref, kept_.at(a));
-      it->second->ssim = q.ssim;
-      it->second->psnr = q.psnr_db;
+      it->second->local = score_frame(*ref, kept_.at(a));
     }
   }
 
@@ -397,20 +390,25 @@ class LiveClient {
       for (const auto& [a, img] : kept_)
         if (a % o_.save_every == 0) write_png(fmt::format("{}/frames/frame_{:05d}.png", o_.out_dir, a), img);
     }
-    std::string csv = "frame,t_ms,client_ms,vis_source_frame,vis_age_ms,ao_source_frame,ao_age_ms,scored,ssim_local,psnr_local\n";
-    std::vector<double> client_ms, ssim, psnr, age[2];
+    // frames.csv as `dhrbench run` writes it (core/results.h), one row per displayed frame.
+    const std::vector<std::string> pass_names = all_pass_names();
+    std::string csv = frames_csv_header({}, pass_names);
+    std::vector<double> client_ms, age[2];
+    std::vector<std::vector<double>> scores(image_metrics().size());  // per metric, as averaged
     for (const Row& r : rows_) {
-      csv += fmt::format("{},{:.3f},{:.3f},{},{:.1f},{},{:.1f},{},{},{}\n", r.frame, r.t_ms, r.client_ms, r.source_frame[0],
-                         r.age_ms[0], r.source_frame[1], r.age_ms[1], r.scored ? 1 : 0,
-                         r.scored ? fmt::format("{:.6f}", r.ssim) : "", r.scored ? fmt::format("{:.3f}", r.psnr) : "");
-      client_ms.push_back(r.client_ms);
-      if (r.scored) {
-        ssim.push_back(r.ssim);
-        psnr.push_back(psnr_for_mean(r.psnr));
+      csv += frames_csv_row({}, r, pass_names);
+      client_ms.push_back(r.client_wall_ms);
+      for (size_t i = 0; i < r.local.size(); ++i) {
+        const ImageMetric& m = image_metrics()[i];
+        scores[i].push_back(m.for_mean ? m.for_mean(r.local[i]) : r.local[i]);
       }
-      for (int s = 0; s < 2; ++s)
-        if (r.source_frame[s] >= 0) age[s].push_back(r.age_ms[s]);
+      for (int s = 0; s < 2; ++s) {
+        const PassFrameRecord p = r.pass(kSlotName[s]);
+        if (p.source_frame >= 0) age[s].push_back(p.age_ms);
+      }
     }
+    nlohmann::json quality = nlohmann::json::object();
+    for (size_t i = 0; i < scores.size(); ++i) quality[image_metrics()[i].column(Against::Local)] = percentiles(scores[i]);
     write_text(o_.out_dir + "/frames.csv", csv);
     // Per second: everything read from the socket, then the session's datagrams and their Mb/s
     // on the wire (UDP payload + 28 bytes of IPv4/UDP headers each, as the simulator counts).
@@ -469,8 +467,8 @@ class LiveClient {
           {"displayed", rows_.size()},
           {"skipped_late", frames_skipped_},
           {"without_data", without_data_},
-          {"scored", ssim.size()}}},
-        {"quality", {{"ssim_local", percentiles(ssim)}, {"psnr_local_db", percentiles(psnr)}}},
+          {"scored", scores.front().size()}}},
+        {"quality", quality},
         {"client_ms", percentiles(client_ms)},
         {"authentication", authentication_name(mac_)},
         {"socket",
@@ -503,7 +501,9 @@ class LiveClient {
         "({:.2f} %); SSIM {}; results in {}",
         rows_.size(), o_.frames, frames_skipped_, without_data_, out["socket"]["mbps"].get<double>(), session_datagrams_,
         as.packets_lost, 100.0 * out["packets"]["loss_rate"].get<double>(),
-        ssim.empty() ? std::string("not scored") : fmt::format("{:.4f} (mean of {})", out["quality"]["ssim_local"]["mean"].get<double>(), ssim.size()),
+        scores.front().empty() ? std::string("not scored")
+                               : fmt::format("{:.4f} (mean of {})", out["quality"]["ssim_local"]["mean"].get<double>(),
+                                             scores.front().size()),
         o_.out_dir);
   }
 

@@ -11,6 +11,12 @@ const char* pass_meaning_name(PassMeaning meaning) {
   return "?";
 }
 
+std::vector<std::string> all_pass_names() {
+  std::vector<std::string> names;
+  for (PassMeaning m : kAllPassMeanings) names.push_back(pass_meaning_name(m));
+  return names;
+}
+
 PassLayout pass_layout(PassKind kind) {
   switch (kind) {
     case PassKind::Visibility: return PassLayout::Bitmask;

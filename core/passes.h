@@ -17,6 +17,9 @@ enum class PassMeaning : uint8_t { Visibility, Ao, Colour };
 enum class PassLayout : uint8_t { Bitmask, Planes8, Rgb8 };
 
 const char* pass_meaning_name(PassMeaning meaning);
+// Every meaning, in order, and their names: the pass column groups of frames.csv.
+inline constexpr PassMeaning kAllPassMeanings[] = {PassMeaning::Visibility, PassMeaning::Ao, PassMeaning::Colour};
+std::vector<std::string> all_pass_names();
 PassLayout pass_layout(PassKind kind);
 PassMeaning pass_meaning(PassKind kind);
 

@@ -8,7 +8,9 @@
 #include "core/image_io.h"
 #include "core/json_io.h"
 #include "core/metrics.h"
+#include "core/passes.h"
 #include "core/reference.h"
+#include "core/results.h"
 #include "core/scene_load.h"
 #include "experiments/commands.h"
 #include "experiments/context.h"
@@ -126,15 +128,6 @@ ImageRGB8 downscale(const ImageRGB8& img, int max_width) {
   return out;
 }
 
-// RFC 4180: a field in double quotes, with inner quotes doubled.
-std::string csv_quote(const std::string& s) {
-  std::string out = "\"";
-  for (char ch : s) out += ch == '"' ? std::string("\"\"") : std::string(1, ch);
-  return out + "\"";
-}
-
-std::string csv_number(double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : (v > 0 ? "inf" : ""); }
-
 // Runs the report script (Debian's python3 with matplotlib) on a results folder.
 int write_report(const std::string& dir) {
   const std::string script = std::string(DHR_SOURCE_DIR) + "/experiments/report.py";
@@ -221,10 +214,11 @@ Runner add_run_command(CLI::App& app) {
     for (const auto& s : o->sets) results["context"]["command"] = results["context"]["command"].get<std::string>() + " --set " + s;
     results["experiment"] = e.source;
     results["experiment_path"] = e.path;
+    results["declared"] = declared_json();
     results["runs"] = nlohmann::json::array();
+    const std::vector<std::string> pass_names = all_pass_names();
     std::ofstream csv(fs::path(dir) / "frames.csv");
-    csv << "run,scene,label,frame,t_ms,scored,ssim_local,psnr_local_db,scored_ground_truth,ssim_ground_truth,"
-           "psnr_ground_truth_db,source_frame_0,age_ms_0,disoccluded_0,source_frame_1,age_ms_1,disoccluded_1,client_wall_ms\n";
+    csv << frames_csv_header({"run", "scene", "label"}, pass_names);
 
     TraceCache cache;
     if (!o->no_disk_cache) cache.set_disk_dir((fs::path(default_cache_dir()) / "trace").string());
@@ -259,21 +253,8 @@ Runner add_run_command(CLI::App& app) {
         record["server_time_model"] = config.server_timing == SimConfig::ServerTiming::Fixed
                                           ? fmt::format("fixed {} ms per server frame (virtual)", config.server_fixed_ms)
                                           : std::string("measured wall time of the server's stages");
-        for (const auto& f : r.frames) {
-          csv << spec.id << ',' << csv_quote(spec.scene) << ',' << csv_quote(spec.label) << ',' << f.frame << ',' << csv_number(f.t_ms) << ','
-              << f.scored << ',' << (f.scored ? csv_number(f.ssim_local) : "") << ','
-              << (f.scored ? csv_number(f.psnr_local) : "") << ',' << f.scored_ground_truth << ','
-              << (f.scored_ground_truth ? csv_number(f.ssim_gt) : "") << ','
-              << (f.scored_ground_truth ? csv_number(f.psnr_gt) : "") ;
-          // Column group 0: visibility (remote: colour); 1: ao. An absent pass: -1, 0, 0.
-          for (const char* group : {"visibility", "ao"}) {
-            PassFrameRecord p;
-            for (const auto& q : f.passes)
-              if (q.pass == group || (q.pass == "colour" && std::string_view(group) == "visibility")) p = q;
-            csv << ',' << p.source_frame << ',' << csv_number(p.age_ms) << ',' << p.disoccluded;
-          }
-          csv << ',' << csv_number(f.client_wall_ms) << '\n';
-        }
+        for (const auto& f : r.frames)
+          csv << frames_csv_row({spec.id, csv_quote(spec.scene), csv_quote(spec.label)}, f, pass_names);
         // Images of the last scored frame (downscaled): what was shown, the local reference,
         // the ground truth when scored, and the error against the best reference available.
         if (!r.images.empty()) {

@@ -19,6 +19,7 @@ Runner add_run_command(CLI::App& app);
 Runner add_validate_command(CLI::App& app);
 Runner add_report_command(CLI::App& app);
 Runner add_settings_command(CLI::App& app);
+Runner add_metrics_command(CLI::App& app);
 Runner add_serve_command(CLI::App& app);   // cmd_live.cpp
 Runner add_client_command(CLI::App& app);  // cmd_live.cpp
 Runner add_relay_command(CLI::App& app);   // cmd_live.cpp

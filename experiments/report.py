@@ -34,8 +34,20 @@ def load_matplotlib():
 
 ERROR_SCALE_LEVELS = 32  # the runner writes |luma difference| 0..32 levels as 0..255 grey
 MAX_RUNS_PER_GRID = 8
+UNIT_NAMES = {"db": "dB"}  # how a declared unit is written in a table heading
 MAX_JSON_DEPTH = 64  # core/json_io.h kMaxJsonDepth: the limit for every JSON dhrbench reads
 EXIT_BAD_INPUT = 2
+
+
+# The image metrics of results written before results.json declared them ("declared", from
+# core/results.cpp): SSIM and PSNR, with the same names.
+DECLARED_BEFORE_RECORD = {"image_metrics": [
+    {"name": "ssim", "unit": "", "higher_is_better": True,
+     "columns": {"local": "ssim_local", "ground_truth": "ssim_ground_truth"},
+     "aggregates": {"local": {"mean": "ssim_local_mean"}, "ground_truth": {"mean": "ssim_ground_truth_mean"}}},
+    {"name": "psnr", "unit": "db", "higher_is_better": True,
+     "columns": {"local": "psnr_local_db", "ground_truth": "psnr_ground_truth_db"},
+     "aggregates": {"local": {"mean": "psnr_local_mean_db"}, "ground_truth": {"mean": "psnr_ground_truth_mean_db"}}}]}
 
 
 class BadResults(Exception):
@@ -146,8 +158,30 @@ class Checker:
             self.fail("experiment_path", "a string", res["experiment_path"])
         if "wall_s" in res:
             self.num(res["wall_s"], "wall_s")
+        self.declared = self.declaration(res.get("declared", DECLARED_BEFORE_RECORD))
         for i, r in enumerate(self.lst(res["runs"], "runs")):
             self.run(r, f"runs[{i}]")
+
+    def declaration(self, d):
+        """The "declared" record: every image metric with its columns and aggregate keys."""
+        self.obj(d, "declared")
+        if "image_metrics" not in d:
+            raise BadResults(f"{self.path}: declared.image_metrics is missing")
+        for j, m in enumerate(self.lst(d["image_metrics"], "declared.image_metrics")):
+            w = f"declared.image_metrics[{j}]"
+            self.obj(m, w)
+            for key in ("name", "unit"):
+                if not isinstance(m.get(key), str):
+                    self.fail(f"{w}.{key}", "a string", m.get(key))
+            if not isinstance(m.get("higher_is_better"), bool):
+                self.fail(f"{w}.higher_is_better", "true or false", m.get("higher_is_better"))
+            for ref in ("local", "ground_truth"):
+                self.name(self.obj(m.get("columns"), f"{w}.columns").get(ref), f"{w}.columns.{ref}")
+                self.name(self.obj(self.obj(m.get("aggregates"), f"{w}.aggregates").get(ref), f"{w}.aggregates.{ref}")
+                          .get("mean"), f"{w}.aggregates.{ref}.mean")
+        if not d["image_metrics"]:
+            raise BadResults(f"{self.path}: declared.image_metrics is empty (the report needs one metric)")
+        return d
 
     def run(self, r, where):
         self.obj(r, where)
@@ -171,9 +205,11 @@ class Checker:
             if key not in m:
                 raise BadResults(f"{self.path}: {w}.{key} is missing")
             self.num(m[key], f"{w}.{key}")
-        for key in ("ssim_local_mean", "ssim_ground_truth_mean", "psnr_local_mean_db"):
-            if key in m:
-                self.num(m[key], f"{w}.{key}", none_ok=True)
+        for im in self.declared["image_metrics"]:
+            for ref in ("local", "ground_truth"):
+                key = im["aggregates"][ref]["mean"]
+                if key in m:
+                    self.num(m[key], f"{w}.{key}", none_ok=True)
         for key in ("passes", "stages_wall"):
             if key not in m:
                 raise BadResults(f"{self.path}: {w}.{key} is missing")
@@ -202,8 +238,9 @@ class Checker:
                 self.num(v["median"], f"{w}.{key}.median")
 
 
-def load_frames(path):
-    """frames.csv rows; the columns the report reads are checked (frame an integer, ssim_local a number)."""
+def load_frames(path, column):
+    """frames.csv rows; the columns the report reads are checked (frame an integer, `column` -- the first
+    declared image metric against the local reference, ssim_local -- a number)."""
     try:
         with open(path, encoding="utf-8", newline="") as f:
             rows = list(csv.DictReader(f))
@@ -212,17 +249,17 @@ def load_frames(path):
     except (UnicodeDecodeError, csv.Error) as e:
         raise BadResults(f"{path}: not a CSV file as 'dhrbench run' writes it: {str(e)[:120]}")
     for n, row in enumerate(rows, start=2):
-        for key in ("run", "frame", "ssim_local"):
+        for key in ("run", "frame", column):
             if row.get(key) is None:
                 raise BadResults(f"{path}: line {n}: the column \"{key}\" is missing")
         try:
             int(row["frame"])
-            if row["ssim_local"] != "":
-                if not math.isfinite(float(row["ssim_local"])):
+            if row[column] != "":
+                if not math.isfinite(float(row[column])):
                     raise ValueError
         except ValueError:
-            raise BadResults(f"{path}: line {n}: frame must be an integer and ssim_local a number or empty, got "
-                             f"{excerpt(row['frame'])} and {excerpt(row['ssim_local'])}")
+            raise BadResults(f"{path}: line {n}: frame must be an integer and {column} a number or empty, got "
+                             f"{excerpt(row['frame'])} and {excerpt(row[column])}")
     return rows
 
 
@@ -259,10 +296,15 @@ def server_ms(run):
                ("server_rasterize", "trace_shadows", "trace_ao", "denoise", "encode", "server_composite") if s in stages)
 
 
+# The headline image metric: the first declared (SSIM), set by main() from results.json.
+HEADLINE = DECLARED_BEFORE_RECORD["image_metrics"][0]
+
+
 def quality(run):
+    """The headline metric's mean against the ground truth where scored, else the local reference."""
     m = run["metrics"]
-    q = m.get("ssim_ground_truth_mean")
-    return q if q is not None else m.get("ssim_local_mean")
+    q = m.get(HEADLINE["aggregates"]["ground_truth"]["mean"])
+    return q if q is not None else m.get(HEADLINE["aggregates"]["local"]["mean"])
 
 
 def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
@@ -283,7 +325,7 @@ def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
             ax.set_xscale("log")
         ax.set_title(scene)
         ax.set_xlabel(xlabel)
-        ax.set_ylabel("SSIM (vs ground truth where scored, else local reference)")
+        ax.set_ylabel(f"{HEADLINE['name'].upper()} (vs ground truth where scored, else local reference)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(title)
@@ -295,10 +337,15 @@ def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
 def main(d):
     results_path = os.path.join(d, "results.json")
     res = load_json(results_path)
-    Checker(results_path).results(res)
+    checker = Checker(results_path)
+    checker.results(res)
+    global HEADLINE
+    metrics = checker.declared["image_metrics"]
+    HEADLINE = metrics[0]
+    headline_column = HEADLINE["columns"]["local"]
     frames = []
     if os.path.exists(os.path.join(d, "frames.csv")):
-        frames = load_frames(os.path.join(d, "frames.csv"))
+        frames = load_frames(os.path.join(d, "frames.csv"), headline_column)
     load_matplotlib()
     os.makedirs(os.path.join(d, "plots"), exist_ok=True)
     os.makedirs(os.path.join(d, "grids"), exist_ok=True)
@@ -329,16 +376,21 @@ def main(d):
     out.append(f"| libraries | {libs} |\n")
 
     out.append("## Results\n")
-    out.append("| run | scene | configuration | SSIM local | SSIM truth | PSNR local dB | Mb/s | bytes/frame per pass "
-               "| server fps (virtual) | client fps (wall) | buffer age ms (median) | frames lost |")
-    out.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    # One column per declared image metric and reference (means over the scored frames).
+    quality_columns = [(f"{im['name'].upper()}{' ' + UNIT_NAMES.get(im['unit'], im['unit']) if im['unit'] else ''} "
+                        f"{'local' if ref == 'local' else 'truth'}", im["aggregates"][ref]["mean"],
+                        4 if not im["unit"] else 2) for im in metrics for ref in ("local", "ground_truth")]
+    out.append("| run | scene | configuration | " + " | ".join(c[0] for c in quality_columns) +
+               " | Mb/s | bytes/frame per pass | server fps (virtual) | client fps (wall) | buffer age ms (median) "
+               "| frames lost |")
+    out.append("|---|---|---|" + "---|" * len(quality_columns) + "---|---|---|---|---|---|")
     for r in ok:
         m = r["metrics"]
         per_pass = ", ".join(f"{p['pass']} {p['bytes_per_frame']:.0f}" for p in m["passes"] if p["server_frames"])
         ages = [v["median"] for k, v in m.items() if k.startswith("buffer_age_ms_")]
         lost = sum(p["frames_lost"] for p in m["passes"])
-        out.append(f"| {r['id']} | {r['scene']} | {r['label']} | {fmt(m.get('ssim_local_mean'))} | "
-                   f"{fmt(m.get('ssim_ground_truth_mean'))} | {fmt(m.get('psnr_local_mean_db'), 2)} | "
+        cells = " | ".join(fmt(m.get(key), digits) for _, key, digits in quality_columns)
+        out.append(f"| {r['id']} | {r['scene']} | {r['label']} | {cells} | "
                    f"{m['bandwidth_mbps']:.2f} | {per_pass or '–'} | {m['server_fps_virtual']:.1f} | "
                    f"{m['client_fps_wall']:.1f} | {', '.join(f'{a:.1f}' for a in ages) or '–'} | {lost} |")
     out.append("")
@@ -405,12 +457,12 @@ def main(d):
             fig, axes = plt.subplots(len(scenes), 1, figsize=(9, 3.2 * len(scenes)), squeeze=False)
             for ax, scene in zip(axes[:, 0], scenes):
                 for r in [r for r in ok if r["scene"] == scene][:12]:
-                    rows = [f for f in frames if f["run"] == r["id"] and f["ssim_local"] != ""]
-                    ax.plot([int(f["frame"]) for f in rows], [float(f["ssim_local"]) for f in rows],
+                    rows = [f for f in frames if f["run"] == r["id"] and f[headline_column] != ""]
+                    ax.plot([int(f["frame"]) for f in rows], [float(f[headline_column]) for f in rows],
                             lw=1, label=f"{r['id']} {r['label']}"[:48])
-                ax.set_title(f"{scene}: SSIM against the local reference, per displayed frame")
+                ax.set_title(f"{scene}: {HEADLINE['name'].upper()} against the local reference, per displayed frame")
                 ax.set_xlabel("frame")
-                ax.set_ylabel("SSIM")
+                ax.set_ylabel(HEADLINE["name"].upper())
                 ax.grid(alpha=0.3)
                 ax.legend(fontsize=6, loc="lower left")
             fig.tight_layout()

@@ -6,7 +6,9 @@ For each experiment NAME (default: every reports/NAME/ that has an experiments/N
 then compares OUT/NAME against reports/NAME (or against --baseline DIR/NAME):
   - results.json: per run (matched by id), every value under "metrics" and "backends", except
     wall-clock figures (keys listed in TIMING_KEYS: measured on this machine, they vary run to run)
-  - frames.csv: every column of every row (matched by run and frame), except client_wall_ms
+  - frames.csv: every column of every row (matched by run and frame), except the wall-clock ones
+The wall-clock keys and columns are read from the new results' "declared" record (core/results.h),
+joined with TIMING_KEYS / TIMING_COLUMNS for results older than that record.
 Values must be equal bit for bit (floats as written). Exits 1 and lists the differences when
 any figure changed; 0 when all are identical. A refactor that renames a key or column adds it to
 ALIASES (new name -> old name) in the same commit, so the guard keeps comparing it.
@@ -42,6 +44,39 @@ ALIASES = {
     "passes.ao.denoiser": "ao_denoiser", "passes.visibility.predictor": "predictor",
     "passes.ao.predictor": "predictor", "passes.colour.predictor": "colour_predictor",
 }
+
+
+def declared_wall_clock(results_path):
+    """The wall-clock run metrics and frames.csv columns a results.json declares (none if older)."""
+    try:
+        declared = json.load(open(results_path)).get("declared", {})
+    except (OSError, ValueError):
+        return set(), set()
+    keys = {m["key"] for m in declared.get("run_metrics", []) if m.get("wall_clock")}
+    return keys, set(declared.get("frames_csv_wall_clock_columns", []))
+
+
+def pass_names_of_runs(results_path):
+    """Per run id, the names of the passes it sent (metrics.passes[].pass)."""
+    try:
+        runs = json.load(open(results_path))["runs"]
+    except (OSError, ValueError, KeyError):
+        return {}
+    return {r["id"]: [p["pass"] for p in r.get("metrics", {}).get("passes", [])] for r in runs}
+
+
+def old_frame_columns(row, passes):
+    """frames.csv before pass-named columns: group 0 was visibility (remote: colour), group 1 ao,
+    an absent pass written -1, 0, 0. Returns the row with PASS_source_frame... columns, every
+    pass the run did not send left empty (as the new writer leaves it)."""
+    if "source_frame_0" not in row:
+        return row
+    out = {k: v for k, v in row.items() if not k[-2:] in ("_0", "_1")}
+    groups = {"visibility": "0", "colour": "0", "ao": "1"}
+    for name, g in groups.items():
+        for col in ("source_frame", "age_ms", "disoccluded"):
+            out[f"{name}_{col}"] = row[f"{col}_{g}"] if name in passes else ""
+    return out
 
 
 def flatten(value, prefix, out):
@@ -98,16 +133,17 @@ def compare_results(new_path, old_path, problems, notes):
     return compared
 
 
-def read_frames(path):
+def read_frames(path, passes_of_run):
     with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
+        rows = [old_frame_columns(r, passes_of_run.get(r["run"], [])) for r in csv.DictReader(f)]
     return {(r["run"], r["frame"]): {ALIASES.get(k, k): v for k, v in r.items() if k not in TIMING_COLUMNS}
             for r in rows}
 
 
 def compare_frames(new_path, old_path, problems):
     try:
-        new, old = read_frames(new_path), read_frames(old_path)
+        passes = pass_names_of_runs(os.path.join(os.path.dirname(old_path), "results.json"))
+        new, old = read_frames(new_path, passes), read_frames(old_path, passes)
     except OSError as e:
         problems.append(f"cannot read frames.csv: {e}")
         return 0
@@ -156,6 +192,9 @@ def main():
             print(f"{name}: ran in {time.time() - t0:.0f} s")
         problems, notes = [], set()
         base = os.path.join(args.baseline, name)
+        keys, columns = declared_wall_clock(os.path.join(out, "results.json"))
+        TIMING_KEYS.update(keys)
+        TIMING_COLUMNS.update(columns)
         n = compare_results(os.path.join(out, "results.json"), os.path.join(base, "results.json"), problems, notes)
         n += compare_frames(os.path.join(out, "frames.csv"), os.path.join(base, "frames.csv"), problems)
         for note in sorted(notes):

@@ -51,8 +51,8 @@ TEST(FrameLoop, ZeroLatencyLosslessEqualsLocalReferenceBitForBit) {
     ASSERT_EQ(r.frames.size(), 30u);
     for (const FrameRecord& f : r.frames) {
       ASSERT_TRUE(f.scored);
-      EXPECT_EQ(f.ssim_local, 1.0) << denoiser << " frame " << f.frame;
-      EXPECT_TRUE(std::isinf(f.psnr_local)) << denoiser << " frame " << f.frame;
+      EXPECT_EQ(f.score("ssim"), 1.0) << denoiser << " frame " << f.frame;
+      EXPECT_TRUE(std::isinf(f.score("psnr"))) << denoiser << " frame " << f.frame;
       EXPECT_EQ(f.pass("ao").source_frame, f.frame) << "the server's AO of this very frame is shown";
       EXPECT_EQ(f.pass("ao").age_ms, 0.0);
     }
@@ -134,8 +134,9 @@ TEST(FrameLoop, DeterministicAcrossRunsAndThreadCounts) {
     m.erase("client_fps_wall");
     nlohmann::json frames = nlohmann::json::array();
     for (const auto& f : r.frames)
-      frames.push_back({f.ssim_local, f.ssim_gt, f.pass("visibility").source_frame, f.pass("ao").source_frame, f.pass("visibility").age_ms, f.pass("ao").age_ms,
-                        f.pass("visibility").disoccluded, f.pass("ao").disoccluded});
+      frames.push_back({f.score("ssim"), f.scored_ground_truth ? f.score("ssim", Against::GroundTruth) : 0.0,
+                        f.pass("visibility").source_frame, f.pass("ao").source_frame, f.pass("visibility").age_ms,
+                        f.pass("ao").age_ms, f.pass("visibility").disoccluded, f.pass("ao").disoccluded});
     return nlohmann::json{{"m", m}, {"f", frames}}.dump();
   };
   const std::string a = run(2);
@@ -160,7 +161,7 @@ TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
   EXPECT_GT(lost, 0u) << "the loss model lost no frame: the test does not test anything";
   double max_age = 0, last_age = 0;
   for (const auto& f : r.frames) {
-    EXPECT_TRUE(std::isfinite(f.ssim_local));
+    EXPECT_TRUE(std::isfinite(f.score("ssim")));
     if (f.pass("ao").source_frame >= 0) {
       max_age = std::max(max_age, f.pass("ao").age_ms);
       last_age = f.pass("ao").age_ms;
@@ -175,7 +176,7 @@ TEST(FrameLoop, RemoteBaselineShowsNewestColourFrame) {
   c.mode = "remote";
   c.colour_codec = {"zstd"};
   RunResult r = run_simulation(c, scene("temple"), "temple", cache(), registries());
-  for (const auto& f : r.frames) EXPECT_EQ(f.ssim_local, 1.0) << "zero latency, lossless colour";
+  for (const auto& f : r.frames) EXPECT_EQ(f.score("ssim"), 1.0) << "zero latency, lossless colour";
   EXPECT_EQ(r.traffic.size(), 1u);
   EXPECT_GT(r.traffic[0].encoded_bytes, 0u);
 }
@@ -240,7 +241,7 @@ TEST(FrameLoop, EveryCodecUnderOneAndFivePercentLoss) {
       // until the keyframe arrives (one uplink and one downlink trip, two server frames here).
       EXPECT_LE(ao["decode_errors"].get<uint64_t>(), 3 * lost + 1) << codec;
       EXPECT_LE(completed + lost, sent + 1) << codec;  // + the frame still in flight at the end
-      for (const auto& f : r.frames) EXPECT_TRUE(std::isfinite(f.ssim_local)) << codec;
+      for (const auto& f : r.frames) EXPECT_TRUE(std::isfinite(f.score("ssim"))) << codec;
       // What is shown stays close to the local reference: no garbage from a broken decoder.
       EXPECT_GT(m["ssim_local_mean"].get<double>(), 0.8) << codec << " at " << loss;
     }

@@ -579,7 +579,7 @@ TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
   bool arrived = false;
   int gaps = 0;
   for (const auto& row : frames) {
-    const bool have = std::stoi(row.at("vis_source_frame")) >= 0 && std::stoi(row.at("ao_source_frame")) >= 0;
+    const bool have = std::stoi(row.at("visibility_source_frame")) >= 0 && std::stoi(row.at("ao_source_frame")) >= 0;
     arrived = arrived || have;
     gaps += arrived && !have;
   }
@@ -870,7 +870,7 @@ TEST(LiveTrust, ASessionUnderAttackFromAThirdSocketEndsAsACleanOne) {
   bool arrived = false;
   int gaps = 0;
   for (const auto& row : frames) {
-    const bool have = std::stoi(row.at("vis_source_frame")) >= 0 && std::stoi(row.at("ao_source_frame")) >= 0;
+    const bool have = std::stoi(row.at("visibility_source_frame")) >= 0 && std::stoi(row.at("ao_source_frame")) >= 0;
     arrived = arrived || have;
     gaps += arrived && !have;
   }

@@ -60,10 +60,37 @@ TEST(Runner, TinyExperimentEndToEnd) {
     EXPECT_EQ(run.at("config").at("downlink").at("latency_ms"), 40.0);
   }
   EXPECT_EQ(r.at("runs")[2].at("backends").at("passes.ao.codec").at("params").at("level"), 3);
-  // frames.csv: a header and one row per displayed frame per run.
+  // Results declared once (core/results.h): every declared figure is in every run's record and
+  // every declared column in frames.csv; `dhrbench metrics --json` prints the same declaration.
+  const nlohmann::json& declared = r.at("declared");
+  std::string printed;
+  ASSERT_EQ(run("metrics --json", &printed), 0) << printed;
+  EXPECT_EQ(nlohmann::json::parse(printed), declared);
+  ASSERT_FALSE(declared.at("image_metrics").empty());
+  for (const auto& run : r.at("runs")) {
+    const auto& m = run.at("metrics");
+    for (const auto& im : declared.at("image_metrics"))
+      for (const char* ref : {"local", "ground_truth"})
+        EXPECT_TRUE(m.contains(im.at("aggregates").at(ref).at("mean").get<std::string>())) << im.dump();
+    for (const auto& rm : declared.at("run_metrics")) {
+      const std::string key = rm.at("key");
+      if (key.ends_with("_PASS")) EXPECT_TRUE(m.contains(key.substr(0, key.size() - 5) + "_ao")) << key;
+      else EXPECT_TRUE(m.contains(key)) << key;
+    }
+    for (const auto& p : m.at("passes"))
+      for (const auto& pm : declared.at("pass_metrics")) EXPECT_TRUE(p.contains(pm.at("key").get<std::string>())) << pm;
+  }
+  // frames.csv: a header with every declared column and one row per displayed frame per run.
   std::ifstream csv(out / "frames.csv");
   std::string line;
-  int rows = -1;
+  ASSERT_TRUE(std::getline(csv, line));
+  const std::string header = "," + line + ",";
+  for (const auto& im : declared.at("image_metrics"))
+    for (const char* ref : {"local", "ground_truth"})
+      EXPECT_NE(header.find("," + im.at("columns").at(ref).get<std::string>() + ","), std::string::npos) << header;
+  for (const char* col : {",visibility_source_frame,", ",ao_age_ms,", ",colour_disoccluded,", ",client_wall_ms,"})
+    EXPECT_NE(header.find(col), std::string::npos) << col << " in " << header;
+  int rows = 0;
   while (std::getline(csv, line)) ++rows;
   EXPECT_EQ(rows, 4 * 6);
   for (const char* f : {"report.md", "plots/quality_vs_bandwidth.png", "plots/quality_vs_server_time.png",

@@ -1,0 +1,316 @@
+#include "core/results.h"
+
+#include "core/error.h"
+#include "core/metrics.h"
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace dhr {
+
+namespace {
+
+nlohmann::json finite_or_null(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+
+double ssim_of(const ImageRGB8& reference, const ImageRGB8& shown) { return ssim_u8(luma(reference), luma(shown)); }
+double psnr_of(const ImageRGB8& reference, const ImageRGB8& shown) { return psnr_db(reference, shown); }
+
+// Mean over the frames scored against `against` of metric i (for_mean applied); NaN if none.
+double mean_score(const RunResult& r, size_t i, Against against) {
+  const ImageMetric& m = image_metrics()[i];
+  double sum = 0;
+  int n = 0;
+  for (const FrameRecord& f : r.frames) {
+    const std::vector<double>& s = against == Against::Local ? f.local : f.ground_truth;
+    if (s.size() <= i) continue;
+    sum += m.for_mean ? m.for_mean(s[i]) : s[i];
+    ++n;
+  }
+  return n ? sum / n : std::nan("");
+}
+
+double per_second(double count, double seconds) { return seconds > 0 ? count / seconds : 0.0; }
+double seconds_of(const RunResult& r) { return r.duration_ms / 1000.0; }
+uint64_t wire_bytes(const RunResult& r) {
+  uint64_t wire = 0;
+  for (const auto& t : r.traffic) wire += t.wire_bytes;
+  return wire;
+}
+StageStats client_frames(const RunResult& r) {
+  StageStats client;
+  for (const auto& f : r.frames) client.samples_ms.push_back(f.client_wall_ms);
+  return client;
+}
+
+}  // namespace
+
+const char* against_name(Against a) { return a == Against::Local ? "local" : "ground_truth"; }
+
+std::string ImageMetric::column(Against a) const {
+  return unit.empty() ? fmt::format("{}_{}", name, against_name(a)) : fmt::format("{}_{}_{}", name, against_name(a), unit);
+}
+
+std::string ImageMetric::aggregate(Against a, const std::string& statistic) const {
+  return unit.empty() ? fmt::format("{}_{}_{}", name, against_name(a), statistic)
+                      : fmt::format("{}_{}_{}_{}", name, against_name(a), statistic, unit);
+}
+
+// ---- the image metrics ----------------------------------------------------------------------
+
+const std::vector<ImageMetric>& image_metrics() {
+  static const std::vector<ImageMetric> metrics = {
+      {"ssim", "",
+       "SSIM (Wang et al. 2004; Gaussian 11x11, sigma 1.5, K1 0.01, K2 0.03, L 255) on BT.601 luma, mean over every "
+       "pixel with reflect-101 borders (core/metrics.h)",
+       true, ssim_of, nullptr},
+      {"psnr", "db", "PSNR over R, G and B, 10 log10(255^2 / MSE); identical frames are +inf, counted as 100 dB in means",
+       true, psnr_of, psnr_for_mean},
+  };
+  return metrics;
+}
+
+std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& shown) {
+  if (reference.width() != shown.width() || reference.height() != shown.height() || reference.empty())
+    fail("score_frame: images of {}x{} and {}x{} (they must be the same size, not empty)", reference.width(),
+         reference.height(), shown.width(), shown.height());
+  std::vector<double> s;
+  for (const ImageMetric& m : image_metrics()) s.push_back(m.score(reference, shown));
+  return s;
+}
+
+const std::vector<std::string>& image_metric_statistics() {
+  static const std::vector<std::string> stats = {"mean"};
+  return stats;
+}
+
+double FrameRecord::score(const std::string& metric, Against against) const {
+  const std::vector<double>& s = against == Against::Local ? local : ground_truth;
+  const auto& m = image_metrics();
+  for (size_t i = 0; i < m.size(); ++i)
+    if (m[i].name == metric) {
+      if (i >= s.size()) fail("frame {} was not scored against the {} reference", frame, against_name(against));
+      return s[i];
+    }
+  fail("no image metric named '{}' (core/results.cpp, image_metrics)", metric);
+}
+
+// ---- stage statistics -----------------------------------------------------------------------
+
+double StageStats::median() const {
+  if (samples_ms.empty()) return 0.0;
+  std::vector<double> s = samples_ms;
+  std::nth_element(s.begin(), s.begin() + std::ptrdiff_t(s.size() / 2), s.end());
+  return s[s.size() / 2];
+}
+
+double StageStats::p95() const {
+  if (samples_ms.empty()) return 0.0;
+  std::vector<double> s = samples_ms;
+  std::sort(s.begin(), s.end());
+  return s[std::min(s.size() - 1, size_t(std::ceil(0.95 * double(s.size()))) - 1)];
+}
+
+double StageStats::total() const {
+  double t = 0;
+  for (double v : samples_ms) t += v;
+  return t;
+}
+
+// ---- the per-pass and per-run metrics -------------------------------------------------------
+
+const std::vector<PassMetric>& pass_metrics() {
+  using T = const PassTraffic&;
+  static const std::vector<PassMetric> metrics = {
+      {"server_frames", "frames", "server frames that sent this pass", [](T t, double) -> nlohmann::json { return t.server_frames; }},
+      {"bytes_per_frame", "bytes", "encoded bytes per server frame (codec output)",
+       [](T t, double) -> nlohmann::json { return t.bytes_per_frame(); }},
+      {"encoded_bytes", "bytes", "codec output, all server frames", [](T t, double) -> nlohmann::json { return t.encoded_bytes; }},
+      {"wire_bytes", "bytes", "packets on the wire: payload, the dhrbench header and 28 bytes of IP/UDP each",
+       [](T t, double) -> nlohmann::json { return t.wire_bytes; }},
+      {"packets", "packets", "datagrams sent", [](T t, double) -> nlohmann::json { return t.packets; }},
+      {"bandwidth_mbps", "Mb/s", "wire_bytes over the scored frames' virtual time",
+       [](T t, double s) -> nlohmann::json { return per_second(double(t.wire_bytes) * 8 / 1e6, s); }},
+      {"frames_completed", "frames", "frames assembled and handed to the decoder",
+       [](T t, double) -> nlohmann::json { return t.frames_completed; }},
+      {"delivered_fps", "frames/s", "frames_completed over the scored frames' virtual time",
+       [](T t, double s) -> nlohmann::json { return per_second(double(t.frames_completed), s); }},
+      {"frames_lost", "frames", "server frames with a datagram dropped on the link",
+       [](T t, double) -> nlohmann::json { return t.frames_lost; }},
+      {"frames_given_up_by_receiver", "frames", "partial frames the receiver's assembler gave up",
+       [](T t, double) -> nlohmann::json { return t.frames_given_up; }},
+      {"decode_errors", "frames", "frames the decoder refused", [](T t, double) -> nlohmann::json { return t.decode_errors; }},
+      {"keyframe_requests", "requests", "keyframes the client asked for after a loss",
+       [](T t, double) -> nlohmann::json { return t.keyframe_requests; }},
+      {"frames_without_data", "frames", "displayed frames that showed this pass's local fallback",
+       [](T t, double) -> nlohmann::json { return t.frames_without_data; }},
+  };
+  return metrics;
+}
+
+const std::vector<RunMetric>& run_metrics() {
+  using R = const RunResult&;
+  static const std::vector<RunMetric> metrics = {
+      {"psnr_note", "", "how PSNR is averaged", false,
+       [](R) -> nlohmann::json { return "PSNR of identical frames is counted as 100 dB in the means"; }},
+      {"passes", "", "one record per pass sent (pass_metrics)", false,
+       [](R r) -> nlohmann::json {
+         nlohmann::json passes = nlohmann::json::array();
+         for (const PassTraffic& t : r.traffic) {
+           nlohmann::json p = {{"pass", t.pass}};
+           for (const PassMetric& m : pass_metrics()) p[m.key] = m.value(t, seconds_of(r));
+           passes.push_back(std::move(p));
+         }
+         return passes;
+       }},
+      {"bandwidth_mbps", "Mb/s", "every pass's packets on the wire over the scored frames' virtual time", false,
+       [](R r) -> nlohmann::json { return per_second(double(wire_bytes(r)) * 8 / 1e6, seconds_of(r)); }},
+      {"server_fps_virtual", "frames/s", "server frames over the scored frames' virtual time (the server time model)",
+       false, [](R r) -> nlohmann::json { return per_second(double(r.server_frames), seconds_of(r)); }},
+      {"server_frames", "frames", "frames the server traced and sent", false,
+       [](R r) -> nlohmann::json { return r.server_frames; }},
+      {"cameras_dropped", "cameras", "cameras the busy server skipped for a newer one", false,
+       [](R r) -> nlohmann::json { return r.cameras_dropped; }},
+      {"cameras_lost", "cameras", "camera messages lost on the uplink", false,
+       [](R r) -> nlohmann::json { return r.cameras_lost; }},
+      {"frames_without_data", "frames", "displayed frames with at least one pass shown with its local fallback", false,
+       [](R r) -> nlohmann::json { return r.frames_without_data; }},
+      {"receiver_packets_lost", "packets", "found by the receiver from sequence-number gaps", false,
+       [](R r) -> nlohmann::json { return r.receiver_packets_lost; }},
+      {"client_frame_ms_median", "ms", "client stages per displayed frame, median (wall clock)", true,
+       [](R r) -> nlohmann::json { return client_frames(r).median(); }},
+      {"client_frame_ms_p95", "ms", "client stages per displayed frame, 95th percentile (wall clock)", true,
+       [](R r) -> nlohmann::json { return client_frames(r).p95(); }},
+      {"client_fps_wall", "frames/s", "1000 / client_frame_ms_median (wall clock)", true,
+       [](R r) -> nlohmann::json {
+         const double m = client_frames(r).median();
+         return m > 0 ? 1000.0 / m : 0.0;
+       }},
+      {"buffer_age_ms", "ms", "per pass: age of the displayed buffer at composite, median and p95 (virtual)",
+       false,
+       [](R r) -> nlohmann::json {
+         std::map<std::string, StageStats> ages;  // per pass name
+         for (const auto& f : r.frames)
+           for (const auto& p : f.passes)
+             if (p.source_frame >= 0) ages[p.pass].samples_ms.push_back(p.age_ms);
+         nlohmann::json out = nlohmann::json::object();
+         for (const auto& [pass, age] : ages) out[pass] = {{"median", age.median()}, {"p95", age.p95()}};
+         return out;
+       },
+       true},
+      {"stages_wall", "ms", "per stage: median, p95 and count of its wall time", true,
+       [](R r) -> nlohmann::json {
+         nlohmann::json st = nlohmann::json::object();
+         for (const auto& [name, s] : r.stages)
+           st[name] = {{"median_ms", s.median()}, {"p95_ms", s.p95()}, {"count", s.samples_ms.size()}};
+         return st;
+       }},
+      {"rays", "rays", "rays traced for the server frames: shadow, ao, invalid", false,
+       [](R r) -> nlohmann::json {
+         return {{"shadow", r.trace_stats.shadow_rays}, {"ao", r.trace_stats.ao_rays}, {"invalid", r.trace_stats.invalid_rays}};
+       }},
+      {"passes_planned", "", "the run's pass plan (core/passes.h)", false,
+       [](R r) -> nlohmann::json { return r.plan.describe(); }},
+  };
+  return metrics;
+}
+
+nlohmann::json RunResult::metrics() const {
+  nlohmann::json m = nlohmann::json::object();
+  const auto& images = image_metrics();
+  for (size_t i = 0; i < images.size(); ++i)
+    for (Against a : {Against::Local, Against::GroundTruth})
+      m[images[i].aggregate(a, "mean")] = finite_or_null(mean_score(*this, i, a));
+  for (const RunMetric& rm : run_metrics()) {
+    nlohmann::json v = rm.value(*this);
+    if (!rm.one_key_per_pass) {
+      m[rm.key] = std::move(v);
+      continue;
+    }
+    for (auto it = v.begin(); it != v.end(); ++it) m[fmt::format("{}_{}", rm.key, it.key())] = it.value();
+  }
+  return m;
+}
+
+nlohmann::json declared_json() {
+  nlohmann::json images = nlohmann::json::array();
+  for (const ImageMetric& m : image_metrics()) {
+    nlohmann::json columns, aggregates = nlohmann::json::object();
+    for (Against a : {Against::Local, Against::GroundTruth}) {
+      columns[against_name(a)] = m.column(a);
+      for (const std::string& s : image_metric_statistics()) aggregates[against_name(a)][s] = m.aggregate(a, s);
+    }
+    images.push_back({{"name", m.name},
+                      {"unit", m.unit},
+                      {"doc", m.doc},
+                      {"higher_is_better", m.higher_is_better},
+                      {"columns", columns},
+                      {"aggregates", aggregates}});
+  }
+  nlohmann::json runs = nlohmann::json::array(), passes = nlohmann::json::array();
+  for (const RunMetric& m : run_metrics())
+    runs.push_back({{"key", m.one_key_per_pass ? m.key + "_PASS" : m.key},
+                    {"unit", m.unit},
+                    {"doc", m.doc},
+                    {"wall_clock", m.wall_clock}});
+  for (const PassMetric& m : pass_metrics()) passes.push_back({{"key", m.key}, {"unit", m.unit}, {"doc", m.doc}});
+  return {{"image_metrics", images},
+          {"run_metrics", runs},
+          {"pass_metrics", passes},
+          {"frames_csv_wall_clock_columns", frames_csv_wall_clock_columns()}};
+}
+
+// ---- frames.csv -----------------------------------------------------------------------------
+
+std::string csv_quote(const std::string& s) {
+  std::string out = "\"";
+  for (char ch : s) out += ch == '"' ? std::string("\"\"") : std::string(1, ch);
+  return out + "\"";
+}
+
+std::string csv_number(double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : (v > 0 ? "inf" : ""); }
+
+const std::vector<std::string>& frames_csv_wall_clock_columns() {
+  static const std::vector<std::string> columns = {"client_wall_ms"};
+  return columns;
+}
+
+std::string frames_csv_header(const std::vector<std::string>& leading, const std::vector<std::string>& passes) {
+  std::vector<std::string> cols = leading;
+  cols.insert(cols.end(), {"frame", "t_ms", "scored"});
+  for (const ImageMetric& m : image_metrics()) cols.push_back(m.column(Against::Local));
+  cols.push_back("scored_ground_truth");
+  for (const ImageMetric& m : image_metrics()) cols.push_back(m.column(Against::GroundTruth));
+  for (const std::string& p : passes)
+    for (const char* c : {"source_frame", "age_ms", "disoccluded"}) cols.push_back(fmt::format("{}_{}", p, c));
+  cols.push_back("client_wall_ms");
+  return fmt::format("{}\n", fmt::join(cols, ","));
+}
+
+std::string frames_csv_row(const std::vector<std::string>& leading, const FrameRecord& f,
+                           const std::vector<std::string>& passes) {
+  std::vector<std::string> cells = leading;
+  cells.push_back(std::to_string(f.frame));
+  cells.push_back(csv_number(f.t_ms));
+  cells.push_back(f.scored ? "1" : "0");
+  const size_t n = image_metrics().size();
+  for (size_t i = 0; i < n; ++i) cells.push_back(i < f.local.size() ? csv_number(f.local[i]) : "");
+  cells.push_back(f.scored_ground_truth ? "1" : "0");
+  for (size_t i = 0; i < n; ++i) cells.push_back(i < f.ground_truth.size() ? csv_number(f.ground_truth[i]) : "");
+  for (const std::string& name : passes) {
+    const auto it = std::find_if(f.passes.begin(), f.passes.end(), [&](const PassFrameRecord& p) { return p.pass == name; });
+    if (it == f.passes.end()) {
+      cells.insert(cells.end(), {"", "", ""});  // the run has no such pass
+      continue;
+    }
+    cells.push_back(std::to_string(it->source_frame));
+    cells.push_back(csv_number(it->age_ms));
+    cells.push_back(std::to_string(it->disoccluded));
+  }
+  cells.push_back(csv_number(f.client_wall_ms));
+  return fmt::format("{}\n", fmt::join(cells, ","));
+}
+
+}  // namespace dhr

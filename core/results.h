@@ -1,0 +1,170 @@
+// What a run produces, and every figure written from it, declared once (docs/architecture.md,
+// "Results" and "Adding a metric").
+//
+// Three tables name every figure dhrbench writes:
+//   image_metrics()  scored per displayed frame against each reference (the local reference,
+//                    the ground truth): SSIM, PSNR, ... One entry gives the frames.csv columns
+//                    (ssim_local, psnr_ground_truth_db), the per-run aggregates in results.json
+//                    (ssim_local_mean, ...) and live.json's quality record.
+//   run_metrics()    per run, from the RunResult: bandwidth, frame rates, counts.
+//   pass_metrics()   per pass of a run, from its PassTraffic: bytes per frame, losses.
+// The frames.csv writers of `dhrbench run` and of live mode, RunResult's results.json record,
+// `dhrbench metrics` and experiments/report.py (through results.json's "declared" record) all
+// read these tables; a new metric is one function and one line in core/results.cpp.
+#pragma once
+
+#include "core/image.h"
+#include "core/passes.h"
+#include "core/trace.h"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+namespace dhr {
+
+// The references a displayed frame is scored against.
+enum class Against { Local, GroundTruth };
+const char* against_name(Against a);  // "local", "ground_truth"
+
+// One image metric, scored per displayed frame.
+struct ImageMetric {
+  std::string name;  // ssim, psnr
+  std::string unit;  // "" or a suffix of every column and key: "db"
+  std::string doc;   // how it is computed, one line
+  bool higher_is_better = true;
+  double (*score)(const ImageRGB8& reference, const ImageRGB8& shown) = nullptr;
+  // The value as averaged over frames (PSNR: identical frames count as 100 dB); nullptr: as is.
+  double (*for_mean)(double) = nullptr;
+
+  std::string column(Against a) const;                            // ssim_local, psnr_ground_truth_db
+  std::string aggregate(Against a, const std::string& statistic) const;  // ssim_local_mean, psnr_local_mean_db
+};
+const std::vector<ImageMetric>& image_metrics();
+
+// One value per image_metrics() entry, in its order.
+std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& shown);
+
+// One pass of one displayed frame.
+struct PassFrameRecord {
+  std::string pass;        // the pass's name (visibility, ao; remote: colour)
+  int source_frame = -1;   // the client frame whose server buffer was displayed (-1: none)
+  double age_ms = 0.0;     // its age at composite (virtual)
+  uint64_t disoccluded = 0;
+};
+
+// Per displayed frame (virtual times in ms).
+struct FrameRecord {
+  int frame = 0;
+  double t_ms = 0.0;
+  bool scored = false, scored_ground_truth = false;
+  // One value per image_metrics() entry when scored against that reference, else empty.
+  std::vector<double> local, ground_truth;
+  std::vector<PassFrameRecord> passes;  // in the order of the run's pass list
+  double client_wall_ms = 0.0;  // rasterize + decode + predict + composite
+
+  // The score of the image metric named `metric` (dhr::Error if there is no such metric or the
+  // frame was not scored against `against`).
+  double score(const std::string& metric, Against against = Against::Local) const;
+  // The record of the pass named `name`; an absent pass reads as nothing received.
+  PassFrameRecord pass(const std::string& name) const {
+    for (const auto& p : passes)
+      if (p.pass == name) return p;
+    return {name};
+  }
+};
+
+struct StageStats {
+  std::vector<double> samples_ms;
+  double median() const;
+  double p95() const;
+  double total() const;
+};
+
+struct PassTraffic {
+  std::string pass;  // visibility | ao | colour
+  uint64_t server_frames = 0;
+  uint64_t encoded_bytes = 0;   // codec output
+  uint64_t wire_bytes = 0;      // packets incl. dhrbench header + 28 IP/UDP
+  uint64_t packets = 0;
+  uint64_t frames_completed = 0;   // assembled and handed to the decoder
+  uint64_t frames_lost = 0;        // server frames with a datagram dropped on the link
+  uint64_t frames_given_up = 0;    // partial frames the receiver's assembler gave up
+  uint64_t decode_errors = 0, keyframe_requests = 0;
+  uint64_t frames_without_data = 0;  // displayed frames that showed this pass's local fallback
+  double bytes_per_frame() const { return server_frames ? double(encoded_bytes) / double(server_frames) : 0.0; }
+};
+
+// One pass of one server frame as sent (the packet layer's accounting).
+struct ServerPassRecord {
+  int frame = 0;     // the client frame whose camera it was traced for
+  std::string pass;  // visibility | ao | colour
+  uint64_t encoded_bytes = 0;
+  uint64_t packets = 0;
+  uint64_t wire_bytes = 0;  // packets incl. dhrbench header + 28 IP/UDP
+};
+
+struct RunResult {
+  nlohmann::json config;  // SimConfig::to_json with backends' effective parameters
+  PassPlan plan;
+  std::vector<FrameRecord> frames;
+  std::vector<PassTraffic> traffic;
+  std::vector<ServerPassRecord> server_log;  // every pass sent for a scored frame, in order
+  std::map<std::string, StageStats> stages;  // wall time per stage
+  uint64_t server_frames = 0, cameras_dropped = 0, cameras_lost = 0;
+  uint64_t frames_without_data = 0;    // displayed frames with at least one pass shown with its local fallback
+  uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps
+  TraceStats trace_stats;            // rays of the server frames
+  double duration_ms = 0.0;          // virtual time of the scored frames
+  // keep_images: the displayed image, local reference and ground truth of one frame (the last
+  // scored against the ground truth, or the last scored when there is no ground truth).
+  std::vector<ImageRGB8> images, local_images, ground_truth_images;
+  int kept_frame = -1;
+
+  nlohmann::json metrics() const;  // the per-run record written to results.json: every declared metric
+};
+
+// A per-run figure: its key in results.json's "metrics", unit, meaning, and whether it is
+// measured on the wall clock (it then varies run to run; the refactoring guard skips it).
+struct RunMetric {
+  std::string key, unit, doc;
+  bool wall_clock = false;
+  nlohmann::json (*value)(const RunResult&) = nullptr;
+  // The value is an object per pass name, written as one key per pass: KEY_PASS.
+  bool one_key_per_pass = false;
+};
+const std::vector<RunMetric>& run_metrics();
+
+// A per-pass figure, in results.json's "metrics.passes[]" records.
+struct PassMetric {
+  std::string key, unit, doc;
+  nlohmann::json (*value)(const PassTraffic&, double seconds) = nullptr;
+};
+const std::vector<PassMetric>& pass_metrics();
+
+// Statistics of an image metric over a run's scored frames, each a key of results.json
+// (ssim_local_mean, ...): "mean" (of for_mean values).
+const std::vector<std::string>& image_metric_statistics();
+
+// Every declaration as JSON (written into results.json as "declared", printed by
+// `dhrbench metrics --json`; experiments/report.py and scripts/check_figures.py read it).
+nlohmann::json declared_json();
+
+// frames.csv, one writer for `dhrbench run` and live mode. Columns: `leading` (the caller's,
+// e.g. run,scene,label), frame, t_ms, scored, the image metrics against the local reference,
+// scored_ground_truth, the image metrics against the ground truth, then per pass in `passes`
+// PASS_source_frame, PASS_age_ms, PASS_disoccluded (empty where a run has no such pass), and
+// client_wall_ms (wall clock).
+std::string frames_csv_header(const std::vector<std::string>& leading, const std::vector<std::string>& passes);
+std::string frames_csv_row(const std::vector<std::string>& leading, const FrameRecord& f,
+                           const std::vector<std::string>& passes);
+// Columns measured on the wall clock (the refactoring guard skips them).
+const std::vector<std::string>& frames_csv_wall_clock_columns();
+// RFC 4180 quoting, and numbers as every CSV writes them (6 significant digits, "inf", "" for NaN).
+std::string csv_quote(const std::string& s);
+std::string csv_number(double v);
+
+}  // namespace dhr

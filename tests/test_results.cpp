@@ -1,0 +1,124 @@
+// Results declared once (core/results.h): the image metrics score frames as their functions do,
+// aggregates follow the declaration (PSNR of identical frames counts as 100 dB), and the
+// frames.csv writer's rows match its header, with empty cells for a pass a run does not have.
+#include "core/metrics.h"
+#include "core/results.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <set>
+#include <sstream>
+
+namespace dhr {
+namespace {
+
+ImageRGB8 pattern(int w, int h, int seed) {
+  ImageRGB8 img(w, h);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const int v = (x * 7 + y * 13 + seed * 31 + (x * y) % 11) & 255;
+      img(x, y) = {uint8_t(v), uint8_t(255 - v), uint8_t((v * 3) & 255)};
+    }
+  return img;
+}
+
+size_t index_of(const std::string& name) {
+  const auto& m = image_metrics();
+  for (size_t i = 0; i < m.size(); ++i)
+    if (m[i].name == name) return i;
+  ADD_FAILURE() << "no image metric " << name;
+  return 0;
+}
+
+std::vector<std::string> split(const std::string& line) {
+  std::vector<std::string> cells;
+  std::stringstream s(line);
+  std::string cell;
+  while (std::getline(s, cell, ',')) cells.push_back(cell);
+  if (!line.empty() && line.back() == ',') cells.push_back("");
+  return cells;
+}
+
+TEST(Results, ScoreFrameIsTheDeclaredFunctions) {
+  const ImageRGB8 a = pattern(48, 32, 1), b = pattern(48, 32, 2);
+  const std::vector<double> s = score_frame(a, b);
+  ASSERT_EQ(s.size(), image_metrics().size());
+  const QualityScores q = compare_images(a, b);
+  EXPECT_EQ(s[index_of("ssim")], q.ssim);
+  EXPECT_EQ(s[index_of("psnr")], q.psnr_db);
+  const std::vector<double> same = score_frame(a, a);
+  EXPECT_EQ(same[index_of("ssim")], 1.0);
+  EXPECT_TRUE(std::isinf(same[index_of("psnr")]));
+  EXPECT_THROW(score_frame(a, pattern(47, 32, 1)), std::exception);
+}
+
+TEST(Results, MeansFollowTheDeclaration) {
+  RunResult r;
+  const ImageRGB8 a = pattern(40, 24, 3), b = pattern(40, 24, 4);
+  FrameRecord identical, different, unscored;
+  identical.scored = different.scored = true;
+  identical.local = score_frame(a, a);
+  different.local = score_frame(a, b);
+  different.scored_ground_truth = true;
+  different.ground_truth = score_frame(a, b);
+  r.frames = {identical, different, unscored};
+  const nlohmann::json m = r.metrics();
+  const size_t psnr = index_of("psnr"), ssim = index_of("ssim");
+  EXPECT_DOUBLE_EQ(m.at("psnr_local_mean_db").get<double>(), (kPsnrOfIdenticalDb + different.local[psnr]) / 2);
+  EXPECT_DOUBLE_EQ(m.at("ssim_local_mean").get<double>(), (1.0 + different.local[ssim]) / 2);
+  EXPECT_DOUBLE_EQ(m.at("ssim_ground_truth_mean").get<double>(), different.ground_truth[ssim]);
+  EXPECT_TRUE(std::isinf(identical.score("psnr")));
+  EXPECT_THROW(unscored.score("ssim"), std::exception);
+  EXPECT_THROW(identical.score("no-such-metric"), std::exception);
+}
+
+TEST(Results, FramesCsvRowsMatchTheHeader) {
+  const std::vector<std::string> passes = {"visibility", "ao", "colour"};
+  std::string head = frames_csv_header({"run"}, passes);
+  ASSERT_EQ(head.back(), '\n');
+  head.pop_back();
+  const std::vector<std::string> header = split(head);
+  FrameRecord f;
+  f.frame = 7;
+  f.scored = true;
+  f.local = score_frame(pattern(16, 16, 1), pattern(16, 16, 5));
+  f.passes = {{"visibility", 5, 33.3, 12}, {"ao", -1, 0.0, 0}};
+  std::string row = frames_csv_row({"r001"}, f, passes);
+  ASSERT_EQ(row.back(), '\n');
+  row.pop_back();
+  const std::vector<std::string> cells = split(row);
+  ASSERT_EQ(cells.size(), header.size()) << row;
+  auto cell = [&](const std::string& col) {
+    for (size_t i = 0; i < header.size(); ++i)
+      if (header[i] == col) return cells[i];
+    ADD_FAILURE() << "no column " << col;
+    return std::string();
+  };
+  EXPECT_EQ(cell("run"), "r001");
+  EXPECT_EQ(cell("frame"), "7");
+  EXPECT_EQ(cell("scored"), "1");
+  EXPECT_EQ(cell("ssim_local"), csv_number(f.local[index_of("ssim")]));
+  EXPECT_EQ(cell("ssim_ground_truth"), "");  // not scored against the ground truth
+  EXPECT_EQ(cell("visibility_source_frame"), "5");
+  EXPECT_EQ(cell("visibility_disoccluded"), "12");
+  EXPECT_EQ(cell("ao_source_frame"), "-1");   // planned, nothing received yet
+  EXPECT_EQ(cell("colour_source_frame"), "");  // not a pass of this run
+  EXPECT_EQ(csv_number(std::nan("")), "");
+  EXPECT_EQ(csv_number(INFINITY), "inf");
+}
+
+TEST(Results, EveryDeclaredNameIsUnique) {
+  std::set<std::string> names;
+  for (const ImageMetric& m : image_metrics())
+    for (Against a : {Against::Local, Against::GroundTruth}) {
+      EXPECT_TRUE(names.insert(m.column(a)).second) << m.column(a);
+      for (const std::string& s : image_metric_statistics()) EXPECT_TRUE(names.insert(m.aggregate(a, s)).second);
+    }
+  for (const RunMetric& m : run_metrics()) EXPECT_TRUE(names.insert(m.key).second) << m.key;
+  std::set<std::string> pass_keys;
+  for (const PassMetric& m : pass_metrics()) EXPECT_TRUE(pass_keys.insert(m.key).second) << m.key;
+}
+
+}  // namespace
+}  // namespace dhr
