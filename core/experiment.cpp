@@ -3,6 +3,9 @@
 #include "core/error.h"
 #include "core/json_io.h"
 
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -126,7 +129,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   e.source = j;
   std::vector<std::string> problems;
   Reader top{j, path, problems};
-  top.keys({"version", "name", "description", "scenes", "run", "networks", "sweep", "configurations", "notes"});
+  top.keys({"version", "name", "description", "scenes", "run", "networks", "sweep", "configurations", "curves", "notes"});
   if (!j.is_object()) fail("{}: an experiment must be a JSON object", path);
   int version = kExperimentVersion;
   if (!j.contains("version")) {
@@ -156,7 +159,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
 
   // Configurations: each is a set of dotted assignments.
   struct Configuration {
-    std::string name;
+    std::string name, family;
     nlohmann::json set;
     std::vector<std::string> scenes;  // empty: every scene
   };
@@ -168,9 +171,11 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
     } else {
       for (size_t i = 0; i < list.size(); ++i) {
         Reader r{list[i], fmt::format("{}.configurations[{}]", path, i), problems};
-        r.keys({"name", "set", "scenes"});
+        r.keys({"name", "family", "set", "scenes"});
         std::string name = fmt::format("c{}", i);
         r.string("name", name);
+        std::string family = name;
+        r.string("family", family);
         nlohmann::json set = list[i].is_object() ? list[i].value("set", nlohmann::json::object()) : nlohmann::json::object();
         if (!set.is_object()) problems.push_back(fmt::format("{}.configurations[{}].set: must be an object", path, i));
         std::vector<std::string> only;
@@ -185,11 +190,11 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
                 only.push_back(x.get<std::string>());
             }
         }
-        configs.push_back({name, set.is_object() ? set : nlohmann::json::object(), only});
+        configs.push_back({name, family, set.is_object() ? set : nlohmann::json::object(), only});
       }
     }
   } else {
-    configs.push_back({"", nlohmann::json::object(), {}});
+    configs.push_back({"", "", nlohmann::json::object(), {}});
   }
   // The sweep: a Cartesian product, applied on top of each configuration.
   std::vector<std::pair<std::string, std::vector<nlohmann::json>>> axes;
@@ -207,12 +212,45 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   if (product * std::max<size_t>(1, e.scenes.size()) > 10000)
     problems.push_back(fmt::format("{}: {} runs: more than 10000, split the experiment", path, product * e.scenes.size()));
 
+  // Rate-quality curves: "vary" names keys that are swept or set by configurations; the anchor is
+  // a family.
+  if (j.contains("curves")) {
+    const auto& cv = j.at("curves");
+    Reader r{cv, path + ".curves", problems};
+    if (!cv.is_object()) problems.push_back(fmt::format("{}.curves: must be an object {{\"vary\": [keys], \"anchor\": family}}", path));
+    r.keys({"vary", "anchor"});
+    if (!r.has("vary") || !cv.at("vary").is_array() || cv.at("vary").empty()) {
+      problems.push_back(fmt::format("{}.curves.vary: must be a non-empty list of the dotted keys that move along a curve", path));
+    } else {
+      for (const auto& k : cv.at("vary")) {
+        bool used = false;
+        if (k.is_string()) {
+          for (const auto& a : axes) used = used || a.first == k.get<std::string>();
+          for (const auto& c : configs) used = used || c.set.contains(k.get<std::string>());
+        }
+        if (!used)
+          problems.push_back(fmt::format("{}.curves.vary: {} is not a key of \"sweep\" or of a configuration's \"set\"", path,
+                                         json_excerpt(k)));
+      }
+    }
+    if (r.has("anchor")) {
+      std::string anchor;
+      r.string("anchor", anchor);
+      std::vector<std::string> families;
+      for (const auto& c : configs)
+        if (std::find(families.begin(), families.end(), c.family) == families.end()) families.push_back(c.family);
+      if (!anchor.empty() && std::find(families.begin(), families.end(), anchor) == families.end())
+        problems.push_back(fmt::format("{}.curves.anchor: '{}' is not a family of the configurations (families: {})", path,
+                                       text_excerpt(anchor), text_excerpt(fmt::format("{}", fmt::join(families, ", ")), 200)));
+    }
+  }
+
   // Problems of the expanded run settings, grouped: message -> the runs it concerns.
   std::map<std::string, std::vector<std::string>> per_run;
   if (problems.empty()) {
     int index = 0;
     for (const auto& scene : e.scenes) {
-      for (const auto& [config_name, set, only] : configs) {
+      for (const auto& [config_name, family, set, only] : configs) {
         if (!only.empty() && std::find(only.begin(), only.end(), scene) == only.end()) continue;
         std::vector<size_t> pos(axes.size(), 0);
         for (;;) {
@@ -252,6 +290,8 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
           spec.id = fmt::format("r{:03d}", index++);
           spec.scene = scene;
           spec.label = label.empty() ? "default" : label;
+          spec.configuration = config_name;
+          spec.family = family;
           spec.settings = settings;
           std::vector<std::string> run_problems;
           spec.config = sim_config_from_json(run, path + ": run", run_problems, version);

@@ -12,8 +12,12 @@
 //            uplink {...}, downlink {...}, ... }      the base of every run
 //   "networks": { "5g": {"uplink": {...}, "downlink": {...}}, ... }   named networks
 //   "sweep": { "dotted.key": [values...], ... }      Cartesian product over the keys, or
-//   "configurations": [ {"name": "...", "set": {"dotted.key": value, ...}}, ... ]
+//   "configurations": [ {"name": "...", "family": "...", "set": {"dotted.key": value, ...}}, ... ]
+//   "curves": {"vary": ["dotted.key", ...], "anchor": "family"}   rate-quality curves (optional)
 // }
+// Rate-quality curves (docs/architecture.md, "Rate-quality curves"): the runs of one family on
+// one scene under the same values of every swept key not in "vary" form one curve; the report
+// draws the curves and the BD-rate of every family against the anchor family.
 // A dotted key addresses a field of "run" (e.g. "passes.ao.denoiser.name", "trace.ao_rays",
 // "downlink.latency_ms"); the key "network" picks a named network.
 // Version 1 (every committed experiment) writes the per-pass backends as top-level keys:
@@ -42,6 +46,8 @@ struct RunSpec {
   std::string id;          // r000, r001, ...
   std::string scene;       // as written in the experiment
   std::string label;       // the configuration's name, or "key=value, ..." of the sweep
+  std::string configuration;  // the configuration's name ("" without configurations)
+  std::string family;         // its "family" (default: its name): one rate-quality curve's runs
   nlohmann::json settings; // the dotted keys set for this run
   SimConfig config;
 };

@@ -227,6 +227,8 @@ Runner add_run_command(CLI::App& app) {
     for (size_t i = 0; i < e.runs.size(); ++i) {
       const RunSpec& spec = e.runs[i];
       nlohmann::json record = {{"id", spec.id}, {"scene", spec.scene}, {"label", spec.label}, {"settings", spec.settings}};
+      if (!spec.configuration.empty()) record["configuration"] = spec.configuration;
+      if (!spec.family.empty()) record["family"] = spec.family;
       const auto run_start = Clock::now();
       try {
         SimConfig config = spec.config;

@@ -307,6 +307,77 @@ def quality(run):
     return q if q is not None else m.get(HEADLINE["aggregates"]["local"]["mean"])
 
 
+def metric_value(run, im):
+    """An image metric's mean against the ground truth where scored, else the local reference."""
+    m = run["metrics"]
+    q = m.get(im["aggregates"]["ground_truth"]["mean"])
+    return q if q is not None else m.get(im["aggregates"]["local"]["mean"])
+
+
+def rate_quality_section(d, exp, ok, metrics, out):
+    """Rate-quality curves and BD-rate tables, when the experiment declares "curves"."""
+    spec = exp.get("curves")
+    if not isinstance(spec, dict) or not ok:
+        return
+    import rate_quality as rq
+    vary = [k for k in spec.get("vary", []) if isinstance(k, str)]
+    sweep_keys = sorted({k for r in ok for k in r.get("settings", {}) if k not in vary})
+    anchor = spec.get("anchor")
+    out.append("## Rate-quality curves\n")
+    out.append(f"One curve per family, scene and setting of {', '.join(f'`{k}`' for k in sweep_keys) or 'the run'}; "
+               f"along a curve {', '.join(f'`{k}`' for k in vary)} varies. Bitrate: every packet on the wire (Mb/s). "
+               "Quality: each metric's mean against the ground truth where the run scored it, else against the local "
+               "reference.\n")
+    rate = lambda r: r["metrics"]["bandwidth_mbps"] or None  # noqa: E731
+    for im in metrics:
+        cm = rq.curves(ok, sweep_keys, vary, rate, lambda r, im=im: metric_value(r, im))
+        if not cm:
+            continue
+        groups = sorted({(s, c) for s, c, _ in cm})
+        scenes = sorted({s for s, _ in groups})
+        conds = sorted({c for _, c in groups})
+        fig, axes = plt.subplots(len(scenes), len(conds), figsize=(4.6 * len(conds), 3.6 * len(scenes)), squeeze=False)
+        for i, scene in enumerate(scenes):
+            for j, cond in enumerate(conds):
+                ax = axes[i, j]
+                for (s, c, fam), pts in sorted(cm.items()):
+                    if s == scene and c == cond:
+                        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3, lw=1.2,
+                                label=fam + (" (anchor)" if fam == anchor else ""))
+                ax.set_xscale("log")
+                ax.set_title(f"{scene}; " + (", ".join(f"{k.split('.')[-1]}={v}" for k, v in cond) or "all runs"),
+                             fontsize=8)
+                ax.set_xlabel("Mb/s on the wire (log)")
+                ax.set_ylabel(im["name"].upper())
+                ax.grid(alpha=0.3, which="both")
+                ax.legend(fontsize=6)
+        fig.tight_layout()
+        name = f"rate_quality_{im['name']}.png"
+        fig.savefig(os.path.join(d, "plots", name), dpi=100)
+        plt.close(fig)
+        out.append(f"![rate against {im['name'].upper()}](plots/{name})\n")
+        if not anchor:
+            continue
+        table = rq.bd_table(cm, anchor)
+        if not table:
+            continue
+        fams = sorted({f for row in table.values() for f in row})
+        out.append(f"BD-rate against **{anchor}** on {im['name'].upper()} (VCEG-M33; negative: the family needs that much "
+                   "less bitrate at equal quality; – : no shared quality range or too few points):\n")
+        out.append("| scene | conditions | " + " | ".join(fams) + " |")
+        out.append("|---|---|" + "---|" * len(fams))
+        for (scene, cond), row in sorted(table.items()):
+            cells = [f"{row[f]:+.1f} %" if isinstance(row.get(f), float) else "–" for f in fams]
+            out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in cond) or '–'} | " + " | ".join(cells) + " |")
+        out.append("")
+        reasons = [f"- {scene}, {', '.join(f'{k}={v}' for k, v in cond) or 'all runs'}, {f}: {row[f]}"
+                   for (scene, cond), row in sorted(table.items()) for f in fams if isinstance(row.get(f), str)]
+        if reasons:
+            out.append("Why a cell has no BD-rate:\n")
+            out.extend(reasons)
+            out.append("")
+
+
 def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
     scenes = sorted({r["scene"] for r in runs})
     fig, axes = plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.2), squeeze=False)
@@ -469,6 +540,8 @@ def main(d):
             fig.savefig(os.path.join(d, "plots", "ssim_per_frame.png"), dpi=110)
             plt.close(fig)
             out.append("![SSIM per frame](plots/ssim_per_frame.png)\n")
+
+    rate_quality_section(d, exp, ok, metrics, out)
 
     # Image grids.
     img_dir = os.path.join(d, "images")

@@ -104,6 +104,39 @@ TEST(Runner, TinyExperimentEndToEnd) {
   fs::remove_all(out);
 }
 
+// Rate-quality curves (experiments/rate_quality.py): families of configurations become curves per
+// scene and latency, drawn with a BD-rate table against the anchor family.
+TEST(Runner, RateQualityCurvesAndBdRate) {
+  const fs::path out = fs::temp_directory_path() / "dhr_runner_curves";
+  fs::remove_all(out);
+  const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_curves.json";
+  std::string log;
+  ASSERT_EQ(run("run " + exp + " --out " + out.string(), &log), 0) << log;
+  std::ifstream in(out / "results.json");
+  const nlohmann::json r = nlohmann::json::parse(in);
+  ASSERT_EQ(r.at("runs").size(), 10u);
+  EXPECT_EQ(r.at("runs")[0].at("family"), "remote h264");
+  EXPECT_EQ(r.at("runs")[0].at("configuration"), "remote crf 20");
+  std::ifstream rep(out / "report.md");
+  std::stringstream text;
+  text << rep.rdbuf();
+  EXPECT_NE(text.str().find("BD-rate against **remote h264** on SSIM"), std::string::npos) << text.str();
+  EXPECT_NE(text.str().find("| room | downlink.latency_ms=60 |"), std::string::npos) << text.str();
+  EXPECT_TRUE(fs::exists(out / "plots" / "rate_quality_ssim.png"));
+  fs::remove_all(out);
+
+  // A "vary" key that nothing sets, and an anchor that is no family: both named at once.
+  const fs::path bad = fs::temp_directory_path() / "dhr_runner_bad_curves.json";
+  nlohmann::json e = nlohmann::json::parse(std::ifstream(exp));
+  e["curves"] = {{"vary", {"passes.ao.codec", "trace.ao_rays"}}, {"anchor", "remote x265"}};
+  std::ofstream(bad) << e.dump();
+  EXPECT_NE(run("validate " + bad.string(), &log), 0);
+  EXPECT_NE(log.find("curves.vary: \"trace.ao_rays\" is not a key of \"sweep\" or of a configuration's \"set\""),
+            std::string::npos) << log;
+  EXPECT_NE(log.find("curves.anchor: 'remote x265' is not a family"), std::string::npos) << log;
+  fs::remove(bad);
+}
+
 TEST(Runner, ValidateReportsEveryProblemAtOnceAndRunsNothing) {
   const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json";
   std::string log;

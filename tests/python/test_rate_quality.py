@@ -1,0 +1,69 @@
+"""BD-rate on cases with a known answer (experiments/rate_quality.py); run by CTest with Debian's
+python3 (numpy comes with python3-matplotlib)."""
+import math
+import os
+import sys
+import unittest
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "experiments"))
+import rate_quality as rq  # noqa: E402
+
+ANCHOR = [(1.0, 30.0), (2.0, 33.5), (4.0, 36.0), (8.0, 38.0)]
+
+
+class BdRate(unittest.TestCase):
+    def test_same_curve_is_zero(self):
+        self.assertAlmostEqual(rq.bd_rate(ANCHOR, ANCHOR), 0.0, places=9)
+
+    def test_every_rate_times_0_8_is_minus_20_percent(self):
+        test = [(r * 0.8, q) for r, q in ANCHOR]
+        self.assertAlmostEqual(rq.bd_rate(ANCHOR, test), -20.0, places=9)
+        self.assertAlmostEqual(rq.bd_rate(test, ANCHOR), 25.0, places=9)
+
+    def test_ssim_scale_and_few_points(self):
+        # SSIM-like qualities near 1 (badly conditioned without normalisation), 3 and 2 points.
+        a = [(0.5, 0.91), (1.0, 0.95), (3.0, 0.985)]
+        self.assertAlmostEqual(rq.bd_rate(a, [(r * 1.5, q) for r, q in a]), 50.0, places=8)
+        b = [(1.0, 0.90), (4.0, 0.98)]
+        self.assertAlmostEqual(rq.bd_rate(b, [(r * 0.5, q) for r, q in b]), -50.0, places=8)
+
+    def test_partial_overlap_uses_the_shared_range(self):
+        # Test curve: the anchor halved in rate, but only over the upper half of its quality range.
+        test = [(r * 0.5, q) for r, q in ANCHOR[1:]]
+        self.assertAlmostEqual(rq.bd_rate(ANCHOR, test), -50.0, delta=2.0)
+
+    def test_a_better_curve_has_negative_bd_rate(self):
+        # Same rates, 1 dB more quality everywhere: less rate at equal quality.
+        better = [(r, q + 1.0) for r, q in ANCHOR]
+        self.assertLess(rq.bd_rate(ANCHOR, better), 0.0)
+
+    def test_disjoint_ranges_are_an_error(self):
+        with self.assertRaises(rq.NoOverlap):
+            rq.bd_rate(ANCHOR, [(1.0, 40.0), (2.0, 42.0)])
+
+    def test_bad_curves_are_errors(self):
+        for bad in ([(1.0, 30.0)], [(0.0, 30.0), (1.0, 31.0)], [(1.0, 30.0), (2.0, 30.0)],
+                    [(1.0, math.nan), (2.0, 31.0)]):
+            with self.assertRaises(ValueError, msg=str(bad)):
+                rq.bd_rate(ANCHOR, bad)
+
+
+class Curves(unittest.TestCase):
+    def test_grouping_by_scene_conditions_and_family(self):
+        runs = []
+        for i, (fam, lat, crf, mbps, ssim) in enumerate([
+                ("remote", 0, 18, 4.0, 0.95), ("remote", 0, 28, 1.0, 0.90), ("remote", 50, 18, 4.0, 0.90),
+                ("remote", 50, 28, 1.0, 0.85), ("hybrid", 0, 18, 2.0, 0.96), ("hybrid", 0, 28, 0.5, 0.91)]):
+            runs.append({"id": f"r{i}", "scene": "room", "family": fam,
+                         "settings": {"downlink.latency_ms": lat, "crf": crf}, "mbps": mbps, "ssim": ssim})
+        cm = rq.curves(runs, ["downlink.latency_ms", "crf"], ["crf"], lambda r: r["mbps"], lambda r: r["ssim"])
+        self.assertEqual(len(cm), 3)
+        key = ("room", (("downlink.latency_ms", "0"),), "remote")
+        self.assertEqual([p[0] for p in cm[key]], [1.0, 4.0])
+        table = rq.bd_table(cm, "remote")
+        self.assertEqual(set(table), {("room", (("downlink.latency_ms", "0"),)), ("room", (("downlink.latency_ms", "50"),))})
+        self.assertLess(table[("room", (("downlink.latency_ms", "0"),))]["hybrid"], 0.0)
+
+
+if __name__ == "__main__":
+    unittest.main()
