@@ -18,18 +18,28 @@ nlohmann::json finite_or_null(double v) { return std::isfinite(v) ? nlohmann::js
 double ssim_of(const ImageRGB8& reference, const ImageRGB8& shown) { return ssim_u8(luma(reference), luma(shown)); }
 double psnr_of(const ImageRGB8& reference, const ImageRGB8& shown) { return psnr_db(reference, shown); }
 
-// Mean over the frames scored against `against` of metric i (for_mean applied); NaN if none.
-double mean_score(const RunResult& r, size_t i, Against against) {
+// Metric i of the frames scored against `against`, in frame order, for_mean applied.
+std::vector<double> scores_of(const RunResult& r, size_t i, Against against) {
   const ImageMetric& m = image_metrics()[i];
-  double sum = 0;
-  int n = 0;
+  std::vector<double> v;
   for (const FrameRecord& f : r.frames) {
     const std::vector<double>& s = against == Against::Local ? f.local : f.ground_truth;
-    if (s.size() <= i) continue;
-    sum += m.for_mean ? m.for_mean(s[i]) : s[i];
-    ++n;
+    if (s.size() > i) v.push_back(m.for_mean ? m.for_mean(s[i]) : s[i]);
   }
-  return n ? sum / n : std::nan("");
+  return v;
+}
+
+double mean_of(const std::vector<double>& v) {
+  double sum = 0;
+  for (double x : v) sum += x;
+  return sum / double(v.size());
+}
+
+// The values sorted from the worst to the best frame.
+std::vector<double> worst_first(std::vector<double> v, bool higher_is_better) {
+  if (higher_is_better) std::sort(v.begin(), v.end());
+  else std::sort(v.begin(), v.end(), std::greater<>());
+  return v;
 }
 
 double per_second(double count, double seconds) { return seconds > 0 ? count / seconds : 0.0; }
@@ -81,8 +91,39 @@ std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& sho
   return s;
 }
 
-const std::vector<std::string>& image_metric_statistics() {
-  static const std::vector<std::string> stats = {"mean"};
+double student_t95(int dof) {
+  // Two-sided 95 % (the 0.975 quantile), dof 1..30; above 30 the normal value's neighbourhood.
+  static const double t[] = {12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228,
+                             2.201,  2.179, 2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086,
+                             2.080,  2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042};
+  if (dof < 1) fail("student_t95: {} degrees of freedom (at least 1)", dof);
+  if (dof <= 30) return t[dof - 1];
+  if (dof <= 60) return 2.000;
+  if (dof <= 120) return 1.980;
+  return 1.960;
+}
+
+const std::vector<ImageStatistic>& image_statistics() {
+  static const std::vector<ImageStatistic> stats = {
+      {"mean", "mean over the scored frames", [](std::vector<double> v, bool) { return mean_of(v); }},
+      {"ci95",
+       "half-width of the 95 % confidence interval of the mean, Student's t over the scored frames taken as independent "
+       "(consecutive frames are correlated, so the true interval is wider); 0 with one frame",
+       [](std::vector<double> v, bool) {
+         if (v.size() < 2) return 0.0;
+         const double m = mean_of(v);
+         double ss = 0;
+         for (double x : v) ss += (x - m) * (x - m);
+         const double sd = std::sqrt(ss / double(v.size() - 1));
+         return student_t95(int(v.size()) - 1) * sd / std::sqrt(double(v.size()));
+       }},
+      {"worst_5pct", "the value 5 % of the scored frames are worse than or equal to (nearest rank, by the metric's direction)",
+       [](std::vector<double> v, bool higher) {
+         const std::vector<double> w = worst_first(std::move(v), higher);
+         return w[size_t(std::max(1.0, std::ceil(0.05 * double(w.size())))) - 1];
+       }},
+      {"worst", "the worst scored frame", [](std::vector<double> v, bool higher) { return worst_first(std::move(v), higher)[0]; }},
+  };
   return stats;
 }
 
@@ -165,6 +206,14 @@ const std::vector<RunMetric>& run_metrics() {
          }
          return passes;
        }},
+      {"frames_displayed", "frames", "displayed frames after the warm-up (the rows of frames.csv)", false,
+       [](R r) -> nlohmann::json { return r.frames.size(); }},
+      {"frames_scored", "frames", "displayed frames scored against the local reference", false,
+       [](R r) -> nlohmann::json { return std::count_if(r.frames.begin(), r.frames.end(), [](const FrameRecord& f) { return f.scored; }); }},
+      {"frames_scored_ground_truth", "frames", "displayed frames scored against the ground truth", false,
+       [](R r) -> nlohmann::json {
+         return std::count_if(r.frames.begin(), r.frames.end(), [](const FrameRecord& f) { return f.scored_ground_truth; });
+       }},
       {"bandwidth_mbps", "Mb/s", "every pass's packets on the wire over the scored frames' virtual time", false,
        [](R r) -> nlohmann::json { return per_second(double(wire_bytes(r)) * 8 / 1e6, seconds_of(r)); }},
       {"server_fps_virtual", "frames/s", "server frames over the scored frames' virtual time (the server time model)",
@@ -221,8 +270,11 @@ nlohmann::json RunResult::metrics() const {
   nlohmann::json m = nlohmann::json::object();
   const auto& images = image_metrics();
   for (size_t i = 0; i < images.size(); ++i)
-    for (Against a : {Against::Local, Against::GroundTruth})
-      m[images[i].aggregate(a, "mean")] = finite_or_null(mean_score(*this, i, a));
+    for (Against a : {Against::Local, Against::GroundTruth}) {
+      const std::vector<double> v = scores_of(*this, i, a);
+      for (const ImageStatistic& st : image_statistics())
+        m[images[i].aggregate(a, st.name)] = v.empty() ? nlohmann::json(nullptr) : finite_or_null(st.of(v, images[i].higher_is_better));
+    }
   for (const RunMetric& rm : run_metrics()) {
     nlohmann::json v = rm.value(*this);
     if (!rm.one_key_per_pass) {
@@ -240,7 +292,7 @@ nlohmann::json declared_json() {
     nlohmann::json columns, aggregates = nlohmann::json::object();
     for (Against a : {Against::Local, Against::GroundTruth}) {
       columns[against_name(a)] = m.column(a);
-      for (const std::string& s : image_metric_statistics()) aggregates[against_name(a)][s] = m.aggregate(a, s);
+      for (const ImageStatistic& st : image_statistics()) aggregates[against_name(a)][st.name] = m.aggregate(a, st.name);
     }
     images.push_back({{"name", m.name},
                       {"unit", m.unit},
@@ -249,6 +301,8 @@ nlohmann::json declared_json() {
                       {"columns", columns},
                       {"aggregates", aggregates}});
   }
+  nlohmann::json statistics = nlohmann::json::array();
+  for (const ImageStatistic& st : image_statistics()) statistics.push_back({{"name", st.name}, {"doc", st.doc}});
   nlohmann::json runs = nlohmann::json::array(), passes = nlohmann::json::array();
   for (const RunMetric& m : run_metrics())
     runs.push_back({{"key", m.one_key_per_pass ? m.key + "_PASS" : m.key},
@@ -257,6 +311,7 @@ nlohmann::json declared_json() {
                     {"wall_clock", m.wall_clock}});
   for (const PassMetric& m : pass_metrics()) passes.push_back({{"key", m.key}, {"unit", m.unit}, {"doc", m.doc}});
   return {{"image_metrics", images},
+          {"image_statistics", statistics},
           {"run_metrics", runs},
           {"pass_metrics", passes},
           {"frames_csv_wall_clock_columns", frames_csv_wall_clock_columns()}};

@@ -145,9 +145,16 @@ struct PassMetric {
 };
 const std::vector<PassMetric>& pass_metrics();
 
-// Statistics of an image metric over a run's scored frames, each a key of results.json
-// (ssim_local_mean, ...): "mean" (of for_mean values).
-const std::vector<std::string>& image_metric_statistics();
+// A statistic of an image metric over a run's scored frames (of the for_mean values), written
+// as METRIC_REFERENCE_NAME[_UNIT] (ssim_local_mean, psnr_ground_truth_worst_db); null when no
+// frame was scored against that reference.
+struct ImageStatistic {
+  std::string name, doc;
+  double (*of)(std::vector<double> values, bool higher_is_better) = nullptr;  // values not empty
+};
+const std::vector<ImageStatistic>& image_statistics();
+// Student's t quantile for a two-sided 95 % interval with `dof` degrees of freedom (>= 1).
+double student_t95(int dof);
 
 // Every declaration as JSON (written into results.json as "declared", printed by
 // `dhrbench metrics --json`; experiments/report.py and scripts/check_figures.py read it).

@@ -25,10 +25,12 @@ Runner add_metrics_command(CLI::App& app) {
     for (const ImageMetric& m : image_metrics()) {
       fmt::print("  {:<10} {}\n", m.name + (m.unit.empty() ? "" : " (" + m.unit + ")"), m.doc);
       fmt::print("             columns {}, {}; per run", m.column(Against::Local), m.column(Against::GroundTruth));
-      for (const std::string& s : image_metric_statistics())
-        fmt::print(" {}, {}", m.aggregate(Against::Local, s), m.aggregate(Against::GroundTruth, s));
+      for (const ImageStatistic& s : image_statistics())
+        fmt::print(" {}, {}", m.aggregate(Against::Local, s.name), m.aggregate(Against::GroundTruth, s.name));
       fmt::print("; {} is better\n", m.higher_is_better ? "higher" : "lower");
     }
+    fmt::print("\nStatistics over a run's scored frames:\n");
+    for (const ImageStatistic& s : image_statistics()) fmt::print("  {:<10} {}\n", s.name, s.doc);
     fmt::print("\nRun metrics (results.json runs[].metrics; [wall] = measured on the wall clock, varies run to run):\n");
     for (const RunMetric& m : run_metrics())
       fmt::print("  {:<26} {:<9} {}{}\n", m.one_key_per_pass ? m.key + "_PASS" : m.key, m.unit, m.doc,

@@ -450,18 +450,23 @@ def main(d):
     # One column per declared image metric and reference (means over the scored frames).
     quality_columns = [(f"{im['name'].upper()}{' ' + UNIT_NAMES.get(im['unit'], im['unit']) if im['unit'] else ''} "
                         f"{'local' if ref == 'local' else 'truth'}", im["aggregates"][ref]["mean"],
-                        4 if not im["unit"] else 2) for im in metrics for ref in ("local", "ground_truth")]
-    out.append("| run | scene | configuration | " + " | ".join(c[0] for c in quality_columns) +
+                        4 if not im["unit"] else 2, im["aggregates"][ref].get("ci95"))
+                       for im in metrics for ref in ("local", "ground_truth")]
+    out.append("Quality: mean over the scored frames ± the half-width of its 95 % confidence interval (Student's t, "
+               "frames taken as independent); scored frames: against the local reference / the ground truth.\n")
+    out.append("| run | scene | configuration | scored frames | " + " | ".join(c[0] for c in quality_columns) +
                " | Mb/s | bytes/frame per pass | server fps (virtual) | client fps (wall) | buffer age ms (median) "
                "| frames lost |")
-    out.append("|---|---|---|" + "---|" * len(quality_columns) + "---|---|---|---|---|---|")
+    out.append("|---|---|---|---|" + "---|" * len(quality_columns) + "---|---|---|---|---|---|")
     for r in ok:
         m = r["metrics"]
         per_pass = ", ".join(f"{p['pass']} {p['bytes_per_frame']:.0f}" for p in m["passes"] if p["server_frames"])
         ages = [v["median"] for k, v in m.items() if k.startswith("buffer_age_ms_")]
         lost = sum(p["frames_lost"] for p in m["passes"])
-        cells = " | ".join(fmt(m.get(key), digits) for _, key, digits in quality_columns)
-        out.append(f"| {r['id']} | {r['scene']} | {r['label']} | {cells} | "
+        cells = " | ".join(fmt(m.get(key), digits) + (f" ± {fmt(m.get(ci), digits)}" if m.get(ci) else "")
+                           for _, key, digits, ci in quality_columns)
+        scored = f"{m.get('frames_scored', '–')} / {m.get('frames_scored_ground_truth', '–')}"
+        out.append(f"| {r['id']} | {r['scene']} | {r['label']} | {scored} | {cells} | "
                    f"{m['bandwidth_mbps']:.2f} | {per_pass or '–'} | {m['server_fps_virtual']:.1f} | "
                    f"{m['client_fps_wall']:.1f} | {', '.join(f'{a:.1f}' for a in ages) or '–'} | {lost} |")
     out.append("")

@@ -9,7 +9,8 @@ then compares OUT/NAME against reports/NAME (or against --baseline DIR/NAME):
   - frames.csv: every column of every row (matched by run and frame), except the wall-clock ones
 The wall-clock keys and columns are read from the new results' "declared" record (core/results.h),
 joined with TIMING_KEYS / TIMING_COLUMNS for results older than that record.
-Values must be equal bit for bit (floats as written). Exits 1 and lists the differences when
+Values must be equal bit for bit (floats as written); a figure only in the new results (a metric
+added since the baseline) is listed as a note, one only in the baseline is a difference. Exits 1 and lists the differences when
 any figure changed; 0 when all are identical. A refactor that renames a key or column adds it to
 ALIASES (new name -> old name) in the same commit, so the guard keeps comparing it.
 
@@ -126,6 +127,9 @@ def compare_results(new_path, old_path, problems, notes):
                 if k not in b and part == "backends" and ".params." in k:
                     # a parameter added after the baseline was made: its default changes nothing
                     notes.add(f"{k.split('.', 1)[1]} = {a[k]!r} (a parameter newer than the baseline)")
+                elif k not in b and part == "metrics":
+                    # a figure added after the baseline was made: new, so nothing it says changed
+                    notes.add(f"{k} (a figure newer than the baseline)")
                 elif k not in a or k not in b:
                     problems.append(f"{rid} {k}: only in {'new' if k in a else 'old'}")
                 elif not same(a[k], b[k]):

@@ -73,6 +73,31 @@ TEST(Results, MeansFollowTheDeclaration) {
   EXPECT_THROW(identical.score("no-such-metric"), std::exception);
 }
 
+TEST(Results, StatisticsOverFrames) {
+  RunResult r;
+  // SSIM of five frames 0.9, 0.8, 0.95, 0.7, 0.85 against the local reference (values set directly).
+  for (double v : {0.9, 0.8, 0.95, 0.7, 0.85}) {
+    FrameRecord f;
+    f.scored = true;
+    f.local.assign(image_metrics().size(), 30.0);
+    f.local[index_of("ssim")] = v;
+    r.frames.push_back(f);
+  }
+  const nlohmann::json m = r.metrics();
+  EXPECT_DOUBLE_EQ(m.at("ssim_local_mean").get<double>(), 0.84);
+  EXPECT_DOUBLE_EQ(m.at("ssim_local_worst").get<double>(), 0.7);
+  EXPECT_DOUBLE_EQ(m.at("ssim_local_worst_5pct").get<double>(), 0.7);  // nearest rank: ceil(0.25) = 1st worst
+  // Squared deviations from 0.84 sum to 0.037: sd = sqrt(0.037 / 4); t(4) = 2.776; half-width t sd / sqrt(5).
+  EXPECT_NEAR(m.at("ssim_local_ci95").get<double>(), 2.776 * std::sqrt(0.037 / 4) / std::sqrt(5.0), 1e-12);
+  EXPECT_EQ(m.at("psnr_local_ci95_db").get<double>(), 0.0);  // every frame 30 dB
+  EXPECT_TRUE(m.at("ssim_ground_truth_worst").is_null());   // never scored against the ground truth
+  EXPECT_EQ(m.at("frames_scored").get<int>(), 5);
+  EXPECT_EQ(m.at("frames_scored_ground_truth").get<int>(), 0);
+  EXPECT_DOUBLE_EQ(student_t95(1), 12.706);
+  EXPECT_DOUBLE_EQ(student_t95(1000), 1.960);
+  EXPECT_THROW(student_t95(0), std::exception);
+}
+
 TEST(Results, FramesCsvRowsMatchTheHeader) {
   const std::vector<std::string> passes = {"visibility", "ao", "colour"};
   std::string head = frames_csv_header({"run"}, passes);
@@ -113,7 +138,7 @@ TEST(Results, EveryDeclaredNameIsUnique) {
   for (const ImageMetric& m : image_metrics())
     for (Against a : {Against::Local, Against::GroundTruth}) {
       EXPECT_TRUE(names.insert(m.column(a)).second) << m.column(a);
-      for (const std::string& s : image_metric_statistics()) EXPECT_TRUE(names.insert(m.aggregate(a, s)).second);
+      for (const ImageStatistic& s : image_statistics()) EXPECT_TRUE(names.insert(m.aggregate(a, s.name)).second);
     }
   for (const RunMetric& m : run_metrics()) EXPECT_TRUE(names.insert(m.key).second) << m.key;
   std::set<std::string> pass_keys;
