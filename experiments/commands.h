@@ -20,6 +20,7 @@ Runner add_validate_command(CLI::App& app);
 Runner add_report_command(CLI::App& app);
 Runner add_settings_command(CLI::App& app);
 Runner add_metrics_command(CLI::App& app);
+Runner add_converge_command(CLI::App& app);
 Runner add_serve_command(CLI::App& app);   // cmd_live.cpp
 Runner add_client_command(CLI::App& app);  // cmd_live.cpp
 Runner add_relay_command(CLI::App& app);   // cmd_live.cpp

@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
   add(dhr::cli::add_list_command);
   add(dhr::cli::add_settings_command);
   add(dhr::cli::add_metrics_command);
+  add(dhr::cli::add_converge_command);
   add(dhr::cli::add_render_command);
   add(dhr::cli::add_compare_command);
   add(dhr::cli::add_serve_command);
