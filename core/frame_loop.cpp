@@ -390,7 +390,10 @@ class Simulation {
     const bool count = scored(j);
     ServerFrame f = server_.run(uint32_t(j), camera(j), frame_time_s(j), keyframe);
     for (const StageTime& s : f.stages) stage(s.name, s.ms, count);
-    if (count) result_.trace_stats.add(f.trace);
+    if (count) {
+      result_.trace_stats.add(f.trace);
+      result_.server_frames_wall.samples_ms.push_back(f.compute_ms);
+    }
     const double finish = start_ms + (c_.server_timing == SimConfig::ServerTiming::Fixed ? c_.server_fixed_ms : f.compute_ms);
     for (size_t i = 0; i < f.passes.size(); ++i) {
       SentPass& p = f.passes[i];

@@ -237,6 +237,26 @@ const std::vector<RunMetric>& run_metrics() {
          const double m = client_frames(r).median();
          return m > 0 ? 1000.0 / m : 0.0;
        }},
+      {"server_frame_ms_median", "ms",
+       "the server's stages per server frame (rasterize, trace, denoise, [composite,] encode, packetize), median "
+       "(wall clock)",
+       true, [](R r) -> nlohmann::json { return r.server_frames_wall.median(); }},
+      {"server_fps_wall", "frames/s",
+       "server frames per second this machine sustains: 1000 / the mean of the server's per-frame wall time (beside "
+       "server_fps_virtual, which follows the server time model)",
+       true,
+       [](R r) -> nlohmann::json {
+         const auto& v = r.server_frames_wall.samples_ms;
+         return v.empty() || r.server_frames_wall.total() <= 0 ? 0.0 : 1000.0 * double(v.size()) / r.server_frames_wall.total();
+       }},
+      {"client_fps_wall_mean", "frames/s",
+       "displayed frames per second this machine sustains: 1000 / the mean client frame (every client stage, decode "
+       "included on the frames that decode)",
+       true,
+       [](R r) -> nlohmann::json {
+         const StageStats c = client_frames(r);
+         return c.total() > 0 ? 1000.0 * double(c.samples_ms.size()) / c.total() : 0.0;
+       }},
       {"buffer_age_ms", "ms", "per pass: age of the displayed buffer at composite, median and p95 (virtual)",
        false,
        [](R r) -> nlohmann::json {

@@ -114,6 +114,7 @@ struct RunResult {
   std::vector<PassTraffic> traffic;
   std::vector<ServerPassRecord> server_log;  // every pass sent for a scored frame, in order
   std::map<std::string, StageStats> stages;  // wall time per stage
+  StageStats server_frames_wall;             // per server frame: the wall time of all its stages
   uint64_t server_frames = 0, cameras_dropped = 0, cameras_lost = 0;
   uint64_t frames_without_data = 0;    // displayed frames with at least one pass shown with its local fallback
   uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps

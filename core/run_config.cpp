@@ -149,7 +149,8 @@ std::vector<RunSetting> make_settings() {
   timing.key = "server_timing";
   timing.type = SettingType::Choice;
   timing.choices = {"fixed", "measured"};
-  timing.doc = "the server's compute time per frame: fixed (server_fixed_ms, virtual) or its measured wall time";
+  timing.doc = "the server's compute time per frame: fixed (server_fixed_ms, virtual; results repeat on any machine) or "
+               "measured (the wall time of its stages on this machine: results then depend on the machine and its load)";
   timing.live_ignored = "the server takes the time it takes";
   timing.get = [](const SimConfig& c) {
     return nlohmann::json(c.server_timing == SimConfig::ServerTiming::Fixed ? "fixed" : "measured");
