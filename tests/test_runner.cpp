@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
@@ -17,7 +18,8 @@ namespace {
 namespace fs = std::filesystem;
 
 int run(const std::string& args, std::string* output = nullptr) {
-  const std::string log = (fs::temp_directory_path() / "dhr_runner_test.log").string();
+  // One log per process: two test runs at once (two checkouts) must not read each other's output.
+  const std::string log = (fs::temp_directory_path() / ("dhr_runner_test." + std::to_string(getpid()) + ".log")).string();
   const int rc = std::system((std::string(DHR_CLI) + " " + args + " >" + log + " 2>&1").c_str());
   if (output) {
     std::ifstream in(log);
