@@ -36,9 +36,15 @@ inline int reflect101(int i, int n) {
   return i;
 }
 
-// SSIM map of two float planes (values in 0..255), returns the mean. The five local moments
-// are blurred separably: a horizontal pass into row buffers, then a vertical pass per row.
-double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map) {
+// SSIM map of two float planes (values in 0..255), returns the mean over all pixels (Mirrored)
+// or over the valid interior (Valid). The five local moments are blurred separably: a
+// horizontal pass into row buffers, then a vertical pass per row. Without a map, Valid skips the
+// pixels it does not average (their windows would only be needed for the map).
+double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map, SsimBorder border) {
+  const bool valid = border == SsimBorder::Valid;
+  // Columns and rows whose SSIM is computed: all, or the interior when nothing else needs them.
+  const int x0 = valid && !map ? kRadius : 0, x1 = valid && !map ? w - kRadius : w;
+  const int y0 = valid && !map ? kRadius : 0, y1 = valid && !map ? h - kRadius : h;
   static const auto g = gaussian_weights();
   // Horizontal pass: 5 planes (a, b, a^2, b^2, ab).
   std::vector<float> hz(size_t(w) * h * 5);
@@ -46,7 +52,7 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map) {
     const float* ra = a + size_t(y) * w;
     const float* rb = b + size_t(y) * w;
     float* out = &hz[size_t(y) * w * 5];
-    for (int x = 0; x < w; ++x) {
+    for (int x = x0; x < x1; ++x) {
       float s[5] = {0, 0, 0, 0, 0};
       for (int k = -kRadius; k <= kRadius; ++k) {
         const int xx = reflect101(x + k, w);
@@ -62,9 +68,9 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map) {
   });
   std::vector<double> row_sums(size_t(h), 0.0);
   if (map) map->resize(w, h);
-  tbb::parallel_for(0, h, [&](int y) {
+  tbb::parallel_for(y0, y1, [&](int y) {
     double row = 0;
-    for (int x = 0; x < w; ++x) {
+    for (int x = x0; x < x1; ++x) {
       double s[5] = {0, 0, 0, 0, 0};
       for (int k = -kRadius; k <= kRadius; ++k) {
         const float* p = &hz[(size_t(reflect101(y + k, h)) * w + x) * 5];
@@ -82,13 +88,24 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map) {
       const double v = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
                        ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a + var_b + kC2));
       if (map) (*map)(x, y) = float(v);
-      row += v;
+      if (!valid || (x >= kRadius && x < w - kRadius)) row += v;
     }
     row_sums[size_t(y)] = row;
   });
   double total = 0;
-  for (double r : row_sums) total += r;  // fixed order: independent of thread count
-  return total / (double(w) * h);
+  if (!valid) {
+    for (double r : row_sums) total += r;  // fixed order: independent of thread count
+    return total / (double(w) * h);
+  }
+  for (int y = kRadius; y < h - kRadius; ++y) total += row_sums[size_t(y)];
+  return total / (double(w - 2 * kRadius) * double(h - 2 * kRadius));
+}
+
+void check_border(int w, int h, SsimBorder border) {
+  if (border == SsimBorder::Valid && (w < kSsimWindow || h < kSsimWindow))
+    fail("SSIM over the valid interior needs images of at least {}x{} pixels (one window), got {}x{}; "
+         "SsimBorder::Mirrored accepts any size",
+         kSsimWindow, kSsimWindow, w, h);
 }
 
 void check_pair(int wa, int ha, int wb, int hb) {
@@ -107,10 +124,11 @@ ImageU8 luma(const ImageRGB8& image) {
   return out;
 }
 
-double ssim_u8(const ImageU8& a, const ImageU8& b, ImageF* ssim_map) {
+double ssim_u8(const ImageU8& a, const ImageU8& b, ImageF* ssim_map, SsimBorder border) {
   check_pair(a.width(), a.height(), b.width(), b.height());
+  check_border(a.width(), a.height(), border);
   std::vector<float> fa(a.pixels().begin(), a.pixels().end()), fb(b.pixels().begin(), b.pixels().end());
-  return ssim_plane(fa.data(), fb.data(), a.width(), a.height(), ssim_map);
+  return ssim_plane(fa.data(), fb.data(), a.width(), a.height(), ssim_map, border);
 }
 
 double psnr_db(const ImageRGB8& a, const ImageRGB8& b) {
@@ -125,11 +143,13 @@ double psnr_db(const ImageRGB8& a, const ImageRGB8& b) {
   return 10.0 * std::log10(255.0 * 255.0 / mse);
 }
 
-QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel channel, ImageF* ssim_map) {
+QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel channel, ImageF* ssim_map,
+                             SsimBorder border) {
   check_pair(a.width(), a.height(), b.width(), b.height());
+  check_border(a.width(), a.height(), border);
   QualityScores q;
   if (channel == SsimChannel::Luma) {
-    q.ssim = ssim_u8(luma(a), luma(b), ssim_map);
+    q.ssim = ssim_u8(luma(a), luma(b), ssim_map, border);
   } else {
     const size_t n = a.size();
     std::vector<float> pa(n), pb(n);
@@ -141,7 +161,7 @@ QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel
         pa[i] = c == 0 ? a[i].r : c == 1 ? a[i].g : a[i].b;
         pb[i] = c == 0 ? b[i].r : c == 1 ? b[i].g : b[i].b;
       }
-      sum += ssim_plane(pa.data(), pb.data(), a.width(), a.height(), ssim_map ? &channel_map : nullptr);
+      sum += ssim_plane(pa.data(), pb.data(), a.width(), a.height(), ssim_map ? &channel_map : nullptr, border);
       if (ssim_map)
         for (size_t i = 0; i < n; ++i) (*ssim_map)[i] += channel_map[i] / 3.0f;
     }

@@ -15,6 +15,9 @@
 namespace dhr {
 
 enum class SsimChannel { Luma, RgbMean };
+enum class SsimBorder { Valid, Mirrored };
+// The smallest side SsimBorder::Valid accepts (one 11x11 window).
+constexpr int kSsimWindow = 11;
 
 struct QualityScores {
   double ssim = 1.0;
@@ -27,11 +30,12 @@ struct QualityScores {
 constexpr double kPsnrOfIdenticalDb = 100.0;
 inline double psnr_for_mean(double psnr_db) { return psnr_db < kPsnrOfIdenticalDb ? psnr_db : kPsnrOfIdenticalDb; }
 
-// Throws dhr::Error when sizes differ or an image is empty.
+// Throws dhr::Error when sizes differ, an image is empty, or (Valid) a side is below 11.
 QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel channel = SsimChannel::Luma,
-                             ImageF* ssim_map = nullptr);
+                             ImageF* ssim_map = nullptr, SsimBorder border = SsimBorder::Mirrored);
 // SSIM of two single-channel 8-bit images (same conventions).
-double ssim_u8(const ImageU8& a, const ImageU8& b, ImageF* ssim_map = nullptr);
+double ssim_u8(const ImageU8& a, const ImageU8& b, ImageF* ssim_map = nullptr,
+               SsimBorder border = SsimBorder::Mirrored);
 double psnr_db(const ImageRGB8& a, const ImageRGB8& b);
 ImageU8 luma(const ImageRGB8& image);
 

@@ -20,6 +20,8 @@ PACKAGES=(
   clang libclang-rt-14-dev
   # report plots
   python3 python3-matplotlib python3-numpy
+  # tests: scikit-image is the reference SSIM (tests/ssim_reference.py)
+  python3-skimage
 )
 
 missing=()

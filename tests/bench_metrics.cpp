@@ -1,12 +1,27 @@
-// SSIM at 1280x720 against OpenCV's quality module (cv::quality::QualitySSIM) on the same
-// plane in the same run: the ceiling the benchmark's own SSIM is compared with.
+// Image metrics at 1280x720, each beside a ceiling or floor timed in the same run:
+//  - SSIM (luma) in both conventions, SsimBorder::Mirrored (the benchmark's SSIM until now) and
+//    SsimBorder::Valid (the reference convention), against OpenCV's quality module
+//    (cv::quality::QualitySSIM) on the same plane;
+//  - FLIP against a memory-bandwidth floor of the same image size: one pass that reads both
+//    8-bit RGB inputs and writes a float per pixel, the least any full-image error map costs.
+// After the runs a table prints the fastest repetition of each and the ratios, twice: wall ms
+// (the metrics use all cores through TBB) and process CPU ms per iteration summed over all
+// threads (on a shared, loaded machine the wall time mostly measures the neighbours; the CPU
+// time a metric consumes varies much less).
+#include "core/flip.h"
 #include "core/metrics.h"
 #include "core/rng.h"
 
 #include <benchmark/benchmark.h>
 #include <opencv2/quality/qualityssim.hpp>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <map>
+#include <string>
+#include <vector>
 
 namespace {
 
@@ -21,22 +36,127 @@ dhr::ImageRGB8 frame(uint64_t seed) {
   return img;
 }
 
+double process_cpu_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) * 1e3 + double(ts.tv_nsec) * 1e-6;
+}
+
+// Process CPU time (all threads) per iteration of the timed loop, as a counter.
+struct CpuCounter {
+  benchmark::State& state;
+  double start = process_cpu_ms();
+  ~CpuCounter() {
+    state.counters["proc_cpu_ms"] = (process_cpu_ms() - start) / double(std::max<benchmark::IterationCount>(state.iterations(), 1));
+  }
+};
+
+const dhr::ImageRGB8& frame_a() {
+  static const dhr::ImageRGB8 a = frame(1);
+  return a;
+}
+const dhr::ImageRGB8& frame_b() {
+  static const dhr::ImageRGB8 b = frame(2);
+  return b;
+}
+
 void BM_SsimLuma_dhrbench(benchmark::State& state) {
-  const auto a = frame(1), b = frame(2);
+  const auto &a = frame_a(), &b = frame_b();
+  CpuCounter cpu{state};
   for (auto _ : state) benchmark::DoNotOptimize(dhr::compare_images(a, b).ssim);
   state.counters["Mpix/s"] = benchmark::Counter(1280.0 * 720, benchmark::Counter::kIsIterationInvariantRate) ;
 }
 BENCHMARK(BM_SsimLuma_dhrbench)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+void BM_SsimLuma_valid(benchmark::State& state) {
+  const auto &a = frame_a(), &b = frame_b();
+  CpuCounter cpu{state};
+  for (auto _ : state)
+    benchmark::DoNotOptimize(
+        dhr::compare_images(a, b, dhr::SsimChannel::Luma, nullptr, dhr::SsimBorder::Valid).ssim);
+  state.counters["Mpix/s"] = benchmark::Counter(1280.0 * 720, benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_SsimLuma_valid)->Unit(benchmark::kMillisecond)->UseRealTime();
+
 void BM_SsimLuma_OpenCvQuality(benchmark::State& state) {
-  const auto a = dhr::luma(frame(1)), b = dhr::luma(frame(2));
-  cv::Mat ma(720, 1280, CV_8UC1, const_cast<uint8_t*>(a.data()));
-  cv::Mat mb(720, 1280, CV_8UC1, const_cast<uint8_t*>(b.data()));
+  const auto la = dhr::luma(frame_a()), lb = dhr::luma(frame_b());
+  cv::Mat ma(720, 1280, CV_8UC1, const_cast<uint8_t*>(la.data()));
+  cv::Mat mb(720, 1280, CV_8UC1, const_cast<uint8_t*>(lb.data()));
+  CpuCounter cpu{state};
   for (auto _ : state) benchmark::DoNotOptimize(cv::quality::QualitySSIM::compute(ma, mb, cv::noArray())[0]);
   state.counters["Mpix/s"] = benchmark::Counter(1280.0 * 720, benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_SsimLuma_OpenCvQuality)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+void BM_Flip(benchmark::State& state) {
+  const auto &a = frame_a(), &b = frame_b();
+  CpuCounter cpu{state};
+  for (auto _ : state) benchmark::DoNotOptimize(dhr::flip(a, b).mean);
+  state.counters["Mpix/s"] = benchmark::Counter(1280.0 * 720, benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_Flip)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The floor: read both inputs once, write one float per pixel (a fresh map, as flip() returns).
+void BM_Flip_floor(benchmark::State& state) {
+  const auto &a = frame_a(), &b = frame_b();
+  CpuCounter cpu{state};
+  for (auto _ : state) {
+    dhr::ImageF map(a.width(), a.height());
+    for (size_t i = 0; i < a.size(); ++i)
+      map[i] = float(std::abs(int(a[i].r) - int(b[i].r)) + std::abs(int(a[i].g) - int(b[i].g)) +
+                     std::abs(int(a[i].b) - int(b[i].b)));
+    benchmark::DoNotOptimize(map.data());
+    benchmark::ClobberMemory();
+  }
+  state.SetBytesProcessed(int64_t(state.iterations()) * int64_t(a.size()) * (3 + 3 + 4));
+}
+BENCHMARK(BM_Flip_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// Keeps the fastest repetition of every benchmark (wall ms per iteration) and prints the table.
+class Summary : public benchmark::ConsoleReporter {
+ public:
+  void ReportRuns(const std::vector<Run>& runs) override {
+    for (const auto& r : runs)
+      if (r.run_type == Run::RT_Iteration && r.iterations > 0 && !r.error_occurred) {
+        keep_min(ms_, r.run_name.function_name, r.real_accumulated_time / double(r.iterations) * 1e3);
+        const auto c = r.counters.find("proc_cpu_ms");
+        if (c != r.counters.end()) keep_min(cpu_ms_, r.run_name.function_name, c->second.value);
+      }
+    ConsoleReporter::ReportRuns(runs);
+  }
+  void Finalize() override {
+    ConsoleReporter::Finalize();
+    for (const auto* table : {&ms_, &cpu_ms_}) {
+      auto row = [&](const char* label, const std::string& ours, const std::string& base) {
+        const auto o = table->find(ours), b = table->find(base);
+        if (o == table->end() || b == table->end()) return;
+        std::printf("%-48s %10.2f %10.2f %9.2fx\n", label, o->second, b->second, o->second / b->second);
+      };
+      std::printf("\n%-48s %10s %10s %10s\n",
+                  table == &ms_ ? "1280x720, fastest repetition: wall ms" : "1280x720, fastest repetition: process CPU ms",
+                  "ours", "base", "ours/base");
+      row("SSIM valid / SSIM mirrored (today's)", "BM_SsimLuma_valid", "BM_SsimLuma_dhrbench");
+      row("SSIM mirrored / OpenCV QualitySSIM", "BM_SsimLuma_dhrbench", "BM_SsimLuma_OpenCvQuality");
+      row("SSIM valid / OpenCV QualitySSIM", "BM_SsimLuma_valid", "BM_SsimLuma_OpenCvQuality");
+      row("FLIP / memory floor (read 2 RGB8, write float)", "BM_Flip", "BM_Flip_floor");
+    }
+  }
+
+ private:
+  static void keep_min(std::map<std::string, double>& m, const std::string& key, double v) {
+    auto [it, fresh] = m.emplace(key, v);
+    if (!fresh) it->second = std::min(it->second, v);
+  }
+  std::map<std::string, double> ms_, cpu_ms_;
+};
+
 }  // namespace
 
-BENCHMARK_MAIN();
+int main(int argc, char** argv) {
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  Summary summary;
+  benchmark::RunSpecifiedBenchmarks(&summary);
+  benchmark::Shutdown();
+  return 0;
+}

@@ -1,0 +1,435 @@
+// LDR-FLIP after Andersson et al. 2020; the steps, constants and open choices are in
+// docs/metrics.md ("FLIP"). Layout: both images go through a horizontal pass (colour conversion
+// fused with the row filters), then a vertical pass per output row that finishes both images'
+// filters and combines them into the error of that row. All filters are separable and clamp at
+// the image edge; every pixel is computed the same way whatever the thread partition, and the
+// mean is summed per row and then over rows in order, so results do not depend on threads.
+#include "core/flip.h"
+
+#include "core/error.h"
+#include "core/flip_magma.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <vector>
+
+namespace dhr {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// ---- colour spaces ----------------------------------------------------------------------
+// Linear sRGB (D65) to CIE XYZ; the reference white is the matrix applied to (1, 1, 1), and the
+// rows are divided by it so that x, y, z below are X/Xn, Y/Yn, Z/Zn.
+struct ColourSpace {
+  float to_xyz[9];    // linear RGB -> (X/Xn, Y/Yn, Z/Zn)
+  float from_xyz[9];  // its inverse
+  std::array<float, 256> srgb_to_linear;
+};
+
+ColourSpace make_colour_space() {
+  const double m[9] = {0.4124564, 0.3575761, 0.1804375, 0.2126729, 0.7151522,
+                       0.0721750, 0.0193339, 0.1191920, 0.9503041};
+  double n[9];
+  for (int r = 0; r < 3; ++r) {
+    const double white = m[3 * r] + m[3 * r + 1] + m[3 * r + 2];
+    for (int c = 0; c < 3; ++c) n[3 * r + c] = m[3 * r + c] / white;
+  }
+  // Inverse by the adjugate.
+  const double det = n[0] * (n[4] * n[8] - n[5] * n[7]) - n[1] * (n[3] * n[8] - n[5] * n[6]) +
+                     n[2] * (n[3] * n[7] - n[4] * n[6]);
+  const double inv[9] = {(n[4] * n[8] - n[5] * n[7]) / det, (n[2] * n[7] - n[1] * n[8]) / det,
+                         (n[1] * n[5] - n[2] * n[4]) / det, (n[5] * n[6] - n[3] * n[8]) / det,
+                         (n[0] * n[8] - n[2] * n[6]) / det, (n[2] * n[3] - n[0] * n[5]) / det,
+                         (n[3] * n[7] - n[4] * n[6]) / det, (n[1] * n[6] - n[0] * n[7]) / det,
+                         (n[0] * n[4] - n[1] * n[3]) / det};
+  ColourSpace cs{};
+  for (int i = 0; i < 9; ++i) {
+    cs.to_xyz[i] = float(n[i]);
+    cs.from_xyz[i] = float(inv[i]);
+  }
+  for (int v = 0; v < 256; ++v) {
+    const double c = v / 255.0;
+    cs.srgb_to_linear[size_t(v)] = float(c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4));
+  }
+  return cs;
+}
+
+const ColourSpace& colour_space() {
+  static const ColourSpace cs = make_colour_space();
+  return cs;
+}
+
+// Cube root of a positive float: a first guess from the exponent bits (within a few percent),
+// then two Halley steps in double (cubic convergence: ~1e-4, then below float precision).
+// glibc's cbrtf was a third of FLIP's time; this is within one float ulp of it.
+inline float cbrt_positive(float t) {
+  uint32_t bits;
+  std::memcpy(&bits, &t, sizeof bits);
+  bits = bits / 3 + 0x2a514067u;
+  float guess;
+  std::memcpy(&guess, &bits, sizeof guess);
+  double y = guess;
+  const double td = t;
+  for (int i = 0; i < 2; ++i) {
+    const double y3 = y * y * y;
+    y = y * (y3 + 2 * td) / (2 * y3 + td);
+  }
+  return float(y);
+}
+
+// CIELAB's f(t), with its linear segment below (6/29)^3.
+inline float lab_f(float t) {
+  constexpr float kDelta3 = float((6.0 / 29) * (6.0 / 29) * (6.0 / 29));
+  constexpr float kSlope = float(1.0 / (3 * (6.0 / 29) * (6.0 / 29)));
+  constexpr float kOffset = float(4.0 / 29);
+  return t > kDelta3 ? cbrt_positive(t) : t * kSlope + kOffset;
+}
+
+struct Lab {
+  float l, a, b;
+};
+
+// lab_f over a row of values, written without branches so that the compiler can vectorize it
+// (the same arithmetic per value as lab_f).
+void lab_f_row(float* v, size_t n) {
+  constexpr float kDelta3 = float((6.0 / 29) * (6.0 / 29) * (6.0 / 29));
+  constexpr float kSlope = float(1.0 / (3 * (6.0 / 29) * (6.0 / 29)));
+  constexpr float kOffset = float(4.0 / 29);
+  for (size_t i = 0; i < n; ++i) {
+    const float t = v[i];
+    const float tc = std::max(t, kDelta3);
+    double y = std::bit_cast<float>(std::bit_cast<uint32_t>(tc) / 3 + 0x2a514067u);
+    const double td = tc;
+    for (int k = 0; k < 2; ++k) {
+      const double y3 = y * y * y;
+      y = y * (y3 + 2 * td) / (2 * y3 + td);
+    }
+    v[i] = t > kDelta3 ? float(y) : t * kSlope + kOffset;
+  }
+}
+
+// Linear RGB -> CIELAB with the Hunt adjustment (a and b scaled by 0.01 L).
+inline Lab hunt_lab(const ColourSpace& cs, float r, float g, float b) {
+  const float* m = cs.to_xyz;
+  const float fx = lab_f(m[0] * r + m[1] * g + m[2] * b);
+  const float fy = lab_f(m[3] * r + m[4] * g + m[5] * b);
+  const float fz = lab_f(m[6] * r + m[7] * g + m[8] * b);
+  const float l = 116.0f * fy - 16.0f;
+  return {l, 0.01f * l * 500.0f * (fx - fy), 0.01f * l * 200.0f * (fy - fz)};
+}
+
+inline float hyab(const Lab& p, const Lab& q) {
+  const float da = p.a - q.a, db = p.b - q.b;
+  return std::abs(p.l - q.l) + std::sqrt(da * da + db * db);
+}
+
+// ---- the paper's constants --------------------------------------------------------------
+// Contrast sensitivity as a sum of two Gaussians per opponent channel (a1, b1, a2, b2).
+struct CsfParams {
+  double a1, b1, a2, b2;
+};
+constexpr CsfParams kCsfAchromatic{1.0, 0.0047, 0.0, 1e-5};
+constexpr CsfParams kCsfRedGreen{1.0, 0.0053, 0.0, 1e-5};
+constexpr CsfParams kCsfBlueYellow{34.1, 0.04, 13.5, 0.025};
+constexpr double kCsfLargestB = 0.04;
+constexpr float kQc = 0.7f;   // exponent on the colour difference
+constexpr float kPc = 0.4f;   // redistribution: breakpoint, as a fraction of the largest error
+constexpr float kPt = 0.95f;  // ... and the error it maps to
+constexpr double kFeatureWidthDeg = 0.082;  // w: feature detector width in degrees
+// q_f, the exponent on the feature difference, is 1/2: applied as a square root below.
+
+struct Kernel {
+  int radius = 0;
+  std::vector<float> w;  // 2 * radius + 1 taps, w[radius] at offset 0
+};
+
+// One Gaussian of a CSF, sampled at pixel centres kΔ (Δ = 1/ppd degrees), normalized to sum 1.
+Kernel csf_gaussian(double b, int radius, double ppd, double* unnormalized_sum) {
+  Kernel k{radius, std::vector<float>(size_t(2 * radius + 1))};
+  std::vector<double> v(k.w.size());
+  double sum = 0;
+  for (int i = -radius; i <= radius; ++i) {
+    const double x = i / ppd;
+    v[size_t(i + radius)] = std::exp(-kPi * kPi * x * x / b);
+    sum += v[size_t(i + radius)];
+  }
+  for (size_t i = 0; i < v.size(); ++i) k.w[i] = float(v[i] / sum);
+  *unnormalized_sum = sum;
+  return k;
+}
+
+// The 2D CSF kernel a1 sqrt(pi/b1) exp(-pi^2 r^2/b1) + a2 sqrt(pi/b2) exp(-pi^2 r^2/b2),
+// normalized to sum 1, is exactly alpha1 g1(x) g1(y) + alpha2 g2(x) g2(y) with the normalized
+// 1D Gaussians g1, g2: two separable filters and a weighted sum.
+struct Csf {
+  Kernel g1, g2;
+  float alpha1 = 1, alpha2 = 0;
+};
+
+Csf make_csf(const CsfParams& p, int radius, double ppd) {
+  Csf c;
+  double s1 = 0, s2 = 0;
+  c.g1 = csf_gaussian(p.b1, radius, ppd, &s1);
+  if (p.a2 == 0) return c;
+  c.g2 = csf_gaussian(p.b2, radius, ppd, &s2);
+  const double w1 = p.a1 * std::sqrt(kPi / p.b1) * s1 * s1;
+  const double w2 = p.a2 * std::sqrt(kPi / p.b2) * s2 * s2;
+  c.alpha1 = float(w1 / (w1 + w2));
+  c.alpha2 = float(w2 / (w1 + w2));
+  return c;
+}
+
+// Feature detectors: Gaussian (sum 1), its first derivative and its second derivative, each
+// derivative scaled so that its positive taps sum to 1 and its negative taps to -1.
+struct FeatureKernels {
+  Kernel g, d1, d2;
+};
+
+FeatureKernels make_feature_kernels(double ppd) {
+  const double sigma = 0.5 * kFeatureWidthDeg * ppd;
+  const int radius = int(std::ceil(3 * sigma));
+  const size_t n = size_t(2 * radius + 1);
+  std::vector<double> g(n), d1(n), d2(n);
+  double gsum = 0;
+  for (int i = -radius; i <= radius; ++i) {
+    const double x = i, gi = std::exp(-x * x / (2 * sigma * sigma));
+    g[size_t(i + radius)] = gi;
+    d1[size_t(i + radius)] = -x / (sigma * sigma) * gi;
+    d2[size_t(i + radius)] = (x * x / (sigma * sigma) - 1) / (sigma * sigma) * gi;
+    gsum += gi;
+  }
+  auto signed_normalize = [](std::vector<double>& v) {
+    double pos = 0, neg = 0;
+    for (double x : v) (x > 0 ? pos : neg) += x;
+    for (double& x : v) x = x > 0 ? x / pos : x < 0 ? x / -neg : 0.0;
+  };
+  signed_normalize(d1);
+  signed_normalize(d2);
+  FeatureKernels f;
+  for (Kernel* k : {&f.g, &f.d1, &f.d2}) *k = Kernel{radius, std::vector<float>(n)};
+  for (size_t i = 0; i < n; ++i) {
+    f.g.w[i] = float(g[i] / gsum);
+    f.d1.w[i] = float(d1[i]);
+    f.d2.w[i] = float(d2[i]);
+  }
+  return f;
+}
+
+// ---- separable filtering ----------------------------------------------------------------
+// out[x] = sum_k w[k] * padded[x + k], where padded holds the row with `radius` clamped
+// samples on each side (padded[x + radius] is pixel x).
+void filter_row(const float* padded, int pad, const Kernel& k, int width, float* out) {
+  const float* base = padded + (pad - k.radius);
+  const float w0 = k.w[0];
+  for (int x = 0; x < width; ++x) out[x] = w0 * base[x];
+  for (int t = 1; t <= 2 * k.radius; ++t) {
+    const float wt = k.w[size_t(t)];
+    const float* src = base + t;
+    for (int x = 0; x < width; ++x) out[x] += wt * src[x];
+  }
+}
+
+// out[x] = sum_k w[k] * plane[clamp(y + k - r)][x]
+void filter_column(const float* plane, int width, int height, int y, const Kernel& k, float* out) {
+  const float* first = plane + size_t(std::clamp(y - k.radius, 0, height - 1)) * size_t(width);
+  const float w0 = k.w[0];
+  for (int x = 0; x < width; ++x) out[x] = w0 * first[x];
+  for (int t = 1; t <= 2 * k.radius; ++t) {
+    const int yy = std::clamp(y + t - k.radius, 0, height - 1);
+    const float wt = k.w[size_t(t)];
+    const float* src = plane + size_t(yy) * size_t(width);
+    for (int x = 0; x < width; ++x) out[x] += wt * src[x];
+  }
+}
+
+// The horizontal results of one image: 4 CSF planes (Yy, Cx, Cz with g1, Cz with g2) and 3
+// feature planes (luminance with g, d1, d2).
+enum Plane { kY, kCx, kCz1, kCz2, kFg, kFd1, kFd2, kPlanes };
+
+struct Filters {
+  Csf y, cx, cz;
+  FeatureKernels f;
+  int pad = 0;  // the largest radius
+};
+
+void horizontal_pass(const ImageRGB8& image, const Filters& fl, std::vector<float>* planes) {
+  const ColourSpace& cs = colour_space();
+  const int w = image.width(), h = image.height(), pad = fl.pad;
+  tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
+    // Opponent channels and luminance of one row, clamped `pad` samples beyond each edge.
+    std::vector<float> yy(size_t(w + 2 * pad)), cx(yy.size()), cz(yy.size()), lum(yy.size());
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      const Rgb8* src = &image(0, y);
+      for (int i = 0; i < w + 2 * pad; ++i) {
+        const Rgb8 p = src[std::clamp(i - pad, 0, w - 1)];
+        const float r = cs.srgb_to_linear[p.r], g = cs.srgb_to_linear[p.g], b = cs.srgb_to_linear[p.b];
+        const float* m = cs.to_xyz;
+        const float x = m[0] * r + m[1] * g + m[2] * b;
+        const float yl = m[3] * r + m[4] * g + m[5] * b;
+        const float z = m[6] * r + m[7] * g + m[8] * b;
+        const float yy_v = 116.0f * yl - 16.0f;  // YyCxCz (linearized CIELAB)
+        yy[size_t(i)] = yy_v;
+        cx[size_t(i)] = 500.0f * (x - yl);
+        cz[size_t(i)] = 200.0f * (yl - z);
+        lum[size_t(i)] = (yy_v + 16.0f) / 116.0f;  // normalized achromatic channel
+      }
+      const size_t off = size_t(y) * size_t(w);
+      filter_row(yy.data(), pad, fl.y.g1, w, planes[kY].data() + off);
+      filter_row(cx.data(), pad, fl.cx.g1, w, planes[kCx].data() + off);
+      filter_row(cz.data(), pad, fl.cz.g1, w, planes[kCz1].data() + off);
+      filter_row(cz.data(), pad, fl.cz.g2, w, planes[kCz2].data() + off);
+      filter_row(lum.data(), pad, fl.f.g, w, planes[kFg].data() + off);
+      filter_row(lum.data(), pad, fl.f.d1, w, planes[kFd1].data() + off);
+      filter_row(lum.data(), pad, fl.f.d2, w, planes[kFd2].data() + off);
+    }
+  });
+}
+
+// One row of one image after the vertical pass: Hunt-adjusted CIELAB of the filtered colour,
+// and the edge and point feature magnitudes.
+struct RowScratch {
+  std::vector<float> tmp[7];
+  std::vector<Lab> lab;
+  std::vector<float> edge, point;
+  explicit RowScratch(int w) : lab(size_t(w)), edge(size_t(w)), point(size_t(w)) {
+    for (auto& t : tmp) t.resize(size_t(w));
+  }
+};
+
+void vertical_row(const std::vector<float>* planes, const Filters& fl, int w, int h, int y, RowScratch& s) {
+  const ColourSpace& cs = colour_space();
+  filter_column(planes[kY].data(), w, h, y, fl.y.g1, s.tmp[0].data());
+  filter_column(planes[kCx].data(), w, h, y, fl.cx.g1, s.tmp[1].data());
+  filter_column(planes[kCz1].data(), w, h, y, fl.cz.g1, s.tmp[2].data());
+  filter_column(planes[kCz2].data(), w, h, y, fl.cz.g2, s.tmp[3].data());
+  // Features: d/dx = d1(x) g(y), d/dy = g(x) d1(y), and the same with d2.
+  filter_column(planes[kFd1].data(), w, h, y, fl.f.g, s.tmp[4].data());
+  filter_column(planes[kFg].data(), w, h, y, fl.f.d1, s.tmp[5].data());
+  filter_column(planes[kFd2].data(), w, h, y, fl.f.g, s.tmp[6].data());
+  const float a1 = fl.cz.alpha1, a2 = fl.cz.alpha2;
+  const float* m = cs.from_xyz;
+  for (int x = 0; x < w; ++x) {
+    const size_t i = size_t(x);
+    // Filtered YyCxCz -> (X/Xn, Y/Yn, Z/Zn) -> linear RGB, clamped to [0, 1].
+    const float yl = (s.tmp[0][i] + 16.0f) / 116.0f;
+    const float xl = s.tmp[1][i] / 500.0f + yl;
+    const float zl = yl - (a1 * s.tmp[2][i] + a2 * s.tmp[3][i]) / 200.0f;
+    const float r = std::clamp(m[0] * xl + m[1] * yl + m[2] * zl, 0.0f, 1.0f);
+    const float g = std::clamp(m[3] * xl + m[4] * yl + m[5] * zl, 0.0f, 1.0f);
+    const float b = std::clamp(m[6] * xl + m[7] * yl + m[8] * zl, 0.0f, 1.0f);
+    // -> (X/Xn, Y/Yn, Z/Zn) again, into rows that lab_f_row then maps (hunt_lab, unrolled).
+    const float* n = cs.to_xyz;
+    s.tmp[0][i] = n[0] * r + n[1] * g + n[2] * b;
+    s.tmp[1][i] = n[3] * r + n[4] * g + n[5] * b;
+    s.tmp[2][i] = n[6] * r + n[7] * g + n[8] * b;
+    s.edge[i] = std::sqrt(s.tmp[4][i] * s.tmp[4][i] + s.tmp[5][i] * s.tmp[5][i]);
+  }
+  for (int c = 0; c < 3; ++c) lab_f_row(s.tmp[c].data(), size_t(w));
+  for (int x = 0; x < w; ++x) {
+    const size_t i = size_t(x);
+    const float fx = s.tmp[0][i], fy = s.tmp[1][i], fz = s.tmp[2][i];
+    const float l = 116.0f * fy - 16.0f;
+    s.lab[i] = {l, 0.01f * l * 500.0f * (fx - fy), 0.01f * l * 200.0f * (fy - fz)};
+  }
+  // The point detector's y term needs the Gaussian-row plane with d2 vertically.
+  filter_column(planes[kFg].data(), w, h, y, fl.f.d2, s.tmp[5].data());
+  for (int x = 0; x < w; ++x) {
+    const size_t i = size_t(x);
+    s.point[i] = std::sqrt(s.tmp[6][i] * s.tmp[6][i] + s.tmp[5][i] * s.tmp[5][i]);
+  }
+}
+
+// The largest colour error: Hunt-adjusted HyAB between pure green and pure blue, to the q_c.
+float max_colour_error() {
+  const ColourSpace& cs = colour_space();
+  return std::pow(hyab(hunt_lab(cs, 0, 1, 0), hunt_lab(cs, 0, 0, 1)), kQc);
+}
+
+}  // namespace
+
+double pixels_per_degree(const FlipViewing& v) {
+  if (!(std::isfinite(v.distance_m) && v.distance_m > 0) ||
+      !(std::isfinite(v.display_width_m) && v.display_width_m > 0) || v.display_width_px <= 0)
+    fail("FLIP viewing setup: distance_m ({}), display_width_m ({}) and display_width_px ({}) must be positive",
+         v.distance_m, v.display_width_m, v.display_width_px);
+  return v.distance_m * (v.display_width_px / v.display_width_m) * (kPi / 180.0);
+}
+
+FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd) {
+  if (reference.width() != test.width() || reference.height() != test.height())
+    fail("FLIP: images differ in size: {}x{} against {}x{}", reference.width(), reference.height(), test.width(),
+         test.height());
+  if (reference.empty()) fail("FLIP: cannot compare empty images");
+  if (!(std::isfinite(ppd) && ppd > 0 && ppd <= 1000))
+    fail("FLIP: pixels per degree {} is not valid (must be in (0, 1000]; the paper's setup is 67)", ppd);
+  const int w = reference.width(), h = reference.height();
+
+  Filters fl;
+  const int csf_radius = int(std::ceil(3 * std::sqrt(kCsfLargestB / (2 * kPi * kPi)) * ppd));
+  fl.y = make_csf(kCsfAchromatic, csf_radius, ppd);
+  fl.cx = make_csf(kCsfRedGreen, csf_radius, ppd);
+  fl.cz = make_csf(kCsfBlueYellow, csf_radius, ppd);
+  fl.f = make_feature_kernels(ppd);
+  fl.pad = std::max(csf_radius, fl.f.g.radius);
+
+  std::vector<float> ref_planes[kPlanes], test_planes[kPlanes];
+  for (int p = 0; p < kPlanes; ++p) {
+    ref_planes[p].resize(reference.size());
+    test_planes[p].resize(reference.size());
+  }
+  horizontal_pass(reference, fl, ref_planes);
+  horizontal_pass(test, fl, test_planes);
+
+  const float cmax = max_colour_error();
+  const float knee = kPc * cmax;
+  FlipResult result;
+  result.map.resize(w, h);
+  std::vector<double> row_sums(size_t(h), 0.0);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
+    RowScratch rs(w), ts(w);
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      vertical_row(ref_planes, fl, w, h, y, rs);
+      vertical_row(test_planes, fl, w, h, y, ts);
+      float* out = &result.map(0, y);
+      double row = 0;
+      for (int x = 0; x < w; ++x) {
+        const size_t i = size_t(x);
+        // Colour: HyAB on Hunt-adjusted CIELAB, compressed, then redistributed to [0, 1].
+        const float dc = std::pow(hyab(rs.lab[i], ts.lab[i]), kQc);
+        const float ec = dc < knee ? (kPt / knee) * dc : kPt + (dc - knee) / (cmax - knee) * (1.0f - kPt);
+        // Features: the larger of the edge and point differences, normalized to [0, 1].
+        const float fd = std::max(std::abs(rs.edge[i] - ts.edge[i]), std::abs(rs.point[i] - ts.point[i]));
+        const float ef = std::sqrt(fd * float(1.0 / std::sqrt(2.0)));  // to the power q_f = 1/2
+        const float e = std::pow(ec, 1.0f - ef);
+        out[x] = e;
+        row += e;
+      }
+      row_sums[size_t(y)] = row;
+    }
+  });
+  double total = 0;
+  for (double r : row_sums) total += r;  // fixed order: independent of thread count
+  result.mean = total / double(reference.size());
+  return result;
+}
+
+ImageRGB8 flip_colour_map(const ImageF& flip_map) {
+  ImageRGB8 out(flip_map.width(), flip_map.height());
+  for (size_t i = 0; i < flip_map.size(); ++i) {
+    float e = flip_map[i];
+    if (!(e >= 0.0f)) e = std::isnan(e) ? 1.0f : 0.0f;  // NaN saturates to the top
+    e = std::min(e, 1.0f);
+    out[i] = kMagma[size_t(std::lround(255.0f * e))];
+  }
+  return out;
+}
+
+}  // namespace dhr
