@@ -521,7 +521,10 @@ class Simulation {
 
     if (score_now) {
       rec.scored = true;
-      rec.local = score_frame(*local_image, image);
+      rec.local = score_frame(*local_image, image, prev_local_ ? &*prev_local_ : nullptr,
+                              prev_shown_ ? &*prev_shown_ : nullptr);
+      prev_local_ = *local_image;  // the step metrics' previous scored frame
+      prev_shown_ = image;
       if (c_.ground_truth_every > 0 && rec.frame % c_.ground_truth_every == 0) {
         auto truth = ground_truth(a, gbuf);
         rec.scored_ground_truth = true;
@@ -542,6 +545,7 @@ class Simulation {
   const SimConfig& c_;
   const Scene& scene_;
   std::string scene_key_;
+  std::optional<ImageRGB8> prev_local_, prev_shown_;  // the last scored frame's reference and image
   TraceCache& cache_;
   bool remote_;
   Link uplink_, downlink_;

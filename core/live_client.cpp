@@ -370,6 +370,8 @@ class LiveClient {
       if (row.scored) scored[row.frame] = &row;
     if (scored.empty()) return;
     const int last = scored.rbegin()->first;
+    std::optional<ImageRGB8> prev_ref;
+    const ImageRGB8* prev_shown = nullptr;
     for (int a = local.needs_every_frame() ? 0 : scored.begin()->first; a <= last; ++a) {
       auto it = scored.find(a);
       if (it == scored.end() && !local.needs_every_frame()) continue;
@@ -378,7 +380,9 @@ class LiveClient {
       rasterize({scene_.scene, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)}, g);
       const std::optional<ImageRGB8> ref = local.frame(uint32_t(a), g, *trace(uint32_t(a), g), it != scored.end());
       if (!ref) continue;
-      it->second->local = score_frame(*ref, kept_.at(a));
+      it->second->local = score_frame(*ref, kept_.at(a), prev_ref ? &*prev_ref : nullptr, prev_shown);
+      prev_ref = *ref;  // the step metrics' previous scored frame
+      prev_shown = &kept_.at(a);
     }
   }
 

@@ -1,7 +1,9 @@
 #include "core/results.h"
 
 #include "core/error.h"
+#include "core/flip.h"
 #include "core/metrics.h"
+#include "core/temporal.h"
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -15,8 +17,18 @@ namespace {
 
 nlohmann::json finite_or_null(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
-double ssim_of(const ImageRGB8& reference, const ImageRGB8& shown) { return ssim_u8(luma(reference), luma(shown)); }
+double ssim_of(const ImageRGB8& reference, const ImageRGB8& shown) {
+  return ssim_u8(luma(reference), luma(shown), nullptr, SsimBorder::Valid);
+}
 double psnr_of(const ImageRGB8& reference, const ImageRGB8& shown) { return psnr_db(reference, shown); }
+double flip_of(const ImageRGB8& reference, const ImageRGB8& shown) { return flip(reference, shown, kFlipDefaultPpd).mean; }
+double temporal_error_of(const ImageRGB8& rp, const ImageRGB8& r, const ImageRGB8& tp, const ImageRGB8& t) {
+  return temporal_scores(rp, r, tp, t).temporal_error;
+}
+double static_flicker_of(const ImageRGB8& rp, const ImageRGB8& r, const ImageRGB8& tp, const ImageRGB8& t) {
+  const TemporalScores s = temporal_scores(rp, r, tp, t);
+  return s.static_pixels > 0 ? s.static_flicker : std::nan("");
+}
 
 // Metric i of the frames scored against `against`, in frame order, for_mean applied.
 std::vector<double> scores_of(const RunResult& r, size_t i, Against against) {
@@ -24,7 +36,7 @@ std::vector<double> scores_of(const RunResult& r, size_t i, Against against) {
   std::vector<double> v;
   for (const FrameRecord& f : r.frames) {
     const std::vector<double>& s = against == Against::Local ? f.local : f.ground_truth;
-    if (s.size() > i) v.push_back(m.for_mean ? m.for_mean(s[i]) : s[i]);
+    if (s.size() > i && !std::isnan(s[i])) v.push_back(m.for_mean ? m.for_mean(s[i]) : s[i]);
   }
   return v;
 }
@@ -73,21 +85,36 @@ std::string ImageMetric::aggregate(Against a, const std::string& statistic) cons
 const std::vector<ImageMetric>& image_metrics() {
   static const std::vector<ImageMetric> metrics = {
       {"ssim", "",
-       "SSIM (Wang et al. 2004; Gaussian 11x11, sigma 1.5, K1 0.01, K2 0.03, L 255) on BT.601 luma, mean over every "
-       "pixel with reflect-101 borders (core/metrics.h)",
+       "SSIM (Wang et al. 2004; Gaussian 11x11, sigma 1.5, K1 0.01, K2 0.03, L 255) on BT.601 luma, mean over the "
+       "valid interior as Wang's code and scikit-image (docs/metrics.md)",
        true, ssim_of, nullptr},
       {"psnr", "db", "PSNR over R, G and B, 10 log10(255^2 / MSE); identical frames are +inf, counted as 100 dB in means",
        true, psnr_of, psnr_for_mean},
+      {"flip", "", "LDR-FLIP (Andersson et al. 2020) at 67 pixels per degree, mean of the error map, 0..1 (docs/metrics.md)",
+       false, flip_of, nullptr},
+      {"temporal_error", "levels",
+       "mean |(shown_k - shown_j) - (ref_k - ref_j)| in luma levels, j the previous scored frame: error of the change "
+       "between frames (docs/metrics.md, Temporal stability)",
+       false, nullptr, nullptr, temporal_error_of},
+      {"static_flicker", "levels",
+       "mean |shown_k - shown_j| in luma levels over the pixels whose reference did not change, j the previous scored "
+       "frame (docs/metrics.md); no value when no pixel is static",
+       false, nullptr, nullptr, static_flicker_of},
   };
   return metrics;
 }
 
-std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& shown) {
+std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& shown, const ImageRGB8* reference_prev,
+                                const ImageRGB8* shown_prev) {
   if (reference.width() != shown.width() || reference.height() != shown.height() || reference.empty())
     fail("score_frame: images of {}x{} and {}x{} (they must be the same size, not empty)", reference.width(),
          reference.height(), shown.width(), shown.height());
   std::vector<double> s;
-  for (const ImageMetric& m : image_metrics()) s.push_back(m.score(reference, shown));
+  for (const ImageMetric& m : image_metrics()) {
+    if (m.score) s.push_back(m.score(reference, shown));
+    else if (reference_prev && shown_prev) s.push_back(m.score_step(*reference_prev, reference, *shown_prev, shown));
+    else s.push_back(std::nan(""));
+  }
   return s;
 }
 

@@ -39,14 +39,21 @@ struct ImageMetric {
   double (*score)(const ImageRGB8& reference, const ImageRGB8& shown) = nullptr;
   // The value as averaged over frames (PSNR: identical frames count as 100 dB); nullptr: as is.
   double (*for_mean)(double) = nullptr;
+  // Instead of `score`, a metric of the change since the previous scored frame (the reference and
+  // the shown frame at both): scored against the local reference only, NaN (no value) on a run's
+  // first scored frame and against the ground truth.
+  double (*score_step)(const ImageRGB8& reference_prev, const ImageRGB8& reference, const ImageRGB8& shown_prev,
+                       const ImageRGB8& shown) = nullptr;
 
   std::string column(Against a) const;                            // ssim_local, psnr_ground_truth_db
   std::string aggregate(Against a, const std::string& statistic) const;  // ssim_local_mean, psnr_local_mean_db
 };
 const std::vector<ImageMetric>& image_metrics();
 
-// One value per image_metrics() entry, in its order.
-std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& shown);
+// One value per image_metrics() entry, in its order; the step metrics need the previous scored
+// frame's reference and shown image (nullptr: NaN, no value).
+std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& shown,
+                                const ImageRGB8* reference_prev = nullptr, const ImageRGB8* shown_prev = nullptr);
 
 // One pass of one displayed frame.
 struct PassFrameRecord {
@@ -61,7 +68,8 @@ struct FrameRecord {
   int frame = 0;
   double t_ms = 0.0;
   bool scored = false, scored_ground_truth = false;
-  // One value per image_metrics() entry when scored against that reference, else empty.
+  // One value per image_metrics() entry when scored against that reference, else empty (NaN: the
+  // metric has no value on this frame, e.g. a step metric on the first scored frame).
   std::vector<double> local, ground_truth;
   std::vector<PassFrameRecord> passes;  // in the order of the run's pass list
   double client_wall_ms = 0.0;  // rasterize + decode + predict + composite

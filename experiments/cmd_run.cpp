@@ -5,6 +5,7 @@
 #include "core/error.h"
 #include "backends/register_all.h"
 #include "core/experiment.h"
+#include "core/flip.h"
 #include "core/image_io.h"
 #include "core/json_io.h"
 #include "core/metrics.h"
@@ -277,6 +278,8 @@ Runner add_run_command(CLI::App& app) {
             grey[p] = {g, g, g};
           }
           write_png((img_dir / (spec.id + "_error.png")).string(), downscale(grey, 480));
+          // FLIP's error map against the same reference, on FLIP's colour map.
+          write_png((img_dir / (spec.id + "_flip.png")).string(), downscale(flip_colour_map(flip(against, shown).map), 480));
           record["images"] = {{"frame", r.kept_frame},
                               {"error_against", &against == &local ? "local reference" : "ground truth"},
                               {"error_scale", "|luma difference| 0..32 levels"}};

@@ -561,7 +561,9 @@ def main(d):
                 refs.append(("ground truth", first + "_truth.png"))
             refs.append((f"local reference ({first})", first + "_local.png"))
             cols = max(len(chunk), len(refs))
-            fig, axes = plt.subplots(3, cols, figsize=(3.2 * cols, 6.6), squeeze=False)
+            have_flip = all(os.path.exists(os.path.join(img_dir, r["id"] + "_flip.png")) for r in chunk)
+            fig, axes = plt.subplots(4 if have_flip else 3, cols, figsize=(3.2 * cols, 8.8 if have_flip else 6.6),
+                                     squeeze=False)
             for ax in axes.flat:
                 ax.axis("off")
             for c, (title, name) in enumerate(refs):
@@ -576,9 +578,12 @@ def main(d):
                     err = err[..., 0]
                 im = axes[2, c].imshow(err * ERROR_SCALE_LEVELS, cmap="viridis", vmin=0, vmax=ERROR_SCALE_LEVELS)
                 axes[2, c].set_title(f"error vs {r.get('images', {}).get('error_against', 'reference')}", fontsize=7)
+                if have_flip:
+                    axes[3, c].imshow(read_image(os.path.join(img_dir, r["id"] + "_flip.png")))
+                    axes[3, c].set_title("FLIP error map (0 black .. 1 yellow)", fontsize=7)
             if im is not None:
-                fig.colorbar(im, ax=list(axes[2, :]), orientation="horizontal", fraction=0.05, pad=0.02,
-                             label="|luma difference| (8-bit levels), one scale for every map")
+                fig.colorbar(im, ax=list(axes[2, :]), orientation="vertical", fraction=0.02, pad=0.01,
+                             label="|luma difference|\n(8-bit levels)")
             fig.suptitle(f"{scene}: last scored frame", fontsize=10)
             name = f"grid_{scene.replace('/', '_').replace('.json', '')}_{part // MAX_RUNS_PER_GRID}.png"
             fig.savefig(os.path.join(d, "grids", name), dpi=100)
@@ -586,9 +591,10 @@ def main(d):
             grids.append(name)
     if grids:
         out.append("## Image grids\n")
-        out.append("Top: references. Middle: what the client displayed. Bottom: the error of each against the "
+        out.append("Top: references. Then what the client displayed; the error of each against the "
                    "ground truth where it was scored on that frame, else against the local reference, on one fixed "
-                   f"colour scale (0..{ERROR_SCALE_LEVELS} levels of luma difference).\n")
+                   f"colour scale (0..{ERROR_SCALE_LEVELS} levels of luma difference); and, where written, FLIP's "
+                   "error map against the same reference on FLIP's own colour map (magma, 0..1).\n")
         for g in grids:
             out.append(f"![{g}](grids/{g})\n")
 

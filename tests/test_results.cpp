@@ -1,6 +1,7 @@
 // Results declared once (core/results.h): the image metrics score frames as their functions do,
 // aggregates follow the declaration (PSNR of identical frames counts as 100 dB), and the
 // frames.csv writer's rows match its header, with empty cells for a pass a run does not have.
+#include "core/flip.h"
 #include "core/metrics.h"
 #include "core/results.h"
 
@@ -44,9 +45,20 @@ TEST(Results, ScoreFrameIsTheDeclaredFunctions) {
   const ImageRGB8 a = pattern(48, 32, 1), b = pattern(48, 32, 2);
   const std::vector<double> s = score_frame(a, b);
   ASSERT_EQ(s.size(), image_metrics().size());
-  const QualityScores q = compare_images(a, b);
+  const QualityScores q = compare_images(a, b, SsimChannel::Luma, nullptr, SsimBorder::Valid);
   EXPECT_EQ(s[index_of("ssim")], q.ssim);
   EXPECT_EQ(s[index_of("psnr")], q.psnr_db);
+  EXPECT_EQ(s[index_of("flip")], flip(a, b).mean);
+  // Step metrics need the previous scored frame: none here.
+  EXPECT_TRUE(std::isnan(s[index_of("temporal_error")]));
+  // Shown and reference both still: no error of the change, whatever the per-frame error.
+  const std::vector<double> still = score_frame(a, b, &a, &b);
+  EXPECT_EQ(still[index_of("temporal_error")], 0.0);
+  EXPECT_EQ(still[index_of("static_flicker")], 0.0);
+  // The reference still, the shown frame changing: flicker.
+  const std::vector<double> flicker = score_frame(a, b, &a, &a);
+  EXPECT_GT(flicker[index_of("static_flicker")], 1.0);
+  EXPECT_EQ(flicker[index_of("static_flicker")], flicker[index_of("temporal_error")]);
   const std::vector<double> same = score_frame(a, a);
   EXPECT_EQ(same[index_of("ssim")], 1.0);
   EXPECT_TRUE(std::isinf(same[index_of("psnr")]));
