@@ -74,7 +74,8 @@ Runner add_converge_command(CLI::App& app) {
     fmt::print("ground truth at N = {} AO rays, {} rays per light against {} x N; {}x{}\n", o->ao_rays,
                o->samples_per_light, o->factor, o->width, o->height);
     fmt::print("{:<24} {:>7}", "scene", "time s");
-    for (const ImageMetric& m : metrics) fmt::print(" {:>10}", m.name + (m.unit.empty() ? "" : " " + m.unit));
+    for (const ImageMetric& m : metrics)
+      if (m.score) fmt::print(" {:>10}", m.name + (m.unit.empty() ? "" : " " + m.unit));
     fmt::print(" {:>14}\n", "max |dY| levels");
     for (const std::string& name : o->scenes) {
       const Scene scene = load_scene_or_model(name, SceneSearchPath::standard(o->scene_path));
@@ -100,6 +101,7 @@ Runner add_converge_command(CLI::App& app) {
         nlohmann::json row = {{"time_s", t}, {"max_abs_luma_difference", max_d}};
         fmt::print("{:<24} {:>7.3f}", name.substr(0, 24), t);
         for (size_t k = 0; k < metrics.size(); ++k) {
+          if (!metrics[k].score) continue;  // a step metric: needs a sequence
           row[metrics[k].name] = std::isfinite(s[k]) ? nlohmann::json(s[k]) : nlohmann::json("inf");
           per_metric[k].push_back(metrics[k].for_mean ? metrics[k].for_mean(s[k]) : s[k]);
           fmt::print(" {:>10.5f}", s[k]);
@@ -113,6 +115,7 @@ Runner add_converge_command(CLI::App& app) {
       }
       nlohmann::json summary = nlohmann::json::object();
       for (size_t k = 0; k < metrics.size(); ++k) {
+        if (!metrics[k].score) continue;
         const auto& v = per_metric[k];
         double sum = 0;
         for (double x : v) sum += x;
