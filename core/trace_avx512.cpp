@@ -26,6 +26,7 @@
 #include "core/trace_kernels.h"
 
 #include <algorithm>
+#include <limits>
 #include <numbers>
 
 #if DHR_TRACE_AVX512
@@ -172,6 +173,88 @@ DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float rad
 }
 
 }  // namespace
+
+DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base) {
+  const int w = r.w;
+  const __m512d cx = _mm512_set1_pd(li.centre_d.x), cy = _mm512_set1_pd(li.centre_d.y), cz = _mm512_set1_pd(li.centre_d.z);
+  const __m512d range = _mm512_set1_pd(double(li.range)), radius = _mm512_set1_pd(double(li.radius));
+  const __m512d facing_at = li.soft ? _mm512_set1_pd(-double(li.radius)) : _mm512_setzero_pd();
+  const __mmask8 has_range = li.range > 0.0f ? 0xff : 0;
+  const __m512 lcx = _mm512_set1_ps(li.centre.x), lcy = _mm512_set1_ps(li.centre.y), lcz = _mm512_set1_ps(li.centre.z);
+  const __m512 lradius = _mm512_set1_ps(li.radius), tfar_scale = _mm512_set1_ps(kShadowTfarScale);
+  const __m512 zero = _mm512_setzero_ps(), fmax = _mm512_set1_ps(std::numeric_limits<float>::max());
+  const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  int* idx = r.idx.data();
+  int m = 0;
+  for (int x = 0; x < w; x += 16) {
+    const __mmask16 live = w - x >= 16 ? __mmask16(0xffff) : __mmask16((1u << (w - x)) - 1u);
+    // Classification in double: d = |c - p|, n . (c - p) (the scalar code's order of sums).
+    __mmask16 oor = 0, inside = 0, facing = 0;
+    for (int half = 0; half < 2; ++half) {
+      const int xh = x + 8 * half;
+      const __m512d tx = _mm512_sub_pd(cx, _mm512_cvtps_pd(_mm256_loadu_ps(&r.px[size_t(xh)])));
+      const __m512d ty = _mm512_sub_pd(cy, _mm512_cvtps_pd(_mm256_loadu_ps(&r.py[size_t(xh)])));
+      const __m512d tz = _mm512_sub_pd(cz, _mm512_cvtps_pd(_mm256_loadu_ps(&r.pz[size_t(xh)])));
+      const __m512d d = _mm512_sqrt_pd(
+          _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(tx, tx), _mm512_mul_pd(ty, ty)), _mm512_mul_pd(tz, tz)));
+      const __m512d n_dot = _mm512_add_pd(
+          _mm512_add_pd(_mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nx[size_t(xh)])), tx),
+                        _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.ny[size_t(xh)])), ty)),
+          _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nz[size_t(xh)])), tz));
+      const int sh = 8 * half;
+      oor |= __mmask16(_mm512_mask_cmp_pd_mask(has_range, d, range, _CMP_GT_OQ)) << sh;
+      inside |= __mmask16(_mm512_cmp_pd_mask(d, radius, _CMP_LE_OQ)) << sh;  // !(d > radius) && d == d
+      facing |= __mmask16(_mm512_cmp_pd_mask(n_dot, facing_at, _CMP_LE_OQ)) << sh;
+    }
+    // code = out_of_range ? range : inside ? inside : facing ? facing : rays
+    __m512i code = _mm512_setzero_si512();
+    code = _mm512_mask_mov_epi32(code, facing, _mm512_set1_epi32(kPairFacing));
+    code = _mm512_mask_mov_epi32(code, inside, _mm512_set1_epi32(kPairInside));
+    code = _mm512_mask_mov_epi32(code, oor, _mm512_set1_epi32(kPairRange));
+    alignas(16) uint8_t bytes[16];
+    _mm_store_si128(reinterpret_cast<__m128i*>(bytes), _mm512_cvtepi32_epi8(code));
+    const int n = std::min(16, w - x);
+    std::copy(bytes, bytes + n, &r.code[base + size_t(x)]);
+    const __m512i covered = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)])));
+    const __mmask16 traced = __mmask16(~(oor | inside | facing)) & _mm512_test_epi32_mask(covered, covered) & live;
+    _mm512_mask_compressstoreu_epi32(idx + m, traced, _mm512_add_epi32(_mm512_set1_epi32(x), iota));
+    if (li.soft || traced == 0) {
+      m += popcount16(traced);
+      continue;
+    }
+    m += popcount16(traced);
+    // The hard ray of every pixel of the block (stored for the traced pairs only): towards the
+    // centre from the offset origin, in float, ending kShadowTfarScale short of the sphere.
+    const __m512 ocx = _mm512_sub_ps(lcx, _mm512_loadu_ps(&r.ox[size_t(x)]));
+    const __m512 ocy = _mm512_sub_ps(lcy, _mm512_loadu_ps(&r.oy[size_t(x)]));
+    const __m512 ocz = _mm512_sub_ps(lcz, _mm512_loadu_ps(&r.oz[size_t(x)]));
+    const __m512 dist_o = _mm512_sqrt_ps(
+        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(ocx, ocx), _mm512_mul_ps(ocy, ocy)), _mm512_mul_ps(ocz, ocz)));
+    const __m512 dx = _mm512_div_ps(ocx, dist_o), dy = _mm512_div_ps(ocy, dist_o), dz = _mm512_div_ps(ocz, dist_o);
+    // std::max(0.0f, v): v where 0 < v, else 0 (NaN and -0 give +0), as max_ps(v, 0).
+    const __m512 tfar = _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(dist_o, lradius), tfar_scale), zero);
+    // direction_valid (core/trace_directions.h) and the origin's validity.
+    const __mmask16 finite = _mm512_cmp_ps_mask(_mm512_abs_ps(dx), fmax, _CMP_LE_OQ) &
+                             _mm512_cmp_ps_mask(_mm512_abs_ps(dy), fmax, _CMP_LE_OQ) &
+                             _mm512_cmp_ps_mask(_mm512_abs_ps(dz), fmax, _CMP_LE_OQ);
+    const __mmask16 nonzero = _mm512_cmp_ps_mask(dx, zero, _CMP_NEQ_UQ) | _mm512_cmp_ps_mask(dy, zero, _CMP_NEQ_UQ) |
+                              _mm512_cmp_ps_mask(dz, zero, _CMP_NEQ_UQ);
+    const __m512i origin_ok =
+        _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.origin_ok[size_t(x)])));
+    const __mmask16 ok = finite & nonzero & _mm512_cmp_ps_mask(tfar, zero, _CMP_GE_OQ) &
+                         _mm512_test_epi32_mask(origin_ok, origin_ok);
+    const size_t i = base + size_t(x);
+    _mm512_mask_storeu_ps(&r.dx[i], traced, dx);
+    _mm512_mask_storeu_ps(&r.dy[i], traced, dy);
+    _mm512_mask_storeu_ps(&r.dz[i], traced, dz);
+    _mm512_mask_storeu_ps(&r.tfar[i], traced, tfar);
+    _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
+                    _mm512_cvtepi32_epi8(_mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(1))));
+    for (int k = 0; k < n; ++k)
+      if ((traced >> k) & 1u) r.ok[i + size_t(k)] = bytes[k];
+  }
+  return m;
+}
 
 // The AO rows with the AVX-512 ray generator: stage 1 gathers the row's tracing pixels
 // (scalar: surface, basis, validation, hash), stage 2 (ao_rays_x16) makes and traces the rays.

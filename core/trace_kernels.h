@@ -316,6 +316,45 @@ struct AoPixels {
   }
 };
 
+// What a (pixel, light) pair does (core/trace.h): trace ray(s), or a known answer.
+enum PairCode : uint8_t { kPairRays = 0, kPairRange = 1, kPairInside = 2, kPairFacing = 3 };
+
+// Per-row working arrays of the visibility pass, by pixel (x) and by light and pixel
+// (l * w + x). The pass works a row at a time in stages -- surfaces, then one light at a time
+// over the whole row, then the rays in pixel order -- so that the long chains of square roots
+// and divisions of neighbouring pixels overlap (and vectorize) instead of running one after
+// the other. Values of uncovered pixels are computed on zeros and never used.
+struct VisibilityRow {
+  static constexpr size_t kRowPad = 16;
+  int w = 0;
+  std::vector<uint8_t> covered, origin_ok;
+  std::vector<float> px, py, pz, nx, ny, nz, ox, oy, oz;
+  std::vector<uint64_t> h;   // PixelRng hash per pixel
+  std::vector<int> idx;       // compacted pixel indices (sphere_light_row)
+  // Temporaries of the light stages, by compacted index (sphere) or pixel (distant); kRowPad
+  // lanes of padding so that 4-, 8- and 16-lane loads and stores past the end stay inside.
+  std::vector<float> t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11, t12;
+  std::vector<float> u0, u1;  // one sample's uniforms per pixel
+  // Per light and pixel.
+  std::vector<uint8_t> code, ok;
+  std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
+  std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
+
+  VisibilityRow(int width, int lights) : w(width) {
+    const size_t n = size_t(width), nl = n * size_t(lights);
+    // Per-pixel arrays padded too: the 16-lane kernels (core/trace_avx512.cpp) load whole
+    // blocks; the padding stays zero (an uncovered pixel) and nothing is stored there.
+    for (auto* v : {&covered, &origin_ok}) v->assign(n + kRowPad, 0);
+    for (auto* v : {&px, &py, &pz, &nx, &ny, &nz, &ox, &oy, &oz}) v->assign(n + kRowPad, 0.0f);
+    for (auto* v : {&u0, &u1, &t0, &t1, &t2, &t3, &t4, &t5, &t6, &t7, &t8, &t9, &t10, &t11, &t12})
+      v->assign(n + kRowPad, 0.0f);
+    h.assign(n, 0);
+    idx.assign(n + kRowPad, 0);
+    for (auto* v : {&code, &ok}) v->assign(nl, 0);
+    for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
+  }
+};
+
 // ---- The row kernels ----
 
 // core/trace_rows.cpp, instantiated for W = 8 and 16 (Embree's packet width).
@@ -341,6 +380,11 @@ extern template void ao_rows<16>(RtScene&, const GBuffer&, int, float, const Tra
 bool cpu_has_avx512dq();
 void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
                  AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st);
+// Stage 2 of the visibility pass for a sphere light (sphere_light_row in core/trace_rows.cpp),
+// 16 pixels at a time: every pixel's code, the compacted indices (r.idx) of the covered pairs
+// that trace, whose count it returns, and, for a hard light (!li.soft), those pairs' rays and
+// validity. The same operations in the same order as the scalar code: the same bits.
+int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base);
 #endif
 
 }  // namespace dhr::trace_detail

@@ -54,46 +54,11 @@ __attribute__((target_clones("default", "arch=x86-64-v4"))) void uniforms_pixels
   }
 }
 
-// What a (pixel, light) pair does (core/trace.h): trace ray(s), or a known answer.
-enum PairCode : uint8_t { kPairRays = 0, kPairRange = 1, kPairInside = 2, kPairFacing = 3 };
-
-// Per-row working arrays of the visibility pass, by pixel (x) and by light and pixel
-// (l * w + x). The pass works a row at a time in stages -- surfaces, then one light at a time
-// over the whole row, then the rays in pixel order -- so that the long chains of square roots
-// and divisions of neighbouring pixels overlap (and vectorize) instead of running one after
-// the other. Values of uncovered pixels are computed on zeros and never used.
-struct VisibilityRow {
-  int w = 0;
-  std::vector<uint8_t> covered, origin_ok;
-  std::vector<float> px, py, pz, nx, ny, nz, ox, oy, oz;
-  std::vector<uint64_t> h;   // PixelRng hash per pixel
-  std::vector<int> idx;       // compacted pixel indices (sphere_light_row)
-  // Temporaries of the light stages, by compacted index (sphere) or pixel (distant); kChunk
-  // lanes of padding so that 4- and 8-lane loads and stores past the end stay inside.
-  std::vector<float> t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11, t12;
-  std::vector<float> u0, u1;  // one sample's uniforms per pixel
-  // Per light and pixel.
-  std::vector<uint8_t> code, ok;
-  std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
-  std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
-
-  VisibilityRow(int width, int lights) : w(width) {
-    const size_t n = size_t(width), nl = n * size_t(lights);
-    for (auto* v : {&covered, &origin_ok}) v->assign(n, 0);
-    for (auto* v : {&px, &py, &pz, &nx, &ny, &nz, &ox, &oy, &oz}) v->assign(n, 0.0f);
-    for (auto* v : {&u0, &u1, &t0, &t1, &t2, &t3, &t4, &t5, &t6, &t7, &t8, &t9, &t10, &t11, &t12})
-      v->assign(n + size_t(kChunk), 0.0f);
-    h.assign(n, 0);
-    idx.assign(n, 0);
-    for (auto* v : {&code, &ok}) v->assign(nl, 0);
-    for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
-  }
-};
-
 // Stage 2 for a sphere light over a row: classification in double precision (as the scalar
 // rules in core/trace.h), then the hard ray, the single jittered ray (S = 1) or the cone
 // (S > 1). Branch-free: every pixel computes everything, the code picks.
-void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
+// x16: the AVX-512 kernel (sphere_light_row_x16) does the classification and the hard rays.
+void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample, bool x16) {
   const int w = r.w;
   const double cx = li.centre_d.x, cy = li.centre_d.y, cz = li.centre_d.z;
   const double range = double(li.range), radius = double(li.radius);
@@ -109,7 +74,15 @@ void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool o
   // covered pairs that trace (compacted: out-of-range and facing-away pairs cost nothing more).
   int* __restrict idx = r.idx.data();
   int m = 0;
-  for (int x = 0; x < w; ++x) {
+#if DHR_TRACE_AVX512
+  if (x16) {
+    m = sphere_light_row_x16(r, li, base);
+    if (!li.soft) return;
+  }
+#else
+  (void)x16;
+#endif
+  for (int x = 0; x < w && !x16; ++x) {
     const double tx = cx - double(r.px[size_t(x)]), ty = cy - double(r.py[size_t(x)]), tz = cz - double(r.pz[size_t(x)]);
     const double d = std::sqrt(tx * tx + ty * ty + tz * tz);
     const double n_dot = double(r.nx[size_t(x)]) * tx + double(r.ny[size_t(x)]) * ty + double(r.nz[size_t(x)]) * tz;
@@ -258,6 +231,11 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   Batch<W> batch(rt.handle(), kMaskShadow);
   TriangleCache cache;
   VisibilityRow r(w, nl);
+#if DHR_TRACE_AVX512
+  const bool x16 = settings.wide_kernels && cpu_has_avx512dq();
+#else
+  const bool x16 = false;
+#endif
   bool any_soft = false;  // hard lights need no random numbers
   for (const LightInfo& li : lights) any_soft = any_soft || li.soft;
   uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
@@ -290,7 +268,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
       const LightInfo& li = lights[size_t(l)];
       const bool one_sample = li.samples == 1;
       if (li.soft && one_sample) uniforms_pixels(r.h.data(), w, 0, kStreamLightBase + uint32_t(l), r.u0.data(), r.u1.data());
-      if (li.sphere) sphere_light_row(r, li, size_t(l) * size_t(w), one_sample);
+      if (li.sphere) sphere_light_row(r, li, size_t(l) * size_t(w), one_sample, x16);
       else distant_light_row(r, li, size_t(l) * size_t(w), one_sample);
     }
     // Stage 3: answers and rays in pixel order (pixel, light, sample).

@@ -108,6 +108,9 @@ TEST(TraceBits, VisibilityPassIsPinned) {
       s.samples_per_light = mode == "soft4" ? 4 : 1;
       const std::string key = name + "/" + mode;
       const uint64_t h = pass_hash(rt, g, s);
+      TraceSettings base = s;
+      base.wide_kernels = false;  // the baseline kernels: the same bits
+      EXPECT_EQ(pass_hash(rt, g, base), h) << key << ": the AVX-512 and baseline kernels differ";
       if (print) {
         std::printf("      {\"%s\", 0x%016llxull},\n", key.c_str(), static_cast<unsigned long long>(h));
         continue;
