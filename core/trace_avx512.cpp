@@ -256,6 +256,48 @@ DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightIn
   return m;
 }
 
+DHR_TRACE_TARGET_AVX512 void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch) {
+  auto& pk = batch.packet;
+  alignas(64) int valid[16];
+  const __m512 zero = _mm512_setzero_ps();
+  for (int k0 = 0; k0 < n; k0 += 16) {
+    const int live = std::min(16, n - k0);
+    const __mmask16 lm = __mmask16((1u << live) - 1u);
+    const __m512i pi = _mm512_maskz_loadu_epi32(lm, r.pair.data() + k0);
+    const __m512i xi = _mm512_maskz_loadu_epi32(lm, r.pair_x.data() + k0);
+    const __m512 ox = _mm512_mask_i32gather_ps(zero, lm, xi, r.ox.data(), 4);
+    const __m512 oy = _mm512_mask_i32gather_ps(zero, lm, xi, r.oy.data(), 4);
+    const __m512 oz = _mm512_mask_i32gather_ps(zero, lm, xi, r.oz.data(), 4);
+    const __m512 dx = _mm512_mask_i32gather_ps(zero, lm, pi, r.dx.data(), 4);
+    const __m512 dy = _mm512_mask_i32gather_ps(zero, lm, pi, r.dy.data(), 4);
+    const __m512 dz = _mm512_mask_i32gather_ps(zero, lm, pi, r.dz.data(), 4);
+    const __m512 tfar = _mm512_mask_i32gather_ps(zero, lm, pi, r.tfar.data(), 4);
+    _mm512_store_ps(pk.org_x, ox);
+    _mm512_store_ps(pk.org_y, oy);
+    _mm512_store_ps(pk.org_z, oz);
+    _mm512_store_ps(pk.dir_x, dx);
+    _mm512_store_ps(pk.dir_y, dy);
+    _mm512_store_ps(pk.dir_z, dz);
+    _mm512_store_ps(pk.tfar, tfar);
+    if (batch.record) {  // collect_visibility_rays: push() keeps the rays, traces nothing
+      for (int l = 0; l < live; ++l)
+        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l],
+                   pk.tfar[l], nullptr);
+      continue;
+    }
+    _mm512_store_si512(valid, _mm512_maskz_mov_epi32(lm, _mm512_set1_epi32(-1)));
+    rtcOccluded16(valid, batch.scene, &batch.ctx, &pk);
+    // Embree sets tfar = -inf on an occluded ray; anything else reached (as Batch::flush).
+    uint32_t reached = _mm512_cmp_ps_mask(_mm512_load_ps(pk.tfar), zero, _CMP_NLT_UQ) & lm;
+    while (reached != 0) {
+      uint16_t* count = r.pair_count[size_t(k0 + __builtin_ctz(reached))];
+      *count = uint16_t(*count + 1);
+      reached &= reached - 1u;
+    }
+    batch.traced += uint64_t(live);
+  }
+}
+
 // The AO rows with the AVX-512 ray generator: stage 1 gathers the row's tracing pixels
 // (scalar: surface, basis, validation, hash), stage 2 (ao_rays_x16) makes and traces the rays.
 void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,

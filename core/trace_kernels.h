@@ -339,6 +339,10 @@ struct VisibilityRow {
   std::vector<uint8_t> code, ok;
   std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
   std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
+  // The row's pairs that trace one ray each (every light with one sample, the x16 path):
+  // l * w + x, x, and the counter, in pixel then light order.
+  std::vector<int> pair, pair_x;
+  std::vector<uint16_t*> pair_count;
 
   VisibilityRow(int width, int lights) : w(width) {
     const size_t n = size_t(width), nl = n * size_t(lights);
@@ -352,6 +356,8 @@ struct VisibilityRow {
     idx.assign(n + kRowPad, 0);
     for (auto* v : {&code, &ok}) v->assign(nl, 0);
     for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
+    for (auto* v : {&pair, &pair_x}) v->assign(nl + kRowPad, 0);
+    pair_count.assign(nl + kRowPad, nullptr);
   }
 };
 
@@ -385,6 +391,11 @@ void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
 // that trace, whose count it returns, and, for a hard light (!li.soft), those pairs' rays and
 // validity. The same operations in the same order as the scalar code: the same bits.
 int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base);
+// Stage 3 of the visibility pass where every light takes one ray per pixel: the n pairs of
+// r.pair (pixel then light order) 16 at a time into the packet (a row's last packet may be
+// partial), traced, each unoccluded ray adding one to its counter; with batch.record, the rays
+// are kept instead (Batch::push).
+void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch);
 #endif
 
 }  // namespace dhr::trace_detail

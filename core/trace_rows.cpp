@@ -237,7 +237,11 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   const bool x16 = false;
 #endif
   bool any_soft = false;  // hard lights need no random numbers
-  for (const LightInfo& li : lights) any_soft = any_soft || li.soft;
+  bool all_single = true;  // every light one ray per pixel (hard, or soft with S = 1)
+  for (const LightInfo& li : lights) {
+    any_soft = any_soft || li.soft;
+    all_single = all_single && li.samples == 1;
+  }
   uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
   alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk], tfar[kChunk];
   alignas(64) bool ok[kChunk];
@@ -272,6 +276,39 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
       else distant_light_row(r, li, size_t(l) * size_t(w), one_sample);
     }
     // Stage 3: answers and rays in pixel order (pixel, light, sample).
+#if DHR_TRACE_AVX512
+    if constexpr (W == 16) {
+      if (x16 && all_single) {
+        // The pairs that trace, listed; trace_pairs_x16 makes the packets.
+        int n = 0;
+        for (int x = 0; x < w; ++x) {
+          if (!r.covered[size_t(x)]) continue;
+          const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+          for (int l = 0; l < nl; ++l) {
+            const size_t i = size_t(l) * size_t(w) + size_t(x);
+            uint16_t* count = &out.visible[size_t(l) * npx + pixel];
+            switch (r.code[i]) {
+              case kPairRange: ++range; continue;
+              case kPairInside: *count = 1, ++inside; continue;
+              case kPairFacing: ++facing; continue;
+              default: break;
+            }
+            if (r.ok[i]) {
+              r.pair[size_t(n)] = int(i);
+              r.pair_x[size_t(n)] = x;
+              r.pair_count[size_t(n)] = count;
+              ++n;
+            } else {
+              ++invalid;
+              ++*count;
+            }
+          }
+        }
+        trace_pairs_x16(r, n, batch);
+        continue;
+      }
+    }
+#endif
     for (int x = 0; x < w; ++x) {
       if (!r.covered[size_t(x)]) continue;
       const size_t pixel = size_t(y) * size_t(w) + size_t(x);
