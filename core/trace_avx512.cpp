@@ -172,39 +172,110 @@ DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float rad
   }
 }
 
+// The low 8 lanes of lo, then the low 8 of hi.
+DHR_TRACE_TARGET_AVX512 inline __m512 join(__m512 lo, __m512 hi) {
+  return _mm512_insertf32x8(lo, _mm512_castps512_ps256(hi), 1);
+}
+
+// orthonormal_basis_x4 (core/trace_directions.h) on 16 lanes: the same operations.
+DHR_TRACE_TARGET_AVX512 inline void orthonormal_basis_x16(__m512 nx, __m512 ny, __m512 nz, __m512 t[3], __m512 b[3]) {
+  const __m512 signbit = _mm512_castsi512_ps(_mm512_set1_epi32(int32_t(0x80000000u)));
+  const __m512 sign = _mm512_or_ps(_mm512_and_ps(nz, signbit), _mm512_set1_ps(1.0f));  // copysign(1, n.z)
+  const __m512 neg_sign = _mm512_xor_ps(sign, signbit);
+  const __m512 a = _mm512_div_ps(_mm512_set1_ps(-1.0f), _mm512_add_ps(sign, nz));
+  const __m512 c = _mm512_mul_ps(_mm512_mul_ps(nx, ny), a);
+  t[0] = _mm512_add_ps(_mm512_set1_ps(1.0f), _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(sign, nx), nx), a));
+  t[1] = _mm512_mul_ps(sign, c);
+  t[2] = _mm512_mul_ps(neg_sign, nx);
+  b[0] = c;
+  b[1] = _mm512_add_ps(sign, _mm512_mul_ps(_mm512_mul_ps(ny, ny), a));
+  b[2] = _mm512_xor_ps(ny, signbit);
+}
+
+// cone_x4 (core/trace_directions.h) on 16 lanes: normalize(t * (c sin) + b * (s sin) + w * cos).
+DHR_TRACE_TARGET_AVX512 inline void cone_x16(const __m512 t[3], const __m512 b[3], const __m512 w[3], __m512 omc_max,
+                                             __m512 u0, __m512 u1, __m512 d[3]) {
+  const __m512 omc = _mm512_mul_ps(u0, omc_max);
+  const __m512 cos_t = _mm512_sub_ps(_mm512_set1_ps(1.0f), omc);
+  const __m512 sin_t = _mm512_sqrt_ps(
+      _mm512_max_ps(_mm512_mul_ps(omc, _mm512_sub_ps(_mm512_set1_ps(2.0f), omc)), _mm512_setzero_ps()));
+  __m512 c, s;
+  sincos_2pi_x16(u1, c, s);
+  const __m512 cs = _mm512_mul_ps(c, sin_t), ss = _mm512_mul_ps(s, sin_t);
+  __m512 v[3];
+  for (int k = 0; k < 3; ++k)
+    v[k] = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(t[k], cs), _mm512_mul_ps(b[k], ss)), _mm512_mul_ps(w[k], cos_t));
+  const __m512 dot =
+      _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(v[0], v[0]), _mm512_mul_ps(v[1], v[1])), _mm512_mul_ps(v[2], v[2]));
+  const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.0f), _mm512_sqrt_ps(dot));
+  for (int k = 0; k < 3; ++k) d[k] = _mm512_mul_ps(v[k], inv);
+}
+
+// sphere_tfar_x4 (core/trace_directions.h) on 16 lanes.
+DHR_TRACE_TARGET_AVX512 inline __m512 sphere_tfar_x16(const __m512 d[3], const __m512 oc[3], __m512 r2) {
+  const __m512 b = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(d[0], oc[0]), _mm512_mul_ps(d[1], oc[1])),
+                                 _mm512_mul_ps(d[2], oc[2]));
+  const __m512 qx = _mm512_sub_ps(oc[0], _mm512_mul_ps(b, d[0]));
+  const __m512 qy = _mm512_sub_ps(oc[1], _mm512_mul_ps(b, d[1]));
+  const __m512 qz = _mm512_sub_ps(oc[2], _mm512_mul_ps(b, d[2]));
+  const __m512 disc =
+      _mm512_sub_ps(r2, _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(qx, qx), _mm512_mul_ps(qy, qy)), _mm512_mul_ps(qz, qz)));
+  const __mmask16 pos = _mm512_cmp_ps_mask(disc, _mm512_setzero_ps(), _CMP_GT_OQ);
+  const __m512 t_hit = _mm512_mask_blend_ps(pos, b, _mm512_sub_ps(b, _mm512_sqrt_ps(disc)));  // pos ? b - sqrt : b
+  return _mm512_max_ps(_mm512_mul_ps(t_hit, _mm512_set1_ps(kShadowTfarScale)), _mm512_setzero_ps());
+}
+
+// direction_valid (core/trace_directions.h) and the origin's validity (bytes 0/1), 16 lanes.
+DHR_TRACE_TARGET_AVX512 inline __mmask16 rays_valid_x16(const __m512 d[3], __m512 tfar, const uint8_t* origin_ok) {
+  const __m512 zero = _mm512_setzero_ps(), fmax = _mm512_set1_ps(std::numeric_limits<float>::max());
+  const __mmask16 finite = _mm512_cmp_ps_mask(_mm512_abs_ps(d[0]), fmax, _CMP_LE_OQ) &
+                           _mm512_cmp_ps_mask(_mm512_abs_ps(d[1]), fmax, _CMP_LE_OQ) &
+                           _mm512_cmp_ps_mask(_mm512_abs_ps(d[2]), fmax, _CMP_LE_OQ);
+  const __mmask16 nonzero = _mm512_cmp_ps_mask(d[0], zero, _CMP_NEQ_UQ) | _mm512_cmp_ps_mask(d[1], zero, _CMP_NEQ_UQ) |
+                            _mm512_cmp_ps_mask(d[2], zero, _CMP_NEQ_UQ);
+  const __m512i ook = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(origin_ok)));
+  return finite & nonzero & _mm512_cmp_ps_mask(tfar, zero, _CMP_GE_OQ) & _mm512_test_epi32_mask(ook, ook);
+}
+
 }  // namespace
 
-DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base) {
+DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
   const int w = r.w;
   const __m512d cx = _mm512_set1_pd(li.centre_d.x), cy = _mm512_set1_pd(li.centre_d.y), cz = _mm512_set1_pd(li.centre_d.z);
   const __m512d range = _mm512_set1_pd(double(li.range)), radius = _mm512_set1_pd(double(li.radius));
   const __m512d facing_at = li.soft ? _mm512_set1_pd(-double(li.radius)) : _mm512_setzero_pd();
+  const __m512d rr = _mm512_set1_pd(double(li.radius) * li.radius), one_d = _mm512_set1_pd(1.0);
   const __mmask8 has_range = li.range > 0.0f ? 0xff : 0;
-  const __m512 lcx = _mm512_set1_ps(li.centre.x), lcy = _mm512_set1_ps(li.centre.y), lcz = _mm512_set1_ps(li.centre.z);
+  const __m512 lc[3] = {_mm512_set1_ps(li.centre.x), _mm512_set1_ps(li.centre.y), _mm512_set1_ps(li.centre.z)};
   const __m512 lradius = _mm512_set1_ps(li.radius), tfar_scale = _mm512_set1_ps(kShadowTfarScale);
-  const __m512 zero = _mm512_setzero_ps(), fmax = _mm512_set1_ps(std::numeric_limits<float>::max());
+  const __m512 r2 = _mm512_set1_ps(li.radius * li.radius);
+  const __m512 zero = _mm512_setzero_ps();
   const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const bool rays = !li.soft || one_sample;  // else the caller makes the cones (S > 1)
   int* idx = r.idx.data();
   int m = 0;
   for (int x = 0; x < w; x += 16) {
-    const __mmask16 live = w - x >= 16 ? __mmask16(0xffff) : __mmask16((1u << (w - x)) - 1u);
+    const int n = std::min(16, w - x);
+    const __mmask16 live = __mmask16((1u << n) - 1u);
     // Classification in double: d = |c - p|, n . (c - p) (the scalar code's order of sums).
     __mmask16 oor = 0, inside = 0, facing = 0;
+    __m512d t[2][3], d[2];
     for (int half = 0; half < 2; ++half) {
-      const int xh = x + 8 * half;
-      const __m512d tx = _mm512_sub_pd(cx, _mm512_cvtps_pd(_mm256_loadu_ps(&r.px[size_t(xh)])));
-      const __m512d ty = _mm512_sub_pd(cy, _mm512_cvtps_pd(_mm256_loadu_ps(&r.py[size_t(xh)])));
-      const __m512d tz = _mm512_sub_pd(cz, _mm512_cvtps_pd(_mm256_loadu_ps(&r.pz[size_t(xh)])));
-      const __m512d d = _mm512_sqrt_pd(
-          _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(tx, tx), _mm512_mul_pd(ty, ty)), _mm512_mul_pd(tz, tz)));
+      const size_t xh = size_t(x + 8 * half);
+      __m512d* th = t[half];
+      th[0] = _mm512_sub_pd(cx, _mm512_cvtps_pd(_mm256_loadu_ps(&r.px[xh])));
+      th[1] = _mm512_sub_pd(cy, _mm512_cvtps_pd(_mm256_loadu_ps(&r.py[xh])));
+      th[2] = _mm512_sub_pd(cz, _mm512_cvtps_pd(_mm256_loadu_ps(&r.pz[xh])));
+      d[half] = _mm512_sqrt_pd(_mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(th[0], th[0]), _mm512_mul_pd(th[1], th[1])),
+                                             _mm512_mul_pd(th[2], th[2])));
       const __m512d n_dot = _mm512_add_pd(
-          _mm512_add_pd(_mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nx[size_t(xh)])), tx),
-                        _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.ny[size_t(xh)])), ty)),
-          _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nz[size_t(xh)])), tz));
+          _mm512_add_pd(_mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nx[xh])), th[0]),
+                        _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.ny[xh])), th[1])),
+          _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nz[xh])), th[2]));
       const int sh = 8 * half;
-      oor |= __mmask16(_mm512_mask_cmp_pd_mask(has_range, d, range, _CMP_GT_OQ)) << sh;
-      inside |= __mmask16(_mm512_cmp_pd_mask(d, radius, _CMP_LE_OQ)) << sh;  // !(d > radius) && d == d
-      facing |= __mmask16(_mm512_cmp_pd_mask(n_dot, facing_at, _CMP_LE_OQ)) << sh;
+      oor |= __mmask16(__mmask16(_mm512_mask_cmp_pd_mask(has_range, d[half], range, _CMP_GT_OQ)) << sh);
+      inside |= __mmask16(__mmask16(_mm512_cmp_pd_mask(d[half], radius, _CMP_LE_OQ)) << sh);  // !(d > R) && d == d
+      facing |= __mmask16(__mmask16(_mm512_cmp_pd_mask(n_dot, facing_at, _CMP_LE_OQ)) << sh);
     }
     // code = out_of_range ? range : inside ? inside : facing ? facing : rays
     __m512i code = _mm512_setzero_si512();
@@ -213,40 +284,48 @@ DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightIn
     code = _mm512_mask_mov_epi32(code, oor, _mm512_set1_epi32(kPairRange));
     alignas(16) uint8_t bytes[16];
     _mm_store_si128(reinterpret_cast<__m128i*>(bytes), _mm512_cvtepi32_epi8(code));
-    const int n = std::min(16, w - x);
     std::copy(bytes, bytes + n, &r.code[base + size_t(x)]);
     const __m512i covered = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)])));
     const __mmask16 traced = __mmask16(~(oor | inside | facing)) & _mm512_test_epi32_mask(covered, covered) & live;
     _mm512_mask_compressstoreu_epi32(idx + m, traced, _mm512_add_epi32(_mm512_set1_epi32(x), iota));
-    if (li.soft || traced == 0) {
-      m += popcount16(traced);
-      continue;
-    }
     m += popcount16(traced);
-    // The hard ray of every pixel of the block (stored for the traced pairs only): towards the
-    // centre from the offset origin, in float, ending kShadowTfarScale short of the sphere.
-    const __m512 ocx = _mm512_sub_ps(lcx, _mm512_loadu_ps(&r.ox[size_t(x)]));
-    const __m512 ocy = _mm512_sub_ps(lcy, _mm512_loadu_ps(&r.oy[size_t(x)]));
-    const __m512 ocz = _mm512_sub_ps(lcz, _mm512_loadu_ps(&r.oz[size_t(x)]));
-    const __m512 dist_o = _mm512_sqrt_ps(
-        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(ocx, ocx), _mm512_mul_ps(ocy, ocy)), _mm512_mul_ps(ocz, ocz)));
-    const __m512 dx = _mm512_div_ps(ocx, dist_o), dy = _mm512_div_ps(ocy, dist_o), dz = _mm512_div_ps(ocz, dist_o);
-    // std::max(0.0f, v): v where 0 < v, else 0 (NaN and -0 give +0), as max_ps(v, 0).
-    const __m512 tfar = _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(dist_o, lradius), tfar_scale), zero);
-    // direction_valid (core/trace_directions.h) and the origin's validity.
-    const __mmask16 finite = _mm512_cmp_ps_mask(_mm512_abs_ps(dx), fmax, _CMP_LE_OQ) &
-                             _mm512_cmp_ps_mask(_mm512_abs_ps(dy), fmax, _CMP_LE_OQ) &
-                             _mm512_cmp_ps_mask(_mm512_abs_ps(dz), fmax, _CMP_LE_OQ);
-    const __mmask16 nonzero = _mm512_cmp_ps_mask(dx, zero, _CMP_NEQ_UQ) | _mm512_cmp_ps_mask(dy, zero, _CMP_NEQ_UQ) |
-                              _mm512_cmp_ps_mask(dz, zero, _CMP_NEQ_UQ);
-    const __m512i origin_ok =
-        _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.origin_ok[size_t(x)])));
-    const __mmask16 ok = finite & nonzero & _mm512_cmp_ps_mask(tfar, zero, _CMP_GE_OQ) &
-                         _mm512_test_epi32_mask(origin_ok, origin_ok);
+    if (!rays || traced == 0) continue;
+    // The ray of every pixel of the block (stored for the traced pairs only), in float from
+    // the offset origin: oc = centre - origin.
+    const __m512 oc[3] = {_mm512_sub_ps(lc[0], _mm512_loadu_ps(&r.ox[size_t(x)])),
+                          _mm512_sub_ps(lc[1], _mm512_loadu_ps(&r.oy[size_t(x)])),
+                          _mm512_sub_ps(lc[2], _mm512_loadu_ps(&r.oz[size_t(x)]))};
+    __m512 dir[3], tfar;
+    if (!li.soft) {
+      // Hard: towards the centre, ending kShadowTfarScale short of the sphere.
+      const __m512 dist_o = _mm512_sqrt_ps(_mm512_add_ps(
+          _mm512_add_ps(_mm512_mul_ps(oc[0], oc[0]), _mm512_mul_ps(oc[1], oc[1])), _mm512_mul_ps(oc[2], oc[2])));
+      for (int k = 0; k < 3; ++k) dir[k] = _mm512_div_ps(oc[k], dist_o);
+      // std::max(0.0f, v): v where 0 < v, else 0 (NaN and -0 give +0), as max_ps(v, 0).
+      tfar = _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(dist_o, lradius), tfar_scale), zero);
+    } else {
+      // One jittered ray in the cone the sphere subtends from p: 1 - cos = s2 / (1 + sqrt(1 -
+      // s2)), s2 = R^2 / d^2, axis (c - p) / d, all in double, then rounded to float.
+      __m512 omc_h[2], wv_h[2][3];
+      for (int half = 0; half < 2; ++half) {
+        const __m512d s2 = _mm512_div_pd(rr, _mm512_mul_pd(d[half], d[half]));
+        omc_h[half] = _mm512_castps256_ps512(_mm512_cvtpd_ps(
+            _mm512_div_pd(s2, _mm512_add_pd(one_d, _mm512_sqrt_pd(_mm512_sub_pd(one_d, s2))))));
+        for (int k = 0; k < 3; ++k)
+          wv_h[half][k] = _mm512_castps256_ps512(_mm512_cvtpd_ps(_mm512_div_pd(t[half][k], d[half])));
+      }
+      const __m512 omc = join(omc_h[0], omc_h[1]);
+      const __m512 wv[3] = {join(wv_h[0][0], wv_h[1][0]), join(wv_h[0][1], wv_h[1][1]), join(wv_h[0][2], wv_h[1][2])};
+      __m512 tb[3], bb[3];
+      orthonormal_basis_x16(wv[0], wv[1], wv[2], tb, bb);
+      cone_x16(tb, bb, wv, omc, _mm512_loadu_ps(&r.u0[size_t(x)]), _mm512_loadu_ps(&r.u1[size_t(x)]), dir);
+      tfar = sphere_tfar_x16(dir, oc, r2);
+    }
+    const __mmask16 ok = rays_valid_x16(dir, tfar, &r.origin_ok[size_t(x)]);
     const size_t i = base + size_t(x);
-    _mm512_mask_storeu_ps(&r.dx[i], traced, dx);
-    _mm512_mask_storeu_ps(&r.dy[i], traced, dy);
-    _mm512_mask_storeu_ps(&r.dz[i], traced, dz);
+    _mm512_mask_storeu_ps(&r.dx[i], traced, dir[0]);
+    _mm512_mask_storeu_ps(&r.dy[i], traced, dir[1]);
+    _mm512_mask_storeu_ps(&r.dz[i], traced, dir[2]);
     _mm512_mask_storeu_ps(&r.tfar[i], traced, tfar);
     _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
                     _mm512_cvtepi32_epi8(_mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(1))));

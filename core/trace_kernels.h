@@ -388,9 +388,10 @@ void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
                  AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st);
 // Stage 2 of the visibility pass for a sphere light (sphere_light_row in core/trace_rows.cpp),
 // 16 pixels at a time: every pixel's code, the compacted indices (r.idx) of the covered pairs
-// that trace, whose count it returns, and, for a hard light (!li.soft), those pairs' rays and
-// validity. The same operations in the same order as the scalar code: the same bits.
-int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base);
+// that trace, whose count it returns, and, for a hard light or a soft one with one sample,
+// those pairs' rays and validity. The same operations in the same order as the scalar and
+// SSE2 code: the same bits.
+int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample);
 // Stage 3 of the visibility pass where every light takes one ray per pixel: the n pairs of
 // r.pair (pixel then light order) 16 at a time into the packet (a row's last packet may be
 // partial), traced, each unoccluded ray adding one to its counter; with batch.record, the rays

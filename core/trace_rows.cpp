@@ -76,8 +76,8 @@ void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool o
   int m = 0;
 #if DHR_TRACE_AVX512
   if (x16) {
-    m = sphere_light_row_x16(r, li, base);
-    if (!li.soft) return;
+    m = sphere_light_row_x16(r, li, base, one_sample);
+    if (!li.soft || one_sample) return;
   }
 #else
   (void)x16;
