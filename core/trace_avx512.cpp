@@ -335,6 +335,163 @@ DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightIn
   return m;
 }
 
+DHR_TRACE_TARGET_AVX512 void surfaces_x16(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes) {
+  const int w = r.w;
+  const double* tri = r.tris.data();
+  const __m512d zero_d = _mm512_setzero_pd(), one_d = _mm512_set1_pd(1.0);
+  const __m512 zero = _mm512_setzero_ps();
+  const __m512i iota64 = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m512i seed = _mm512_set1_epi64(int64_t(mix64(settings.seed)));
+  const __m512i frame = _mm512_set1_epi64(int64_t(settings.frame));
+  const __m512i dsign = _mm512_set1_epi64(int64_t(0x8000000000000000ull));
+  for (int x = 0; x < w; x += 16) {
+    const int n = std::min(16, w - x);
+    const __mmask16 live = __mmask16((1u << n) - 1u);
+    if (hashes) {  // PixelRng(seed, pixel, frame).h, pixel as uint32
+      for (int half = 0; half < 2; ++half) {
+        const __m512i pixel = _mm512_and_si512(_mm512_add_epi64(_mm512_set1_epi64(int64_t(row_start + size_t(x + 8 * half))), iota64),
+                                               _mm512_set1_epi64(0xffffffffll));
+        const __m512i key = _mm512_or_si512(_mm512_slli_epi64(pixel, 32), frame);
+        _mm512_mask_storeu_epi64(&r.h[size_t(x + 8 * half)], __mmask8(live >> (8 * half)),
+                                 mix64_x8(_mm512_xor_si512(seed, key)));
+      }
+    }
+    const __m512i kind = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.kind[size_t(x)])));
+    const __mmask16 vec = _mm512_cmpeq_epi32_mask(kind, _mm512_set1_epi32(1)) & live;
+    if (vec == 0) continue;
+    __m512 pf[3], nf[3];
+    __m256 ph[2][3], nh[2][3], qh[2][3];
+    __m512d error_m[2];
+    __mmask16 degenerate = 0;
+    for (int half = 0; half < 2; ++half) {
+      const size_t xh = size_t(x + 8 * half);
+      const __mmask8 m8 = __mmask8(vec >> (8 * half));
+      const __m256i base = _mm256_mullo_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(&r.tri_of[xh])),
+                                              _mm256_set1_epi32(14));
+      __m512d c[13];
+      for (int k = 0; k < 13; ++k)
+        c[k] = _mm512_mask_i32gather_pd(zero_d, m8, _mm256_add_epi32(base, _mm256_set1_epi32(k)), tri, 8);
+      // p = (1 - b1 - b2) v0 + b1 v1 + b2 v2
+      const __m512d b1 = _mm512_cvtps_pd(_mm256_loadu_ps(&r.b1[xh])), b2 = _mm512_cvtps_pd(_mm256_loadu_ps(&r.b2[xh]));
+      const __m512d a = _mm512_sub_pd(_mm512_sub_pd(one_d, b1), b2);
+      __m512d pd[3];
+      for (int k = 0; k < 3; ++k) {
+        pd[k] = _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(a, c[k]), _mm512_mul_pd(b1, c[3 + k])),
+                              _mm512_mul_pd(b2, c[6 + k]));
+        ph[half][k] = _mm512_cvtpd_ps(pd[k]);
+      }
+      // Oriented like the G-buffer's geometric normal: side = n . gn.
+      const __m512d side = _mm512_add_pd(
+          _mm512_add_pd(_mm512_mul_pd(c[9], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gx[xh]))),
+                        _mm512_mul_pd(c[10], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gy[xh])))),
+          _mm512_mul_pd(c[11], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gz[xh]))));
+      degenerate |= __mmask16(__mmask16(_mm512_cmp_pd_mask(_mm512_abs_pd(side), zero_d, _CMP_NGT_UQ) & m8) << (8 * half));
+      const __mmask8 flip = _mm512_cmp_pd_mask(side, zero_d, _CMP_LT_OQ);
+      for (int k = 0; k < 3; ++k) {
+        const __m512d nk = _mm512_castsi512_pd(
+            _mm512_mask_xor_epi64(_mm512_castpd_si512(c[9 + k]), flip, _mm512_castpd_si512(c[9 + k]), dsign));
+        nh[half][k] = _mm512_cvtpd_ps(nk);
+        // The point moved error_m off the plane (used where the error exceeds the offset).
+        qh[half][k] = _mm512_cvtpd_ps(_mm512_add_pd(pd[k], _mm512_mul_pd(nk, c[12])));
+      }
+      error_m[half] = c[12];
+    }
+    for (int k = 0; k < 3; ++k) {
+      pf[k] = _mm512_insertf32x8(_mm512_castps256_ps512(ph[0][k]), ph[1][k], 1);
+      nf[k] = _mm512_insertf32x8(_mm512_castps256_ps512(nh[0][k]), nh[1][k], 1);
+    }
+    // The triangle's own error against offset_lower_bound_m(p, n) (core/trace_kernels.h):
+    // where it is larger, surface_at moves the point off the plane first (kind 3). error_m is
+    // -1 for triangles that never need it.
+    __m512 bound = zero;
+    for (int k = 0; k < 3; ++k) {
+      const __m512 a = _mm512_abs_ps(pf[k]), m = _mm512_abs_ps(nf[k]);
+      const __m512 near = _mm512_mul_ps(_mm512_mul_ps(m, m), _mm512_set1_ps(1.0f / 65536.0f));
+      const __m512 far = _mm512_mul_ps(
+          _mm512_mul_ps(_mm512_max_ps(_mm512_mul_ps(m, _mm512_sub_ps(_mm512_mul_ps(_mm512_set1_ps(256.0f), m),
+                                                                     _mm512_set1_ps(1.0f))),
+                                      zero),
+                        _mm512_set1_ps(0x1p-25f)),
+          a);
+      bound = _mm512_add_ps(bound, _mm512_mask_blend_ps(_mm512_cmp_ps_mask(a, _mm512_set1_ps(1.0f / 32.0f), _CMP_LT_OQ),
+                                                        far, near));
+    }
+    const __mmask16 too_small =
+        __mmask16(_mm512_cmp_pd_mask(error_m[0], _mm512_cvtps_pd(_mm512_castps512_ps256(bound)), _CMP_GT_OQ)) |
+        __mmask16(__mmask16(_mm512_cmp_pd_mask(error_m[1], _mm512_cvtps_pd(_mm512_extractf32x8_ps(bound, 1)), _CMP_GT_OQ))
+                  << 8);
+    // offset_ray_origin (core/trace.h): 256 ULPs per unit of n in integer space, or n / 65536
+    // within 1/32 of the origin; from the moved point where the triangle's error is larger.
+    __m512 of[3];
+    __mmask16 origin_ok = 0xffff;
+    for (int k = 0; k < 3; ++k) {
+      const __m512 qf = _mm512_insertf32x8(_mm512_castps256_ps512(qh[0][k]), qh[1][k], 1);
+      const __m512 p0 = _mm512_mask_blend_ps(too_small, pf[k], qf);
+      const __m512i step = _mm512_cvttps_epi32(_mm512_mul_ps(_mm512_set1_ps(256.0f), nf[k]));
+      const __mmask16 neg = _mm512_cmp_ps_mask(p0, zero, _CMP_LT_OQ);
+      const __m512i signed_step = _mm512_mask_sub_epi32(step, neg, _mm512_setzero_si512(), step);
+      const __m512 moved = _mm512_castsi512_ps(_mm512_add_epi32(_mm512_castps_si512(p0), signed_step));
+      const __mmask16 small = _mm512_cmp_ps_mask(_mm512_abs_ps(p0), _mm512_set1_ps(1.0f / 32.0f), _CMP_LT_OQ);
+      of[k] = _mm512_mask_blend_ps(small, moved, _mm512_add_ps(p0, _mm512_mul_ps(_mm512_set1_ps(1.0f / 65536.0f), nf[k])));
+      origin_ok &= _mm512_cmp_ps_mask(_mm512_abs_ps(of[k]), _mm512_set1_ps(kMaxCoordinate), _CMP_LT_OQ);
+    }
+    const __mmask16 done = vec & __mmask16(~degenerate);
+    _mm512_mask_storeu_ps(&r.px[size_t(x)], done, pf[0]);
+    _mm512_mask_storeu_ps(&r.py[size_t(x)], done, pf[1]);
+    _mm512_mask_storeu_ps(&r.pz[size_t(x)], done, pf[2]);
+    _mm512_mask_storeu_ps(&r.nx[size_t(x)], done, nf[0]);
+    _mm512_mask_storeu_ps(&r.ny[size_t(x)], done, nf[1]);
+    _mm512_mask_storeu_ps(&r.nz[size_t(x)], done, nf[2]);
+    _mm512_mask_storeu_ps(&r.ox[size_t(x)], done, of[0]);
+    _mm512_mask_storeu_ps(&r.oy[size_t(x)], done, of[1]);
+    _mm512_mask_storeu_ps(&r.oz[size_t(x)], done, of[2]);
+    for (int k = 0; k < n; ++k) {
+      const size_t i = size_t(x + k);
+      if ((done >> k) & 1u) {
+        r.covered[i] = 1;
+        r.origin_ok[i] = uint8_t((origin_ok >> k) & 1u);
+      } else if ((degenerate >> k) & 1u) {
+        r.kind[i] = 3;
+      }
+    }
+  }
+}
+
+DHR_TRACE_TARGET_AVX512 void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  const int w = r.w;
+  const __m512 lt[3] = {_mm512_set1_ps(li.t.x), _mm512_set1_ps(li.t.y), _mm512_set1_ps(li.t.z)};
+  const __m512 lb[3] = {_mm512_set1_ps(li.b.x), _mm512_set1_ps(li.b.y), _mm512_set1_ps(li.b.z)};
+  const __m512 ld[3] = {_mm512_set1_ps(li.dir.x), _mm512_set1_ps(li.dir.y), _mm512_set1_ps(li.dir.z)};
+  const __m512 facing_at = _mm512_set1_ps(li.soft ? -li.sin_alpha : 0.0f);
+  const __m512 inf = _mm512_set1_ps(kInf);
+  for (int x = 0; x < w; x += 16) {
+    const int n = std::min(16, w - x);
+    const __mmask16 live = __mmask16((1u << n) - 1u);
+    const size_t i = base + size_t(x);
+    const __m512 n_dot = _mm512_add_ps(
+        _mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(&r.nx[size_t(x)]), ld[0]), _mm512_mul_ps(_mm512_loadu_ps(&r.ny[size_t(x)]), ld[1])),
+        _mm512_mul_ps(_mm512_loadu_ps(&r.nz[size_t(x)]), ld[2]));
+    const __mmask16 facing = _mm512_cmp_ps_mask(n_dot, facing_at, _CMP_LE_OQ);
+    alignas(16) uint8_t bytes[16];
+    _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
+                    _mm512_cvtepi32_epi8(_mm512_maskz_mov_epi32(facing, _mm512_set1_epi32(kPairFacing))));
+    std::copy(bytes, bytes + n, &r.code[i]);
+    __m512 dir[3] = {ld[0], ld[1], ld[2]};
+    if (li.soft)
+      cone_x16(lt, lb, ld, _mm512_set1_ps(li.one_minus_cos), _mm512_loadu_ps(&r.u0[size_t(x)]),
+               _mm512_loadu_ps(&r.u1[size_t(x)]), dir);
+    _mm512_mask_storeu_ps(&r.dx[i], live, dir[0]);
+    _mm512_mask_storeu_ps(&r.dy[i], live, dir[1]);
+    _mm512_mask_storeu_ps(&r.dz[i], live, dir[2]);
+    _mm512_mask_storeu_ps(&r.tfar[i], live, inf);
+    const __mmask16 ok = rays_valid_x16(dir, inf, &r.origin_ok[size_t(x)]);
+    _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
+                    _mm512_cvtepi32_epi8(_mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(1))));
+    std::copy(bytes, bytes + n, &r.ok[i]);
+  }
+}
+
 DHR_TRACE_TARGET_AVX512 void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch) {
   auto& pk = batch.packet;
   alignas(64) int valid[16];

@@ -243,6 +243,8 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     all_single = all_single && li.samples == 1;
   }
   uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
+  constexpr int kSeenBits = 8;
+  std::vector<TriangleCache> seen(x16 ? size_t(1) << kSeenBits : 0);
   alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk], tfar[kChunk];
   alignas(64) bool ok[kChunk];
   constexpr float kInf = std::numeric_limits<float>::infinity();
@@ -250,7 +252,72 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     if (rows_out) batch.record = &(*rows_out)[size_t(y)];
     // Stage 1: surfaces.
     bool any = false;
-    for (int x = 0; x < w; ++x) {
+#if DHR_TRACE_AVX512
+    if (x16) {
+      // Triangles and G-buffer values by pixel here, the points and origins in surfaces_x16;
+      // what it cannot do (unresolved ids, triangles whose own error needs the per-pixel test,
+      // normals oriented by the camera) surface_at does, with the same cache.
+      int ntri = 0, cur = -1;  // cur: the row triangle of the cache's triangle (-1: none yet)
+      const auto set = [&](size_t i, const Surface& s) {
+        r.covered[i] = 1;
+        r.px[i] = s.p.x, r.py[i] = s.p.y, r.pz[i] = s.p.z;
+        r.nx[i] = s.n.x, r.ny[i] = s.n.y, r.nz[i] = s.n.z;
+        r.ox[i] = s.origin.x, r.oy[i] = s.origin.y, r.oz[i] = s.origin.z;
+        r.origin_ok[i] = origin_valid(s.origin) ? 1 : 0;
+      };
+      for (int x = 0; x < w; ++x) {
+        const size_t i = size_t(x);
+        const uint32_t id = g.object_id(x, y);
+        if (id == kBackgroundId) {  // as surface_at's Surface{}: zeros, a valid origin
+          r.kind[i] = 0;
+          r.covered[i] = 0;
+          r.px[i] = r.py[i] = r.pz[i] = r.nx[i] = r.ny[i] = r.nz[i] = r.ox[i] = r.oy[i] = r.oz[i] = 0.0f;
+          r.origin_ok[i] = 1;
+          continue;
+        }
+        ++cov;
+        any = true;
+        const uint32_t prim = g.prim_id(x, y);
+        if (id != cache.id || prim != cache.prim) {
+          // Rebuilt triangles are kept by (id, prim) (direct-mapped): the next rows mostly
+          // see the same ones. A rebuild gives the same values, so this changes no bit.
+          TriangleCache& slot = seen[size_t(((id * 0x9E3779B1u) ^ (prim * 0x85EBCA77u)) >> (32 - kSeenBits))];
+          if (slot.id != id || slot.prim != prim) update_triangle(rt, slot, id, prim);
+          cache = slot;
+          cur = -1;
+        }
+        if (!cache.resolved) {
+          Surface s;
+          surface_at(rt, g, x, y, s, unres, cache);  // the cache holds the triangle: no rebuild
+          set(i, s);
+          r.kind[i] = 2;
+          continue;
+        }
+        if (cur < 0) {
+          cur = ntri++;
+          if (r.tris.size() < 14 * size_t(ntri)) r.tris.resize(14 * size_t(ntri) * 2);
+          double* t = &r.tris[14 * size_t(cur)];
+          for (int k = 0; k < 3; ++k)
+            t[k] = cache.v[0][k], t[3 + k] = cache.v[1][k], t[6 + k] = cache.v[2][k], t[9 + k] = cache.n[k];
+          t[12] = cache.check_error ? cache.error_m : -1.0;
+        }
+        r.kind[i] = 1;
+        r.tri_of[i] = cur;
+        const glm::vec2 b = g.bary(x, y);
+        const glm::vec3 gn = g.geo_normal(x, y);
+        r.b1[i] = b.x, r.b2[i] = b.y;
+        r.gx[i] = gn.x, r.gy[i] = gn.y, r.gz[i] = gn.z;
+      }
+      surfaces_x16(r, settings, size_t(y) * size_t(w), any_soft);
+      for (int x = 0; x < w; ++x) {
+        if (r.kind[size_t(x)] != 3) continue;
+        Surface s;
+        surface_at(rt, g, x, y, s, unres, cache);  // rebuilds the pixel's triangle
+        set(size_t(x), s);
+      }
+    }
+#endif
+    for (int x = 0; x < w && !x16; ++x) {
       Surface s;
       const size_t i = size_t(x);
       r.covered[i] = surface_at(rt, g, x, y, s, unres, cache) ? 1 : 0;
@@ -273,6 +340,9 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
       const bool one_sample = li.samples == 1;
       if (li.soft && one_sample) uniforms_pixels(r.h.data(), w, 0, kStreamLightBase + uint32_t(l), r.u0.data(), r.u1.data());
       if (li.sphere) sphere_light_row(r, li, size_t(l) * size_t(w), one_sample, x16);
+#if DHR_TRACE_AVX512
+      else if (x16 && one_sample) distant_light_row_x16(r, li, size_t(l) * size_t(w));
+#endif
       else distant_light_row(r, li, size_t(l) * size_t(w), one_sample);
     }
     // Stage 3: answers and rays in pixel order (pixel, light, sample).
