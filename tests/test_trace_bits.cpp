@@ -15,6 +15,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -123,6 +124,35 @@ TEST(TraceBits, VisibilityPassIsPinned) {
   }
   if (!print) {
     EXPECT_GE(checked, 6);  // the built-in scenes with lights, at least
+  }
+}
+
+// The AVX-512 kernels' fallbacks (zero G-buffer normals: orientation by the camera; unknown
+// object and triangle ids: the G-buffer's position; NaN barycentrics) give the baseline
+// kernels' bits too.
+TEST(TraceBits, DamagedGBufferSameBitsOnBothKernels) {
+  Scene scene = load_scene(builtin_scene_files().front(), SceneSearchPath::standard());
+  ASSERT_FALSE(scene.lights.empty());
+  RtScene rt(scene);
+  const Camera cam = scene.camera.at(0.0, 97, 61);
+  GBuffer g = rt.primary_gbuffer(cam, 0.0);
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x) {
+      if (g.object_id(x, y) == kBackgroundId) continue;
+      switch ((x + 3 * y) % 7) {
+        case 0: g.geo_normal(x, y) = glm::vec3(0.0f); break;
+        case 1: g.object_id(x, y) = 0xfffffff0u; break;
+        case 2: g.prim_id(x, y) = 0x7fffffffu; break;
+        case 3: g.bary(x, y) = glm::vec2(std::nanf(""), 0.25f); break;
+        default: break;
+      }
+    }
+  for (const bool soft : {false, true}) {
+    TraceSettings s;
+    s.soft_shadows = soft;
+    TraceSettings base = s;
+    base.wide_kernels = false;
+    EXPECT_EQ(pass_hash(rt, g, s), pass_hash(rt, g, base)) << (soft ? "soft" : "hard");
   }
 }
 
