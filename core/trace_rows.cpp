@@ -22,6 +22,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 
 namespace dhr::trace_detail {
 
@@ -230,7 +231,13 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   const int nl = int(lights.size());
   Batch<W> batch(rt.handle(), kMaskShadow);
   TriangleCache cache;
-  VisibilityRow r(w, nl);
+  // One set of row arrays per thread, kept from call to call (a block of rows is often only a
+  // few rows: allocating them per block cost several percent of a pass). Every value a row
+  // reads is written for that row first; the padding stays zero.
+  thread_local std::unique_ptr<VisibilityRow> row_arrays;
+  if (!row_arrays || row_arrays->w != w || row_arrays->code.size() != size_t(w) * size_t(nl))
+    row_arrays = std::make_unique<VisibilityRow>(w, nl);
+  VisibilityRow& r = *row_arrays;
 #if DHR_TRACE_AVX512
   const bool x16 = settings.wide_kernels && cpu_has_avx512dq();
 #else
