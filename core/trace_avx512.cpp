@@ -7,6 +7,14 @@
 // incoherent streams beat its packets). The rays and results are the baseline kernel's bit for
 // bit (tests/test_trace.cpp: TraceAo.WideKernelsGiveTheSameBits).
 //
+// The visibility pass's AVX-512 kernels (same choice at run time, TraceSettings::wide_kernels):
+// stage 1 (surfaces_x16: surface points, orientation and origins of a row, 16 pixels at a time
+// from a per-row triangle table), stage 2 (sphere_light_row_x16: classification, compaction and
+// the hard or single jittered ray; distant_light_row_x16) and stage 3 (trace_pairs_x16: the
+// traced pairs gathered into packets). Same rays and counts as core/trace_rows.cpp's kernels,
+// bit for bit (tests/test_trace_bits.cpp pins them by hash on every scene with lights).
+// docs/performance.md has the measurements.
+//
 // Only the functions marked DHR_TRACE_TARGET_AVX512 are compiled for AVX-512; the rest of the
 // file keeps the baseline ISA. No lambdas inside them: a lambda does not inherit its enclosing
 // function's target attribute, and clang then refuses the AVX-512 intrinsics in it.

@@ -11,7 +11,12 @@
 //   64-bit vector multiplies where the CPU has it; integer arithmetic only, same bits).
 // - directions: SSE2 kernels (sincos_2pi_x4, cone_x4, ...) doing the scalar code's IEEE
 //   operations in the same order, 4 lanes at a time, so results are bit-identical to it.
-// - the AO pass, where the CPU has AVX-512: core/trace_avx512.cpp.
+// - where the CPU has AVX-512 (and TraceSettings::wide_kernels): the AO pass's ray generator
+//   and the visibility pass's stages (surfaces; light classification and the hard or single
+//   jittered ray; packets where every light takes one ray per pixel; S > 1 keeps the cone
+//   loops below), in
+//   core/trace_avx512.cpp; this file keeps the baseline kernels and the per-pixel work the
+//   vector kernels hand back (unresolved ids, normals oriented by the camera).
 // - the visibility pass works a row at a time in stages (surfaces; each light over the row,
 //   compacted to the pairs that trace; rays in pixel order) so the square-root and division
 //   chains of neighbouring pixels overlap instead of running one after the other.
