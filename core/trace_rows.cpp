@@ -277,65 +277,73 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
         r.ox[i] = s.origin.x, r.oy[i] = s.origin.y, r.oz[i] = s.origin.z;
         r.origin_ok[i] = origin_valid(s.origin) ? 1 : 0;
       };
-      // Plain restrict pointers: through the vectors' members the compiler reloads every data
-      // pointer after each byte store.
-      const uint32_t* __restrict ids = &g.object_id(0, y);
-      const uint32_t* __restrict prims = &g.prim_id(0, y);
-      const glm::vec2* __restrict bary = &g.bary(0, y);
-      const glm::vec3* __restrict gnorm = &g.geo_normal(0, y);
-      uint8_t* __restrict kind = r.kind.data();
-      uint8_t* __restrict covered = r.covered.data();
-      uint8_t* __restrict origin_ok = r.origin_ok.data();
-      int* __restrict tri_of = r.tri_of.data();
-      float* __restrict b1 = r.b1.data();
-      float* __restrict b2 = r.b2.data();
-      float* __restrict gx = r.gx.data();
-      float* __restrict gy = r.gy.data();
-      float* __restrict gz = r.gz.data();
-      float* const __restrict planes[9] = {r.px.data(), r.py.data(), r.pz.data(), r.nx.data(), r.ny.data(),
-                                           r.nz.data(), r.ox.data(), r.oy.data(), r.oz.data()};
-      const TriangleCache* tc = nullptr;  // the triangle of the previous covered pixel
-      for (int x = 0; x < w; ++x) {
-        const size_t i = size_t(x);
-        const uint32_t id = ids[i];
-        if (id == kBackgroundId) {  // as surface_at's Surface{}: zeros, a valid origin
-          kind[i] = 0;
-          covered[i] = 0;
-          for (float* plane : planes) plane[i] = 0.0f;
-          origin_ok[i] = 1;
-          continue;
+      {
+        // Plain restrict pointers (this block only, every access through them): through the
+        // vectors' members the compiler reloads every data pointer after each byte store.
+        const uint32_t* __restrict ids = &g.object_id(0, y);
+        const uint32_t* __restrict prims = &g.prim_id(0, y);
+        const glm::vec2* __restrict bary = &g.bary(0, y);
+        const glm::vec3* __restrict gnorm = &g.geo_normal(0, y);
+        uint8_t* __restrict kind = r.kind.data();
+        uint8_t* __restrict covered = r.covered.data();
+        uint8_t* __restrict origin_ok = r.origin_ok.data();
+        int* __restrict tri_of = r.tri_of.data();
+        float* __restrict b1 = r.b1.data();
+        float* __restrict b2 = r.b2.data();
+        float* __restrict gx = r.gx.data();
+        float* __restrict gy = r.gy.data();
+        float* __restrict gz = r.gz.data();
+        float* const __restrict planes[9] = {r.px.data(), r.py.data(), r.pz.data(), r.nx.data(), r.ny.data(),
+                                             r.nz.data(), r.ox.data(), r.oy.data(), r.oz.data()};
+        const auto set_here = [&](size_t i, const Surface& sf) {
+          covered[i] = 1;
+          const float v[9] = {sf.p.x, sf.p.y, sf.p.z, sf.n.x, sf.n.y, sf.n.z, sf.origin.x, sf.origin.y, sf.origin.z};
+          for (int k = 0; k < 9; ++k) planes[k][i] = v[k];
+          origin_ok[i] = origin_valid(sf.origin) ? 1 : 0;
+        };
+        const TriangleCache* tc = nullptr;  // the triangle of the previous covered pixel
+        for (int x = 0; x < w; ++x) {
+          const size_t i = size_t(x);
+          const uint32_t id = ids[i];
+          if (id == kBackgroundId) {  // as surface_at's Surface{}: zeros, a valid origin
+            kind[i] = 0;
+            covered[i] = 0;
+            for (float* plane : planes) plane[i] = 0.0f;
+            origin_ok[i] = 1;
+            continue;
+          }
+          ++cov;
+          any = true;
+          const uint32_t prim = prims[i];
+          if (!tc || id != tc->id || prim != tc->prim) {
+            // Rebuilt triangles are kept by (id, prim) (direct-mapped): the next rows mostly
+            // see the same ones. A rebuild gives the same values, so this changes no bit.
+            TriangleCache& slot = seen[size_t(((id * 0x9E3779B1u) ^ (prim * 0x85EBCA77u)) >> (32 - kSeenBits))];
+            if (slot.id != id || slot.prim != prim) update_triangle(rt, slot, id, prim);
+            tc = &slot;
+            cur = -1;
+          }
+          if (!tc->resolved) {
+            Surface s;
+            TriangleCache c = *tc;
+            surface_at(rt, g, x, y, s, unres, c);  // c holds the triangle: no rebuild
+            set_here(i, s);
+            kind[i] = 2;
+            continue;
+          }
+          if (cur < 0) {
+            cur = ntri++;
+            if (r.tris.size() < 14 * size_t(ntri)) r.tris.resize(14 * size_t(ntri) * 2);
+            double* t = &r.tris[14 * size_t(cur)];
+            for (int k = 0; k < 3; ++k)
+              t[k] = tc->v[0][k], t[3 + k] = tc->v[1][k], t[6 + k] = tc->v[2][k], t[9 + k] = tc->n[k];
+            t[12] = tc->check_error ? tc->error_m : -1.0;
+          }
+          kind[i] = 1;
+          tri_of[i] = cur;
+          b1[i] = bary[i].x, b2[i] = bary[i].y;
+          gx[i] = gnorm[i].x, gy[i] = gnorm[i].y, gz[i] = gnorm[i].z;
         }
-        ++cov;
-        any = true;
-        const uint32_t prim = prims[i];
-        if (!tc || id != tc->id || prim != tc->prim) {
-          // Rebuilt triangles are kept by (id, prim) (direct-mapped): the next rows mostly
-          // see the same ones. A rebuild gives the same values, so this changes no bit.
-          TriangleCache& slot = seen[size_t(((id * 0x9E3779B1u) ^ (prim * 0x85EBCA77u)) >> (32 - kSeenBits))];
-          if (slot.id != id || slot.prim != prim) update_triangle(rt, slot, id, prim);
-          tc = &slot;
-          cur = -1;
-        }
-        if (!tc->resolved) {
-          Surface s;
-          TriangleCache c = *tc;
-          surface_at(rt, g, x, y, s, unres, c);  // c holds the triangle: no rebuild
-          set(i, s);
-          kind[i] = 2;
-          continue;
-        }
-        if (cur < 0) {
-          cur = ntri++;
-          if (r.tris.size() < 14 * size_t(ntri)) r.tris.resize(14 * size_t(ntri) * 2);
-          double* t = &r.tris[14 * size_t(cur)];
-          for (int k = 0; k < 3; ++k)
-            t[k] = tc->v[0][k], t[3 + k] = tc->v[1][k], t[6 + k] = tc->v[2][k], t[9 + k] = tc->n[k];
-          t[12] = tc->check_error ? tc->error_m : -1.0;
-        }
-        kind[i] = 1;
-        tri_of[i] = cur;
-        b1[i] = bary[i].x, b2[i] = bary[i].y;
-        gx[i] = gnorm[i].x, gy[i] = gnorm[i].y, gz[i] = gnorm[i].z;
       }
       surfaces_x16(r, settings, size_t(y) * size_t(w), any_soft);
       for (int x = 0; x < w; ++x) {
