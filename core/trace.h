@@ -64,8 +64,9 @@ struct TraceSettings {
   // (SoftVisibility pass, full_scale = S, or 255 when S > 255).
   int samples_per_light = 1;
   int threads = 0;            // 0 = the RtScene's arena; else a dedicated arena of this size
-  // The AVX-512 ray generator of the AO pass where the CPU has it. It gives the same rays and
-  // results bit for bit; false forces the baseline kernel (tests compare the two).
+  // The AVX-512 kernels where the CPU has them: the AO pass's ray generator and the visibility
+  // pass's per-light stages. They give the same rays and results bit for bit; false forces the
+  // baseline kernels (tests compare the two: tests/test_trace.cpp, tests/test_trace_bits.cpp).
   bool wide_kernels = true;
   // A run may switch a pass off (the paper's Table 2 adds the passes one at a time); it can
   // never switch on a pass the scene does not call for.

@@ -7,6 +7,14 @@
 // incoherent streams beat its packets). The rays and results are the baseline kernel's bit for
 // bit (tests/test_trace.cpp: TraceAo.WideKernelsGiveTheSameBits).
 //
+// The visibility pass's AVX-512 kernels (same choice at run time, TraceSettings::wide_kernels):
+// stage 1 (surfaces_x16: surface points, orientation and origins of a row, 16 pixels at a time
+// from a per-row triangle table), stage 2 (sphere_light_row_x16: classification, compaction and
+// the hard or single jittered ray; distant_light_row_x16) and stage 3 (trace_pairs_x16: the
+// traced pairs gathered into packets). Same rays and counts as core/trace_rows.cpp's kernels,
+// bit for bit (tests/test_trace_bits.cpp pins them by hash on every scene with lights).
+// docs/performance.md has the measurements.
+//
 // Only the functions marked DHR_TRACE_TARGET_AVX512 are compiled for AVX-512; the rest of the
 // file keeps the baseline ISA. No lambdas inside them: a lambda does not inherit its enclosing
 // function's target attribute, and clang then refuses the AVX-512 intrinsics in it.
@@ -26,6 +34,7 @@
 #include "core/trace_kernels.h"
 
 #include <algorithm>
+#include <limits>
 #include <numbers>
 
 #if DHR_TRACE_AVX512
@@ -171,7 +180,367 @@ DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float rad
   }
 }
 
+// The low 8 lanes of lo, then the low 8 of hi.
+DHR_TRACE_TARGET_AVX512 inline __m512 join(__m512 lo, __m512 hi) {
+  return _mm512_insertf32x8(lo, _mm512_castps512_ps256(hi), 1);
+}
+
+// orthonormal_basis_x4 (core/trace_directions.h) on 16 lanes: the same operations.
+DHR_TRACE_TARGET_AVX512 inline void orthonormal_basis_x16(__m512 nx, __m512 ny, __m512 nz, __m512 t[3], __m512 b[3]) {
+  const __m512 signbit = _mm512_castsi512_ps(_mm512_set1_epi32(int32_t(0x80000000u)));
+  const __m512 sign = _mm512_or_ps(_mm512_and_ps(nz, signbit), _mm512_set1_ps(1.0f));  // copysign(1, n.z)
+  const __m512 neg_sign = _mm512_xor_ps(sign, signbit);
+  const __m512 a = _mm512_div_ps(_mm512_set1_ps(-1.0f), _mm512_add_ps(sign, nz));
+  const __m512 c = _mm512_mul_ps(_mm512_mul_ps(nx, ny), a);
+  t[0] = _mm512_add_ps(_mm512_set1_ps(1.0f), _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(sign, nx), nx), a));
+  t[1] = _mm512_mul_ps(sign, c);
+  t[2] = _mm512_mul_ps(neg_sign, nx);
+  b[0] = c;
+  b[1] = _mm512_add_ps(sign, _mm512_mul_ps(_mm512_mul_ps(ny, ny), a));
+  b[2] = _mm512_xor_ps(ny, signbit);
+}
+
+// cone_x4 (core/trace_directions.h) on 16 lanes: normalize(t * (c sin) + b * (s sin) + w * cos).
+DHR_TRACE_TARGET_AVX512 inline void cone_x16(const __m512 t[3], const __m512 b[3], const __m512 w[3], __m512 omc_max,
+                                             __m512 u0, __m512 u1, __m512 d[3]) {
+  const __m512 omc = _mm512_mul_ps(u0, omc_max);
+  const __m512 cos_t = _mm512_sub_ps(_mm512_set1_ps(1.0f), omc);
+  const __m512 sin_t = _mm512_sqrt_ps(
+      _mm512_max_ps(_mm512_mul_ps(omc, _mm512_sub_ps(_mm512_set1_ps(2.0f), omc)), _mm512_setzero_ps()));
+  __m512 c, s;
+  sincos_2pi_x16(u1, c, s);
+  const __m512 cs = _mm512_mul_ps(c, sin_t), ss = _mm512_mul_ps(s, sin_t);
+  __m512 v[3];
+  for (int k = 0; k < 3; ++k)
+    v[k] = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(t[k], cs), _mm512_mul_ps(b[k], ss)), _mm512_mul_ps(w[k], cos_t));
+  const __m512 dot =
+      _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(v[0], v[0]), _mm512_mul_ps(v[1], v[1])), _mm512_mul_ps(v[2], v[2]));
+  const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.0f), _mm512_sqrt_ps(dot));
+  for (int k = 0; k < 3; ++k) d[k] = _mm512_mul_ps(v[k], inv);
+}
+
+// sphere_tfar_x4 (core/trace_directions.h) on 16 lanes.
+DHR_TRACE_TARGET_AVX512 inline __m512 sphere_tfar_x16(const __m512 d[3], const __m512 oc[3], __m512 r2) {
+  const __m512 b = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(d[0], oc[0]), _mm512_mul_ps(d[1], oc[1])),
+                                 _mm512_mul_ps(d[2], oc[2]));
+  const __m512 qx = _mm512_sub_ps(oc[0], _mm512_mul_ps(b, d[0]));
+  const __m512 qy = _mm512_sub_ps(oc[1], _mm512_mul_ps(b, d[1]));
+  const __m512 qz = _mm512_sub_ps(oc[2], _mm512_mul_ps(b, d[2]));
+  const __m512 disc =
+      _mm512_sub_ps(r2, _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(qx, qx), _mm512_mul_ps(qy, qy)), _mm512_mul_ps(qz, qz)));
+  const __mmask16 pos = _mm512_cmp_ps_mask(disc, _mm512_setzero_ps(), _CMP_GT_OQ);
+  const __m512 t_hit = _mm512_mask_blend_ps(pos, b, _mm512_sub_ps(b, _mm512_sqrt_ps(disc)));  // pos ? b - sqrt : b
+  return _mm512_max_ps(_mm512_mul_ps(t_hit, _mm512_set1_ps(kShadowTfarScale)), _mm512_setzero_ps());
+}
+
+// direction_valid (core/trace_directions.h) and the origin's validity (bytes 0/1), 16 lanes.
+DHR_TRACE_TARGET_AVX512 inline __mmask16 rays_valid_x16(const __m512 d[3], __m512 tfar, const uint8_t* origin_ok) {
+  const __m512 zero = _mm512_setzero_ps(), fmax = _mm512_set1_ps(std::numeric_limits<float>::max());
+  const __mmask16 finite = _mm512_cmp_ps_mask(_mm512_abs_ps(d[0]), fmax, _CMP_LE_OQ) &
+                           _mm512_cmp_ps_mask(_mm512_abs_ps(d[1]), fmax, _CMP_LE_OQ) &
+                           _mm512_cmp_ps_mask(_mm512_abs_ps(d[2]), fmax, _CMP_LE_OQ);
+  const __mmask16 nonzero = _mm512_cmp_ps_mask(d[0], zero, _CMP_NEQ_UQ) | _mm512_cmp_ps_mask(d[1], zero, _CMP_NEQ_UQ) |
+                            _mm512_cmp_ps_mask(d[2], zero, _CMP_NEQ_UQ);
+  const __m512i ook = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(origin_ok)));
+  return finite & nonzero & _mm512_cmp_ps_mask(tfar, zero, _CMP_GE_OQ) & _mm512_test_epi32_mask(ook, ook);
+}
+
 }  // namespace
+
+DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
+  const int w = r.w;
+  const __m512d cx = _mm512_set1_pd(li.centre_d.x), cy = _mm512_set1_pd(li.centre_d.y), cz = _mm512_set1_pd(li.centre_d.z);
+  const __m512d range = _mm512_set1_pd(double(li.range)), radius = _mm512_set1_pd(double(li.radius));
+  const __m512d facing_at = li.soft ? _mm512_set1_pd(-double(li.radius)) : _mm512_setzero_pd();
+  const __m512d rr = _mm512_set1_pd(double(li.radius) * li.radius), one_d = _mm512_set1_pd(1.0);
+  const __mmask8 has_range = li.range > 0.0f ? 0xff : 0;
+  const __m512 lc[3] = {_mm512_set1_ps(li.centre.x), _mm512_set1_ps(li.centre.y), _mm512_set1_ps(li.centre.z)};
+  const __m512 lradius = _mm512_set1_ps(li.radius), tfar_scale = _mm512_set1_ps(kShadowTfarScale);
+  const __m512 r2 = _mm512_set1_ps(li.radius * li.radius);
+  const __m512 zero = _mm512_setzero_ps();
+  const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const bool rays = !li.soft || one_sample;  // else the caller makes the cones (S > 1)
+  int* idx = r.idx.data();
+  int m = 0;
+  for (int x = 0; x < w; x += 16) {
+    const int n = std::min(16, w - x);
+    const __mmask16 live = __mmask16((1u << n) - 1u);
+    // Classification in double: d = |c - p|, n . (c - p) (the scalar code's order of sums).
+    __mmask16 oor = 0, inside = 0, facing = 0;
+    __m512d t[2][3], d[2];
+    for (int half = 0; half < 2; ++half) {
+      const size_t xh = size_t(x + 8 * half);
+      __m512d* th = t[half];
+      th[0] = _mm512_sub_pd(cx, _mm512_cvtps_pd(_mm256_loadu_ps(&r.px[xh])));
+      th[1] = _mm512_sub_pd(cy, _mm512_cvtps_pd(_mm256_loadu_ps(&r.py[xh])));
+      th[2] = _mm512_sub_pd(cz, _mm512_cvtps_pd(_mm256_loadu_ps(&r.pz[xh])));
+      d[half] = _mm512_sqrt_pd(_mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(th[0], th[0]), _mm512_mul_pd(th[1], th[1])),
+                                             _mm512_mul_pd(th[2], th[2])));
+      const __m512d n_dot = _mm512_add_pd(
+          _mm512_add_pd(_mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nx[xh])), th[0]),
+                        _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.ny[xh])), th[1])),
+          _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nz[xh])), th[2]));
+      const int sh = 8 * half;
+      oor |= __mmask16(__mmask16(_mm512_mask_cmp_pd_mask(has_range, d[half], range, _CMP_GT_OQ)) << sh);
+      inside |= __mmask16(__mmask16(_mm512_cmp_pd_mask(d[half], radius, _CMP_LE_OQ)) << sh);  // !(d > R) && d == d
+      facing |= __mmask16(__mmask16(_mm512_cmp_pd_mask(n_dot, facing_at, _CMP_LE_OQ)) << sh);
+    }
+    // code = out_of_range ? range : inside ? inside : facing ? facing : rays
+    __m512i code = _mm512_setzero_si512();
+    code = _mm512_mask_mov_epi32(code, facing, _mm512_set1_epi32(kPairFacing));
+    code = _mm512_mask_mov_epi32(code, inside, _mm512_set1_epi32(kPairInside));
+    code = _mm512_mask_mov_epi32(code, oor, _mm512_set1_epi32(kPairRange));
+    alignas(16) uint8_t bytes[16];
+    _mm_store_si128(reinterpret_cast<__m128i*>(bytes), _mm512_cvtepi32_epi8(code));
+    std::copy(bytes, bytes + n, &r.code[base + size_t(x)]);
+    const __m512i covered = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)])));
+    const __mmask16 traced = __mmask16(~(oor | inside | facing)) & _mm512_test_epi32_mask(covered, covered) & live;
+    _mm512_mask_compressstoreu_epi32(idx + m, traced, _mm512_add_epi32(_mm512_set1_epi32(x), iota));
+    m += popcount16(traced);
+    if (!rays || traced == 0) continue;
+    // The ray of every pixel of the block (stored for the traced pairs only), in float from
+    // the offset origin: oc = centre - origin.
+    const __m512 oc[3] = {_mm512_sub_ps(lc[0], _mm512_loadu_ps(&r.ox[size_t(x)])),
+                          _mm512_sub_ps(lc[1], _mm512_loadu_ps(&r.oy[size_t(x)])),
+                          _mm512_sub_ps(lc[2], _mm512_loadu_ps(&r.oz[size_t(x)]))};
+    __m512 dir[3], tfar;
+    if (!li.soft) {
+      // Hard: towards the centre, ending kShadowTfarScale short of the sphere.
+      const __m512 dist_o = _mm512_sqrt_ps(_mm512_add_ps(
+          _mm512_add_ps(_mm512_mul_ps(oc[0], oc[0]), _mm512_mul_ps(oc[1], oc[1])), _mm512_mul_ps(oc[2], oc[2])));
+      for (int k = 0; k < 3; ++k) dir[k] = _mm512_div_ps(oc[k], dist_o);
+      // std::max(0.0f, v): v where 0 < v, else 0 (NaN and -0 give +0), as max_ps(v, 0).
+      tfar = _mm512_max_ps(_mm512_mul_ps(_mm512_sub_ps(dist_o, lradius), tfar_scale), zero);
+    } else {
+      // One jittered ray in the cone the sphere subtends from p: 1 - cos = s2 / (1 + sqrt(1 -
+      // s2)), s2 = R^2 / d^2, axis (c - p) / d, all in double, then rounded to float.
+      __m512 omc_h[2], wv_h[2][3];
+      for (int half = 0; half < 2; ++half) {
+        const __m512d s2 = _mm512_div_pd(rr, _mm512_mul_pd(d[half], d[half]));
+        omc_h[half] = _mm512_castps256_ps512(_mm512_cvtpd_ps(
+            _mm512_div_pd(s2, _mm512_add_pd(one_d, _mm512_sqrt_pd(_mm512_sub_pd(one_d, s2))))));
+        for (int k = 0; k < 3; ++k)
+          wv_h[half][k] = _mm512_castps256_ps512(_mm512_cvtpd_ps(_mm512_div_pd(t[half][k], d[half])));
+      }
+      const __m512 omc = join(omc_h[0], omc_h[1]);
+      const __m512 wv[3] = {join(wv_h[0][0], wv_h[1][0]), join(wv_h[0][1], wv_h[1][1]), join(wv_h[0][2], wv_h[1][2])};
+      __m512 tb[3], bb[3];
+      orthonormal_basis_x16(wv[0], wv[1], wv[2], tb, bb);
+      cone_x16(tb, bb, wv, omc, _mm512_loadu_ps(&r.u0[size_t(x)]), _mm512_loadu_ps(&r.u1[size_t(x)]), dir);
+      tfar = sphere_tfar_x16(dir, oc, r2);
+    }
+    const __mmask16 ok = rays_valid_x16(dir, tfar, &r.origin_ok[size_t(x)]);
+    const size_t i = base + size_t(x);
+    _mm512_mask_storeu_ps(&r.dx[i], traced, dir[0]);
+    _mm512_mask_storeu_ps(&r.dy[i], traced, dir[1]);
+    _mm512_mask_storeu_ps(&r.dz[i], traced, dir[2]);
+    _mm512_mask_storeu_ps(&r.tfar[i], traced, tfar);
+    _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
+                    _mm512_cvtepi32_epi8(_mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(1))));
+    for (int k = 0; k < n; ++k)
+      if ((traced >> k) & 1u) r.ok[i + size_t(k)] = bytes[k];
+  }
+  return m;
+}
+
+DHR_TRACE_TARGET_AVX512 void surfaces_x16(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes) {
+  const int w = r.w;
+  const double* tri = r.tris.data();
+  const __m512d zero_d = _mm512_setzero_pd(), one_d = _mm512_set1_pd(1.0);
+  const __m512 zero = _mm512_setzero_ps();
+  const __m512i iota64 = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m512i seed = _mm512_set1_epi64(int64_t(mix64(settings.seed)));
+  const __m512i frame = _mm512_set1_epi64(int64_t(settings.frame));
+  const __m512i dsign = _mm512_set1_epi64(int64_t(0x8000000000000000ull));
+  for (int x = 0; x < w; x += 16) {
+    const int n = std::min(16, w - x);
+    const __mmask16 live = __mmask16((1u << n) - 1u);
+    if (hashes) {  // PixelRng(seed, pixel, frame).h, pixel as uint32
+      for (int half = 0; half < 2; ++half) {
+        const __m512i pixel = _mm512_and_si512(_mm512_add_epi64(_mm512_set1_epi64(int64_t(row_start + size_t(x + 8 * half))), iota64),
+                                               _mm512_set1_epi64(0xffffffffll));
+        const __m512i key = _mm512_or_si512(_mm512_slli_epi64(pixel, 32), frame);
+        _mm512_mask_storeu_epi64(&r.h[size_t(x + 8 * half)], __mmask8(live >> (8 * half)),
+                                 mix64_x8(_mm512_xor_si512(seed, key)));
+      }
+    }
+    const __m512i kind = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.kind[size_t(x)])));
+    const __mmask16 vec = _mm512_cmpeq_epi32_mask(kind, _mm512_set1_epi32(1)) & live;
+    if (vec == 0) continue;
+    __m512 pf[3], nf[3];
+    __m256 ph[2][3], nh[2][3], qh[2][3];
+    __m512d error_m[2];
+    __mmask16 degenerate = 0;
+    for (int half = 0; half < 2; ++half) {
+      const size_t xh = size_t(x + 8 * half);
+      const __mmask8 m8 = __mmask8(vec >> (8 * half));
+      const __m256i base = _mm256_mullo_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(&r.tri_of[xh])),
+                                              _mm256_set1_epi32(14));
+      __m512d c[13];
+      for (int k = 0; k < 13; ++k)
+        c[k] = _mm512_mask_i32gather_pd(zero_d, m8, _mm256_add_epi32(base, _mm256_set1_epi32(k)), tri, 8);
+      // p = (1 - b1 - b2) v0 + b1 v1 + b2 v2
+      const __m512d b1 = _mm512_cvtps_pd(_mm256_loadu_ps(&r.b1[xh])), b2 = _mm512_cvtps_pd(_mm256_loadu_ps(&r.b2[xh]));
+      const __m512d a = _mm512_sub_pd(_mm512_sub_pd(one_d, b1), b2);
+      __m512d pd[3];
+      for (int k = 0; k < 3; ++k) {
+        pd[k] = _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(a, c[k]), _mm512_mul_pd(b1, c[3 + k])),
+                              _mm512_mul_pd(b2, c[6 + k]));
+        ph[half][k] = _mm512_cvtpd_ps(pd[k]);
+      }
+      // Oriented like the G-buffer's geometric normal: side = n . gn.
+      const __m512d side = _mm512_add_pd(
+          _mm512_add_pd(_mm512_mul_pd(c[9], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gx[xh]))),
+                        _mm512_mul_pd(c[10], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gy[xh])))),
+          _mm512_mul_pd(c[11], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gz[xh]))));
+      degenerate |= __mmask16(__mmask16(_mm512_cmp_pd_mask(_mm512_abs_pd(side), zero_d, _CMP_NGT_UQ) & m8) << (8 * half));
+      const __mmask8 flip = _mm512_cmp_pd_mask(side, zero_d, _CMP_LT_OQ);
+      for (int k = 0; k < 3; ++k) {
+        const __m512d nk = _mm512_castsi512_pd(
+            _mm512_mask_xor_epi64(_mm512_castpd_si512(c[9 + k]), flip, _mm512_castpd_si512(c[9 + k]), dsign));
+        nh[half][k] = _mm512_cvtpd_ps(nk);
+        // The point moved error_m off the plane (used where the error exceeds the offset).
+        qh[half][k] = _mm512_cvtpd_ps(_mm512_add_pd(pd[k], _mm512_mul_pd(nk, c[12])));
+      }
+      error_m[half] = c[12];
+    }
+    for (int k = 0; k < 3; ++k) {
+      pf[k] = _mm512_insertf32x8(_mm512_castps256_ps512(ph[0][k]), ph[1][k], 1);
+      nf[k] = _mm512_insertf32x8(_mm512_castps256_ps512(nh[0][k]), nh[1][k], 1);
+    }
+    // The triangle's own error against offset_lower_bound_m(p, n) (core/trace_kernels.h):
+    // where it is larger, surface_at moves the point off the plane first (kind 3). error_m is
+    // -1 for triangles that never need it.
+    __m512 bound = zero;
+    for (int k = 0; k < 3; ++k) {
+      const __m512 a = _mm512_abs_ps(pf[k]), m = _mm512_abs_ps(nf[k]);
+      const __m512 near = _mm512_mul_ps(_mm512_mul_ps(m, m), _mm512_set1_ps(1.0f / 65536.0f));
+      const __m512 far = _mm512_mul_ps(
+          _mm512_mul_ps(_mm512_max_ps(_mm512_mul_ps(m, _mm512_sub_ps(_mm512_mul_ps(_mm512_set1_ps(256.0f), m),
+                                                                     _mm512_set1_ps(1.0f))),
+                                      zero),
+                        _mm512_set1_ps(0x1p-25f)),
+          a);
+      bound = _mm512_add_ps(bound, _mm512_mask_blend_ps(_mm512_cmp_ps_mask(a, _mm512_set1_ps(1.0f / 32.0f), _CMP_LT_OQ),
+                                                        far, near));
+    }
+    const __mmask16 too_small =
+        __mmask16(_mm512_cmp_pd_mask(error_m[0], _mm512_cvtps_pd(_mm512_castps512_ps256(bound)), _CMP_GT_OQ)) |
+        __mmask16(__mmask16(_mm512_cmp_pd_mask(error_m[1], _mm512_cvtps_pd(_mm512_extractf32x8_ps(bound, 1)), _CMP_GT_OQ))
+                  << 8);
+    // offset_ray_origin (core/trace.h): 256 ULPs per unit of n in integer space, or n / 65536
+    // within 1/32 of the origin; from the moved point where the triangle's error is larger.
+    __m512 of[3];
+    __mmask16 origin_ok = 0xffff;
+    for (int k = 0; k < 3; ++k) {
+      const __m512 qf = _mm512_insertf32x8(_mm512_castps256_ps512(qh[0][k]), qh[1][k], 1);
+      const __m512 p0 = _mm512_mask_blend_ps(too_small, pf[k], qf);
+      const __m512i step = _mm512_cvttps_epi32(_mm512_mul_ps(_mm512_set1_ps(256.0f), nf[k]));
+      const __mmask16 neg = _mm512_cmp_ps_mask(p0, zero, _CMP_LT_OQ);
+      const __m512i signed_step = _mm512_mask_sub_epi32(step, neg, _mm512_setzero_si512(), step);
+      const __m512 moved = _mm512_castsi512_ps(_mm512_add_epi32(_mm512_castps_si512(p0), signed_step));
+      const __mmask16 small = _mm512_cmp_ps_mask(_mm512_abs_ps(p0), _mm512_set1_ps(1.0f / 32.0f), _CMP_LT_OQ);
+      of[k] = _mm512_mask_blend_ps(small, moved, _mm512_add_ps(p0, _mm512_mul_ps(_mm512_set1_ps(1.0f / 65536.0f), nf[k])));
+      origin_ok &= _mm512_cmp_ps_mask(_mm512_abs_ps(of[k]), _mm512_set1_ps(kMaxCoordinate), _CMP_LT_OQ);
+    }
+    const __mmask16 done = vec & __mmask16(~degenerate);
+    _mm512_mask_storeu_ps(&r.px[size_t(x)], done, pf[0]);
+    _mm512_mask_storeu_ps(&r.py[size_t(x)], done, pf[1]);
+    _mm512_mask_storeu_ps(&r.pz[size_t(x)], done, pf[2]);
+    _mm512_mask_storeu_ps(&r.nx[size_t(x)], done, nf[0]);
+    _mm512_mask_storeu_ps(&r.ny[size_t(x)], done, nf[1]);
+    _mm512_mask_storeu_ps(&r.nz[size_t(x)], done, nf[2]);
+    _mm512_mask_storeu_ps(&r.ox[size_t(x)], done, of[0]);
+    _mm512_mask_storeu_ps(&r.oy[size_t(x)], done, of[1]);
+    _mm512_mask_storeu_ps(&r.oz[size_t(x)], done, of[2]);
+    for (int k = 0; k < n; ++k) {
+      const size_t i = size_t(x + k);
+      if ((done >> k) & 1u) {
+        r.covered[i] = 1;
+        r.origin_ok[i] = uint8_t((origin_ok >> k) & 1u);
+      } else if ((degenerate >> k) & 1u) {
+        r.kind[i] = 3;
+      }
+    }
+  }
+}
+
+DHR_TRACE_TARGET_AVX512 void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  const int w = r.w;
+  const __m512 lt[3] = {_mm512_set1_ps(li.t.x), _mm512_set1_ps(li.t.y), _mm512_set1_ps(li.t.z)};
+  const __m512 lb[3] = {_mm512_set1_ps(li.b.x), _mm512_set1_ps(li.b.y), _mm512_set1_ps(li.b.z)};
+  const __m512 ld[3] = {_mm512_set1_ps(li.dir.x), _mm512_set1_ps(li.dir.y), _mm512_set1_ps(li.dir.z)};
+  const __m512 facing_at = _mm512_set1_ps(li.soft ? -li.sin_alpha : 0.0f);
+  const __m512 inf = _mm512_set1_ps(kInf);
+  for (int x = 0; x < w; x += 16) {
+    const int n = std::min(16, w - x);
+    const __mmask16 live = __mmask16((1u << n) - 1u);
+    const size_t i = base + size_t(x);
+    const __m512 n_dot = _mm512_add_ps(
+        _mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(&r.nx[size_t(x)]), ld[0]), _mm512_mul_ps(_mm512_loadu_ps(&r.ny[size_t(x)]), ld[1])),
+        _mm512_mul_ps(_mm512_loadu_ps(&r.nz[size_t(x)]), ld[2]));
+    const __mmask16 facing = _mm512_cmp_ps_mask(n_dot, facing_at, _CMP_LE_OQ);
+    alignas(16) uint8_t bytes[16];
+    _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
+                    _mm512_cvtepi32_epi8(_mm512_maskz_mov_epi32(facing, _mm512_set1_epi32(kPairFacing))));
+    std::copy(bytes, bytes + n, &r.code[i]);
+    __m512 dir[3] = {ld[0], ld[1], ld[2]};
+    if (li.soft)
+      cone_x16(lt, lb, ld, _mm512_set1_ps(li.one_minus_cos), _mm512_loadu_ps(&r.u0[size_t(x)]),
+               _mm512_loadu_ps(&r.u1[size_t(x)]), dir);
+    _mm512_mask_storeu_ps(&r.dx[i], live, dir[0]);
+    _mm512_mask_storeu_ps(&r.dy[i], live, dir[1]);
+    _mm512_mask_storeu_ps(&r.dz[i], live, dir[2]);
+    _mm512_mask_storeu_ps(&r.tfar[i], live, inf);
+    const __mmask16 ok = rays_valid_x16(dir, inf, &r.origin_ok[size_t(x)]);
+    _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
+                    _mm512_cvtepi32_epi8(_mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(1))));
+    std::copy(bytes, bytes + n, &r.ok[i]);
+  }
+}
+
+DHR_TRACE_TARGET_AVX512 void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch) {
+  auto& pk = batch.packet;
+  alignas(64) int valid[16];
+  const __m512 zero = _mm512_setzero_ps();
+  for (int k0 = 0; k0 < n; k0 += 16) {
+    const int live = std::min(16, n - k0);
+    const __mmask16 lm = __mmask16((1u << live) - 1u);
+    const __m512i pi = _mm512_maskz_loadu_epi32(lm, r.pair.data() + k0);
+    const __m512i xi = _mm512_maskz_loadu_epi32(lm, r.pair_x.data() + k0);
+    const __m512 ox = _mm512_mask_i32gather_ps(zero, lm, xi, r.ox.data(), 4);
+    const __m512 oy = _mm512_mask_i32gather_ps(zero, lm, xi, r.oy.data(), 4);
+    const __m512 oz = _mm512_mask_i32gather_ps(zero, lm, xi, r.oz.data(), 4);
+    const __m512 dx = _mm512_mask_i32gather_ps(zero, lm, pi, r.dx.data(), 4);
+    const __m512 dy = _mm512_mask_i32gather_ps(zero, lm, pi, r.dy.data(), 4);
+    const __m512 dz = _mm512_mask_i32gather_ps(zero, lm, pi, r.dz.data(), 4);
+    const __m512 tfar = _mm512_mask_i32gather_ps(zero, lm, pi, r.tfar.data(), 4);
+    _mm512_store_ps(pk.org_x, ox);
+    _mm512_store_ps(pk.org_y, oy);
+    _mm512_store_ps(pk.org_z, oz);
+    _mm512_store_ps(pk.dir_x, dx);
+    _mm512_store_ps(pk.dir_y, dy);
+    _mm512_store_ps(pk.dir_z, dz);
+    _mm512_store_ps(pk.tfar, tfar);
+    if (batch.record) {  // collect_visibility_rays: push() keeps the rays, traces nothing
+      for (int l = 0; l < live; ++l)
+        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l],
+                   pk.tfar[l], nullptr);
+      continue;
+    }
+    _mm512_store_si512(valid, _mm512_maskz_mov_epi32(lm, _mm512_set1_epi32(-1)));
+    rtcOccluded16(valid, batch.scene, &batch.ctx, &pk);
+    // Embree sets tfar = -inf on an occluded ray; anything else reached (as Batch::flush).
+    uint32_t reached = _mm512_cmp_ps_mask(_mm512_load_ps(pk.tfar), zero, _CMP_NLT_UQ) & lm;
+    while (reached != 0) {
+      uint16_t* count = r.pair_count[size_t(k0 + __builtin_ctz(reached))];
+      *count = uint16_t(*count + 1);
+      reached &= reached - 1u;
+    }
+    batch.traced += uint64_t(live);
+  }
+}
 
 // The AO rows with the AVX-512 ray generator: stage 1 gathers the row's tracing pixels
 // (scalar: surface, basis, validation, hash), stage 2 (ao_rays_x16) makes and traces the rays.

@@ -97,6 +97,23 @@ inline bool triangle_needs_check(const glm::dvec3 v[3], const glm::dvec3& n, dou
   return error_m > double(least);
 }
 
+// Rebuilds the cache for the triangle (id, prim).
+inline void update_triangle(const RtScene& rt, TriangleCache& cache, uint32_t id, uint32_t prim) {
+  cache.id = id;
+  cache.prim = prim;
+  const int oi = rt.object_index(id);
+  cache.resolved = oi >= 0 && rt.triangle_world(oi, prim, cache.v);
+  if (cache.resolved) {
+    const glm::dvec3* v = cache.v;
+    glm::dvec3 n = glm::cross(v[1] - v[0], v[2] - v[0]);
+    const double len = glm::length(n);
+    n /= len;  // non-degenerate: degenerate triangles were skipped at build
+    cache.n = n;
+    cache.error_m = triangle_error_m(v, len);
+    cache.check_error = triangle_needs_check(v, n, cache.error_m);
+  }
+}
+
 // False for background pixels. Unresolvable ids fall back to the G-buffer's position and
 // geometric normal (counted); a non-finite result then fails ray validation downstream.
 inline bool surface_at(const RtScene& rt, const GBuffer& g, int x, int y, Surface& s, uint64_t& unresolved,
@@ -104,21 +121,7 @@ inline bool surface_at(const RtScene& rt, const GBuffer& g, int x, int y, Surfac
   const uint32_t id = g.object_id(x, y);
   if (id == kBackgroundId) return false;
   const uint32_t prim = g.prim_id(x, y);
-  if (id != cache.id || prim != cache.prim) {
-    cache.id = id;
-    cache.prim = prim;
-    const int oi = rt.object_index(id);
-    cache.resolved = oi >= 0 && rt.triangle_world(oi, prim, cache.v);
-    if (cache.resolved) {
-      const glm::dvec3* v = cache.v;
-      glm::dvec3 n = glm::cross(v[1] - v[0], v[2] - v[0]);
-      const double len = glm::length(n);
-      n /= len;  // non-degenerate: degenerate triangles were skipped at build
-      cache.n = n;
-      cache.error_m = triangle_error_m(v, len);
-      cache.check_error = triangle_needs_check(v, n, cache.error_m);
-    }
-  }
+  if (id != cache.id || prim != cache.prim) update_triangle(rt, cache, id, prim);
   const glm::vec3 gn = g.geo_normal(x, y);
   if (cache.resolved) {
     const glm::dvec3* v = cache.v;
@@ -316,6 +319,64 @@ struct AoPixels {
   }
 };
 
+// What a (pixel, light) pair does (core/trace.h): trace ray(s), or a known answer.
+enum PairCode : uint8_t { kPairRays = 0, kPairRange = 1, kPairInside = 2, kPairFacing = 3 };
+
+// Per-row working arrays of the visibility pass, by pixel (x) and by light and pixel
+// (l * w + x). The pass works a row at a time in stages -- surfaces, then one light at a time
+// over the whole row, then the rays in pixel order -- so that the long chains of square roots
+// and divisions of neighbouring pixels overlap (and vectorize) instead of running one after
+// the other. Values of uncovered pixels are computed on zeros and never used.
+struct VisibilityRow {
+  static constexpr size_t kRowPad = 16;
+  int w = 0;
+  std::vector<uint8_t> covered, origin_ok;
+  std::vector<float> px, py, pz, nx, ny, nz, ox, oy, oz;
+  std::vector<uint64_t> h;   // PixelRng hash per pixel
+  std::vector<int> idx;       // compacted pixel indices (sphere_light_row)
+  // Temporaries of the light stages, by compacted index (sphere) or pixel (distant); kRowPad
+  // lanes of padding so that 4-, 8- and 16-lane loads and stores past the end stay inside.
+  std::vector<float> t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11, t12;
+  std::vector<float> u0, u1;  // one sample's uniforms per pixel
+  // Per light and pixel.
+  std::vector<uint8_t> code, ok;
+  std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
+  std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
+  // The row's pairs that trace one ray each (every light with one sample, the x16 path):
+  // l * w + x, x, and the counter, in pixel then light order.
+  std::vector<int> pair, pair_x;
+  std::vector<uint16_t*> pair_count;
+  // Stage 1 on the x16 path (surfaces_x16): per pixel, kind (0 background, 1 on a row
+  // triangle, rebuilt by the kernel; 2 done by surface_at; 3 left by the kernel to
+  // surface_at), the row triangle and the G-buffer's barycentrics and geometric normal; per
+  // row triangle, v0, v1, v2, n and, where the triangle's own error may exceed the offset
+  // (TriangleCache::check_error), its error_m, else -1 (14 doubles, tris; grown as needed).
+  std::vector<uint8_t> kind;
+  std::vector<int> tri_of;
+  std::vector<float> b1, b2, gx, gy, gz;
+  std::vector<double> tris;
+
+  VisibilityRow(int width, int lights) : w(width) {
+    const size_t n = size_t(width), nl = n * size_t(lights);
+    // Per-pixel arrays padded too: the 16-lane kernels (core/trace_avx512.cpp) load whole
+    // blocks; the padding stays zero (an uncovered pixel) and nothing is stored there.
+    for (auto* v : {&covered, &origin_ok}) v->assign(n + kRowPad, 0);
+    for (auto* v : {&px, &py, &pz, &nx, &ny, &nz, &ox, &oy, &oz}) v->assign(n + kRowPad, 0.0f);
+    for (auto* v : {&u0, &u1, &t0, &t1, &t2, &t3, &t4, &t5, &t6, &t7, &t8, &t9, &t10, &t11, &t12})
+      v->assign(n + kRowPad, 0.0f);
+    h.assign(n + kRowPad, 0);
+    idx.assign(n + kRowPad, 0);
+    kind.assign(n + kRowPad, 0);
+    tri_of.assign(n + kRowPad, 0);
+    for (auto* v : {&b1, &b2, &gx, &gy, &gz}) v->assign(n + kRowPad, 0.0f);
+
+    for (auto* v : {&code, &ok}) v->assign(nl, 0);
+    for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
+    for (auto* v : {&pair, &pair_x}) v->assign(nl + kRowPad, 0);
+    pair_count.assign(nl + kRowPad, nullptr);
+  }
+};
+
 // ---- The row kernels ----
 
 // core/trace_rows.cpp, instantiated for W = 8 and 16 (Embree's packet width).
@@ -341,6 +402,29 @@ extern template void ao_rows<16>(RtScene&, const GBuffer&, int, float, const Tra
 bool cpu_has_avx512dq();
 void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
                  AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st);
+// Stage 2 of the visibility pass for a sphere light (sphere_light_row in core/trace_rows.cpp),
+// 16 pixels at a time: every pixel's code, the compacted indices (r.idx) of the covered pairs
+// that trace, whose count it returns, and, for a hard light or a soft one with one sample,
+// those pairs' rays and validity. The same operations in the same order as the scalar and
+// SSE2 code: the same bits.
+int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample);
+// Stage 1 of the visibility pass for the pixels of kind 1 (see VisibilityRow), 16 at a time:
+// the point on the row triangle from the barycentrics (double), the normal oriented like the
+// G-buffer's, the Waechter-Binder origin and its validity, as surface_at does (same bits).
+// Where the triangle's own error exceeds the offset's lower bound (offset_lower_bound_m) the
+// point first moves that far off the plane, as there. Pixels whose orientation needs the
+// camera (a zero G-buffer normal) become kind 3. With
+// hashes, every pixel's PixelRng hash (pixel = row_start + x).
+void surfaces_x16(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes);
+// Stage 2 for a distant light (distant_light_row in core/trace_rows.cpp) with one sample per
+// pixel, 16 pixels at a time: codes, rays (the jittered cone for a soft light, the light's
+// direction for a hard one) and validity. Same bits.
+void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base);
+// Stage 3 of the visibility pass where every light takes one ray per pixel: the n pairs of
+// r.pair (pixel then light order) 16 at a time into the packet (a row's last packet may be
+// partial), traced, each unoccluded ray adding one to its counter; with batch.record, the rays
+// are kept instead (Batch::push).
+void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch);
 #endif
 
 }  // namespace dhr::trace_detail

@@ -11,7 +11,12 @@
 //   64-bit vector multiplies where the CPU has it; integer arithmetic only, same bits).
 // - directions: SSE2 kernels (sincos_2pi_x4, cone_x4, ...) doing the scalar code's IEEE
 //   operations in the same order, 4 lanes at a time, so results are bit-identical to it.
-// - the AO pass, where the CPU has AVX-512: core/trace_avx512.cpp.
+// - where the CPU has AVX-512 (and TraceSettings::wide_kernels): the AO pass's ray generator
+//   and the visibility pass's stages (surfaces; light classification and the hard or single
+//   jittered ray; packets where every light takes one ray per pixel; S > 1 keeps the cone
+//   loops below), in
+//   core/trace_avx512.cpp; this file keeps the baseline kernels and the per-pixel work the
+//   vector kernels hand back (unresolved ids, normals oriented by the camera).
 // - the visibility pass works a row at a time in stages (surfaces; each light over the row,
 //   compacted to the pairs that trace; rays in pixel order) so the square-root and division
 //   chains of neighbouring pixels overlap instead of running one after the other.
@@ -22,6 +27,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 
 namespace dhr::trace_detail {
 
@@ -54,46 +60,11 @@ __attribute__((target_clones("default", "arch=x86-64-v4"))) void uniforms_pixels
   }
 }
 
-// What a (pixel, light) pair does (core/trace.h): trace ray(s), or a known answer.
-enum PairCode : uint8_t { kPairRays = 0, kPairRange = 1, kPairInside = 2, kPairFacing = 3 };
-
-// Per-row working arrays of the visibility pass, by pixel (x) and by light and pixel
-// (l * w + x). The pass works a row at a time in stages -- surfaces, then one light at a time
-// over the whole row, then the rays in pixel order -- so that the long chains of square roots
-// and divisions of neighbouring pixels overlap (and vectorize) instead of running one after
-// the other. Values of uncovered pixels are computed on zeros and never used.
-struct VisibilityRow {
-  int w = 0;
-  std::vector<uint8_t> covered, origin_ok;
-  std::vector<float> px, py, pz, nx, ny, nz, ox, oy, oz;
-  std::vector<uint64_t> h;   // PixelRng hash per pixel
-  std::vector<int> idx;       // compacted pixel indices (sphere_light_row)
-  // Temporaries of the light stages, by compacted index (sphere) or pixel (distant); kChunk
-  // lanes of padding so that 4- and 8-lane loads and stores past the end stay inside.
-  std::vector<float> t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11, t12;
-  std::vector<float> u0, u1;  // one sample's uniforms per pixel
-  // Per light and pixel.
-  std::vector<uint8_t> code, ok;
-  std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
-  std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
-
-  VisibilityRow(int width, int lights) : w(width) {
-    const size_t n = size_t(width), nl = n * size_t(lights);
-    for (auto* v : {&covered, &origin_ok}) v->assign(n, 0);
-    for (auto* v : {&px, &py, &pz, &nx, &ny, &nz, &ox, &oy, &oz}) v->assign(n, 0.0f);
-    for (auto* v : {&u0, &u1, &t0, &t1, &t2, &t3, &t4, &t5, &t6, &t7, &t8, &t9, &t10, &t11, &t12})
-      v->assign(n + size_t(kChunk), 0.0f);
-    h.assign(n, 0);
-    idx.assign(n, 0);
-    for (auto* v : {&code, &ok}) v->assign(nl, 0);
-    for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
-  }
-};
-
 // Stage 2 for a sphere light over a row: classification in double precision (as the scalar
 // rules in core/trace.h), then the hard ray, the single jittered ray (S = 1) or the cone
 // (S > 1). Branch-free: every pixel computes everything, the code picks.
-void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
+// x16: the AVX-512 kernel (sphere_light_row_x16) does the classification and the hard rays.
+void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample, bool x16) {
   const int w = r.w;
   const double cx = li.centre_d.x, cy = li.centre_d.y, cz = li.centre_d.z;
   const double range = double(li.range), radius = double(li.radius);
@@ -109,7 +80,15 @@ void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool o
   // covered pairs that trace (compacted: out-of-range and facing-away pairs cost nothing more).
   int* __restrict idx = r.idx.data();
   int m = 0;
-  for (int x = 0; x < w; ++x) {
+#if DHR_TRACE_AVX512
+  if (x16) {
+    m = sphere_light_row_x16(r, li, base, one_sample);
+    if (!li.soft || one_sample) return;
+  }
+#else
+  (void)x16;
+#endif
+  for (int x = 0; x < w && !x16; ++x) {
     const double tx = cx - double(r.px[size_t(x)]), ty = cy - double(r.py[size_t(x)]), tz = cz - double(r.pz[size_t(x)]);
     const double d = std::sqrt(tx * tx + ty * ty + tz * tz);
     const double n_dot = double(r.nx[size_t(x)]) * tx + double(r.ny[size_t(x)]) * ty + double(r.nz[size_t(x)]) * tz;
@@ -257,10 +236,27 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   const int nl = int(lights.size());
   Batch<W> batch(rt.handle(), kMaskShadow);
   TriangleCache cache;
-  VisibilityRow r(w, nl);
+  // One set of row arrays per thread, kept from call to call (a block of rows is often only a
+  // few rows: allocating them per block cost several percent of a pass). Every value a row
+  // reads is written for that row first; the padding stays zero.
+  thread_local std::unique_ptr<VisibilityRow> row_arrays;
+  if (!row_arrays || row_arrays->w != w || row_arrays->code.size() != size_t(w) * size_t(nl))
+    row_arrays = std::make_unique<VisibilityRow>(w, nl);
+  VisibilityRow& r = *row_arrays;
+#if DHR_TRACE_AVX512
+  const bool x16 = settings.wide_kernels && cpu_has_avx512dq();
+#else
+  const bool x16 = false;
+#endif
   bool any_soft = false;  // hard lights need no random numbers
-  for (const LightInfo& li : lights) any_soft = any_soft || li.soft;
+  bool all_single = true;  // every light one ray per pixel (hard, or soft with S = 1)
+  for (const LightInfo& li : lights) {
+    any_soft = any_soft || li.soft;
+    all_single = all_single && li.samples == 1;
+  }
   uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
+  constexpr int kSeenBits = 8;
+  std::vector<TriangleCache> seen(x16 ? size_t(1) << kSeenBits : 0);
   alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk], tfar[kChunk];
   alignas(64) bool ok[kChunk];
   constexpr float kInf = std::numeric_limits<float>::infinity();
@@ -268,7 +264,97 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     if (rows_out) batch.record = &(*rows_out)[size_t(y)];
     // Stage 1: surfaces.
     bool any = false;
-    for (int x = 0; x < w; ++x) {
+#if DHR_TRACE_AVX512
+    if (x16) {
+      // Triangles and G-buffer values by pixel here, the points and origins in surfaces_x16;
+      // what it cannot do (unresolved ids, triangles whose own error needs the per-pixel test,
+      // normals oriented by the camera) surface_at does, with the same cache.
+      int ntri = 0, cur = -1;  // cur: the row triangle of the cache's triangle (-1: none yet)
+      const auto set = [&](size_t i, const Surface& s) {
+        r.covered[i] = 1;
+        r.px[i] = s.p.x, r.py[i] = s.p.y, r.pz[i] = s.p.z;
+        r.nx[i] = s.n.x, r.ny[i] = s.n.y, r.nz[i] = s.n.z;
+        r.ox[i] = s.origin.x, r.oy[i] = s.origin.y, r.oz[i] = s.origin.z;
+        r.origin_ok[i] = origin_valid(s.origin) ? 1 : 0;
+      };
+      {
+        // Plain restrict pointers (this block only, every access through them): through the
+        // vectors' members the compiler reloads every data pointer after each byte store.
+        const uint32_t* __restrict ids = &g.object_id(0, y);
+        const uint32_t* __restrict prims = &g.prim_id(0, y);
+        const glm::vec2* __restrict bary = &g.bary(0, y);
+        const glm::vec3* __restrict gnorm = &g.geo_normal(0, y);
+        uint8_t* __restrict kind = r.kind.data();
+        uint8_t* __restrict covered = r.covered.data();
+        uint8_t* __restrict origin_ok = r.origin_ok.data();
+        int* __restrict tri_of = r.tri_of.data();
+        float* __restrict b1 = r.b1.data();
+        float* __restrict b2 = r.b2.data();
+        float* __restrict gx = r.gx.data();
+        float* __restrict gy = r.gy.data();
+        float* __restrict gz = r.gz.data();
+        float* const __restrict planes[9] = {r.px.data(), r.py.data(), r.pz.data(), r.nx.data(), r.ny.data(),
+                                             r.nz.data(), r.ox.data(), r.oy.data(), r.oz.data()};
+        const auto set_here = [&](size_t i, const Surface& sf) {
+          covered[i] = 1;
+          const float v[9] = {sf.p.x, sf.p.y, sf.p.z, sf.n.x, sf.n.y, sf.n.z, sf.origin.x, sf.origin.y, sf.origin.z};
+          for (int k = 0; k < 9; ++k) planes[k][i] = v[k];
+          origin_ok[i] = origin_valid(sf.origin) ? 1 : 0;
+        };
+        const TriangleCache* tc = nullptr;  // the triangle of the previous covered pixel
+        for (int x = 0; x < w; ++x) {
+          const size_t i = size_t(x);
+          const uint32_t id = ids[i];
+          if (id == kBackgroundId) {  // as surface_at's Surface{}: zeros, a valid origin
+            kind[i] = 0;
+            covered[i] = 0;
+            for (float* plane : planes) plane[i] = 0.0f;
+            origin_ok[i] = 1;
+            continue;
+          }
+          ++cov;
+          any = true;
+          const uint32_t prim = prims[i];
+          if (!tc || id != tc->id || prim != tc->prim) {
+            // Rebuilt triangles are kept by (id, prim) (direct-mapped): the next rows mostly
+            // see the same ones. A rebuild gives the same values, so this changes no bit.
+            TriangleCache& slot = seen[size_t(((id * 0x9E3779B1u) ^ (prim * 0x85EBCA77u)) >> (32 - kSeenBits))];
+            if (slot.id != id || slot.prim != prim) update_triangle(rt, slot, id, prim);
+            tc = &slot;
+            cur = -1;
+          }
+          if (!tc->resolved) {
+            Surface s;
+            TriangleCache c = *tc;
+            surface_at(rt, g, x, y, s, unres, c);  // c holds the triangle: no rebuild
+            set_here(i, s);
+            kind[i] = 2;
+            continue;
+          }
+          if (cur < 0) {
+            cur = ntri++;
+            if (r.tris.size() < 14 * size_t(ntri)) r.tris.resize(14 * size_t(ntri) * 2);
+            double* t = &r.tris[14 * size_t(cur)];
+            for (int k = 0; k < 3; ++k)
+              t[k] = tc->v[0][k], t[3 + k] = tc->v[1][k], t[6 + k] = tc->v[2][k], t[9 + k] = tc->n[k];
+            t[12] = tc->check_error ? tc->error_m : -1.0;
+          }
+          kind[i] = 1;
+          tri_of[i] = cur;
+          b1[i] = bary[i].x, b2[i] = bary[i].y;
+          gx[i] = gnorm[i].x, gy[i] = gnorm[i].y, gz[i] = gnorm[i].z;
+        }
+      }
+      surfaces_x16(r, settings, size_t(y) * size_t(w), any_soft);
+      for (int x = 0; x < w; ++x) {
+        if (r.kind[size_t(x)] != 3) continue;
+        Surface s;
+        surface_at(rt, g, x, y, s, unres, cache);  // rebuilds the pixel's triangle
+        set(size_t(x), s);
+      }
+    }
+#endif
+    for (int x = 0; x < w && !x16; ++x) {
       Surface s;
       const size_t i = size_t(x);
       r.covered[i] = surface_at(rt, g, x, y, s, unres, cache) ? 1 : 0;
@@ -290,10 +376,46 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
       const LightInfo& li = lights[size_t(l)];
       const bool one_sample = li.samples == 1;
       if (li.soft && one_sample) uniforms_pixels(r.h.data(), w, 0, kStreamLightBase + uint32_t(l), r.u0.data(), r.u1.data());
-      if (li.sphere) sphere_light_row(r, li, size_t(l) * size_t(w), one_sample);
+      if (li.sphere) sphere_light_row(r, li, size_t(l) * size_t(w), one_sample, x16);
+#if DHR_TRACE_AVX512
+      else if (x16 && one_sample) distant_light_row_x16(r, li, size_t(l) * size_t(w));
+#endif
       else distant_light_row(r, li, size_t(l) * size_t(w), one_sample);
     }
     // Stage 3: answers and rays in pixel order (pixel, light, sample).
+#if DHR_TRACE_AVX512
+    if constexpr (W == 16) {
+      if (x16 && all_single) {
+        // The pairs that trace, listed; trace_pairs_x16 makes the packets.
+        int n = 0;
+        for (int x = 0; x < w; ++x) {
+          if (!r.covered[size_t(x)]) continue;
+          const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+          for (int l = 0; l < nl; ++l) {
+            const size_t i = size_t(l) * size_t(w) + size_t(x);
+            uint16_t* count = &out.visible[size_t(l) * npx + pixel];
+            switch (r.code[i]) {
+              case kPairRange: ++range; continue;
+              case kPairInside: *count = 1, ++inside; continue;
+              case kPairFacing: ++facing; continue;
+              default: break;
+            }
+            if (r.ok[i]) {
+              r.pair[size_t(n)] = int(i);
+              r.pair_x[size_t(n)] = x;
+              r.pair_count[size_t(n)] = count;
+              ++n;
+            } else {
+              ++invalid;
+              ++*count;
+            }
+          }
+        }
+        trace_pairs_x16(r, n, batch);
+        continue;
+      }
+    }
+#endif
     for (int x = 0; x < w; ++x) {
       if (!r.covered[size_t(x)]) continue;
       const size_t pixel = size_t(y) * size_t(w) + size_t(x);

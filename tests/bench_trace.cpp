@@ -18,7 +18,8 @@
 // Scenes: the built-in scenes (scenes/*.json) and the real scenes (scenes/real/*.json, skipped
 // when ../shared/scenes is missing), at 1280x720, camera at t = 0, G-buffer from Embree
 // primary rays. Set DHR_BENCH_SCENES=room,temple to restrict the scenes, DHR_BENCH_THREADS=N
-// for the thread count (default: all cores). Mrays_per_s is per wall second, Mrays_per_cpu_s
+// for the thread count (default: all cores), DHR_BENCH_WIDE_KERNELS=0 for the baseline
+// (non-AVX-512) kernels. Mrays_per_s is per wall second, Mrays_per_cpu_s
 // per process CPU second; the ratio uses CPU seconds, which a busy shared machine disturbs
 // least.
 //
@@ -234,6 +235,9 @@ PassCase make_case(BenchScene& b, const std::string& pass) {
   if (pass == "hard") c.settings.soft_shadows = false;
   if (pass == "soft") c.settings.soft_shadows = true;
   if (pass == "ao8") c.settings.ao_rays = 8;
+  // DHR_BENCH_WIDE_KERNELS=0: the baseline kernels (TraceSettings::wide_kernels = false), to
+  // compare with the AVX-512 ones in the same build (same rays, same bits).
+  if (const char* v = std::getenv("DHR_BENCH_WIDE_KERNELS")) c.settings.wide_kernels = std::strcmp(v, "0") != 0;
   c.plan = plan_passes(b.scene, c.settings);
   if (pass == "ao8") {
     const float radius = b.scene.ao ? c.plan.ao_radius_m : 1.0f;

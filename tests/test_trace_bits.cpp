@@ -1,0 +1,160 @@
+// The visibility pass's output bits, pinned: on every built-in scene and every real scene
+// (skipped when ../shared/scenes is missing), in each shadow mode (hard, one jittered ray per
+// light, 4 rays per light), the FNV-1a hash of the counts, of the statistics and of the rays
+// handed to Embree (collect_visibility_rays) must equal the values recorded from the tracer
+// of commit d05e197 (before the speed work of docs/performance.md). A change of the tracer's
+// kernels that moves any ray or any count by one bit fails here; a deliberate change of the
+// output must update the table and say so.
+// Run with DHR_PRINT_TRACE_HASHES=1 to print the table's rows for the current code.
+#include "core/error.h"
+#include "core/rt_scene.h"
+#include "core/scene_load.h"
+#include "core/trace.h"
+
+#include "tests/support.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <string>
+
+namespace dhr {
+namespace {
+
+struct Fnv {
+  uint64_t h = 1469598103934665603ull;
+  void bytes(const void* p, size_t n) {
+    const auto* b = static_cast<const unsigned char*>(p);
+    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
+  }
+  template <class T>
+  void value(const T& v) {
+    bytes(&v, sizeof v);
+  }
+};
+
+// scene/mode -> hash, recorded with DHR_PRINT_TRACE_HASHES=1 at commit d05e197.
+const std::map<std::string, uint64_t>& pinned() {
+  static const std::map<std::string, uint64_t> m = {
+      {"room/hard", 0x47c22a5598623c55ull},
+      {"room/soft1", 0xb7f90787bd269b47ull},
+      {"room/soft4", 0x016ef43aebaf323aull},
+      {"street/hard", 0xcda849315df255c7ull},
+      {"street/soft1", 0x7ef06c429751eaffull},
+      {"street/soft4", 0x21ab18080a877faeull},
+      {"temple/hard", 0x718defe329c23645ull},
+      {"temple/soft1", 0x3f06f8b5097f1e61ull},
+      {"temple/soft4", 0x71b0e834715f4253ull},
+      {"classroom/hard", 0x1f14383a0424d32eull},
+      {"classroom/soft1", 0xfb4922c2c5200c74ull},
+      {"classroom/soft4", 0x486d5ff7cbac0d3cull},
+      {"dining-room/hard", 0x27c89ad6614306e5ull},
+      {"dining-room/soft1", 0x646495173ea605c5ull},
+      {"dining-room/soft4", 0x1b4e1c68a9b1b0edull},
+      {"sponza-dabrovic/hard", 0x25f504298b1846ecull},
+      {"sponza-dabrovic/soft1", 0x40dee685a0aea845ull},
+      {"sponza-dabrovic/soft4", 0x383b601ee2f6f938ull},
+      {"staircase/hard", 0xf8b2b9fde8e8c8e3ull},
+      {"staircase/soft1", 0xd29df6f678894b72ull},
+      {"staircase/soft4", 0xa311989f05c90d74ull},
+  };
+  return m;
+}
+
+uint64_t pass_hash(RtScene& rt, const GBuffer& g, const TraceSettings& s) {
+  const PassPlan plan = plan_passes(rt.scene(), s);
+  TraceStats st;
+  const VisibilityCounts c = trace_visibility_counts(rt, g, plan, s, st);
+  Fnv f;
+  f.bytes(c.visible.data(), c.visible.size() * sizeof(uint16_t));
+  for (uint64_t v : {st.covered_pixels, st.shadow_rays, st.invalid_rays, st.unresolved_pixels, st.shadow_skipped_facing,
+                     st.shadow_skipped_range, st.shadow_inside_light})
+    f.value(v);
+  for (const RTCRay& r : collect_visibility_rays(rt, g, plan, s)) {
+    for (float v : {r.org_x, r.org_y, r.org_z, r.tnear, r.dir_x, r.dir_y, r.dir_z, r.time, r.tfar}) f.value(v);
+    f.value(r.mask);
+  }
+  return f.h;
+}
+
+TEST(TraceBits, VisibilityPassIsPinned) {
+  const bool print = std::getenv("DHR_PRINT_TRACE_HASHES") != nullptr;
+  std::vector<std::string> files = builtin_scene_files();
+  for (const auto& f : real_scene_files()) files.push_back(f);
+  int checked = 0;
+  for (const auto& file : files) {
+    const std::string name = std::filesystem::path(file).stem().string();
+    Scene scene;
+    try {
+      scene = load_scene(file, SceneSearchPath::standard());
+    } catch (const Error& e) {
+      std::printf("skipped %s: %s\n", name.c_str(), e.what());
+      continue;
+    }
+    if (scene.lights.empty()) continue;
+    RtScene rt(scene);
+    // 321 x 181: odd sizes, so that rows end in partial vector blocks.
+    const Camera cam = scene.camera.at(0.25, 321, 181);
+    const GBuffer g = rt.primary_gbuffer(cam, 0.25);
+    for (const std::string mode : {"hard", "soft1", "soft4"}) {
+      TraceSettings s;
+      s.seed = 7;
+      s.frame = 3;
+      s.soft_shadows = mode != "hard";
+      s.samples_per_light = mode == "soft4" ? 4 : 1;
+      const std::string key = name + "/" + mode;
+      const uint64_t h = pass_hash(rt, g, s);
+      TraceSettings base = s;
+      base.wide_kernels = false;  // the baseline kernels: the same bits
+      EXPECT_EQ(pass_hash(rt, g, base), h) << key << ": the AVX-512 and baseline kernels differ";
+      if (print) {
+        std::printf("      {\"%s\", 0x%016llxull},\n", key.c_str(), static_cast<unsigned long long>(h));
+        continue;
+      }
+      const auto it = pinned().find(key);
+      ASSERT_NE(it, pinned().end()) << key << " has no pinned hash";
+      EXPECT_EQ(h, it->second) << key << ": the visibility pass's bits changed";
+      ++checked;
+    }
+  }
+  if (!print) {
+    EXPECT_GE(checked, 6);  // the built-in scenes with lights, at least
+  }
+}
+
+// The AVX-512 kernels' fallbacks (zero G-buffer normals: orientation by the camera; unknown
+// object and triangle ids: the G-buffer's position; NaN barycentrics) give the baseline
+// kernels' bits too.
+TEST(TraceBits, DamagedGBufferSameBitsOnBothKernels) {
+  Scene scene = load_scene(builtin_scene_files().front(), SceneSearchPath::standard());
+  ASSERT_FALSE(scene.lights.empty());
+  RtScene rt(scene);
+  const Camera cam = scene.camera.at(0.0, 97, 61);
+  GBuffer g = rt.primary_gbuffer(cam, 0.0);
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x) {
+      if (g.object_id(x, y) == kBackgroundId) continue;
+      switch ((x + 3 * y) % 7) {
+        case 0: g.geo_normal(x, y) = glm::vec3(0.0f); break;
+        case 1: g.object_id(x, y) = 0xfffffff0u; break;
+        case 2: g.prim_id(x, y) = 0x7fffffffu; break;
+        case 3: g.bary(x, y) = glm::vec2(std::nanf(""), 0.25f); break;
+        default: break;
+      }
+    }
+  for (const bool soft : {false, true}) {
+    TraceSettings s;
+    s.soft_shadows = soft;
+    TraceSettings base = s;
+    base.wide_kernels = false;
+    EXPECT_EQ(pass_hash(rt, g, s), pass_hash(rt, g, base)) << (soft ? "soft" : "hard");
+  }
+}
+
+}  // namespace
+}  // namespace dhr
