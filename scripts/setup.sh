@@ -20,6 +20,8 @@ PACKAGES=(
   clang libclang-rt-14-dev
   # report plots
   python3 python3-matplotlib python3-numpy
+  # the one-node Slurm cluster of tests/slurm/run_slurm_test.sh (scripts/slurm/)
+  munge slurmctld slurmd slurm-client
 )
 
 missing=()
