@@ -174,5 +174,30 @@ grep -q "shards 2 of 2" <<<"$submitted" || fail "--only 2 did not submit shard 2
 wait_for "$(sed -n 's/^merge job \([0-9]*\):.*/\1/p' <<<"$submitted")"
 python3 "$root/scripts/check_figures.py" --compare "$tmp/out/shard" "$tmp/out/whole" || fail "merged results after the rerun differ"
 t_end=$(date +%s.%N)
+
+# Measurement (not part of the test): DHR_SLURM_MEASURE="1 2 4" submits
+# DHR_SLURM_MEASURE_EXPERIMENT as that many shards in turn (cores per task: the node's cores
+# divided by the shards, at least 1; each with a cold cache) and prints the wall time from
+# submission to the merged report, and each job's own run time.
+if [ -n "${DHR_SLURM_MEASURE:-}" ]; then
+  mexp=$(realpath "${DHR_SLURM_MEASURE_EXPERIMENT:?the experiment to measure}")
+  for n in $DHR_SLURM_MEASURE; do
+    c=$(( cpus / n )); [ "$c" -ge 1 ] || c=1
+    m0=$(date +%s.%N)
+    submitted=$(cd "$tmp" && "$root/scripts/slurm/submit.sh" "$mexp" --shards "$n" --cpus "$c" --mem 2G --time 60 \
+      --partition dhrtest --cache "$tmp/mcache$n" --out "$tmp/measure/n$n" --dhrbench "$dhrbench")
+    mid=$(sed -n 's/^merge job \([0-9]*\):.*/\1/p' <<<"$submitted")
+    limit_s=3600 wait_for "$mid"
+    m1=$(date +%s.%N)
+    shard_walls=$(python3 - "$tmp/measure/n$n/results.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+print(" ".join("%.1f" % s["wall_s"] for s in r["shards"]))
+PY
+)
+    awk -v a="$m0" -v b="$m1" -v n="$n" -v c="$c" -v w="$shard_walls" 'BEGIN {
+      printf "measure: %d shard(s), %d core(s) each: %.1f s from submission to the merged report; shards ran %s s\n", n, c, b - a, w }'
+  done
+fi
 awk -v a="$t0" -v d="$t_daemons" -v u="$t_up" -v j="$t_done" -v e="$t_end" 'BEGIN {
   printf "slurm test passed: cluster up %.1f s after its daemons started; jobs (2 shards + merge) %.1f s; whole test %.1f s\n", u - d, j - u, e - a }'
