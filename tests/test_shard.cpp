@@ -244,6 +244,16 @@ TEST(Shard, AFailedShardIsReportedAndRerunAlone) {
   EXPECT_EQ(cli(merge, &log), 1);
   EXPECT_NE(log.find("shard 2/2 (" + (base / "s2").string() + ") did not finish"), std::string::npos) << log;
   EXPECT_NE(log.find("its runs: r002, r003"), std::string::npos) << log;
+  // A damaged manifest is named with what is wrong (untrusted input, as every file read).
+  for (const auto& [text, expected] : std::vector<std::pair<std::string, std::string>>{
+           {"{", "shard.json: not valid JSON"},
+           {R"({"experiment_hash": 1})", "\"experiment_hash\" must be a string"},
+           {std::string(1000, '[') + std::string(1000, ']'), "shard.json: JSON nested deeper than 64 levels"}}) {
+    std::ofstream(base / "s2" / "shard.json") << text;
+    EXPECT_EQ(cli(merge, &log), 1) << text;
+    EXPECT_NE(log.find((base / "s2" / "shard.json").string()), std::string::npos) << log;
+    EXPECT_NE(log.find(expected), std::string::npos) << log;
+  }
   fs::remove_all(base);
 }
 
