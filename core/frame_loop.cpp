@@ -1,6 +1,7 @@
 #include "core/frame_loop.h"
 
 #include "core/assembler.h"
+#include "core/checksum.h"
 #include "core/composite.h"
 #include "core/error.h"
 #include "core/metrics.h"
@@ -10,7 +11,10 @@
 #include "core/reference.h"
 #include "core/rt_scene.h"
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstring>
 #include <cmath>
@@ -19,6 +23,7 @@
 #include <fstream>
 #include <thread>
 #include <queue>
+#include <random>
 
 namespace dhr {
 
@@ -92,7 +97,9 @@ std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key
 
 namespace {
 
-constexpr char kTraceFileMagic[8] = {'D', 'H', 'R', 'T', 'R', 'C', '0', '1'};
+// A cache file: this magic, the entry (key, stats, buffers), then the CRC-32C of the entry
+// (core/checksum.h). Version 02 added the checksum; files of version 01 are traced again.
+constexpr char kTraceFileMagic[8] = {'D', 'H', 'R', 'T', 'R', 'C', '0', '2'};
 
 uint64_t fnv1a64(const std::string& s) {
   uint64_t h = 0xcbf29ce484222325ull;
@@ -133,16 +140,29 @@ void TraceCache::write_disk(const std::string& key, const Entry& e) const {
     put(out, uint64_t(p.bytes.size()));
     out.append(reinterpret_cast<const char*>(p.bytes.data()), p.bytes.size());
   }
+  put(out, crc32c({reinterpret_cast<const uint8_t*>(out.data()) + sizeof(kTraceFileMagic), out.size() - sizeof(kTraceFileMagic)}));
+  // Written whole under a name no other writer uses (this process, a random number drawn once
+  // per process, a counter: processes on several machines may share the folder), then renamed
+  // over the entry: a reader sees the old file or the new one, never a part. Two writers of one
+  // entry both rename; the last wins, and both wrote the same entry.
+  static const uint64_t process_random = std::random_device{}() | (uint64_t(std::random_device{}()) << 32);
+  static std::atomic<uint64_t> counter{0};
   std::error_code ec;
   fs::create_directories(disk_dir_, ec);
   const fs::path path = fs::path(disk_dir_) / fmt::format("{:016x}.bin", fnv1a64(key));
-  const fs::path tmp = path.string() + fmt::format(".tmp{}", uint64_t(std::hash<std::thread::id>{}(std::this_thread::get_id())));
+  const fs::path tmp = fs::path(disk_dir_) / fmt::format(".{:016x}.tmp.{}.{:016x}.{}", fnv1a64(key), ::getpid(),
+                                                          process_random, counter++);
   {
     std::ofstream f(tmp, std::ios::binary);
     f.write(out.data(), std::streamsize(out.size()));
-    if (!f) return;  // a cache that cannot be written is only slower
+    f.close();
+    if (!f) {  // a cache that cannot be written is only slower
+      fs::remove(tmp, ec);
+      return;
+    }
   }
   fs::rename(tmp, path, ec);
+  if (ec) fs::remove(tmp, ec);
 }
 
 std::shared_ptr<const TraceCache::Entry> TraceCache::read_disk(const std::string& key) const {
@@ -150,9 +170,13 @@ std::shared_ptr<const TraceCache::Entry> TraceCache::read_disk(const std::string
   const fs::path path = fs::path(disk_dir_) / fmt::format("{:016x}.bin", fnv1a64(key));
   std::ifstream f(path, std::ios::binary);
   if (!f) return nullptr;
-  const std::string in((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  std::string in((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
   size_t pos = sizeof(kTraceFileMagic);
-  if (in.size() < pos || std::memcmp(in.data(), kTraceFileMagic, pos) != 0) return nullptr;
+  uint32_t crc = 0;
+  if (in.size() < pos + sizeof(crc) || std::memcmp(in.data(), kTraceFileMagic, pos) != 0) return nullptr;
+  std::memcpy(&crc, in.data() + in.size() - sizeof(crc), sizeof(crc));
+  in.resize(in.size() - sizeof(crc));
+  if (crc32c({reinterpret_cast<const uint8_t*>(in.data()) + pos, in.size() - pos}) != crc) return nullptr;
   uint32_t key_size = 0;
   if (!get(in, pos, key_size) || in.size() - pos < key_size || in.compare(pos, key_size, key) != 0) return nullptr;
   pos += key_size;

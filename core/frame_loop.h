@@ -56,8 +56,10 @@ class TraceCache {
   using Entry = TracedPasses;
   explicit TraceCache(size_t max_bytes = size_t(4) << 30) : max_bytes_(max_bytes) {}
   // Also keep traced buffers on disk in `dir` (created when needed), so that later processes
-  // never trace the same frame twice. Files are checked (magic, key, sizes) when read; a bad
-  // or foreign file is ignored and traced again. Empty: memory only.
+  // never trace the same frame twice. Files are checked (magic, key, sizes, CRC-32C) when read;
+  // a bad or foreign file is ignored and traced again. Several processes (on several machines,
+  // over a shared filesystem) may share the folder: each file is written under a temporary name
+  // and renamed, so a reader never sees part of one. Empty: memory only.
   void set_disk_dir(std::string dir) { disk_dir_ = std::move(dir); }
   const std::string& disk_dir() const { return disk_dir_; }
   std::shared_ptr<const Entry> find(const std::string& key);

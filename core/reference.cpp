@@ -13,6 +13,8 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <optional>
+#include <random>
 #include <atomic>
 #include <system_error>
 
@@ -174,9 +176,15 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
     out.path = file.string();
     std::error_code ec;
     if (fs::exists(file, ec)) {
-      ImageRGB8 img = read_rgb8(file.string());
-      if (img.same_size(g.width(), g.height())) {
-        out.image = std::move(img);
+      // A damaged file (PNG checks a CRC-32 per chunk and zlib an Adler-32 of the pixels) or one
+      // of another size is computed again and replaced.
+      std::optional<ImageRGB8> img;
+      try {
+        img = read_rgb8(file.string());
+      } catch (const Error&) {
+      }
+      if (img && img->same_size(g.width(), g.height())) {
+        out.image = std::move(*img);
         out.from_cache = true;
         return out;
       }
@@ -212,9 +220,13 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
     std::error_code ec;
     fs::create_directories(file.parent_path(), ec);
     if (ec) fail("reference: cannot create cache folder {}: {}", file.parent_path().string(), ec.message());
-    // Write to a temporary name, then rename: a concurrent reader never sees half a file.
+    // Write to a temporary name, then rename: a concurrent reader never sees half a file. The
+    // name is this writer's alone (process, a random number per process, a counter), also when
+    // processes on several machines share the folder (core/frame_loop.h, TraceCache).
+    static const uint64_t process_random = std::random_device{}() | (uint64_t(std::random_device{}()) << 32);
     static std::atomic<uint64_t> counter{0};
-    const fs::path tmp = file.parent_path() / fmt::format("{}.tmp{}.{}.png", out.key, ::getpid(), counter++);
+    const std::string unique = fmt::format("{}.{:016x}.{}", ::getpid(), process_random, counter++);
+    const fs::path tmp = file.parent_path() / fmt::format("{}.tmp{}.png", out.key, unique);
     write_png(tmp.string(), out.image);
     fs::rename(tmp, file, ec);
     if (ec) fail("reference: cannot move {} to {}: {}", tmp.string(), file.string(), ec.message());
@@ -233,7 +245,11 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
                            {"exposure", s.composite.exposure},
                            {"shadow_rays", out.stats.shadow_rays},
                            {"ao_rays_traced", out.stats.ao_rays}};
-    std::ofstream(fs::path(file).replace_extension(".json")) << meta.dump(2) << "\n";
+    const fs::path meta_file = fs::path(file).replace_extension(".json");
+    const fs::path meta_tmp = file.parent_path() / fmt::format("{}.tmp{}.json", out.key, unique);
+    std::ofstream(meta_tmp) << meta.dump(2) << "\n";
+    fs::rename(meta_tmp, meta_file, ec);
+    if (ec) fs::remove(meta_tmp, ec);  // the description is for people; the image is the entry
   }
   return out;
 }

@@ -13,6 +13,7 @@
 #include "core/reference.h"
 #include "core/results.h"
 #include "core/scene_load.h"
+#include "core/shard.h"
 #include "experiments/commands.h"
 #include "experiments/context.h"
 
@@ -29,6 +30,7 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <optional>
 
 namespace dhr::cli {
 
@@ -129,7 +131,10 @@ ImageRGB8 downscale(const ImageRGB8& img, int max_width) {
   return out;
 }
 
-// Runs the report script (Debian's python3 with matplotlib) on a results folder.
+}  // namespace
+
+// Runs the report script (Debian's python3 with matplotlib) on a results folder (also used by
+// 'dhrbench merge', experiments/cmd_merge.cpp).
 int write_report(const std::string& dir) {
   const std::string script = std::string(DHR_SOURCE_DIR) + "/experiments/report.py";
   const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
@@ -150,6 +155,8 @@ int write_report(const std::string& dir) {
                cmd.c_str());
   return 3;
 }
+
+namespace {
 
 // Reads DIR/results.json the way every JSON is read (depth-bounded, errors naming the file) and
 // checks the shape the report relies on at the top; report.py checks every field it reads.
@@ -177,6 +184,8 @@ Runner add_run_command(CLI::App& app) {
     std::vector<std::string> sets, scene_path;
     int threads = 0;
     bool no_report = false, no_disk_cache = false;
+    std::string shard;
+    std::optional<ShardRun> shard_run;
   };
   auto o = std::make_shared<Options>();
   auto* cmd = app.add_subcommand(
@@ -197,14 +206,20 @@ Runner add_run_command(CLI::App& app) {
                 "Keep traced buffers in memory only (default: also in $DHR_CACHE_DIR or cache/ under trace/, so that "
                 "later runs never trace the same frame twice)");
   cmd->add_flag("--no-report", o->no_report, "Write results only (build the report later with 'dhrbench report DIR')");
-  return [o] {
+  cmd->add_option("--shard", o->shard,
+                  "Run only shard K of N (K/N, e.g. 2/4) and write DIR/shard.json; no report. Runs sharing traces or\n"
+                  "ground truths stay in one shard ('dhrbench validate EXPERIMENT --shards N' prints the plan);\n"
+                  "'dhrbench merge OUT DIR...' joins the shards' folders into one result");
+  auto run = [o]() -> int {
     std::unique_ptr<tbb::global_control> limit;
     if (o->threads > 0)
       limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(o->threads));
     const auto wall_start = Clock::now();
-    const Experiment e = load_experiment(o->experiment, o->sets);
-    LoadedScenes loaded = validate_all(e, o->scene_path);
+    Experiment e = load_experiment(o->experiment, o->sets);
     const std::string dir = o->out.empty() ? "out/" + e.name : o->out;
+    if (!o->shard.empty())
+      o->shard_run = ShardRun::start(e, parse_shard(o->shard), dir, run_context(DHR_BUILD_TYPE).at("git_commit"));
+    LoadedScenes loaded = validate_all(e, o->scene_path);
     fs::create_directories(fs::path(dir) / "images");
     fmt::print(stderr, "{}: {} runs ({} scenes); writing {}\n", e.name, e.runs.size(), loaded.scenes.size(), dir);
 
@@ -301,11 +316,23 @@ Runner add_run_command(CLI::App& app) {
     fmt::print(stderr, "{} runs done ({} failed) in {:.1f} s: {}/results.json\n", e.runs.size(), failed,
                results["wall_s"].get<double>(), dir);
     int rc = 0;
+    if (o->shard_run) {
+      o->shard_run->finish();
+      return failed ? 4 : 0;
+    }
     if (!o->no_report) {
       rc = write_report(dir);
       if (rc == 0) fmt::print(stderr, "report: {}/report.md\n", dir);
     }
     return failed ? 4 : rc;
+  };
+  return [o, run] {
+    try {
+      return run();
+    } catch (const std::exception& err) {
+      if (o->shard_run) o->shard_run->finish(err.what());  // the merge reports it with the shard's runs
+      throw;
+    }
   };
 }
 
@@ -313,6 +340,7 @@ Runner add_validate_command(CLI::App& app) {
   struct Options {
     std::string experiment;
     std::vector<std::string> sets, scene_path;
+    int shards = 0;
   };
   auto o = std::make_shared<Options>();
   auto* cmd = app.add_subcommand("validate",
@@ -321,9 +349,12 @@ Runner add_validate_command(CLI::App& app) {
   cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1 or 2)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--set", o->sets, "Override a key (as for run)");
   cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
+  cmd->add_option("--shards", o->shards, "Also print the plan of 'run --shard K/N' for N shards: each shard's runs")
+      ->check(CLI::Range(1, 10000));
   return [o] {
     const Experiment e = load_experiment(o->experiment, o->sets);
     validate_all(e, o->scene_path);
+    if (o->shards > 0) print_shard_plan(e, o->shards);
     int frames = 0;
     for (const auto& r : e.runs) frames += r.config.frames + r.config.warmup_frames;
     fmt::print("{}: valid: {} runs over {} scene(s), {} frames in all\n", o->experiment, e.runs.size(), e.scenes.size(), frames);

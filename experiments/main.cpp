@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
   add(dhr::cli::add_serve_command);
   add(dhr::cli::add_client_command);
   add(dhr::cli::add_relay_command);
+  add(dhr::cli::add_merge_command);
 
   try {
     app.parse(argc, argv);

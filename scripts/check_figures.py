@@ -20,6 +20,8 @@ Usage:
   --compare-only: do not run, compare OUT/NAME that exists already.
   --cache DIR: the disk cache for the runs (default: OUT/cache, emptied first, so that no traced
                buffer or ground truth of an older build hides a change).
+  --compare NEW OLD: compare two results folders (e.g. a merged sharded run against an unsharded
+               one, tests/test_shard.cpp) and nothing else.
 """
 import argparse
 import csv
@@ -163,6 +165,22 @@ def compare_frames(new_path, old_path, problems):
     return compared
 
 
+def compare_folders(new, old):
+    problems, notes = [], set()
+    keys, columns = declared_wall_clock(os.path.join(new, "results.json"))
+    TIMING_KEYS.update(keys)
+    TIMING_COLUMNS.update(columns)
+    n = compare_results(os.path.join(new, "results.json"), os.path.join(old, "results.json"), problems, notes)
+    n += compare_frames(os.path.join(new, "frames.csv"), os.path.join(old, "frames.csv"), problems)
+    if problems:
+        print(f"{new} against {old}: {len(problems)} of {n} figures differ")
+        for p in problems[:40]:
+            print("  " + p)
+        return 1
+    print(f"{new} against {old}: all {n} non-timing figures identical")
+    return 0
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("names", nargs="*", help="experiments to check (default: every committed report with an experiment file)")
@@ -171,7 +189,10 @@ def main():
     ap.add_argument("--baseline", default=os.path.join(ROOT, "reports"))
     ap.add_argument("--compare-only", action="store_true")
     ap.add_argument("--cache", help="disk cache folder, kept as it is (default: OUT/cache, emptied first)")
+    ap.add_argument("--compare", nargs=2, metavar=("NEW", "OLD"), help="compare two results folders, run nothing")
     args = ap.parse_args()
+    if args.compare:
+        return compare_folders(*args.compare)
     env = dict(os.environ)
     if args.cache:
         env["DHR_CACHE_DIR"] = args.cache

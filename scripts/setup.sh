@@ -22,6 +22,8 @@ PACKAGES=(
   python3 python3-matplotlib python3-numpy
   # tests: scikit-image is the reference SSIM (tests/ssim_reference.py)
   python3-skimage
+  # the one-node Slurm cluster of tests/slurm/run_slurm_test.sh (scripts/slurm/)
+  munge slurmctld slurmd slurm-client
 )
 
 missing=()

@@ -17,6 +17,8 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <numbers>
 
 namespace dhr {
@@ -733,6 +735,21 @@ TEST(Reference, GroundTruthIsCachedAndKeyed) {
   EXPECT_TRUE(b.from_cache);
   EXPECT_EQ(b.stats.ao_rays, 0u);
   EXPECT_EQ(a.image, b.image);
+  // A damaged file (a write cut short; a flipped bit, found by PNG's CRC-32 per chunk) is
+  // computed again and replaced, not an error: processes on several machines share the folder.
+  const std::string good = [&] {
+    std::ifstream in(a.path, std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  }();
+  std::string flipped = good;
+  flipped[flipped.size() / 2] ^= 0x04;
+  for (const std::string& damaged : {good.substr(0, good.size() / 2), flipped}) {
+    std::ofstream(a.path, std::ios::binary) << damaged;
+    const ReferenceResult c = ground_truth(rt, g, rs);
+    EXPECT_FALSE(c.from_cache);
+    EXPECT_EQ(c.image, a.image);
+    EXPECT_TRUE(ground_truth(rt, g, rs).from_cache);
+  }
   // Any input change is a different key.
   ReferenceSettings rs2 = rs;
   rs2.ao_rays = 65;

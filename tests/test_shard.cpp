@@ -1,0 +1,346 @@
+// Sharded sweeps (core/shard.h, experiments/cmd_merge.cpp) and the disk caches several
+// processes share (core/frame_loop.h, TraceCache): the plan, a sharded run merged against an
+// unsharded one in every non-timing figure, the merge's refusals, a failed shard rerun alone,
+// and two processes writing and reading one cache entry at once.
+#include "core/error.h"
+#include "core/experiment.h"
+#include "core/frame_loop.h"
+#include "core/results.h"
+#include "core/shard.h"
+#include "support.h"
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+namespace dhr {
+namespace {
+
+namespace fs = std::filesystem;
+
+const std::string kExperiment = std::string(DHR_SOURCE_DIR) + "/tests/data/shard_experiment.json";
+
+// Runs the dhrbench command with DHR_CACHE_DIR=cache (when given); returns its exit code.
+int cli(const std::string& args, std::string* output = nullptr, const fs::path& cache = {}) {
+  static int n = 0;
+  const std::string log = (fs::temp_directory_path() / fmt::format("dhr_shard_test.{}.{}.log", ::getpid(), n++)).string();
+  const std::string env = cache.empty() ? "" : "DHR_CACHE_DIR='" + cache.string() + "' ";
+  const int rc = std::system((env + DHR_CLI + " " + args + " >" + log + " 2>&1").c_str());
+  std::ifstream in(log);
+  std::stringstream s;
+  s << in.rdbuf();
+  if (output) *output = s.str();
+  fs::remove(log);
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : 128 + WTERMSIG(rc);
+}
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// The figures measured on the wall clock (they vary from run to run): the run metrics that
+// core/results.cpp declares wall-clock, and each run's and shard's wall_s; everything else must
+// be equal.
+bool is_timing_key(const std::string& k) {
+  if (k == "wall_s") return true;
+  for (const RunMetric& m : run_metrics())
+    if (m.wall_clock && m.key == k) return true;
+  return false;
+}
+
+nlohmann::json without_timing(const nlohmann::json& j) {
+  if (j.is_object()) {
+    nlohmann::json out = nlohmann::json::object();
+    for (const auto& [k, v] : j.items())
+      if (!is_timing_key(k)) out[k] = without_timing(v);
+    return out;
+  }
+  if (j.is_array()) {
+    nlohmann::json out = nlohmann::json::array();
+    for (const auto& v : j) out.push_back(without_timing(v));
+    return out;
+  }
+  return j;
+}
+
+// frames.csv without its client_wall_ms column (the last; frames_csv_wall_clock_columns()).
+std::string frames_without_timing(const fs::path& p) {
+  std::istringstream in(read_text(p));
+  std::string line, out;
+  std::getline(in, line);
+  EXPECT_EQ(line.substr(line.rfind(',') + 1), "client_wall_ms") << "frames.csv's columns changed: update this test";
+  out += line.substr(0, line.rfind(',')) + '\n';
+  while (std::getline(in, line)) out += line.substr(0, line.rfind(',')) + '\n';
+  return out;
+}
+
+// Every non-timing value of two results folders: the run records (order included) and
+// frames.csv, and the guard's own comparison (scripts/check_figures.py --compare).
+void expect_same_figures(const fs::path& merged, const fs::path& whole) {
+  const nlohmann::json a = nlohmann::json::parse(read_text(merged / "results.json"));
+  const nlohmann::json b = nlohmann::json::parse(read_text(whole / "results.json"));
+  ASSERT_EQ(a.at("runs").size(), b.at("runs").size());
+  for (size_t i = 0; i < a.at("runs").size(); ++i)
+    EXPECT_EQ(without_timing(a.at("runs")[i]), without_timing(b.at("runs")[i])) << "run " << i;
+  EXPECT_EQ(a.at("experiment"), b.at("experiment"));
+  EXPECT_EQ(a.at("context").at("command"), b.at("context").at("command"));
+  EXPECT_EQ(frames_without_timing(merged / "frames.csv"), frames_without_timing(whole / "frames.csv"));
+  std::set<std::string> images_a, images_b;
+  for (const auto& f : fs::directory_iterator(merged / "images")) images_a.insert(f.path().filename().string());
+  for (const auto& f : fs::directory_iterator(whole / "images")) images_b.insert(f.path().filename().string());
+  EXPECT_EQ(images_a, images_b);
+  for (const auto& name : images_b)
+    EXPECT_EQ(read_text(merged / "images" / name), read_text(whole / "images" / name)) << name;
+  const std::string cmd = "/usr/bin/python3 " + std::string(DHR_SOURCE_DIR) + "/scripts/check_figures.py --compare '" +
+                          merged.string() + "' '" + whole.string() + "' >/dev/null";
+  EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd;
+}
+
+TEST(Shard, ParseRefusesWhatIsNotKOfN) {
+  EXPECT_EQ(parse_shard("2/4").index, 2);
+  EXPECT_EQ(parse_shard("2/4").count, 4);
+  for (const char* bad : {"0/4", "5/4", "4", "/4", "1/", "a/b", "1/0", "-1/2", "1/2/3", "1 /2", "1/10001"}) {
+    const std::string e = test::error_of([&] { parse_shard(bad); });
+    EXPECT_NE(e.find(std::string("--shard '") + bad + "'"), std::string::npos) << bad << ": " << e;
+    EXPECT_NE(e.find("1 <= K <= N"), std::string::npos) << e;
+  }
+}
+
+TEST(Shard, PlanKeepsRunsSharingTracesTogetherAndCoversEveryRunOnce) {
+  // 3 seeds x 2 denoisers: a seed's runs share traced buffers and ground truths.
+  const Experiment e = load_experiment(kExperiment);
+  ASSERT_EQ(e.runs.size(), 6u);
+  for (int n = 1; n <= 5; ++n) {
+    SCOPED_TRACE(n);
+    const ShardPlan plan = plan_shards(e, n);
+    EXPECT_EQ(plan.groups, 3u);
+    ASSERT_EQ(plan.runs.size(), size_t(n));
+    std::multiset<size_t> all;
+    std::map<uint64_t, int> shard_of_seed;
+    for (int k = 0; k < n; ++k) {
+      EXPECT_TRUE(std::is_sorted(plan.runs[size_t(k)].begin(), plan.runs[size_t(k)].end()));
+      for (size_t i : plan.runs[size_t(k)]) {
+        all.insert(i);
+        auto [it, added] = shard_of_seed.emplace(e.runs[i].config.seed, k);
+        EXPECT_EQ(it->second, k) << "seed " << e.runs[i].config.seed << " split over two shards";
+      }
+    }
+    EXPECT_EQ(all, (std::multiset<size_t>{0, 1, 2, 3, 4, 5}));
+    // Deterministic; shards beyond the groups are empty.
+    EXPECT_EQ(plan_shards(e, n).runs, plan.runs);
+    size_t empty = 0;
+    for (const auto& r : plan.runs) empty += r.empty();
+    EXPECT_EQ(empty, size_t(std::max(0, n - 3)));
+  }
+  // Another sweep is another experiment.
+  EXPECT_NE(experiment_hash(e), experiment_hash(load_experiment(kExperiment, {"run.frames=5"})));
+  EXPECT_EQ(experiment_hash(e), experiment_hash(load_experiment(kExperiment)));
+}
+
+TEST(Shard, MergedShardsEqualTheUnshardedRunInEveryNonTimingFigure) {
+  const fs::path base = fs::temp_directory_path() / fmt::format("dhr_shard_merge.{}", ::getpid());
+  fs::remove_all(base);
+  std::string log;
+  // Each with a cold cache of its own: the unsharded run, and the shards sharing one folder.
+  ASSERT_EQ(cli("run " + kExperiment + " --out " + (base / "whole").string(), &log, base / "cache_whole"), 0) << log;
+  for (int k : {3, 1, 2})
+    ASSERT_EQ(cli(fmt::format("run {} --shard {}/3 --out {}", kExperiment, k, (base / fmt::format("s{}", k)).string()),
+                  &log, base / "cache_shared"),
+              0)
+        << log;
+  // No report in a shard's folder; one manifest each, complete.
+  EXPECT_FALSE(fs::exists(base / "s1" / "report.md"));
+  for (int k = 1; k <= 3; ++k) {
+    const ShardManifest m = read_shard_manifest((base / fmt::format("s{}", k)).string());
+    EXPECT_EQ(m.status, "complete");
+    EXPECT_EQ(m.index, k);
+    EXPECT_EQ(m.count, 3);
+    EXPECT_EQ(m.run_ids.size(), 2u);
+  }
+  // Any order of folders.
+  ASSERT_EQ(cli("merge " + (base / "merged").string() + " " + (base / "s2").string() + " " + (base / "s3").string() + " " +
+                    (base / "s1").string(),
+                &log),
+            0)
+      << log;
+  expect_same_figures(base / "merged", base / "whole");
+  EXPECT_TRUE(fs::exists(base / "merged" / "report.md"));
+
+  // Refusals: nothing is written, every problem named.
+  const std::string s1 = (base / "s1").string(), s2 = (base / "s2").string(), s3 = (base / "s3").string();
+  EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + s3, &log), 1);
+  EXPECT_NE(log.find("shard 2/3 is missing"), std::string::npos) << log;
+  EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + s2 + " " + s3 + " " + s1, &log), 1);
+  EXPECT_NE(log.find("shard 1/3 given twice"), std::string::npos) << log;
+  EXPECT_FALSE(fs::exists(base / "m2"));
+  ASSERT_EQ(cli(fmt::format("run {} --set run.frames=5 --shard 2/3 --out {}", kExperiment, (base / "other").string()), &log,
+                base / "cache_shared"),
+            0)
+      << log;
+  EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "other").string() + " " + s3, &log), 1);
+  EXPECT_NE(log.find((base / "other").string() + ": another experiment"), std::string::npos) << log;
+  EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "whole").string(), &log), 1);
+  EXPECT_NE(log.find((base / "whole").string() + ": no shard.json here"), std::string::npos) << log;
+  EXPECT_FALSE(fs::exists(base / "m2"));
+  // Plan: validate prints each shard's runs.
+  ASSERT_EQ(cli("validate " + kExperiment + " --shards 2", &log), 0) << log;
+  EXPECT_NE(log.find("shard 1/2: 4 run(s)"), std::string::npos) << log;
+  EXPECT_NE(log.find("shard 2/2: 2 run(s)"), std::string::npos) << log;
+  fs::remove_all(base);
+}
+
+// A shard that stops on an error records it; the merge names the shard, the error and its
+// runs; rerunning only that shard, then merging, gives the whole result.
+TEST(Shard, AFailedShardIsReportedAndRerunAlone) {
+  const fs::path base = fs::temp_directory_path() / fmt::format("dhr_shard_fail.{}", ::getpid());
+  fs::remove_all(base);
+  fs::create_directories(base);
+  // Seed 1's runs read a latency trace beside the experiment; seed 2's do not.
+  std::ofstream(base / "e.json") << R"({"version": 2, "name": "shard_fail", "scenes": ["room"],
+    "run": {"width": 48, "height": 32, "frames": 6, "warmup_frames": 2, "trace": {"ao_rays": 2},
+            "ground_truth_every": 3, "ground_truth_ao_rays": 16, "ground_truth_samples_per_light": 4, "server_fixed_ms": 5},
+    "configurations": [
+      {"name": "measured latency", "set": {"seed": 1, "downlink.latency": "trace", "downlink.trace_file": "latency.txt"}},
+      {"name": "fixed latency", "set": {"seed": 2, "downlink.latency_ms": 40}}],
+    "sweep": {"passes.ao.denoiser.name": ["none", "atrous"]}})";
+  const std::string exp = (base / "e.json").string();
+  const fs::path trace = fs::path(DHR_SOURCE_DIR) / "experiments/traces/5g_paper_shape.txt";
+  fs::copy_file(trace, base / "latency.txt");
+  std::string log;
+  ASSERT_EQ(cli("run " + exp + " --out " + (base / "whole").string(), &log, base / "cache"), 0) << log;
+  ASSERT_EQ(cli("validate " + exp + " --shards 2", &log), 0) << log;
+  ASSERT_NE(log.find("shard 1/2: 2 run(s)"), std::string::npos) << log;
+  ASSERT_NE(log.find("r000  room                   measured latency"), std::string::npos) << log;
+
+  // The trace is gone while shard 1 runs (a filesystem not mounted on its machine).
+  fs::rename(base / "latency.txt", base / "latency.away");
+  EXPECT_EQ(cli(fmt::format("run {} --shard 1/2 --out {}", exp, (base / "s1").string()), &log, base / "cache"), 1);
+  ASSERT_EQ(cli(fmt::format("run {} --shard 2/2 --out {}", exp, (base / "s2").string()), &log, base / "cache"), 0) << log;
+  const ShardManifest failed = read_shard_manifest((base / "s1").string());
+  EXPECT_EQ(failed.status, "failed");
+  EXPECT_NE(failed.error.find("latency.txt: latency trace not found or unreadable"), std::string::npos) << failed.error;
+  const std::string merge = "merge " + (base / "merged").string() + " " + (base / "s1").string() + " " + (base / "s2").string();
+  EXPECT_EQ(cli(merge, &log), 1);
+  EXPECT_NE(log.find("shard 1/2 (" + (base / "s1").string() + ") failed: "), std::string::npos) << log;
+  EXPECT_NE(log.find("latency.txt: latency trace not found or unreadable"), std::string::npos) << log;
+  EXPECT_NE(log.find("its runs: r000, r001"), std::string::npos) << log;
+  EXPECT_NE(log.find("rerun it: dhrbench run " + exp + " --shard 1/2 --out " + (base / "s1").string()), std::string::npos)
+      << log;
+  EXPECT_FALSE(fs::exists(base / "merged"));
+
+  // Back again: rerun shard 1 alone, merge.
+  fs::rename(base / "latency.away", base / "latency.txt");
+  ASSERT_EQ(cli(fmt::format("run {} --shard 1/2 --out {}", exp, (base / "s1").string()), &log, base / "cache"), 0) << log;
+  ASSERT_EQ(cli(merge + " --no-report", &log), 0) << log;
+  expect_same_figures(base / "merged", base / "whole");
+
+  // A shard stopped from outside (a time limit) stays "running": reported as unfinished.
+  ShardManifest stopped = read_shard_manifest((base / "s2").string());
+  stopped.status = "running";
+  write_shard_manifest((base / "s2").string(), stopped);
+  EXPECT_EQ(cli(merge, &log), 1);
+  EXPECT_NE(log.find("shard 2/2 (" + (base / "s2").string() + ") did not finish"), std::string::npos) << log;
+  EXPECT_NE(log.find("its runs: r002, r003"), std::string::npos) << log;
+  // A damaged manifest is named with what is wrong (untrusted input, as every file read).
+  for (const auto& [text, expected] : std::vector<std::pair<std::string, std::string>>{
+           {"{", "shard.json: not valid JSON"},
+           {R"({"experiment_hash": 1})", "\"experiment_hash\" must be a string"},
+           {std::string(1000, '[') + std::string(1000, ']'), "shard.json: JSON nested deeper than 64 levels"}}) {
+    std::ofstream(base / "s2" / "shard.json") << text;
+    EXPECT_EQ(cli(merge, &log), 1) << text;
+    EXPECT_NE(log.find((base / "s2" / "shard.json").string()), std::string::npos) << log;
+    EXPECT_NE(log.find(expected), std::string::npos) << log;
+  }
+  fs::remove_all(base);
+}
+
+TEST(TraceCache, AFlippedByteInACacheFileIsFoundByItsChecksum) {
+  const fs::path dir = fs::temp_directory_path() / fmt::format("dhr_trace_cache_crc.{}", ::getpid());
+  fs::remove_all(dir);
+  auto entry = std::make_shared<TraceCache::Entry>();
+  PassBuffer ao;
+  ao.desc = {PassKind::Ao, 64, 4, 1, 8};
+  ao.bytes.assign(ao.desc.byte_size(), 7);
+  entry->ao = ao;
+  {
+    TraceCache writer;
+    writer.set_disk_dir(dir.string());
+    writer.insert("key", entry);
+  }
+  std::vector<fs::path> files;
+  for (const auto& f : fs::directory_iterator(dir)) files.push_back(f.path());
+  ASSERT_EQ(files.size(), 1u) << "a temporary file was left behind";
+  std::string bytes = read_text(files[0]);
+  TraceCache reader;
+  reader.set_disk_dir(dir.string());
+  ASSERT_NE(reader.find("key"), nullptr);
+  // One bit of a pixel: every size still agrees, only the checksum tells.
+  bytes[bytes.size() - 100] ^= 0x10;
+  std::ofstream(files[0], std::ios::binary) << bytes;
+  TraceCache again;
+  again.set_disk_dir(dir.string());
+  EXPECT_EQ(again.find("key"), nullptr);
+  fs::remove_all(dir);
+}
+
+// Two processes write one entry over and over (each its own version, of the same size), and
+// read it back between writes: every read is one whole version, never a mixture or a part.
+TEST(TraceCache, TwoProcessesRacingOnOneEntryNeverCorruptOrHalfReadIt) {
+  const fs::path dir = fs::temp_directory_path() / fmt::format("dhr_trace_cache_race.{}", ::getpid());
+  fs::remove_all(dir);
+  auto version = [](uint8_t fill) {
+    auto e = std::make_shared<TraceCache::Entry>();
+    PassBuffer ao;
+    ao.desc = {PassKind::Ao, 512, 256, 1, 8};  // 128 KiB: many writes per file
+    ao.bytes.assign(ao.desc.byte_size(), fill);
+    e->ao = ao;
+    e->stats.ao_rays = fill;
+    return e;
+  };
+  // Returns the number of bad reads.
+  auto hammer = [&](uint8_t fill, int rounds) {
+    int bad = 0;
+    for (int i = 0; i < rounds; ++i) {
+      TraceCache c;  // a fresh one: every find reads the disk
+      c.set_disk_dir(dir.string());
+      c.insert("one-key", version(fill));
+      TraceCache r;
+      r.set_disk_dir(dir.string());
+      auto got = r.find("one-key");
+      if (!got || !got->ao) {
+        ++bad;  // a file is there from the first write on: a miss is a half-read file refused
+        continue;
+      }
+      const uint8_t first = got->ao->bytes[0];
+      if ((first != 0xAA && first != 0x55) || got->stats.ao_rays != first) ++bad;
+      for (uint8_t b : got->ao->bytes) bad += b != first;
+    }
+    return bad;
+  };
+  const int rounds = 150;
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) _exit(std::min(hammer(0x55, rounds), 100));
+  const int bad_here = hammer(0xAA, rounds);
+  int status = 0;
+  ASSERT_EQ(waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 0) << "bad reads in the child";
+  EXPECT_EQ(bad_here, 0);
+  std::vector<std::string> left;
+  for (const auto& f : fs::directory_iterator(dir)) left.push_back(f.path().filename().string());
+  EXPECT_EQ(left.size(), 1u) << "temporary files left: " << left.size();
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace dhr
