@@ -20,23 +20,6 @@ std::string av_error_text(int code) {
   return text;
 }
 
-// The picture a buffer is coded as: its size before and after padding to even.
-struct Geometry {
-  int width = 0, height = 0;  // data size (SoftVisibility: planes stacked)
-  int padded_width = 0, padded_height = 0;
-  bool colour = false;
-};
-
-Geometry geometry_of(const PassDesc& desc) {
-  Geometry g;
-  g.width = desc.width;
-  g.height = desc.kind == PassKind::SoftVisibility ? desc.height * desc.channels : desc.height;
-  g.padded_width = g.width + (g.width & 1);
-  g.padded_height = g.height + (g.height & 1);
-  g.colour = desc.kind == PassKind::Colour;
-  return g;
-}
-
 // Lookup tables of the full-range mapping for one full_scale (av_video.h). With map = false
 // both are the identity up to full_scale (decoded values above it clamp to it).
 struct RangeMap {
@@ -173,6 +156,24 @@ class AvVideoCodec final : public Codec {
   }
 
  private:
+  // The picture a buffer is coded as: its size before and after padding (to even, and to the
+  // encoder's smallest picture side).
+  struct Geometry {
+    int width = 0, height = 0;  // data size (SoftVisibility: planes stacked)
+    int padded_width = 0, padded_height = 0;
+    bool colour = false;
+  };
+
+  Geometry geometry_of(const PassDesc& desc) const {
+    Geometry g;
+    g.width = desc.width;
+    g.height = desc.kind == PassKind::SoftVisibility ? desc.height * desc.channels : desc.height;
+    g.padded_width = std::max(g.width + (g.width & 1), f_.min_side);
+    g.padded_height = std::max(g.height + (g.height & 1), f_.min_side);
+    g.colour = desc.kind == PassKind::Colour;
+    return g;
+  }
+
   void open_encoder(const PassDesc& desc) {
     enc_desc_ = PassDesc{};  // stays invalid if opening fails, so the next encode retries
     avcodec_free_context(&enc_);
@@ -258,7 +259,7 @@ class AvVideoCodec final : public Codec {
         const uint8_t* src = in.bytes.data() + size_t(std::min(y, g.height - 1)) * size_t(g.width);
         uint8_t* dst = frame_->data[0] + ptrdiff_t(y) * frame_->linesize[0];
         for (int x = 0; x < g.width; ++x) dst[x] = range.to_picture[src[x]];
-        if (g.padded_width > g.width) dst[g.width] = dst[g.width - 1];
+        std::memset(dst + g.width, dst[g.width - 1], size_t(g.padded_width - g.width));
       }
       if (frame_->format == AV_PIX_FMT_YUV420P)
         for (int c = 1; c <= 2; ++c)
@@ -273,7 +274,7 @@ class AvVideoCodec final : public Codec {
       const uint8_t* src = in.bytes.data() + size_t(std::min(y, g.height - 1)) * size_t(g.width) * 3;
       uint8_t* dst = rgb->data[0] + ptrdiff_t(y) * rgb->linesize[0];
       std::memcpy(dst, src, size_t(g.width) * 3);
-      if (g.padded_width > g.width) std::memcpy(dst + size_t(g.width) * 3, src + size_t(g.width - 1) * 3, 3);
+      for (int x = g.width; x < g.padded_width; ++x) std::memcpy(dst + size_t(x) * 3, src + size_t(g.width - 1) * 3, 3);
     }
     sws_scale(to_yuv_, rgb->data, rgb->linesize, 0, g.padded_height, frame_->data, frame_->linesize);
   }

@@ -15,7 +15,8 @@
 // quantiser treats it as it treats a 0..255 plane. Without coding loss the mapping returns every
 // value exactly; lossless rate control does not map (its bytes are those of the plain values).
 // Decoded values above full_scale are clamped to full_scale.
-// Odd sizes are padded to even by repeating the last column/row and cropped on decode.
+// Odd sizes are padded to even (and to the encoder's smallest side) by repeating the last
+// column/row, and cropped on decode.
 //
 // Every encode() returns one access unit; no global header is set, so stream headers (SPS/PPS,
 // VPS, the AV1 sequence header) precede every keyframe and a keyframe decodes alone with any
@@ -71,6 +72,7 @@ struct AvVideoFormat {
   std::string encoder;         // libavcodec encoder name ("libx264")
   std::string decoder;         // libavcodec decoder name ("h264")
   std::string install_hint;    // said when the encoder or decoder is missing
+  int min_side = 2;            // smaller pictures are padded to this width/height (even)
   // Sets the encoder's own options on a context whose size, pixel format, time base, gop,
   // threads, colour description and (bitrate mode) rates are set; the crf option is set by
   // the layer in crf mode. Lossless mode must be switched on here.

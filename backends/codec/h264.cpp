@@ -46,7 +46,11 @@ CodecEntry make_h264_codec() {
   return {"h264",
           "H.264 (libx264 via libavcodec), zerolatency, SPS/PPS in-band; AO/soft-visibility as gray, colour as 4:2:0",
           std::move(params), [](const Params& p) {
-            AvVideoFormat f{"h264", "libx264", "h264", "install libavcodec with x264 support", {}, {}};
+            AvVideoFormat f;
+            f.name = "h264";
+            f.encoder = "libx264";
+            f.decoder = "h264";
+            f.install_hint = "install libavcodec with x264 support";
             f.configure_encoder = [preset = p.get_string("preset"), slice_max = p.get_int("slice_max_size_bytes")](
                                       const AvVideoSettings& s, AvOptions& o) {
               std::string x264_params = "scenecut=0:log=1";
