@@ -16,7 +16,7 @@
 //   bitrate_kbps  1..1000000                 target (bitrate mode)                default 10000
 //   fps           1..1000                    frame rate the bitrate refers to     default 60
 //   gop           1..100000                  keyframe interval in frames          default 60
-//   threads       1..16                      libaom threads                       default 1
+//   threads       1..16                      libaom threads (row-mt off: bytes independent) default 1
 //   cpu_used      0..8                       libaom speed (higher is faster)      default 8
 // Example: {"name": "av1", "params": {"crf": 35, "cpu_used": 8}}
 #include "backends/codec/av_video.h"

@@ -7,9 +7,9 @@
 //
 // x265 settings: tune=zerolatency (no B-frames, no lookahead, one frame thread), scene cut
 // off, closed GOP, forced keyframes are IDR pictures, VPS/SPS/PPS repeated before every IDR,
-// no encoder-info SEI. Threads: x265's thread pool (pools=none for threads = 1); one frame
-// thread always, so the bytes do not depend on the pool size (tests/test_codecs.cpp checks
-// threads 1 against 4).
+// no encoder-info SEI. Threads: a pool of `threads` x265 workers with wavefront parallel
+// processing always on (pools=none would switch it off and change the bitstream) and one frame
+// thread, so the bytes do not depend on `threads` (tests/test_codecs.cpp checks 1 against 4).
 //
 // Parameters (the shared ones: av_video_params):
 //   rate_control  crf | bitrate | lossless   lossless = x265 lossless=1           default crf
@@ -17,7 +17,7 @@
 //   bitrate_kbps  1..1000000                 target (bitrate mode; VBV max = target, buffer 1 s)
 //   fps           1..1000                    frame rate the bitrate refers to     default 60
 //   gop           1..100000                  keyframe (IDR) interval in frames    default 60
-//   threads       1..16                      x265 pool threads                    default 1
+//   threads       1..16                      x265 pool threads (bytes independent) default 1
 // Pictures smaller than 16x16 are padded to 16 (x265 refuses smaller ones).
 //   preset        ultrafast..veryslow        x265 preset                          default ultrafast
 // Example: {"name": "hevc", "params": {"crf": 23, "preset": "ultrafast"}}
@@ -44,7 +44,7 @@ CodecEntry make_hevc_codec() {
               std::string x265_params =
                   "log-level=error:scenecut=0:open-gop=0:repeat-headers=1:info=0:frame-threads=1:rc-lookahead=0:"
                   "bframes=0";
-              x265_params += s.threads == 1 ? ":pools=none" : fmt::format(":pools={}", s.threads);
+              x265_params += fmt::format(":wpp=1:pools={}", s.threads);
               if (s.rate_control == AvRateControl::Lossless) x265_params += ":lossless=1";
               o.set("preset", preset);
               o.set("tune", "zerolatency");
