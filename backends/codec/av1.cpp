@@ -24,7 +24,8 @@
 namespace dhr {
 
 CodecEntry make_av1_codec() {
-  std::vector<ParamSpec> params = av_video_params("libaom", 35, 63, "libaom lossless=1");
+  std::vector<ParamSpec> params =
+      av_video_params("libaom", 35, 63, "libaom lossless=1", "row-mt off: the bytes do not depend on it");
   params.push_back(ParamSpec::integer("cpu_used", 8, 0, 8, "libaom speed/quality trade-off: higher is faster"));
   return {"av1",
           "AV1 (libaom-av1 encoder, dav1d decoder, via libavcodec), realtime, no lookahead; AO/soft-visibility as "

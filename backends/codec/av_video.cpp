@@ -374,7 +374,7 @@ bool av_encoder_takes(const char* encoder, AVPixelFormat format) {
 }
 
 std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
-                                       const std::string& lossless_note) {
+                                       const std::string& lossless_note, const std::string& threads_note) {
   return {ParamSpec::choice("rate_control", "crf", {"crf", "bitrate", "lossless"},
                             encoder_label + " rate control: constant rate factor, target bitrate, or lossless (" +
                                 lossless_note + ")"),
@@ -382,7 +382,7 @@ std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf
           ParamSpec::integer("bitrate_kbps", 10000, 1, 1000000, "target bitrate in kbit/s (bitrate mode)"),
           ParamSpec::integer("fps", 60, 1, 1000, "frame rate the bitrate refers to (bitrate mode)"),
           ParamSpec::integer("gop", 60, 1, 100000, "keyframe interval in frames"),
-          ParamSpec::integer("threads", 1, 1, 16, encoder_label + " threads (1 gives deterministic output)")};
+          ParamSpec::integer("threads", 1, 1, 16, encoder_label + " threads (" + threads_note + ")")};
 }
 
 AvVideoSettings av_video_settings(const Params& p) {

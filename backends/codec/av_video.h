@@ -50,9 +50,10 @@ struct AvVideoSettings {
   int threads = 1;
 };
 
-// rate_control, crf (0..crf_max, default crf_default), bitrate_kbps, fps, gop, threads.
+// rate_control, crf (0..crf_max, default crf_default), bitrate_kbps, fps, gop, threads; the
+// notes say how the encoder codes losslessly and what its thread count does to the bytes.
 std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
-                                       const std::string& lossless_note);
+                                       const std::string& lossless_note, const std::string& threads_note);
 AvVideoSettings av_video_settings(const Params& p);
 
 // Sets private options of an encoder context; fails naming the codec, option and value.

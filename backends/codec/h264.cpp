@@ -37,7 +37,7 @@
 namespace dhr {
 
 CodecEntry make_h264_codec() {
-  std::vector<ParamSpec> params = av_video_params("x264", 23, 51, "qp 0");
+  std::vector<ParamSpec> params = av_video_params("x264", 23, 51, "qp 0", "1 gives deterministic output");
   params.push_back(ParamSpec::choice(
       "preset", "ultrafast", {"ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow"},
       "x264 speed preset"));

@@ -26,7 +26,7 @@
 namespace dhr {
 
 CodecEntry make_hevc_codec() {
-  std::vector<ParamSpec> params = av_video_params("x265", 23, 51, "x265 lossless=1");
+  std::vector<ParamSpec> params = av_video_params("x265", 23, 51, "x265 lossless=1", "the bytes do not depend on it");
   params.push_back(ParamSpec::choice(
       "preset", "ultrafast", {"ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow"},
       "x265 speed preset"));
