@@ -183,6 +183,7 @@ Runner add_run_command(CLI::App& app) {
     std::vector<std::string> sets, scene_path;
     int threads = 0;
     bool no_report = false, no_disk_cache = false;
+    std::string dump_streams;
   };
   auto o = std::make_shared<Options>();
   auto* cmd = app.add_subcommand(
@@ -203,6 +204,8 @@ Runner add_run_command(CLI::App& app) {
                 "Keep traced buffers in memory only (default: also in $DHR_CACHE_DIR or cache/ under trace/, so that "
                 "later runs never trace the same frame twice)");
   cmd->add_flag("--no-report", o->no_report, "Write results only (build the report later with 'dhrbench report DIR')");
+  cmd->add_option("--dump-streams", o->dump_streams,
+                  "Write each video pass's stream as DIR/<run id>/<pass>.h264|.hevc|.ivf (ffmpeg reads them)");
   return [o] {
     std::unique_ptr<tbb::global_control> limit;
     if (o->threads > 0)
@@ -237,6 +240,7 @@ Runner add_run_command(CLI::App& app) {
       try {
         SimConfig config = spec.config;
         config.keep_images = true;
+        if (!o->dump_streams.empty()) config.dump_streams_dir = (fs::path(o->dump_streams) / spec.id).string();
         const Scene& scene = loaded.scenes.at(spec.scene);
         RunResult r = run_simulation(config, scene, loaded.keys.at(spec.scene), cache, registries(),
                                      [&](int f, int total) { progress.update(i, spec.label, f, total); });

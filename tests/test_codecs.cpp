@@ -15,6 +15,7 @@
 #include "core/buffer_layout.h"
 #include "core/checksum.h"
 #include "core/rng.h"
+#include "core/stream_dump.h"
 #include "tests/support_buffers.h"
 
 #include <gtest/gtest.h>
@@ -27,7 +28,11 @@ extern "C" {
 #include <cctype>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <optional>
@@ -863,6 +868,49 @@ TEST(VideoCodecs, HevcAndAv1BytesDoNotDependOnThreads) {
                                           << " bytes with 1 thread, " << stream[1].size() << " with 4";
     }
   }
+}
+
+// --dump-streams writes a video pass with core/stream_dump.h; the ffmpeg command-line tool must
+// decode such a file to the pictures our decoder gives: gray AO (values as coded: full scale
+// 255, so no mapping) over 8 frames of a pan with a forced keyframe, bit for bit.
+TEST(VideoCodecs, DumpedStreamsDecodeWithFfmpegToOurPictures) {
+  if (std::system("command -v ffmpeg >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "the ffmpeg command-line tool is not installed (scripts/setup.sh installs it)";
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / "dhr_dump_streams_test";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  constexpr int kW = 64, kH = 40, kFrames = 8;
+  for (const std::string& name : lossy_video_codecs()) {
+    auto codec = registries().codecs.create(name, json::object());
+    const std::string format = codec->stream_format();
+    ASSERT_FALSE(format.empty()) << name << " names no stream format";
+    const fs::path file = dir / ("ao." + format);
+    std::vector<uint8_t> ours;  // our decoder's pictures, one after the other
+    {
+      StreamDump dump(file.string(), format, kW, kH, 60);
+      auto decoder = registries().codecs.create(name, json::object());
+      for (int f = 0; f < kFrames; ++f) {
+        const PassBuffer in = test::make_smooth_ao({kW, kH, 1.5 * f, 0.5 * f, uint32_t(f)});
+        std::vector<uint8_t> bytes;
+        codec->encode(in, {f == 5}, bytes);
+        dump.append(bytes, uint64_t(f));
+        const PassBuffer out = decode_or_fail(*decoder, bytes, in.desc);
+        ours.insert(ours.end(), out.bytes.begin(), out.bytes.end());
+      }
+    }
+    const fs::path raw = dir / (name + ".gray");
+    const std::string cmd = "ffmpeg -nostdin -v error -y -i " + file.string() +
+                            " -fps_mode passthrough -f rawvideo -pix_fmt gray " + raw.string() + " 2>" +
+                            (dir / (name + ".log")).string();
+    ASSERT_EQ(std::system(cmd.c_str()), 0) << name << ": " << cmd;
+    std::ifstream in(raw, std::ios::binary);
+    const std::vector<uint8_t> theirs((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    ASSERT_EQ(theirs.size(), ours.size()) << name << ": ffmpeg decoded " << theirs.size() / (kW * kH) << " frames of "
+                                          << kFrames;
+    EXPECT_TRUE(theirs == ours) << name << ": ffmpeg's pictures differ from ours";
+  }
+  fs::remove_all(dir);
 }
 
 TEST(H264, LossyQualityOnSmoothAoAndColour) {

@@ -36,6 +36,7 @@ CodecEntry make_av1_codec() {
             f.encoder = "libaom-av1";
             f.decoder = "libdav1d";
             f.install_hint = "install libavcodec with libaom and libdav1d support";
+            f.stream_format = "ivf";
             f.configure_encoder = [cpu_used = p.get_int("cpu_used")](const AvVideoSettings& s, AvOptions& o) {
               o.context()->keyint_min = s.gop;
               o.set("usage", s.rate_control == AvRateControl::Lossless ? "good" : "realtime");

@@ -53,6 +53,7 @@ class AvVideoCodec final : public Codec {
 
   bool lossless() const override { return s_.rate_control == AvRateControl::Lossless; }
   bool stateful() const override { return true; }  // P-frames reference earlier frames
+  std::string stream_format() const override { return f_.stream_format; }
 
   std::string refuses(const PassDesc& desc) const override {
     if (std::string why = desc.validate(); !why.empty()) return "invalid buffer description: " + why;

@@ -74,6 +74,7 @@ struct AvVideoFormat {
   std::string decoder;         // libavcodec decoder name ("h264")
   std::string install_hint;    // said when the encoder or decoder is missing
   int min_side = 2;            // smaller pictures are padded to this width/height (even)
+  std::string stream_format;   // Codec::stream_format(): "h264", "hevc", "ivf"
   // Sets the encoder's own options on a context whose size, pixel format, time base, gop,
   // threads, colour description and (bitrate mode) rates are set; the crf option is set by
   // the layer in crf mode. Lossless mode must be switched on here.

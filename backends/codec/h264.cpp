@@ -51,6 +51,7 @@ CodecEntry make_h264_codec() {
             f.encoder = "libx264";
             f.decoder = "h264";
             f.install_hint = "install libavcodec with x264 support";
+            f.stream_format = "h264";
             f.configure_encoder = [preset = p.get_string("preset"), slice_max = p.get_int("slice_max_size_bytes")](
                                       const AvVideoSettings& s, AvOptions& o) {
               std::string x264_params = "scenecut=0:log=1";

@@ -40,6 +40,7 @@ CodecEntry make_hevc_codec() {
             f.decoder = "hevc";
             f.install_hint = "install libavcodec with x265 support";
             f.min_side = 16;
+            f.stream_format = "hevc";
             f.configure_encoder = [preset = p.get_string("preset")](const AvVideoSettings& s, AvOptions& o) {
               std::string x265_params =
                   "log-level=error:scenecut=0:open-gop=0:repeat-headers=1:info=0:frame-threads=1:rc-lookahead=0:"
@@ -56,3 +57,10 @@ CodecEntry make_hevc_codec() {
 }
 
 }  // namespace dhr
+
+// x265 3.5 (Debian 12) leaks about 1.9 KB per encoder it opens (FrameFilter::init, and the
+// strings x265_param_parse and x265_copy_params duplicate); make_fuzz_corpus under ASan showed
+// it. LeakSanitizer reads this hook, when the program is built with it, so that the sanitizer
+// and fuzz runs (scripts/test.sh, scripts/fuzz.sh) report our leaks and not the library's.
+extern "C" const char* __lsan_default_suppressions();
+extern "C" const char* __lsan_default_suppressions() { return "leak:libx265.so\n"; }
