@@ -259,7 +259,10 @@ class AvVideoCodec final : public Codec {
       for (int y = 0; y < g.padded_height; ++y) {
         const uint8_t* src = in.bytes.data() + size_t(std::min(y, g.height - 1)) * size_t(g.width);
         uint8_t* dst = frame_->data[0] + ptrdiff_t(y) * frame_->linesize[0];
-        for (int x = 0; x < g.width; ++x) dst[x] = range.to_picture[src[x]];
+        if (in.desc.full_scale == 255)
+          std::memcpy(dst, src, size_t(g.width));  // the mapping is the identity
+        else
+          for (int x = 0; x < g.width; ++x) dst[x] = range.to_picture[src[x]];
         std::memset(dst + g.width, dst[g.width - 1], size_t(g.padded_width - g.width));
       }
       if (frame_->format == AV_PIX_FMT_YUV420P)
@@ -322,7 +325,10 @@ class AvVideoCodec final : public Codec {
       for (int y = 0; y < g.height; ++y) {
         const uint8_t* src = f->data[0] + ptrdiff_t(y) * f->linesize[0];
         uint8_t* dst = out.bytes.data() + size_t(y) * size_t(g.width);
-        for (int x = 0; x < g.width; ++x) dst[x] = range.from_picture[src[x]];
+        if (desc.full_scale == 255)
+          std::memcpy(dst, src, size_t(g.width));  // the mapping is the identity
+        else
+          for (int x = 0; x < g.width; ++x) dst[x] = range.from_picture[src[x]];
       }
       return true;
     }
