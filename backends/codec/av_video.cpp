@@ -392,6 +392,12 @@ std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf
           ParamSpec::integer("threads", 1, 1, 16, encoder_label + " threads (" + threads_note + ")")};
 }
 
+ParamSpec x26x_preset_param(const std::string& encoder_label) {
+  return ParamSpec::choice(
+      "preset", "ultrafast", {"ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow"},
+      encoder_label + " speed preset");
+}
+
 AvVideoSettings av_video_settings(const Params& p) {
   AvVideoSettings s;
   const std::string rc = p.get_string("rate_control");

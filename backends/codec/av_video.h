@@ -55,6 +55,8 @@ struct AvVideoSettings {
 std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
                                        const std::string& lossless_note, const std::string& threads_note);
 AvVideoSettings av_video_settings(const Params& p);
+// "preset": the speed presets x264 and x265 share, ultrafast..veryslow (default ultrafast).
+ParamSpec x26x_preset_param(const std::string& encoder_label);
 
 // Sets private options of an encoder context; fails naming the codec, option and value.
 class AvOptions {

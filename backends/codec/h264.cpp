@@ -38,9 +38,7 @@ namespace dhr {
 
 CodecEntry make_h264_codec() {
   std::vector<ParamSpec> params = av_video_params("x264", 23, 51, "qp 0", "1 gives deterministic output");
-  params.push_back(ParamSpec::choice(
-      "preset", "ultrafast", {"ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow"},
-      "x264 speed preset"));
+  params.push_back(x26x_preset_param("x264"));
   params.push_back(ParamSpec::integer("slice_max_size_bytes", 1100, 0, 100000,
                                       "largest slice NAL in bytes (fits a 1200-byte packet payload); 0 = no limit"));
   return {"h264",

@@ -27,9 +27,7 @@ namespace dhr {
 
 CodecEntry make_hevc_codec() {
   std::vector<ParamSpec> params = av_video_params("x265", 23, 51, "x265 lossless=1", "the bytes do not depend on it");
-  params.push_back(ParamSpec::choice(
-      "preset", "ultrafast", {"ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow"},
-      "x265 speed preset"));
+  params.push_back(x26x_preset_param("x265"));
   return {"hevc",
           "H.265/HEVC (libx265 via libavcodec), zerolatency, VPS/SPS/PPS in-band; AO/soft-visibility as gray, colour as "
           "4:2:0",
