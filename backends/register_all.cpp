@@ -16,6 +16,8 @@ void register_all_backends(Registries& r) {
   DHR_CODEC(make_lz4_codec);
   DHR_CODEC(make_zstd_codec);
   DHR_CODEC(make_h264_codec);
+  DHR_CODEC(make_hevc_codec);
+  DHR_CODEC(make_av1_codec);
   DHR_CODEC(make_delta_codec);
 
   // Denoisers (backends/denoise/)

@@ -46,6 +46,10 @@ class Codec {
   virtual bool decode(std::span<const uint8_t> in, const PassDesc& desc, PassBuffer& out,
                       std::string& error) = 0;
   virtual void reset() {}
+  // The standard stream that this codec's encode() outputs make, one after the other, as a file
+  // extension: "h264" or "hevc" (Annex B byte streams), "ivf" (AV1 temporal units, each behind
+  // an IVF frame header: core/stream_dump.h); empty when the bytes are no standard stream.
+  virtual std::string stream_format() const { return {}; }
 };
 
 // ---- Denoiser: server-side filtering of a noisy 8-bit signal (AO counts, or one light's

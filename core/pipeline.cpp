@@ -8,7 +8,10 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstring>
+#include <filesystem>
+#include <span>
 
 namespace dhr {
 
@@ -83,6 +86,24 @@ ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Reg
     codec_ids_.push_back(codec_id(codec.name));
     sequence_.push_back(0);
   }
+  dumps_.resize(sent_.size());
+}
+
+// --dump-streams: the pass's encoded frames as <dir>/<pass>.<format>, for a codec whose frames
+// make a standard stream (others write nothing).
+void ServerPipeline::dump(size_t pass, const PassDesc& desc, uint32_t frame, std::span<const uint8_t> encoded) {
+  const std::string format = codecs_[pass]->stream_format();
+  if (format.empty()) return;
+  if (!dumps_[pass]) {
+    std::error_code ec;
+    std::filesystem::create_directories(c_.dump_streams_dir, ec);
+    if (ec) fail("--dump-streams: cannot create {}: {}", c_.dump_streams_dir, ec.message());
+    const int height = desc.kind == PassKind::SoftVisibility ? desc.height * desc.channels : desc.height;
+    dumps_[pass] = std::make_unique<StreamDump>(
+        (std::filesystem::path(c_.dump_streams_dir) / (sent_[pass].name + "." + format)).string(), format, desc.width,
+        height, int(std::lround(c_.display_hz)));
+  }
+  dumps_[pass]->append(encoded, frame);
 }
 
 ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double time_s, bool keyframe) {
@@ -136,6 +157,7 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     t0 = Clock::now();
     codecs_[i]->encode(buf, {keyframe}, encoded);
     stage("encode", ms_since(t0));
+    if (!c_.dump_streams_dir.empty()) dump(i, buf.desc, frame, encoded);
     PacketMeta meta;
     meta.stream_id = stream_id_;
     meta.desc = buf.desc;

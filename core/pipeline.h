@@ -23,6 +23,7 @@
 #include "core/passes.h"
 #include "core/run_config.h"
 #include "core/scene.h"
+#include "core/stream_dump.h"
 #include "core/trace.h"
 
 #include <deque>
@@ -104,6 +105,7 @@ class ServerPipeline {
   ServerFrame run(uint32_t frame, const Camera& camera, double time_s, bool keyframe);
 
  private:
+  void dump(size_t pass, const PassDesc& desc, uint32_t frame, std::span<const uint8_t> encoded);
   const SimConfig& c_;
   const Scene& scene_;
   PassPlan plan_;
@@ -113,6 +115,7 @@ class ServerPipeline {
   DenoiseStage denoise_;
   std::vector<std::unique_ptr<Codec>> codecs_;  // per sent pass
   std::vector<uint32_t> codec_ids_, sequence_;
+  std::vector<std::unique_ptr<StreamDump>> dumps_;  // per sent pass, when config.dump_streams_dir is set
   bool has_prev_ = false;
   Camera prev_camera_;
   double prev_time_s_ = 0.0;

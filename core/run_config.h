@@ -62,6 +62,8 @@ struct SimConfig {
   int ground_truth_samples_per_light = 64;
   bool keep_images = false;    // keep one frame's images (RunResult::images) for image grids
   std::string cache_dir;       // ground truths on disk; empty: default_cache_dir() (core/reference.h)
+  std::string dump_streams_dir;  // non-empty: the server writes each video pass's stream there
+                                 // (<pass>.<Codec::stream_format()>; dhrbench run --dump-streams)
 
   nlohmann::json to_json() const;
   // The backends of the pass with `meaning` (colour: the remote baseline's codec and predictor;

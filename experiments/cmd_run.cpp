@@ -186,6 +186,7 @@ Runner add_run_command(CLI::App& app) {
     bool no_report = false, no_disk_cache = false;
     std::string shard;
     std::optional<ShardRun> shard_run;
+    std::string dump_streams;
   };
   auto o = std::make_shared<Options>();
   auto* cmd = app.add_subcommand(
@@ -206,6 +207,8 @@ Runner add_run_command(CLI::App& app) {
                 "Keep traced buffers in memory only (default: also in $DHR_CACHE_DIR or cache/ under trace/, so that "
                 "later runs never trace the same frame twice)");
   cmd->add_flag("--no-report", o->no_report, "Write results only (build the report later with 'dhrbench report DIR')");
+  cmd->add_option("--dump-streams", o->dump_streams,
+                  "Write each video pass's stream as DIR/<run id>/<pass>.h264|.hevc|.ivf (ffmpeg reads them)");
   cmd->add_option("--shard", o->shard,
                   "Run only shard K of N (K/N, e.g. 2/4) and write DIR/shard.json; no report. Runs sharing traces or\n"
                   "ground truths stay in one shard ('dhrbench validate EXPERIMENT --shards N' prints the plan);\n"
@@ -249,6 +252,7 @@ Runner add_run_command(CLI::App& app) {
       try {
         SimConfig config = spec.config;
         config.keep_images = true;
+        if (!o->dump_streams.empty()) config.dump_streams_dir = (fs::path(o->dump_streams) / spec.id).string();
         const Scene& scene = loaded.scenes.at(spec.scene);
         RunResult r = run_simulation(config, scene, loaded.keys.at(spec.scene), cache, registries(),
                                      [&](int f, int total) { progress.update(i, spec.label, f, total); });

@@ -9,6 +9,8 @@ PACKAGES=(
   # libraries (cmake/dependencies.cmake names the same packages)
   libembree-dev libopenimageio-dev liblz4-dev libzstd-dev
   libavcodec-dev libavutil-dev libswscale-dev libx264-dev
+  # the ffmpeg command-line tool: tests decode the streams of --dump-streams with it
+  ffmpeg
   libopencv-dev libopencv-contrib-dev
   libbenchmark-dev nlohmann-json3-dev libglm-dev libassimp-dev libcli11-dev libtbb-dev libfmt-dev
   libgtest-dev libgmock-dev

@@ -2,8 +2,9 @@
 // codec beside the library's own call on the same bytes in the same run (the ceiling):
 //   lz4:  LZ4F_compressFrame / LZ4F_decompress with the same preferences
 //   zstd: ZSTD_compress2 / ZSTD_decompressDCtx with the same parameters
-//   h264: a bare libavcodec send/receive loop with the same x264 settings (colour: with the
-//         same libswscale conversion), on the same moving 8-frame sequence
+//   h264, hevc, av1: a bare libavcodec send/receive loop with the same encoder settings
+//         (x264, x265, libaom; dav1d decodes AV1; colour: with the same libswscale conversion),
+//         on the same moving 8-frame sequence
 // The ceilings take the bytes the library sees (for the planar layout: the planes, so our
 // bit transposition counts against us). At the end a table gives ceiling time / our time
 // (goal >= 90%) and, before the benchmarks, a table of what the delta codec saves over zstd
@@ -168,9 +169,49 @@ void ceiling_zstd(benchmark::State& state, const PassBuffer* in, VisibilityLayou
   set_counters(state, in->bytes.size(), frame_size, encode);
 }
 
-// A bare libx264 encoder with the settings the h264 codec uses by default.
-AVCodecContext* bare_x264(int w, int h, AVPixelFormat format) {
-  const AVCodec* codec = avcodec_find_encoder_by_name("libx264");
+// A bare libavcodec video encoder and decoder with the settings a video codec uses by default
+// (backends/codec/h264.cpp, hevc.cpp, av1.cpp).
+struct BareVideo {
+  const char* codec;    // the registry name
+  const char* encoder;  // libavcodec names
+  const char* decoder;
+  void (*options)(AVCodecContext*);  // the encoder's private options
+};
+
+const BareVideo kBareVideos[] = {
+    {"h264", "libx264", "h264",
+     [](AVCodecContext* c) {
+       av_opt_set(c->priv_data, "preset", "ultrafast", 0);
+       av_opt_set(c->priv_data, "tune", "zerolatency", 0);
+       av_opt_set(c->priv_data, "forced-idr", "1", 0);
+       av_opt_set(c->priv_data, "crf", "23", 0);
+       av_opt_set(c->priv_data, "x264-params", "scenecut=0:log=1:slice-max-size=1100", 0);
+     }},
+    {"hevc", "libx265", "hevc",
+     [](AVCodecContext* c) {
+       av_opt_set(c->priv_data, "preset", "ultrafast", 0);
+       av_opt_set(c->priv_data, "tune", "zerolatency", 0);
+       av_opt_set(c->priv_data, "forced-idr", "1", 0);
+       av_opt_set(c->priv_data, "crf", "23", 0);
+       av_opt_set(c->priv_data, "x265-params",
+                  "log-level=error:scenecut=0:open-gop=0:repeat-headers=1:info=0:frame-threads=1:rc-lookahead=0:"
+                  "bframes=0:wpp=1:pools=1",
+                  0);
+     }},
+    {"av1", "libaom-av1", "libdav1d",
+     [](AVCodecContext* c) {
+       c->keyint_min = 60;
+       av_opt_set(c->priv_data, "usage", "realtime", 0);
+       av_opt_set(c->priv_data, "cpu-used", "8", 0);
+       av_opt_set(c->priv_data, "lag-in-frames", "0", 0);
+       av_opt_set(c->priv_data, "row-mt", "0", 0);
+       av_opt_set(c->priv_data, "crf", "35", 0);
+     }},
+};
+
+AVCodecContext* bare_encoder(const BareVideo& v, int w, int h, AVPixelFormat format) {
+  const AVCodec* codec = avcodec_find_encoder_by_name(v.encoder);
+  if (!codec) return nullptr;
   AVCodecContext* c = avcodec_alloc_context3(codec);
   c->width = w;
   c->height = h;
@@ -180,10 +221,7 @@ AVCodecContext* bare_x264(int w, int h, AVPixelFormat format) {
   c->gop_size = 60;
   c->max_b_frames = 0;
   c->thread_count = 1;
-  av_opt_set(c->priv_data, "preset", "ultrafast", 0);
-  av_opt_set(c->priv_data, "tune", "zerolatency", 0);
-  av_opt_set(c->priv_data, "crf", "23", 0);
-  av_opt_set(c->priv_data, "x264-params", "scenecut=0:log=1:slice-max-size=1100", 0);
+  v.options(c);
   if (avcodec_open2(c, codec, nullptr) < 0) avcodec_free_context(&c);
   return c;
 }
@@ -202,12 +240,12 @@ void fill_frame(AVFrame* frame, const PassBuffer& in, SwsContext* sws) {
   }
 }
 
-void ceiling_h264(benchmark::State& state, const std::vector<PassBuffer>* seq, bool encode) {
+void ceiling_video(benchmark::State& state, const BareVideo& v, const std::vector<PassBuffer>* seq, bool encode) {
   const bool colour = (*seq)[0].desc.kind == PassKind::Colour;
   const AVPixelFormat format = colour ? AV_PIX_FMT_YUV420P : AV_PIX_FMT_GRAY8;
-  AVCodecContext* enc = bare_x264(kWidth, kHeight, format);
+  AVCodecContext* enc = bare_encoder(v, kWidth, kHeight, format);
   if (!enc) {
-    state.SkipWithError("cannot open libx264");
+    state.SkipWithError((std::string("cannot open ") + v.encoder).c_str());
     return;
   }
   SwsContext* to_yuv = sws_getContext(kWidth, kHeight, AV_PIX_FMT_RGB24, kWidth, kHeight, AV_PIX_FMT_YUV420P,
@@ -240,7 +278,7 @@ void ceiling_h264(benchmark::State& state, const std::vector<PassBuffer>* seq, b
     std::vector<std::vector<uint8_t>> packets(seq->size());
     for (size_t k = 0; k < seq->size(); ++k) encode_one((*seq)[k], &packets[k]);
     // Restart the cycle on an IDR, as the codec benchmark does (its own encoder's frame 0).
-    const AVCodec* codec = avcodec_find_decoder(AV_CODEC_ID_H264);
+    const AVCodec* codec = avcodec_find_decoder_by_name(v.decoder);
     AVCodecContext* dec = avcodec_alloc_context3(codec);
     dec->thread_count = 1;
     dec->flags |= AV_CODEC_FLAG_LOW_DELAY;
@@ -283,14 +321,15 @@ class RatioReporter : public benchmark::ConsoleReporter {
       if (r.error_occurred) continue;
       if (r.run_type == Run::RT_Aggregate && r.aggregate_name != "median") continue;
       std::string name = r.run_name.function_name;
-      // CPU time of the benchmark thread: the codecs are single-threaded, and on a shared
-      // machine wall time mostly measures the neighbours.
+      // CPU time of the benchmark thread (of the process where the library works in threads
+      // of its own: hevc encoding): the codecs are single-threaded, and on a shared machine
+      // wall time mostly measures the neighbours.
       times_[name] = r.GetAdjustedCPUTime();
     }
   }
   void Finalize() override {
     ConsoleReporter::Finalize();
-    std::printf("\n%-44s %12s %12s %8s\n", "case (ceiling / ours, CPU ms per frame)", "ours", "ceiling", "ratio");
+    std::printf("\n%-44s %12s %12s %8s\n", "case (ceiling / ours, ms per frame)", "ours", "ceiling", "ratio");
     for (const auto& [name, t] : times_) {
       const auto c = times_.find(name + "/ceiling");
       if (c == times_.end()) continue;
@@ -376,16 +415,26 @@ void register_all() {
           std::string(codec) == "lz4" ? ceiling_lz4(s, buffer, layout, encode) : ceiling_zstd(s, buffer, layout, encode);
         })->Unit(benchmark::kMillisecond);
       }
-  for (auto [label, seq] : {std::pair{"smooth_ao_pan", &b.ao_seq}, {"colour_pan", &b.colour_seq}})
-    for (bool encode : {true, false}) {
-      const std::string name = std::string(encode ? "encode/h264/" : "decode/h264/") + label;
-      benchmark::RegisterBenchmark(name.c_str(), [=](benchmark::State& s) {
-        encode ? bench_encode(s, "h264", json::object(), seq) : bench_decode(s, "h264", json::object(), seq);
-      })->Unit(benchmark::kMillisecond);
-      benchmark::RegisterBenchmark((name + "/ceiling").c_str(), [=](benchmark::State& s) {
-        ceiling_h264(s, seq, encode);
-      })->Unit(benchmark::kMillisecond);
-    }
+  for (const BareVideo& v : kBareVideos)
+    for (auto [label, seq] : {std::pair{"smooth_ao_pan", &b.ao_seq}, {"colour_pan", &b.colour_seq}})
+      for (bool encode : {true, false}) {
+        const std::string name = std::string(encode ? "encode/" : "decode/") + v.codec + "/" + label;
+        const char* codec = v.codec;
+        // x265 encodes in threads of its own (a frame-encoder thread and its pool), so the
+        // benchmark thread's CPU time misses its work: hevc encoding is timed in the process's
+        // CPU time (all threads; the benchmark runs nothing else meanwhile).
+        const bool process_cpu = encode && std::string(codec) == "hevc";
+        auto* ours = benchmark::RegisterBenchmark(name.c_str(), [=](benchmark::State& s) {
+          encode ? bench_encode(s, codec, json::object(), seq) : bench_decode(s, codec, json::object(), seq);
+        });
+        auto* ceiling = benchmark::RegisterBenchmark((name + "/ceiling").c_str(), [=, &v](benchmark::State& s) {
+          ceiling_video(s, v, seq, encode);
+        });
+        for (auto* b : {ours, ceiling}) {
+          b->Unit(benchmark::kMillisecond);
+          if (process_cpu) b->MeasureProcessCPUTime();
+        }
+      }
   // Delta on a static view (the best case) and zstd on the same frames, for the record.
   benchmark::RegisterBenchmark("encode/delta/smooth_ao_static", [seq = one(b.smooth_ao)](benchmark::State& s) {
     bench_encode(s, "delta", json::object(), seq);

@@ -7,9 +7,12 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <iterator>
+#include <map>
 #include <sstream>
 
 namespace dhr {
@@ -137,6 +140,47 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
             std::string::npos) << log;
   EXPECT_NE(log.find("curves.anchor: 'remote x265' is not a family"), std::string::npos) << log;
   fs::remove(bad);
+}
+
+// --dump-streams: every video pass of every run as a file that the ffmpeg command-line tool
+// decodes without an error into whole pictures of the pass's size (that its pictures are ours
+// bit for bit is VideoCodecs.DumpedStreamsDecodeWithFfmpegToOurPictures in tests/test_codecs.cpp).
+TEST(Runner, DumpStreamsWritesFilesThatFfmpegDecodes) {
+  if (std::system("command -v ffmpeg >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "the ffmpeg command-line tool is not installed (scripts/setup.sh installs it)";
+  const fs::path out = fs::temp_directory_path() / "dhr_runner_dump";
+  const fs::path streams = out / "streams";
+  fs::remove_all(out);
+  const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json";
+  const std::string configurations =
+      R"('configurations=[{"name": "h264", "set": {"ao_codec.name": "h264"}}, )"
+      R"({"name": "hevc", "set": {"ao_codec.name": "hevc"}}, {"name": "av1", "set": {"ao_codec.name": "av1"}}, )"
+      R"({"name": "remote av1", "set": {"mode": "remote", "colour_codec.name": "av1"}}]')";
+  std::string log;
+  ASSERT_EQ(run("run " + exp + " --out " + out.string() + " --no-report --dump-streams " + streams.string() +
+                    " --set " + configurations + R"( --set 'sweep={"network": ["slow"]}')",
+                &log),
+            0)
+      << log;
+  const std::map<std::string, std::pair<std::string, int>> expected{
+      {"r000", {"ao.h264", 1}}, {"r001", {"ao.hevc", 1}}, {"r002", {"ao.ivf", 1}}, {"r003", {"colour.ivf", 3}}};
+  for (const auto& [id, file_and_channels] : expected) {
+    const auto& [name, channels] = file_and_channels;
+    const fs::path file = streams / id / name;
+    ASSERT_TRUE(fs::exists(file)) << file;
+    EXPECT_EQ(std::distance(fs::directory_iterator(streams / id), fs::directory_iterator{}), 1)
+        << id << ": only the video pass is dumped (visibility goes through lz4)";
+    const fs::path raw = out / (id + ".raw");
+    const std::string cmd = "ffmpeg -nostdin -v error -y -i " + file.string() + " -fps_mode passthrough -f rawvideo " +
+                            "-pix_fmt " + (channels == 1 ? "gray " : "rgb24 ") + raw.string() + " >" +
+                            (out / (id + ".log")).string() + " 2>&1";
+    ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+    EXPECT_EQ(fs::file_size(out / (id + ".log")), 0u) << id << ": ffmpeg reported errors";
+    const uintmax_t picture = uintmax_t(48) * 32 * uintmax_t(channels);
+    EXPECT_GE(fs::file_size(raw), 6 * picture) << id;
+    EXPECT_EQ(fs::file_size(raw) % picture, 0u) << id;
+  }
+  fs::remove_all(out);
 }
 
 TEST(Runner, ValidateReportsEveryProblemAtOnceAndRunsNothing) {

@@ -1,0 +1,93 @@
+// The libavcodec video layer that the h264, hevc and av1 codecs share (docs/adding-a-backend.md):
+// one stateful Codec that drives a libavcodec encoder and decoder, maps buffers to pictures,
+// and applies the rate control common to them. A video codec file only names its encoder and
+// decoder, sets the encoder's own options (preset, tuning, lossless switch) and lists its
+// parameters.
+//
+// Mapping of buffers to pictures:
+//   Ao              one gray picture (4:0:0 when the encoder offers GRAY8, else 4:2:0 with
+//                   constant chroma 128); values are luma samples, full range.
+//   SoftVisibility  the light planes stacked top to bottom in one gray picture (w x h*lights).
+//   Colour          RGB8 -> YUV 4:2:0 (BT.601, limited range) with libswscale, and back.
+// Full-range mapping (lossy rate control only): an Ao/SoftVisibility value v of 0..full_scale
+// is coded as round(v * 255 / full_scale) and decoded back as round(u * full_scale / 255), so a
+// count plane (0..8 soft-visibility samples, 0..N AO rays) uses the whole sample range and the
+// quantiser treats it as it treats a 0..255 plane. Without coding loss the mapping returns every
+// value exactly; lossless rate control does not map (its bytes are those of the plain values).
+// Decoded values above full_scale are clamped to full_scale.
+// Odd sizes are padded to even (and to the encoder's smallest side) by repeating the last
+// column/row, and cropped on decode.
+//
+// Every encode() returns one access unit; no global header is set, so stream headers (SPS/PPS,
+// VPS, the AV1 sequence header) precede every keyframe and a keyframe decodes alone with any
+// fresh decoder. Keyframes come every `gop` frames or when EncodeOptions::force_keyframe asks.
+// No B-frames and no lookahead: each frame's bits come out of encode() for that frame. A new
+// buffer description starts a new stream; reset() drops encoder and decoder.
+#pragma once
+
+#include "core/backend.h"
+
+extern "C" {
+#include <libavcodec/avcodec.h>
+}
+
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace dhr {
+
+enum class AvRateControl { Crf, Bitrate, Lossless };
+
+// The parameters every libavcodec video codec has (av_video_params lists them).
+struct AvVideoSettings {
+  AvRateControl rate_control = AvRateControl::Crf;
+  int crf = 23;
+  int bitrate_kbps = 10000;
+  int fps = 60;
+  int gop = 60;
+  int threads = 1;
+};
+
+// rate_control, crf (0..crf_max, default crf_default), bitrate_kbps, fps, gop, threads; the
+// notes say how the encoder codes losslessly and what its thread count does to the bytes.
+std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
+                                       const std::string& lossless_note, const std::string& threads_note);
+AvVideoSettings av_video_settings(const Params& p);
+// "preset": the speed presets x264 and x265 share, ultrafast..veryslow (default ultrafast).
+ParamSpec x26x_preset_param(const std::string& encoder_label);
+
+// Sets private options of an encoder context; fails naming the codec, option and value.
+class AvOptions {
+ public:
+  AvOptions(const std::string& codec, AVCodecContext* context) : codec_(codec), context_(context) {}
+  void set(const char* key, const std::string& value);
+  AVCodecContext* context() const { return context_; }
+
+ private:
+  const std::string& codec_;
+  AVCodecContext* context_;
+};
+
+struct AvVideoFormat {
+  std::string name;            // the registry name: prefixes every message ("h264")
+  std::string encoder;         // libavcodec encoder name ("libx264")
+  std::string decoder;         // libavcodec decoder name ("h264")
+  std::string install_hint;    // said when the encoder or decoder is missing
+  int min_side = 2;            // smaller pictures are padded to this width/height (even)
+  std::string stream_format;   // Codec::stream_format(): "h264", "hevc", "ivf"
+  // Sets the encoder's own options on a context whose size, pixel format, time base, gop,
+  // threads, colour description and (bitrate mode) rates are set; the crf option is set by
+  // the layer in crf mode. Lossless mode must be switched on here.
+  std::function<void(const AvVideoSettings&, AvOptions&)> configure_encoder;
+  // Decoder private options (name, value), e.g. dav1d's frame delay.
+  std::vector<std::pair<std::string, std::string>> decoder_options;
+};
+
+std::unique_ptr<Codec> make_av_video_codec(AvVideoFormat format, AvVideoSettings settings);
+
+// Is `format` among `encoder`'s input formats (unknown encoder: false)?
+bool av_encoder_takes(const char* encoder, AVPixelFormat format);
+
+}  // namespace dhr
