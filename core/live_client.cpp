@@ -4,6 +4,8 @@
 #include "core/passes.h"
 #include "core/results.h"
 
+#include <cmath>
+
 namespace dhr {
 
 using namespace live_detail;
@@ -404,6 +406,7 @@ class LiveClient {
       client_ms.push_back(r.client_wall_ms);
       for (size_t i = 0; i < r.local.size(); ++i) {
         const ImageMetric& m = image_metrics()[i];
+        if (std::isnan(r.local[i])) continue;  // no value on this frame (a step metric's first frame)
         scores[i].push_back(m.for_mean ? m.for_mean(r.local[i]) : r.local[i]);
       }
       for (int s = 0; s < 2; ++s) {
