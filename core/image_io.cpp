@@ -2,6 +2,7 @@
 
 #include "core/error.h"
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 
 #include <array>
@@ -9,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <vector>
 
 namespace dhr {
@@ -19,11 +21,16 @@ namespace {
 // length within the file and its CRC-32, ending with IEND. A cut-short or bit-flipped file (a
 // damaged cache entry) is then an error of ours; libpng's own error path longjmps out of
 // OpenImageIO's read callback and leaks its message string (LeakSanitizer sees it).
-std::string png_damage(const std::string& path) {
+constexpr uint8_t kPngSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+
+bool starts_as_png(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
-  std::vector<uint8_t> b((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  static const uint8_t signature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  if (b.size() < 8 || !std::equal(signature, signature + 8, b.begin())) return "";  // not a PNG: OIIO decides
+  uint8_t head[8] = {};
+  return in.read(reinterpret_cast<char*>(head), 8) && std::equal(head, head + 8, kPngSignature);
+}
+
+// `b`: a whole PNG file. Empty when intact, else what is wrong.
+std::string png_damage(const std::vector<uint8_t>& b) {
   static const std::array<uint32_t, 256> table = [] {
     std::array<uint32_t, 256> t{};
     for (uint32_t n = 0; n < 256; ++n) {
@@ -83,8 +90,16 @@ void write_exr(const std::string& path, const ImageVec3& image) {
 
 Rgba8Image read_rgba8(const std::string& path) {
   if (!std::filesystem::is_regular_file(path)) fail("{}: image file not found", path);
-  if (const std::string damage = png_damage(path); !damage.empty()) fail("{}: damaged PNG: {}", path, damage);
-  auto in = OIIO::ImageInput::open(path);
+  // A PNG is read once: checked (png_damage), then decoded from those bytes.
+  std::vector<uint8_t> png;
+  std::unique_ptr<OIIO::Filesystem::IOMemReader> memory;
+  if (starts_as_png(path)) {
+    std::ifstream file(path, std::ios::binary);
+    png.assign(std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>());
+    if (const std::string damage = png_damage(png); !damage.empty()) fail("{}: damaged PNG: {}", path, damage);
+    memory = std::make_unique<OIIO::Filesystem::IOMemReader>(png.data(), png.size());
+  }
+  auto in = OIIO::ImageInput::open(path, nullptr, memory.get());
   if (!in) fail("{}: cannot read image: {}", path, OIIO::geterror());
   const OIIO::ImageSpec& spec = in->spec();
   if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth != 1)

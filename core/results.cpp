@@ -20,7 +20,6 @@ nlohmann::json finite_or_null(double v) { return std::isfinite(v) ? nlohmann::js
 double ssim_of(const ImageRGB8& reference, const ImageRGB8& shown) {
   return ssim_u8(luma(reference), luma(shown), nullptr, SsimBorder::Valid);
 }
-double psnr_of(const ImageRGB8& reference, const ImageRGB8& shown) { return psnr_db(reference, shown); }
 double flip_of(const ImageRGB8& reference, const ImageRGB8& shown) { return flip(reference, shown, kFlipDefaultPpd).mean; }
 double temporal_error_of(const ImageRGB8& rp, const ImageRGB8& r, const ImageRGB8& tp, const ImageRGB8& t) {
   return temporal_scores(rp, r, tp, t).temporal_error;
@@ -89,7 +88,7 @@ const std::vector<ImageMetric>& image_metrics() {
        "valid interior as Wang's code and scikit-image (docs/metrics.md)",
        true, ssim_of, nullptr},
       {"psnr", "db", "PSNR over R, G and B, 10 log10(255^2 / MSE); identical frames are +inf, counted as 100 dB in means",
-       true, psnr_of, psnr_for_mean},
+       true, psnr_db, psnr_for_mean},
       {"flip", "", "LDR-FLIP (Andersson et al. 2020) at 67 pixels per degree, mean of the error map, 0..1 (docs/metrics.md)",
        false, flip_of, nullptr},
       {"temporal_error", "levels",

@@ -116,12 +116,9 @@ Runner add_converge_command(CLI::App& app) {
       nlohmann::json summary = nlohmann::json::object();
       for (size_t k = 0; k < metrics.size(); ++k) {
         if (!metrics[k].score) continue;
-        const auto& v = per_metric[k];
-        double sum = 0;
-        for (double x : v) sum += x;
-        summary[metrics[k].name + "_mean"] = sum / double(v.size());
-        summary[metrics[k].name + "_worst"] = metrics[k].higher_is_better ? *std::min_element(v.begin(), v.end())
-                                                                        : *std::max_element(v.begin(), v.end());
+        for (const ImageStatistic& st : image_statistics())  // as results.json summarises a run
+          if (st.name == "mean" || st.name == "worst")
+            summary[metrics[k].name + "_" + st.name] = st.of(per_metric[k], metrics[k].higher_is_better);
       }
       out["scenes"].push_back({{"scene", name}, {"frames", rows}, {"summary", summary}});
     }

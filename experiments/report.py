@@ -302,9 +302,7 @@ HEADLINE = DECLARED_BEFORE_RECORD["image_metrics"][0]
 
 def quality(run):
     """The headline metric's mean against the ground truth where scored, else the local reference."""
-    m = run["metrics"]
-    q = m.get(HEADLINE["aggregates"]["ground_truth"]["mean"])
-    return q if q is not None else m.get(HEADLINE["aggregates"]["local"]["mean"])
+    return metric_value(run, HEADLINE)
 
 
 def metric_value(run, im):

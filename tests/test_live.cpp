@@ -487,6 +487,22 @@ std::vector<std::map<std::string, std::string>> read_csv(const fs::path& p) {
   return rows;
 }
 
+// Client frames.csv rows: whether both passes ever arrived, and how many displayed frames after
+// the first arrival lacked one of them (the client must keep predicting from what it has).
+struct PassGaps {
+  bool arrived = false;
+  int gaps = 0;
+};
+PassGaps pass_gaps(const std::vector<std::map<std::string, std::string>>& frames) {
+  PassGaps g;
+  for (const auto& row : frames) {
+    const bool have = std::stoi(row.at("visibility_source_frame")) >= 0 && std::stoi(row.at("ao_source_frame")) >= 0;
+    g.arrived = g.arrived || have;
+    g.gaps += g.arrived && !have;
+  }
+  return g;
+}
+
 // Small frames keep the test fast, also under the sanitizers.
 const std::vector<std::string> kSettings{"--scene", "room", "--set", "width=96", "--set", "height=64"};
 
@@ -576,15 +592,9 @@ TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
   const auto frames = read_csv(dir / "client" / "frames.csv");
   EXPECT_EQ(c["frames"]["displayed"].get<int>() + c["frames"]["skipped_late"].get<int>(), kFrames);
   ASSERT_GE(frames.size(), 10u) << "too few frames displayed: " << c["frames"].dump();
-  bool arrived = false;
-  int gaps = 0;
-  for (const auto& row : frames) {
-    const bool have = std::stoi(row.at("visibility_source_frame")) >= 0 && std::stoi(row.at("ao_source_frame")) >= 0;
-    arrived = arrived || have;
-    gaps += arrived && !have;
-  }
-  EXPECT_TRUE(arrived);
-  EXPECT_EQ(gaps, 0);
+  const PassGaps g = pass_gaps(frames);
+  EXPECT_TRUE(g.arrived);
+  EXPECT_EQ(g.gaps, 0);
   EXPECT_GT(c["quality"]["ssim_local"]["mean"].get<double>(), 0.5);
   EXPECT_TRUE(fs::exists(dir / "client" / "frames" / "frame_00000.png"));
 
@@ -867,15 +877,9 @@ TEST(LiveTrust, ASessionUnderAttackFromAThirdSocketEndsAsACleanOne) {
   // last ones are recent.
   const auto frames = read_csv(dir / "client" / "frames.csv");
   ASSERT_GE(frames.size(), 10u);
-  bool arrived = false;
-  int gaps = 0;
-  for (const auto& row : frames) {
-    const bool have = std::stoi(row.at("visibility_source_frame")) >= 0 && std::stoi(row.at("ao_source_frame")) >= 0;
-    arrived = arrived || have;
-    gaps += arrived && !have;
-  }
-  EXPECT_TRUE(arrived);
-  EXPECT_EQ(gaps, 0);
+  const PassGaps g = pass_gaps(frames);
+  EXPECT_TRUE(g.arrived);
+  EXPECT_EQ(g.gaps, 0);
   EXPECT_GE(std::stoi(frames.back().at("ao_source_frame")), std::stoi(frames.back().at("frame")) - 30);
 
   // Every attacker datagram dropped, counted by reason; the counts are what it sent.
