@@ -118,6 +118,12 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const Compos
   return composite(g, scene, visibility, ao, settings);
 }
 
+ImageRGB8 composite(const GBuffer& g, const Scene& scene, const TracedPasses& traced, const CompositeSettings& settings) {
+  std::vector<CompositePass> inputs;
+  for (const TracedPass& p : traced.passes) inputs.push_back({p.meaning, &p.buffer});
+  return composite(g, scene, inputs, settings);
+}
+
 ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<const float> visibility,
                               std::span<const float> ao, const CompositeSettings& settings) {
   const size_t npx = size_t(g.width()) * size_t(g.height());

@@ -60,6 +60,10 @@ struct CompositePass {
 ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, std::span<const CompositePass> passes,
                     const CompositeSettings& settings = {});
 
+// The composite of one frame's traced passes as traced (before denoising).
+ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, const TracedPasses& traced,
+                    const CompositeSettings& settings = {});
+
 // From float estimates (references): visibility planar [light][pixel] in [0, 1] (empty: fully
 // lit), ao per pixel in [0, 1] (empty: 1).
 ImageRGB8 composite_fractions(const GBuffer& gbuf, const Scene& scene, std::span<const float> visibility,

@@ -72,6 +72,16 @@ std::string truth_key(const std::string& scene_key, const SimConfig& c, int fram
 
 // ---- small pieces ---------------------------------------------------------------------------
 
+namespace {
+
+size_t entry_bytes(const TraceCache::Entry& e) {
+  size_t n = 0;
+  for (const TracedPass& t : e.passes) n += t.buffer.bytes.size();
+  return n;
+}
+
+}  // namespace
+
 std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key) {
   {
     std::lock_guard lock(mutex_);
@@ -86,8 +96,7 @@ std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key
   if (entry) {
     std::lock_guard lock(mutex_);
     if (!entries_.count(key)) {
-      if (entry->visibility) bytes_ += entry->visibility->bytes.size();
-      if (entry->ao) bytes_ += entry->ao->bytes.size();
+      bytes_ += entry_bytes(*entry);
       entries_[key] = {++tick_, entry};
       evict_locked();
     }
@@ -97,9 +106,11 @@ std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key
 
 namespace {
 
-// A cache file: this magic, the entry (key, stats, buffers), then the CRC-32C of the entry
-// (core/checksum.h). Version 02 added the checksum; files of version 01 are traced again.
-constexpr char kTraceFileMagic[8] = {'D', 'H', 'R', 'T', 'R', 'C', '0', '2'};
+// A cache file: this magic, the entry (key, stats, the number of passes, then per pass its
+// name, kernel time, description and bytes), then the CRC-32C of the entry (core/checksum.h).
+// Version 02 added the checksum, 03 the pass list; files of older versions are traced again.
+constexpr char kTraceFileMagic[8] = {'D', 'H', 'R', 'T', 'R', 'C', '0', '3'};
+constexpr uint32_t kMaxCachedPasses = 64;
 
 uint64_t fnv1a64(const std::string& s) {
   uint64_t h = 0xcbf29ce484222325ull;
@@ -128,10 +139,12 @@ void TraceCache::write_disk(const std::string& key, const Entry& e) const {
   put(out, uint32_t(key.size()));
   out += key;
   put(out, e.stats);
-  for (const auto* b : {&e.visibility, &e.ao}) {
-    put(out, uint8_t(b->has_value()));
-    if (!b->has_value()) continue;
-    const PassBuffer& p = **b;
+  put(out, uint32_t(e.passes.size()));
+  for (const TracedPass& t : e.passes) {
+    const PassBuffer& p = t.buffer;
+    put(out, uint32_t(t.name.size()));
+    out += t.name;
+    put(out, t.ms);
     put(out, uint8_t(p.desc.kind));
     put(out, int32_t(p.desc.width));
     put(out, int32_t(p.desc.height));
@@ -182,22 +195,29 @@ std::shared_ptr<const TraceCache::Entry> TraceCache::read_disk(const std::string
   pos += key_size;
   auto e = std::make_shared<Entry>();
   if (!get(in, pos, e->stats)) return nullptr;
-  for (auto* b : {&e->visibility, &e->ao}) {
-    uint8_t present = 0;
-    if (!get(in, pos, present)) return nullptr;
-    if (!present) continue;
-    PassBuffer p;
+  uint32_t count = 0;
+  if (!get(in, pos, count) || count > kMaxCachedPasses) return nullptr;
+  for (uint32_t i = 0; i < count; ++i) {
+    uint32_t name_size = 0;
+    if (!get(in, pos, name_size) || in.size() - pos < name_size) return nullptr;
+    TracedPass t;
+    t.name = in.substr(pos, name_size);
+    pos += name_size;
+    const PassType* type = find_pass_type(t.name);
+    if (!type) return nullptr;  // a pass this build does not know
+    t.meaning = type->meaning;
+    PassBuffer& p = t.buffer;
     uint8_t kind = 0;
     int32_t w = 0, h = 0, ch = 0, fs_ = 0;
     uint64_t n = 0;
-    if (!get(in, pos, kind) || !get(in, pos, w) || !get(in, pos, h) || !get(in, pos, ch) || !get(in, pos, fs_) ||
-        !get(in, pos, n))
+    if (!get(in, pos, t.ms) || !get(in, pos, kind) || !get(in, pos, w) || !get(in, pos, h) || !get(in, pos, ch) ||
+        !get(in, pos, fs_) || !get(in, pos, n))
       return nullptr;
     p.desc = {PassKind(kind), w, h, ch, fs_};
     if (!p.desc.validate().empty() || n != p.desc.byte_size() || in.size() - pos < n) return nullptr;
     p.bytes.assign(in.begin() + std::ptrdiff_t(pos), in.begin() + std::ptrdiff_t(pos + n));
     pos += n;
-    *b = std::move(p);
+    e->passes.push_back(std::move(t));
   }
   return pos == in.size() ? e : nullptr;
 }
@@ -214,8 +234,7 @@ void TraceCache::insert(const std::string& key, std::shared_ptr<const Entry> ent
   if (!disk_dir_.empty()) write_disk(key, *entry);
   std::lock_guard lock(mutex_);
   if (entries_.count(key)) return;
-  if (entry->visibility) bytes_ += entry->visibility->bytes.size();
-  if (entry->ao) bytes_ += entry->ao->bytes.size();
+  bytes_ += entry_bytes(*entry);
   entries_[key] = {++tick_, std::move(entry)};
   evict_locked();
 }
@@ -237,8 +256,7 @@ void TraceCache::evict_locked() {
                               [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
     const bool take_entry = i == images_.end() || (e != entries_.end() && e->second.first < i->second.first);
     if (take_entry) {
-      const Entry& x = *e->second.second;
-      bytes_ -= (x.visibility ? x.visibility->bytes.size() : 0) + (x.ao ? x.ao->bytes.size() : 0);
+      bytes_ -= entry_bytes(*e->second.second);
       entries_.erase(e);
     } else {
       bytes_ -= i->second.second->size() * sizeof(Rgb8);
@@ -321,9 +339,9 @@ class Simulation {
     ac.timeout_ms = 500;
     assembler_ = Assembler(ac);
     // Hybrid runs report both pass streams, planned or not (zero traffic when not planned).
-    const std::vector<std::string> names =
-        remote_ ? std::vector<std::string>{"colour"} : std::vector<std::string>{"visibility", "ao"};
-    for (const auto& name : names) traffic_.push_back({name});
+    if (remote_) traffic_.push_back({kColourPassName});
+    else
+      for (const PassType& t : pass_types()) traffic_.push_back({t.name});
     for (const PlannedPass& p : server_.passes()) traffic_index_.push_back(traffic_of(p.name));
     result_.config = c.to_json();
     result_.plan = server_.plan();

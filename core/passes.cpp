@@ -1,6 +1,40 @@
 #include "core/passes.h"
 
+#include <algorithm>
+#include <chrono>
+
 namespace dhr {
+
+namespace {
+
+std::optional<PassDesc> visibility_desc(const PassPlan& plan, int width, int height) {
+  if (!plan.visibility()) return std::nullopt;
+  return plan.visibility_desc(width, height);
+}
+
+std::optional<PassDesc> ao_desc(const PassPlan& plan, int width, int height) {
+  if (!plan.ao) return std::nullopt;
+  return plan.ao_desc(width, height);
+}
+
+}  // namespace
+
+// The table of traced passes. A new pass is one entry here (its kernel in its own file).
+const std::vector<PassType>& pass_types() {
+  static const std::vector<PassType> types = {
+      {"visibility", PassMeaning::Visibility, "trace_shadows", visibility_desc, trace_visibility, "lz4", "none",
+       "reprojection", "shadow visibility per light (paper 3.1): a bitmask, or 8-bit fractions with several rays"},
+      {"ao", PassMeaning::Ao, "trace_ao", ao_desc, trace_ao, "lz4", "none", "reprojection",
+       "ray-traced ambient occlusion (paper 3.2): the count of unoccluded rays in 8 bits"},
+  };
+  return types;
+}
+
+const PassType* find_pass_type(std::string_view name) {
+  for (const PassType& t : pass_types())
+    if (name == t.name) return &t;
+  return nullptr;
+}
 
 const char* pass_meaning_name(PassMeaning meaning) {
   switch (meaning) {
@@ -13,7 +47,8 @@ const char* pass_meaning_name(PassMeaning meaning) {
 
 std::vector<std::string> all_pass_names() {
   std::vector<std::string> names;
-  for (PassMeaning m : kAllPassMeanings) names.push_back(pass_meaning_name(m));
+  for (const PassType& t : pass_types()) names.push_back(t.name);
+  names.push_back(kColourPassName);
   return names;
 }
 
@@ -39,13 +74,13 @@ PassMeaning pass_meaning(PassKind kind) {
 
 std::vector<PlannedPass> traced_passes(const PassPlan& plan, int width, int height) {
   std::vector<PlannedPass> passes;
-  if (plan.visibility()) passes.push_back({"visibility", PassMeaning::Visibility, plan.visibility_desc(width, height)});
-  if (plan.ao) passes.push_back({"ao", PassMeaning::Ao, plan.ao_desc(width, height)});
+  for (const PassType& t : pass_types())
+    if (const std::optional<PassDesc> desc = t.desc(plan, width, height)) passes.push_back({t.name, t.meaning, *desc});
   return passes;
 }
 
 std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, int width, int height) {
-  if (remote) return {{"colour", PassMeaning::Colour, {PassKind::Colour, width, height, 3, 255}}};
+  if (remote) return {{kColourPassName, PassMeaning::Colour, {PassKind::Colour, width, height, 3, 255}}};
   return traced_passes(plan, width, height);
 }
 
@@ -53,6 +88,39 @@ int find_pass(const std::vector<PlannedPass>& passes, PassMeaning meaning) {
   for (size_t i = 0; i < passes.size(); ++i)
     if (passes[i].meaning == meaning) return int(i);
   return -1;
+}
+
+const PassBuffer* TracedPasses::find(std::string_view name) const {
+  for (const TracedPass& p : passes)
+    if (p.name == name) return &p.buffer;
+  return nullptr;
+}
+
+double TracedPasses::total_ms() const {
+  double ms = 0.0;
+  for (const TracedPass& p : passes) ms += p.ms;
+  return ms;
+}
+
+TraceResult trace_passes(RtScene& rt, const GBuffer& g, const TraceSettings& settings) {
+  TraceResult r;
+  r.plan = plan_passes(rt.scene(), settings);
+  r.stats.pixels = uint64_t(g.width()) * uint64_t(g.height());
+  for (const PassType& t : pass_types()) {
+    if (!t.desc(r.plan, g.width(), g.height())) continue;
+    TraceStats st;
+    const auto t0 = std::chrono::steady_clock::now();
+    PassBuffer buffer = t.trace(rt, g, r.plan, settings, st);
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    // Pixels, covered and unresolved pixels are per G-buffer, not per pass: the first pass's
+    // unresolved count, the largest covered count.
+    r.stats.covered_pixels = std::max(r.stats.covered_pixels, st.covered_pixels);
+    if (!r.passes.empty()) st.unresolved_pixels = 0;
+    st.pixels = st.covered_pixels = 0;
+    r.stats.add(st);
+    r.passes.push_back({t.name, t.meaning, std::move(buffer), ms});
+  }
+  return r;
 }
 
 }  // namespace dhr

@@ -1,14 +1,24 @@
-// The passes of a run as a list. A planned pass is {name, meaning, desc}: the byte layout in
-// `desc` (a bitmask, 8-bit planes, RGB) is what codecs and predictors see; the meaning
-// (visibility, ao, colour) is what the denoise stage and the composite use. The server traces,
-// denoises, encodes and sends each pass of the list; the client receives, decodes and predicts
-// each, and the composite takes the list. docs/architecture.md shows how to add a pass.
+// The passes of a run as a list. One table, pass_types(), says which passes the server can
+// trace: each entry is a name, a meaning, the plan's say on whether the scene calls for it
+// (its description, or none), its kernel and its default backends. Everything else loops
+// over that list: tracing (trace_passes), the trace cache, denoising, coding, sending,
+// prediction, the composite (by meaning), the settings passes.<name>.{codec,denoiser,predictor},
+// live mode's streams and the results' per-pass columns. docs/architecture.md shows how to
+// add a pass.
+//
+// A planned pass is {name, meaning, desc}: the byte layout in `desc` (a bitmask, 8-bit planes,
+// RGB) is what codecs and predictors see; the meaning (visibility, ao, colour) is what the
+// denoise stage and the composite use.
 #pragma once
 
 #include "core/pass_buffer.h"
 #include "core/trace.h"
 
+#include <nlohmann/json.hpp>
+
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace dhr {
@@ -17,11 +27,46 @@ enum class PassMeaning : uint8_t { Visibility, Ao, Colour };
 enum class PassLayout : uint8_t { Bitmask, Planes8, Rgb8 };
 
 const char* pass_meaning_name(PassMeaning meaning);
-// Every meaning, in order, and their names: the pass column groups of frames.csv.
-inline constexpr PassMeaning kAllPassMeanings[] = {PassMeaning::Visibility, PassMeaning::Ao, PassMeaning::Colour};
-std::vector<std::string> all_pass_names();
 PassLayout pass_layout(PassKind kind);
 PassMeaning pass_meaning(PassKind kind);
+
+struct BackendChoice {
+  std::string name;
+  nlohmann::json params = nlohmann::json::object();
+};
+
+// The backends of one pass: how it is coded, denoised (on the server) and predicted (on the
+// client).
+struct PassChoice {
+  BackendChoice codec, denoiser, predictor;
+};
+
+// One kind of traced pass.
+struct PassType {
+  const char* name;   // the key of its settings, its results and its live stream: "ao"
+  PassMeaning meaning;
+  const char* stage;  // its kernel's name in the server's stage times: "trace_ao"
+  // Its description in `plan` at width x height, or none when the plan leaves it out.
+  std::optional<PassDesc> (*desc)(const PassPlan& plan, int width, int height);
+  // The kernel: the pass's buffer for one G-buffer (raw counts; statistics added to `stats`).
+  PassBuffer (*trace)(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
+                      TraceStats& stats);
+  const char* codec;      // default backends: passes.<name>.codec
+  const char* denoiser;   // passes.<name>.denoiser (8-bit planes only; bitmasks are never denoised)
+  const char* predictor;  // passes.<name>.predictor
+  const char* doc;        // one line, for `dhrbench settings`
+};
+
+// The traced passes, in the order the server traces and sends them.
+const std::vector<PassType>& pass_types();
+const PassType* find_pass_type(std::string_view name);
+
+// The remote baseline's one pass: the composited frame, coded as video.
+inline constexpr const char* kColourPassName = "colour";
+
+// Every pass name, traced ones first, then colour: the pass column groups of frames.csv and the
+// passes of results.json.
+std::vector<std::string> all_pass_names();
 
 struct PlannedPass {
   std::string name;  // the key of its settings and of its results: "visibility", "ao", "colour"
@@ -30,8 +75,7 @@ struct PlannedPass {
   PassLayout layout() const { return pass_layout(desc.kind); }
 };
 
-// What the server traces for `plan` at width x height, in order: visibility (when the scene's
-// lights need one), then AO (when the scene asks for it).
+// What the server traces for `plan` at width x height, in the order of pass_types().
 std::vector<PlannedPass> traced_passes(const PassPlan& plan, int width, int height);
 
 // What the server sends: hybrid mode sends the traced passes; remote mode composites them and
@@ -40,5 +84,29 @@ std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, int widt
 
 // The index in `passes` of the pass with `meaning`, or -1.
 int find_pass(const std::vector<PlannedPass>& passes, PassMeaning meaning);
+
+// One traced pass of one frame: as traced (raw counts), with its kernel's wall time.
+struct TracedPass {
+  std::string name;
+  PassMeaning meaning = PassMeaning::Ao;
+  PassBuffer buffer;
+  double ms = 0.0;
+};
+
+// The traced passes of one frame with the trace's statistics.
+struct TracedPasses {
+  std::vector<TracedPass> passes;  // the planned ones, in the order of pass_types()
+  TraceStats stats;
+  // The buffer of the pass `name`, or null when it was not traced.
+  const PassBuffer* find(std::string_view name) const;
+  double total_ms() const;
+};
+
+// Everything the plan asks for: every planned pass's kernel, in order. Moves the scene to
+// gbuf.time_s.
+struct TraceResult : TracedPasses {
+  PassPlan plan;
+};
+TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const TraceSettings& settings);
 
 }  // namespace dhr

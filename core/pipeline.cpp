@@ -28,50 +28,68 @@ double ms_since(Clock::time_point start) {
 TraceFn direct_tracer(RtScene& rt, const SimConfig& config) {
   return [&rt, &config](uint32_t frame, const GBuffer& gbuf) {
     TraceResult r = trace_passes(rt, gbuf, config.trace_for_frame(frame));
-    auto t = std::make_shared<TracedPasses>();
-    t->visibility = std::move(r.visibility);
-    t->ao = std::move(r.ao);
-    t->stats = r.stats;
-    return std::shared_ptr<const TracedPasses>(std::move(t));
+    return std::make_shared<const TracedPasses>(std::move(static_cast<TracedPasses&>(r)));
   };
 }
 
 // ---- denoising
 
-DenoiseStage::DenoiseStage(const SimConfig& c, const PassPlan& plan, const Registries& r) {
-  if (plan.ao) ao_ = r.denoisers.create(c.ao_denoiser.name, c.ao_denoiser.params);
-  if (plan.visibility() && plan.visibility_kind() == PassKind::SoftVisibility)
-    for (int l = 0; l < plan.lights; ++l)
-      soft_.push_back(r.denoisers.create(c.visibility_denoiser.name, c.visibility_denoiser.params));
-}
-
-void DenoiseStage::run(const GBuffer& gbuf, uint32_t frame, PassMeaning meaning, PassBuffer& buf) {
-  if (meaning == PassMeaning::Ao && ao_) {
-    ImageU8 out;
-    const ImageU8 noisy = pass_plane(buf, 0);
-    ao_->denoise({gbuf, noisy, buf.desc.full_scale, frame, true}, out);
-    buf.bytes.assign(out.pixels().begin(), out.pixels().end());
-    buf.desc.full_scale = ao_->output_full_scale(buf.desc.full_scale);
-  } else if (meaning == PassMeaning::Visibility && buf.desc.kind == PassKind::SoftVisibility) {
-    const int lights = buf.desc.channels;
-    if (int(soft_.size()) < lights) fail("denoise: a soft visibility pass of {} lights, planned for {}", lights, soft_.size());
-    const size_t n = size_t(buf.desc.width) * size_t(buf.desc.height);
-    int scale = buf.desc.full_scale;
-    for (int l = 0; l < lights; ++l) {
-      ImageU8 out;
-      const ImageU8 noisy = pass_plane(buf, l);
-      soft_[size_t(l)]->denoise({gbuf, noisy, buf.desc.full_scale, frame, true}, out);
-      std::copy(out.pixels().begin(), out.pixels().end(), buf.bytes.begin() + std::ptrdiff_t(size_t(l) * n));
-      scale = soft_[size_t(l)]->output_full_scale(buf.desc.full_scale);
-    }
-    buf.desc.full_scale = scale;
+DenoiseStage::DenoiseStage(const SimConfig& c, const std::vector<PlannedPass>& traced, const Registries& r) {
+  for (const PlannedPass& p : traced) {
+    planes_.emplace_back();
+    if (p.layout() != PassLayout::Planes8) continue;
+    const BackendChoice denoiser = c.choice(p.meaning).denoiser;
+    for (int plane = 0; plane < p.desc.channels; ++plane) planes_.back().push_back(r.denoisers.create(denoiser.name, denoiser.params));
   }
 }
 
-bool DenoiseStage::keeps_history() const {
-  if (ao_ && ao_->keeps_history()) return true;
-  return std::any_of(soft_.begin(), soft_.end(), [](const auto& d) { return d->keeps_history(); });
+void DenoiseStage::run(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buf) {
+  const auto& denoisers = planes_.at(pass);
+  if (denoisers.empty()) return;
+  if (pass_layout(buf.desc.kind) != PassLayout::Planes8 || size_t(buf.desc.channels) != denoisers.size())
+    fail("denoise: a {} pass of {} planes, planned for {}", pass_kind_name(buf.desc.kind), buf.desc.channels, denoisers.size());
+  const size_t n = size_t(buf.desc.width) * size_t(buf.desc.height);
+  int scale = buf.desc.full_scale;
+  for (size_t plane = 0; plane < denoisers.size(); ++plane) {
+    ImageU8 out;
+    const ImageU8 noisy = pass_plane(buf, int(plane));
+    denoisers[plane]->denoise({gbuf, noisy, buf.desc.full_scale, frame, true}, out);
+    std::copy(out.pixels().begin(), out.pixels().end(), buf.bytes.begin() + std::ptrdiff_t(plane * n));
+    scale = denoisers[plane]->output_full_scale(buf.desc.full_scale);
+  }
+  buf.desc.full_scale = scale;
 }
+
+bool DenoiseStage::keeps_history() const {
+  for (const auto& pass : planes_)
+    for (const auto& d : pass)
+      if (d->keeps_history()) return true;
+  return false;
+}
+
+namespace {
+
+// Frame `frame`'s traced passes in the order of `traced` (null where one was not traced),
+// denoised by `denoise`.
+std::vector<std::optional<PassBuffer>> denoised(DenoiseStage& denoise, const std::vector<PlannedPass>& traced,
+                                                const TracedPasses& passes, const GBuffer& gbuf, uint32_t frame) {
+  std::vector<std::optional<PassBuffer>> buffers;
+  for (size_t i = 0; i < traced.size(); ++i) {
+    const PassBuffer* b = passes.find(traced[i].name);
+    buffers.push_back(b ? std::optional<PassBuffer>(*b) : std::nullopt);
+    if (buffers.back()) denoise.run(gbuf, frame, i, *buffers.back());
+  }
+  return buffers;
+}
+
+std::vector<CompositePass> composite_inputs(const std::vector<PlannedPass>& passes,
+                                            const std::vector<std::optional<PassBuffer>>& buffers) {
+  std::vector<CompositePass> inputs;
+  for (size_t i = 0; i < passes.size(); ++i) inputs.push_back({passes[i].meaning, buffers[i] ? &*buffers[i] : nullptr});
+  return inputs;
+}
+
+}  // namespace
 
 // ---- server
 
@@ -79,7 +97,7 @@ ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Reg
                                uint16_t stream_id)
     : c_(c), scene_(scene), plan_(plan_passes(scene, c.trace)), traced_(traced_passes(plan_, c.width, c.height)),
       sent_(sent_passes(plan_, c.mode == "remote", c.width, c.height)), trace_(std::move(trace)),
-      stream_id_(stream_id), denoise_(c, plan_, r) {
+      stream_id_(stream_id), denoise_(c, traced_, r) {
   for (const PlannedPass& p : sent_) {
     const BackendChoice codec = c.choice(p.meaning).codec;
     codecs_.push_back(r.codecs.create(codec.name, codec.params));
@@ -124,24 +142,15 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
 
   const std::shared_ptr<const TracedPasses> traced = trace_(frame, gbuf);
   out.trace = traced->stats;
-  if (plan_.visibility()) out.stages.push_back({"trace_shadows", traced->stats.shadow_ms});
-  if (plan_.ao) out.stages.push_back({"trace_ao", traced->stats.ao_ms});
-  out.compute_ms += traced->stats.shadow_ms + traced->stats.ao_ms;
+  for (const TracedPass& p : traced->passes) stage(find_pass_type(p.name)->stage, p.ms);
 
-  std::vector<std::optional<PassBuffer>> buffers;
   t0 = Clock::now();
-  for (const PlannedPass& p : traced_) {
-    buffers.push_back(traced->of(p.meaning));
-    if (buffers.back()) denoise_.run(gbuf, frame, p.meaning, *buffers.back());
-  }
+  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, *traced, gbuf, frame);
   if (!traced_.empty()) stage("denoise", ms_since(t0));
 
   if (c_.mode == "remote") {
     t0 = Clock::now();
-    std::vector<CompositePass> inputs;
-    for (size_t i = 0; i < traced_.size(); ++i)
-      inputs.push_back({traced_[i].meaning, buffers[i] ? &*buffers[i] : nullptr});
-    const ImageRGB8 img = composite(gbuf, scene_, inputs);
+    const ImageRGB8 img = composite(gbuf, scene_, composite_inputs(traced_, buffers));
     PassBuffer colour;
     colour.desc = sent_[0].desc;
     colour.bytes.resize(colour.desc.byte_size());
@@ -236,10 +245,7 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
   }
   out.predict_ms = ms_since(t0);
   t0 = Clock::now();
-  std::vector<CompositePass> inputs;
-  for (size_t i = 0; i < passes_.size(); ++i)
-    inputs.push_back({passes_[i].meaning, predicted[i] ? &*predicted[i] : nullptr});
-  out.image = composite(gbuf, scene_, inputs);
+  out.image = composite(gbuf, scene_, composite_inputs(passes_, predicted));
   out.composite_ms = ms_since(t0);
   out.composited = true;
   return out;
@@ -248,20 +254,13 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
 // ---- local reference
 
 LocalReference::LocalReference(const SimConfig& c, const Scene& scene, const Registries& r)
-    : scene_(scene), plan_(plan_passes(scene, c.trace)), traced_(traced_passes(plan_, c.width, c.height)),
-      denoise_(c, plan_, r) {}
+    : scene_(scene), traced_(traced_passes(plan_passes(scene, c.trace), c.width, c.height)), denoise_(c, traced_, r) {}
 
 std::optional<ImageRGB8> LocalReference::frame(uint32_t frame, const GBuffer& gbuf, const TracedPasses& traced,
                                                bool want_image) {
-  std::vector<std::optional<PassBuffer>> buffers;
-  for (const PlannedPass& p : traced_) {
-    buffers.push_back(traced.of(p.meaning));
-    if (buffers.back()) denoise_.run(gbuf, frame, p.meaning, *buffers.back());
-  }
+  const std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, traced, gbuf, frame);
   if (!want_image) return std::nullopt;
-  std::vector<CompositePass> inputs;
-  for (size_t i = 0; i < traced_.size(); ++i) inputs.push_back({traced_[i].meaning, buffers[i] ? &*buffers[i] : nullptr});
-  return composite(gbuf, scene_, inputs);
+  return composite(gbuf, scene_, composite_inputs(traced_, buffers));
 }
 
 }  // namespace dhr

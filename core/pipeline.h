@@ -37,15 +37,6 @@ namespace dhr {
 
 class RtScene;
 
-// The traced passes of one frame (as traced: raw counts) with the trace's statistics.
-struct TracedPasses {
-  std::optional<PassBuffer> visibility, ao;
-  TraceStats stats;  // with the wall time of the original trace
-  const std::optional<PassBuffer>& of(PassMeaning meaning) const {
-    return meaning == PassMeaning::Visibility ? visibility : ao;
-  }
-};
-
 // The traced passes of frame `frame` for G-buffer `gbuf` (a cache lookup, or a trace).
 using TraceFn = std::function<std::shared_ptr<const TracedPasses>(uint32_t frame, const GBuffer& gbuf)>;
 // Traces with `rt` and no cache.
@@ -57,20 +48,20 @@ struct StageTime {
   double ms;
 };
 
-// The denoisers of one side: each 8-bit pass through its pass's denoiser (AO: one; soft
-// visibility: one per light, each with its own history). Bitmasks are never denoised.
+// The denoisers of one side: each 8-bit plane of a traced pass through its pass's denoiser
+// (AO: one; soft visibility: one per light, each with its own history). Bitmasks are never
+// denoised.
 class DenoiseStage {
  public:
-  DenoiseStage(const SimConfig& config, const PassPlan& plan, const Registries& registries);
-  // Denoises `buffer` (a traced pass of `meaning`) in place; its full scale becomes the
-  // denoiser's output scale.
-  void run(const GBuffer& gbuf, uint32_t frame, PassMeaning meaning, PassBuffer& buffer);
+  DenoiseStage(const SimConfig& config, const std::vector<PlannedPass>& traced, const Registries& registries);
+  // Denoises `buffer` (traced pass `pass` of the list given to the constructor) in place; its
+  // full scale becomes the denoiser's output scale.
+  void run(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buffer);
   // True when a denoiser keeps history: then every frame must go through it, in order.
   bool keeps_history() const;
 
  private:
-  std::unique_ptr<Denoiser> ao_;
-  std::vector<std::unique_ptr<Denoiser>> soft_;  // per light (soft visibility only)
+  std::vector<std::vector<std::unique_ptr<Denoiser>>> planes_;  // per traced pass: per 8-bit plane
 };
 
 // ---- server
@@ -174,7 +165,6 @@ class LocalReference {
 
  private:
   const Scene& scene_;
-  PassPlan plan_;
   std::vector<PlannedPass> traced_;
   DenoiseStage denoise_;
 };

@@ -258,8 +258,7 @@ ImageRGB8 local_reference(RtScene& rt, const GBuffer& g, const TraceSettings& se
                           const CompositeSettings& composite_settings, TraceStats* stats) {
   const TraceResult r = trace_passes(rt, g, settings);
   if (stats) stats->add(r.stats);
-  return composite(g, rt.scene(), r.visibility ? &*r.visibility : nullptr, r.ao ? &*r.ao : nullptr,
-                   composite_settings);
+  return composite(g, rt.scene(), r, composite_settings);
 }
 
 }  // namespace dhr

@@ -19,17 +19,6 @@
 
 namespace dhr {
 
-struct BackendChoice {
-  std::string name;
-  nlohmann::json params = nlohmann::json::object();
-};
-
-// The backends of one pass: how it is coded, denoised (on the server) and predicted (on the
-// client).
-struct PassChoice {
-  BackendChoice codec, denoiser, predictor;
-};
-
 struct SimConfig {
   std::string mode = "hybrid";  // hybrid | remote
   int width = 320;

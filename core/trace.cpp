@@ -22,7 +22,6 @@
 
 #include <algorithm>
 #include <atomic>
-#include <chrono>
 #include <cmath>
 
 namespace dhr {
@@ -30,10 +29,6 @@ namespace dhr {
 using namespace trace_detail;
 
 namespace {
-
-double ms_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
 
 std::vector<LightInfo> light_infos(const Scene& scene, const PassPlan& plan) {
   std::vector<LightInfo> out;
@@ -135,8 +130,6 @@ void TraceStats::add(const TraceStats& o) {
   shadow_skipped_facing += o.shadow_skipped_facing;
   shadow_skipped_range += o.shadow_skipped_range;
   shadow_inside_light += o.shadow_inside_light;
-  shadow_ms += o.shadow_ms;
-  ao_ms += o.ao_ms;
 }
 
 PassPlan plan_passes(const Scene& scene, const TraceSettings& s) {
@@ -247,7 +240,6 @@ VisibilityCounts visibility_impl(RtScene& rt, const GBuffer& g, const PassPlan& 
   if (plan.samples_per_light < 1 || plan.samples_per_light > 65535)
     fail("trace_visibility: samples_per_light {} out of range 1..65535", plan.samples_per_light);
   check_gbuffer(g);
-  const auto t0 = std::chrono::steady_clock::now();
   rt.set_time(g.time_s);
   const int w = g.width(), h = g.height();
   const size_t npx = size_t(w) * size_t(h);
@@ -264,7 +256,6 @@ VisibilityCounts visibility_impl(RtScene& rt, const GBuffer& g, const PassPlan& 
     if (wide) visibility_rows<16>(rt, g, settings, lights, out, rows_out, y0, y1, rs);
     else visibility_rows<8>(rt, g, settings, lights, out, rows_out, y0, y1, rs);
   });
-  st.shadow_ms = ms_since(t0);
   stats.add(st);
   return out;
 }
@@ -274,7 +265,6 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
   if (ao_rays < 1 || ao_rays > 65535) fail("trace_ao: ao_rays {} out of range 1..65535", ao_rays);
   if (!(radius_m > 0.0f) || !std::isfinite(radius_m)) fail("trace_ao: radius_m {} must be finite and > 0", radius_m);
   check_gbuffer(g);
-  const auto t0 = std::chrono::steady_clock::now();
   rt.set_time(g.time_s);
   const int w = g.width(), h = g.height();
   const size_t npx = size_t(w) * size_t(h);
@@ -297,7 +287,6 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
     if (wide) ao_rows<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
     else ao_rows<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
   });
-  st.ao_ms = ms_since(t0);
   stats.add(st);
   return out;
 }
@@ -396,22 +385,6 @@ PassBuffer trace_ao(RtScene& rt, const GBuffer& g, const PassPlan& plan, const T
                     TraceStats& stats) {
   if (!plan.ao) fail("trace_ao: the plan has no AO pass ({})", plan.describe());
   return pack_ao(trace_ao_counts(rt, g, plan.ao_rays, plan.ao_radius_m, settings, stats));
-}
-
-TraceResult trace_passes(RtScene& rt, const GBuffer& g, const TraceSettings& settings) {
-  TraceResult r;
-  r.plan = plan_passes(rt.scene(), settings);
-  r.stats.pixels = uint64_t(g.width()) * uint64_t(g.height());
-  TraceStats vs, as;
-  if (r.plan.visibility()) r.visibility = trace_visibility(rt, g, r.plan, settings, vs);
-  if (r.plan.ao) r.ao = trace_ao(rt, g, r.plan, settings, as);
-  // pixels/covered are per G-buffer, not per pass: take them once.
-  r.stats.covered_pixels = std::max(vs.covered_pixels, as.covered_pixels);
-  vs.pixels = as.pixels = vs.covered_pixels = as.covered_pixels = 0;
-  if (r.plan.visibility() && r.plan.ao) as.unresolved_pixels = 0;  // same pixels counted twice
-  r.stats.add(vs);
-  r.stats.add(as);
-  return r;
 }
 
 }  // namespace dhr

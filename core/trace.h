@@ -116,8 +116,6 @@ struct TraceStats {
   uint64_t shadow_skipped_facing = 0;  // (pixel, light) pairs: surface faces away, no ray
   uint64_t shadow_skipped_range = 0;   // (pixel, light) pairs beyond range_m, no ray
   uint64_t shadow_inside_light = 0;    // (pixel, light) pairs inside the light's sphere, no ray
-  double shadow_ms = 0.0;  // wall time of the visibility pass
-  double ao_ms = 0.0;      // wall time of the AO pass
   void add(const TraceStats& o);
 };
 
@@ -135,16 +133,8 @@ struct AoCounts {
   std::vector<uint16_t> unoccluded;  // per pixel, 0..rays (rays on background pixels)
 };
 
-// Everything the plan asks for. Moves the scene to gbuf.time_s.
-struct TraceResult {
-  PassPlan plan;
-  std::optional<PassBuffer> visibility;  // Visibility or SoftVisibility
-  std::optional<PassBuffer> ao;
-  TraceStats stats;
-};
-TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const TraceSettings& settings);
-
-// The passes one at a time (plan.visibility() / plan.ao must hold). Statistics are added.
+// The kernels of the passes, one at a time (plan.visibility() / plan.ao must hold); statistics
+// are added. trace_passes (core/passes.h) runs every planned pass's kernel.
 PassBuffer trace_visibility(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
                             const TraceSettings& settings, TraceStats& stats);
 PassBuffer trace_ao(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,

@@ -138,16 +138,17 @@ Runner add_render_command(CLI::App& app) {
       ts.samples_per_light = o->samples_per_light;
       const TraceResult tr = trace_passes(rt, gbuf, ts);
       fmt::print("passes    {}\n", tr.plan.describe());
-      if (tr.visibility)
-        fmt::print("shadows   {:8.2f} ms  {} rays ({:.1f} Mrays/s), {} skipped facing away, {} beyond range\n",
-                   tr.stats.shadow_ms, tr.stats.shadow_rays, tr.stats.shadow_rays / std::max(tr.stats.shadow_ms, 1e-9) / 1e3,
-                   tr.stats.shadow_skipped_facing, tr.stats.shadow_skipped_range);
-      if (tr.ao)
-        fmt::print("ao        {:8.2f} ms  {} rays ({:.1f} Mrays/s)\n", tr.stats.ao_ms, tr.stats.ao_rays,
-                   tr.stats.ao_rays / std::max(tr.stats.ao_ms, 1e-9) / 1e3);
+      for (const TracedPass& p : tr.passes) {
+        const bool shadows = p.meaning == PassMeaning::Visibility;
+        const uint64_t rays = shadows ? tr.stats.shadow_rays : tr.stats.ao_rays;
+        fmt::print("{:<9} {:8.2f} ms  {} rays ({:.1f} Mrays/s)", p.name, p.ms, rays, double(rays) / std::max(p.ms, 1e-9) / 1e3);
+        if (shadows)
+          fmt::print(", {} skipped facing away, {} beyond range", tr.stats.shadow_skipped_facing, tr.stats.shadow_skipped_range);
+        fmt::print("\n");
+      }
       if (tr.stats.invalid_rays) fmt::print("warning   {} invalid rays were counted and not traced\n", tr.stats.invalid_rays);
-      if (wants("visibility") && tr.visibility) {
-        const PassBuffer& v = *tr.visibility;
+      if (wants("visibility") && tr.find("visibility")) {
+        const PassBuffer& v = *tr.find("visibility");
         ImageU8 combined(v.desc.width, v.desc.height, 0);
         for (int l = 0; l < v.desc.channels; ++l) {
           const ImageU8 p = v.desc.kind == PassKind::Visibility ? bit_plane(v, l) : viewable_plane(v, l);
@@ -156,10 +157,10 @@ Runner add_render_command(CLI::App& app) {
         }
         write_png(prefix + "visibility.png", combined);
       }
-      if (wants("ao") && tr.ao) write_png(prefix + "ao.png", viewable_plane(*tr.ao, 0));
+      if (wants("ao") && tr.find("ao")) write_png(prefix + "ao.png", viewable_plane(*tr.find("ao"), 0));
       if (wants("composite")) {
         t0 = std::chrono::steady_clock::now();
-        const ImageRGB8 img = composite(gbuf, scene, tr.visibility ? &*tr.visibility : nullptr, tr.ao ? &*tr.ao : nullptr);
+        const ImageRGB8 img = composite(gbuf, scene, tr);
         fmt::print("composite {:8.2f} ms\n", ms_since(t0));
         write_png(prefix + "composite.png", img);
       }

@@ -273,9 +273,8 @@ TEST(TraceCache, DiskCacheRoundTripsAndIgnoresBadFiles) {
   PassBuffer ao;
   ao.desc = {PassKind::Ao, 5, 3, 1, 8};
   ao.bytes = {0, 1, 2, 3, 4, 5, 6, 7, 8, 0, 1, 2, 3, 4, 5};
-  entry->ao = ao;
+  entry->passes.push_back({"ao", PassMeaning::Ao, ao, 1.5});
   entry->stats.ao_rays = 120;
-  entry->stats.ao_ms = 1.5;
   {
     TraceCache writer;
     writer.set_disk_dir(dir.string());
@@ -285,10 +284,12 @@ TEST(TraceCache, DiskCacheRoundTripsAndIgnoresBadFiles) {
   reader.set_disk_dir(dir.string());
   auto got = reader.find("key-a");
   ASSERT_NE(got, nullptr);
-  ASSERT_TRUE(got->ao.has_value());
-  EXPECT_FALSE(got->visibility.has_value());
-  EXPECT_EQ(got->ao->bytes, ao.bytes);
-  EXPECT_EQ(got->ao->desc, ao.desc);
+  ASSERT_EQ(got->passes.size(), 1u);
+  ASSERT_NE(got->find("ao"), nullptr);
+  EXPECT_EQ(got->find("visibility"), nullptr);
+  EXPECT_EQ(got->find("ao")->bytes, ao.bytes);
+  EXPECT_EQ(got->find("ao")->desc, ao.desc);
+  EXPECT_EQ(got->passes[0].ms, 1.5);
   EXPECT_EQ(got->stats.ao_rays, 120u);
   EXPECT_EQ(reader.find("key-b"), nullptr);
   // A truncated or corrupted file is ignored (traced again), never trusted.

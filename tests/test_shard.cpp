@@ -270,7 +270,7 @@ TEST(TraceCache, AFlippedByteInACacheFileIsFoundByItsChecksum) {
   PassBuffer ao;
   ao.desc = {PassKind::Ao, 64, 4, 1, 8};
   ao.bytes.assign(ao.desc.byte_size(), 7);
-  entry->ao = ao;
+  entry->passes.push_back({"ao", PassMeaning::Ao, ao, 0.0});
   {
     TraceCache writer;
     writer.set_disk_dir(dir.string());
@@ -302,7 +302,7 @@ TEST(TraceCache, TwoProcessesRacingOnOneEntryNeverCorruptOrHalfReadIt) {
     PassBuffer ao;
     ao.desc = {PassKind::Ao, 512, 256, 1, 8};  // 128 KiB: many writes per file
     ao.bytes.assign(ao.desc.byte_size(), fill);
-    e->ao = ao;
+    e->passes.push_back({"ao", PassMeaning::Ao, ao, 0.0});
     e->stats.ao_rays = fill;
     return e;
   };
@@ -316,13 +316,13 @@ TEST(TraceCache, TwoProcessesRacingOnOneEntryNeverCorruptOrHalfReadIt) {
       TraceCache r;
       r.set_disk_dir(dir.string());
       auto got = r.find("one-key");
-      if (!got || !got->ao) {
+      if (!got || !got->find("ao")) {
         ++bad;  // a file is there from the first write on: a miss is a half-read file refused
         continue;
       }
-      const uint8_t first = got->ao->bytes[0];
+      const uint8_t first = got->find("ao")->bytes[0];
       if ((first != 0xAA && first != 0x55) || got->stats.ao_rays != first) ++bad;
-      for (uint8_t b : got->ao->bytes) bad += b != first;
+      for (uint8_t b : got->find("ao")->bytes) bad += b != first;
     }
     return bad;
   };

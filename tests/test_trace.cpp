@@ -266,18 +266,18 @@ TEST(TraceAo, DeterministicAcrossThreadCounts) {
   two.threads = 2;
   one.samples_per_light = two.samples_per_light = 4;
   const TraceResult r1 = trace_passes(rt, g, one), r2 = trace_passes(rt, g, two);
-  ASSERT_TRUE(r1.ao && r2.ao && r1.visibility && r2.visibility);
-  EXPECT_EQ(r1.ao->bytes, r2.ao->bytes);
-  EXPECT_EQ(r1.visibility->bytes, r2.visibility->bytes);
+  ASSERT_TRUE(r1.find("ao") && r2.find("ao") && r1.find("visibility") && r2.find("visibility"));
+  EXPECT_EQ(r1.find("ao")->bytes, r2.find("ao")->bytes);
+  EXPECT_EQ(r1.find("visibility")->bytes, r2.find("visibility")->bytes);
   EXPECT_EQ(r1.stats.ao_rays, r2.stats.ao_rays);
   // Some AO occlusion actually happens (the test would be empty otherwise).
   size_t partial = 0;
-  for (uint8_t v : r1.ao->bytes) partial += v < 8;
+  for (uint8_t v : r1.find("ao")->bytes) partial += v < 8;
   EXPECT_GT(partial, 0u);
   // A different frame gives different noise.
   TraceSettings other = one;
   other.frame = 1;
-  EXPECT_NE(trace_passes(rt, g, other).ao->bytes, r1.ao->bytes);
+  EXPECT_NE(trace_passes(rt, g, other).find("ao")->bytes, r1.find("ao")->bytes);
 }
 
 // The AVX-512 AO kernel gives the baseline kernel's rays, counts and statistics bit for bit,
@@ -328,7 +328,7 @@ TEST(TraceShadows, FacingAwayTracesNoRay) {
   ASSERT_GT(r.stats.covered_pixels, 0u);
   EXPECT_EQ(r.stats.shadow_rays, 0u);
   EXPECT_EQ(r.stats.shadow_skipped_facing, 2 * r.stats.covered_pixels);
-  for (uint8_t b : r.visibility->bytes) EXPECT_EQ(b, 0);
+  for (uint8_t b : r.find("visibility")->bytes) EXPECT_EQ(b, 0);
   // One light above: exactly one ray per covered pixel.
   s.lights.push_back(distant_light({0.0f, 1.0f, 0.2f}));
   RtScene rt2(s);
@@ -351,7 +351,7 @@ TEST(TraceShadows, BeyondRangeTracesNoRay) {
     const float d = glm::length(g.position[i] - l.position);
     if (std::abs(d - 3.0f) < 1e-3f) continue;
     in_range += d < 3.0f;
-    EXPECT_EQ(bit(*r.visibility, 0, i), d < 3.0f) << i;
+    EXPECT_EQ(bit(*r.find("visibility"), 0, i), d < 3.0f) << i;
   }
   EXPECT_GT(in_range, 0u);
   EXPECT_GT(r.stats.shadow_skipped_range, 0u);
@@ -399,13 +399,13 @@ TEST(TraceShadows, BoxCastsTheExpectedHardShadow) {
     if (!robust) continue;
     ++judged;
     shadowed += hit;
-    EXPECT_EQ(bit(*r.visibility, 0, i), !hit) << p.x << " " << p.z;
+    EXPECT_EQ(bit(*r.find("visibility"), 0, i), !hit) << p.x << " " << p.z;
   }
   EXPECT_GT(judged, 1000u);
   EXPECT_GT(shadowed, 50u);
   // The box's top face is lit (nothing above it).
   for (size_t i = 0; i < g.depth.size(); ++i)
-    if (g.object_id[i] == 2 && g.geo_normal[i].y > 0.9f) { EXPECT_TRUE(bit(*r.visibility, 0, i)); }
+    if (g.object_id[i] == 2 && g.geo_normal[i].y > 0.9f) { EXPECT_TRUE(bit(*r.find("visibility"), 0, i)); }
 }
 
 // The penumbra of a straight edge. A point at the origin, a sphere light (radius R) at height
@@ -575,8 +575,8 @@ TEST(TraceShadows, MovingOccluderFollowsTime) {
       // Floor right below the box centre is in its shadow; far from it, lit.
       if (g.object_id[i] == 1) {
         const float dx = g.position[i].x - box_x, dz = g.position[i].z;
-        if (std::abs(dx) < 0.3f && std::abs(dz) < 0.3f) { EXPECT_FALSE(bit(*r.visibility, 0, i)); }
-        if (std::abs(dx) > 2.5f && std::abs(g.position[i].x) < 4.0f) { EXPECT_TRUE(bit(*r.visibility, 0, i)); }
+        if (std::abs(dx) < 0.3f && std::abs(dz) < 0.3f) { EXPECT_FALSE(bit(*r.find("visibility"), 0, i)); }
+        if (std::abs(dx) > 2.5f && std::abs(g.position[i].x) < 4.0f) { EXPECT_TRUE(bit(*r.find("visibility"), 0, i)); }
       }
     }
     EXPECT_GT(box_pixels, 10u) << t;
@@ -614,7 +614,7 @@ TEST(TraceShadows, EmittersAndCutoutsDoNotOcclude) {
     ts.soft_shadows = soft;
     const TraceResult r = trace_passes(rt, g, ts);
     for (size_t i = 0; i < g.depth.size(); ++i)
-      if (g.object_id[i] == 1) { EXPECT_TRUE(bit(*r.visibility, 0, i)) << i; }
+      if (g.object_id[i] == 1) { EXPECT_TRUE(bit(*r.find("visibility"), 0, i)) << i; }
   }
   // Without the cut-out the quad does shadow the floor below it.
   s.materials[2].alpha_cutout = false;
@@ -765,7 +765,7 @@ TEST(Reference, GroundTruthIsCachedAndKeyed) {
   TraceSettings ts;
   const ImageRGB8 local = local_reference(rt, g, ts);
   const TraceResult r = trace_passes(rt, g, ts);
-  EXPECT_EQ(local, composite(g, s, &*r.visibility, &*r.ao));
+  EXPECT_EQ(local, composite(g, s, r.find("visibility"), r.find("ao")));
   std::filesystem::remove_all(dir);
 }
 

@@ -53,7 +53,7 @@ size_t covered(const GBuffer& g) {
 }
 
 void expect_finite_image(const GBuffer& g, const Scene& s, const TraceResult& r) {
-  const ImageRGB8 img = composite(g, s, r.visibility ? &*r.visibility : nullptr, r.ao ? &*r.ao : nullptr);
+  const ImageRGB8 img = composite(g, s, r.find("visibility"), r.find("ao"));
   EXPECT_EQ(img.width(), g.width());
   for (int y = 0; y < g.height(); ++y)
     for (int x = 0; x < g.width(); ++x)
@@ -83,13 +83,13 @@ TEST_P(FarFromOrigin, LitPlaneStaysFullyLit) {
     TraceSettings ts;
     ts.soft_shadows = soft;
     const TraceResult r = trace_passes(rt, g, ts);
-    ASSERT_TRUE(r.visibility && r.ao);
+    ASSERT_TRUE(r.find("visibility") && r.find("ao"));
     EXPECT_EQ(r.stats.invalid_rays, 0u);
     size_t lit = 0, ao_full = 0;
     for (size_t i = 0; i < g.depth.size(); ++i) {
       if (g.object_id[i] == kBackgroundId) continue;
-      for (int l = 0; l < 3; ++l) lit += bit(*r.visibility, l, i);
-      ao_full += r.ao->bytes[i] == 16;
+      for (int l = 0; l < 3; ++l) lit += bit(*r.find("visibility"), l, i);
+      ao_full += r.find("ao")->bytes[i] == 16;
     }
     EXPECT_EQ(lit, 3 * cov) << "offset " << o << (soft ? " soft" : " hard");
     EXPECT_EQ(ao_full, cov) << "offset " << o;
@@ -136,8 +136,8 @@ TEST_P(LargeTiltedPlane, UnoccludedPlaneIsNeverShadowed) {
     hard.soft_shadows = false;
     soft.samples_per_light = 4;
     const TraceResult rh = trace_passes(rt, g, hard), rs = trace_passes(rt, g, soft);
-    ASSERT_TRUE(rh.visibility && rs.visibility && rh.ao);
-    ASSERT_EQ(rs.visibility->desc.kind, PassKind::SoftVisibility);
+    ASSERT_TRUE(rh.find("visibility") && rs.find("visibility") && rh.find("ao"));
+    ASSERT_EQ(rs.find("visibility")->desc.kind, PassKind::SoftVisibility);
     EXPECT_EQ(rh.stats.invalid_rays + rs.stats.invalid_rays, 0u);
     const size_t npx = g.depth.size();
     size_t hard_dark = 0, soft_dark = 0, ao_dark = 0;
@@ -145,12 +145,12 @@ TEST_P(LargeTiltedPlane, UnoccludedPlaneIsNeverShadowed) {
       if (g.object_id[i] == kBackgroundId) continue;
       bool h = false, so = false;
       for (int l = 0; l < 3; ++l) {
-        h = h || !bit(*rh.visibility, l, i);
-        so = so || rs.visibility->bytes[size_t(l) * npx + i] != 4;
+        h = h || !bit(*rh.find("visibility"), l, i);
+        so = so || rs.find("visibility")->bytes[size_t(l) * npx + i] != 4;
       }
       hard_dark += h;
       soft_dark += so;
-      ao_dark += rh.ao->bytes[i] != 16;
+      ao_dark += rh.find("ao")->bytes[i] != 16;
     }
     EXPECT_EQ(hard_dark, 0u) << "size " << size << " m, centre " << far << ", view " << d << " m: " << cov << " px";
     EXPECT_EQ(soft_dark, 0u) << "size " << size << " m, centre " << far << ", view " << d << " m: " << cov << " px";
@@ -175,7 +175,7 @@ TEST(TraceHardCases, GrazingLightsStayLit) {
   const GBuffer g = rt.primary_gbuffer(cam({0, 2, 6}, {0, 0, 0}), 0.0);
   TraceSettings ts;
   const TraceResult r = trace_passes(rt, g, ts);
-  ASSERT_TRUE(r.visibility);
+  ASSERT_TRUE(r.find("visibility"));
   size_t expected = 0, lit = 0;
   for (size_t i = 0; i < g.depth.size(); ++i) {
     if (g.object_id[i] == kBackgroundId) continue;
@@ -184,7 +184,7 @@ TEST(TraceHardCases, GrazingLightsStayLit) {
       const glm::vec3 dir = L.type == LightType::Distant ? L.direction : L.position - g.position[i];
       if (glm::dot(g.geo_normal[i], dir) > 0.0f) {
         ++expected;
-        lit += bit(*r.visibility, l, i);
+        lit += bit(*r.find("visibility"), l, i);
       }
     }
   }
@@ -216,9 +216,9 @@ TEST(TraceHardCases, DegenerateAndNonFiniteTrianglesAreSkipped) {
   EXPECT_EQ(bs.skipped(), 6u);
   const GBuffer g = rt.primary_gbuffer(cam({0, 4, 6}, {0, 0, 0}), 0.0);
   const TraceResult r = trace_passes(rt, g, TraceSettings{});
-  ASSERT_TRUE(r.visibility);
+  ASSERT_TRUE(r.find("visibility"));
   size_t lit = 0;
-  for (size_t i = 0; i < g.depth.size(); ++i) lit += g.object_id[i] != kBackgroundId && bit(*r.visibility, 0, i);
+  for (size_t i = 0; i < g.depth.size(); ++i) lit += g.object_id[i] != kBackgroundId && bit(*r.find("visibility"), 0, i);
   EXPECT_EQ(lit, covered(g));  // the skipped triangles cast no shadow
   expect_finite_image(g, s, r);
 }
@@ -233,7 +233,7 @@ TEST(TraceHardCases, LightOnTheSurface) {
   const TraceResult r = trace_passes(rt, g, TraceSettings{});
   EXPECT_EQ(r.stats.shadow_rays, 0u);
   EXPECT_EQ(r.stats.invalid_rays, 0u);
-  const ImageRGB8 img = composite(g, s, &*r.visibility, nullptr);
+  const ImageRGB8 img = composite(g, s, r.find("visibility"), nullptr);
   const Rgb8 ambient_only = tonemap_srgb8(glm::vec3(0.5f) * s.ambient);
   for (int y = 0; y < kH; ++y)
     for (int x = 0; x < kW; ++x)
@@ -260,7 +260,7 @@ TEST(TraceHardCases, LightIntersectingGeometry) {
       if (g.object_id[i] == kBackgroundId) continue;
       const bool in = glm::length(g.position[i] - s.lights[0].position) <= 1.0f;
       inside += in;
-      if (in || !soft) { EXPECT_TRUE(bit(*r.visibility, 0, i)) << i; }
+      if (in || !soft) { EXPECT_TRUE(bit(*r.find("visibility"), 0, i)) << i; }
     }
     EXPECT_NEAR(double(inside), double(r.stats.shadow_inside_light), 2.0);  // float vs double at the rim
     expect_finite_image(g, s, r);
@@ -280,7 +280,7 @@ TEST(TraceHardCases, LightInsideClosedBox) {
     ts.soft_shadows = soft;
     const TraceResult r = trace_passes(rt, g, ts);
     EXPECT_EQ(r.stats.shadow_rays, 0u);
-    for (size_t i = 0; i < g.depth.size(); ++i) EXPECT_FALSE(bit(*r.visibility, 0, i));
+    for (size_t i = 0; i < g.depth.size(); ++i) EXPECT_FALSE(bit(*r.find("visibility"), 0, i));
     expect_finite_image(g, s, r);
   }
 }
@@ -300,11 +300,11 @@ TEST(TraceHardCases, ZeroRadiusLightSoftEqualsHard) {
   soft.samples_per_light = 1;
   const TraceResult rh = trace_passes(rt, g, hard), rs = trace_passes(rt, g, soft);
   EXPECT_EQ(rs.plan.shadow, ShadowMode::Hard);  // point lights only: hard whatever the setting
-  ASSERT_TRUE(rh.visibility && rs.visibility);
-  EXPECT_EQ(rh.visibility->bytes, rs.visibility->bytes);
+  ASSERT_TRUE(rh.find("visibility") && rs.find("visibility"));
+  EXPECT_EQ(rh.find("visibility")->bytes, rs.find("visibility")->bytes);
   EXPECT_EQ(rh.stats.shadow_rays, rs.stats.shadow_rays);
   size_t shadowed = 0;
-  for (size_t i = 0; i < g.depth.size(); ++i) shadowed += g.object_id[i] == 1 && !bit(*rh.visibility, 0, i);
+  for (size_t i = 0; i < g.depth.size(); ++i) shadowed += g.object_id[i] == 1 && !bit(*rh.find("visibility"), 0, i);
   EXPECT_GT(shadowed, 0u);  // the box does cast a shadow
 }
 
@@ -319,10 +319,10 @@ TEST(TraceHardCases, CameraInsideGeometry) {
   const GBuffer g = rt.primary_gbuffer(cam({0.1f, 0.2f, 0.3f}, {0, 0, -1}), 0.0);
   EXPECT_EQ(covered(g), size_t(kW * kH));
   const TraceResult r = trace_passes(rt, g, TraceSettings{});
-  ASSERT_TRUE(r.visibility && r.ao);
+  ASSERT_TRUE(r.find("visibility") && r.find("ao"));
   for (size_t i = 0; i < g.depth.size(); ++i) {
-    EXPECT_FALSE(bit(*r.visibility, 0, i)) << i;
-    EXPECT_EQ(r.ao->bytes[i], 0) << i;
+    EXPECT_FALSE(bit(*r.find("visibility"), 0, i)) << i;
+    EXPECT_EQ(r.find("ao")->bytes[i], 0) << i;
   }
   EXPECT_EQ(r.stats.invalid_rays, 0u);
   expect_finite_image(g, s, r);
@@ -341,7 +341,7 @@ TEST(TraceHardCases, EmptyViewTracesNoRay) {
   EXPECT_EQ(r.stats.shadow_rays, 0u);
   EXPECT_EQ(r.stats.ao_rays, 0u);
   EXPECT_EQ(r.stats.covered_pixels, 0u);
-  const ImageRGB8 img = composite(g, s, &*r.visibility, &*r.ao);
+  const ImageRGB8 img = composite(g, s, r.find("visibility"), r.find("ao"));
   for (const Rgb8& p : img.pixels()) EXPECT_EQ(p, tonemap_srgb8(s.background));
 }
 
@@ -376,12 +376,12 @@ TEST(TraceHardCases, InvalidRaysAreCountedNotTraced) {
   EXPECT_EQ(r.stats.invalid_rays, 2u * (1 + 4 + 8));
   EXPECT_EQ(r.stats.shadow_rays, 1u + 4u);  // pixel 2 only
   EXPECT_EQ(r.stats.ao_rays, 8u);
-  ASSERT_TRUE(r.visibility && r.ao);
-  EXPECT_EQ(r.visibility->desc.kind, PassKind::SoftVisibility);
+  ASSERT_TRUE(r.find("visibility") && r.find("ao"));
+  EXPECT_EQ(r.find("visibility")->desc.kind, PassKind::SoftVisibility);
   for (size_t i = 0; i < 3; ++i) {
-    EXPECT_EQ(r.visibility->bytes[0 * 3 + i], 4) << i;  // unoccluded
-    EXPECT_EQ(r.visibility->bytes[1 * 3 + i], 4) << i;
-    EXPECT_EQ(r.ao->bytes[i], 8) << i;
+    EXPECT_EQ(r.find("visibility")->bytes[0 * 3 + i], 4) << i;  // unoccluded
+    EXPECT_EQ(r.find("visibility")->bytes[1 * 3 + i], 4) << i;
+    EXPECT_EQ(r.find("ao")->bytes[i], 8) << i;
   }
 }
 
