@@ -309,7 +309,7 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
   if (problems.empty()) {
     // A lossy codec must not be asked to carry a bitmask.
     for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", c.width, c.height)) {
-      const BackendChoice codec = c.choice(p.meaning).codec;
+      const BackendChoice codec = c.pass(p.name).codec;
       if (std::string why = r.codecs.create(codec.name, codec.params)->refuses(p.desc); !why.empty())
         problems.push_back(fmt::format("passes.{}.codec '{}' cannot carry the {} pass: {}", p.name, codec.name,
                                        pass_kind_name(p.desc.kind), why));

@@ -160,12 +160,11 @@ class LiveClient {
 
   void start_session(const WelcomeBody& w) {
     session_ = w.session;
-    uint32_t codec_ids[kPassSlots] = {0, 0};
-    bool streams[kPassSlots] = {false, false};
-    const BackendChoice* codecs[kPassSlots] = {&c_.visibility_codec, &c_.ao_codec};
-    for (int slot = 0; slot < kPassSlots; ++slot) {
+    uint32_t codec_ids[kPassSlots] = {};
+    bool streams[kPassSlots] = {};
+    for (int slot = 0; slot < pass_slot_count(); ++slot) {
       streams[slot] = pass_of_slot_[slot] >= 0;
-      codec_ids[slot] = codec_id(codecs[slot]->name);
+      codec_ids[slot] = codec_id(c_.pass(slot_name(slot)).codec.name);
       if (streams[slot]) client_.receiver(pass_of_slot_[slot]).expected_sequence = w.first_sequence[slot];
     }
     gate_ = PassGate(session_, w.first_sequence, codec_ids, streams);
@@ -188,7 +187,7 @@ class LiveClient {
     if (!gate_camera_sent_) return;
     const double until = now_ms() + std::min(1000.0, o_.idle_timeout_s * 1000.0);
     auto done = [&] {
-      for (int slot = 0; slot < kPassSlots; ++slot)
+      for (int slot = 0; slot < pass_slot_count(); ++slot)
         if (pass_of_slot_[slot] >= 0 && newest_completed_[slot] < int64_t(last_camera_)) return false;
       return true;
     };
@@ -399,7 +398,7 @@ class LiveClient {
     // frames.csv as `dhrbench run` writes it (core/results.h), one row per displayed frame.
     const std::vector<std::string> pass_names = all_pass_names();
     std::string csv = frames_csv_header({}, pass_names);
-    std::vector<double> client_ms, age[2];
+    std::vector<double> client_ms, age[kPassSlots];
     std::vector<std::vector<double>> scores(image_metrics().size());  // per metric, as averaged
     for (const Row& r : rows_) {
       csv += frames_csv_row({}, r, pass_names);
@@ -409,8 +408,8 @@ class LiveClient {
         if (std::isnan(r.local[i])) continue;  // no value on this frame (a step metric's first frame)
         scores[i].push_back(m.for_mean ? m.for_mean(r.local[i]) : r.local[i]);
       }
-      for (int s = 0; s < 2; ++s) {
-        const PassFrameRecord p = r.pass(kSlotName[s]);
+      for (int s = 0; s < pass_slot_count(); ++s) {
+        const PassFrameRecord p = r.pass(slot_name(s));
         if (p.source_frame >= 0) age[s].push_back(p.age_ms);
       }
     }
@@ -428,7 +427,7 @@ class LiveClient {
     write_text(o_.out_dir + "/socket.csv", sock);
     std::string passes_csv = "frame,pass,socket_bytes,packets\n";
     for (const auto& r : completed_log_)
-      passes_csv += fmt::format("{},{},{},{}\n", r.frame, kSlotName[r.slot], r.socket_bytes, r.packets);
+      passes_csv += fmt::format("{},{},{},{}\n", r.frame, slot_name(r.slot), r.socket_bytes, r.packets);
     write_text(o_.out_dir + "/received_passes.csv", passes_csv);
 
     const AssemblerStats& as = assembler_.stats();
@@ -439,9 +438,9 @@ class LiveClient {
     for (int r = 0; r < kLossReasonCount; ++r)
       if (as.frames_lost[size_t(r)]) lost_by[loss_reason_name(LossReason(r))] = as.frames_lost[size_t(r)];
     nlohmann::json passes = nlohmann::json::object();
-    for (int s = 0; s < 2; ++s) {
+    for (int s = 0; s < pass_slot_count(); ++s) {
       if (pass_of_slot_[s] < 0) continue;
-      passes[kSlotName[s]] = {{"frames_completed", frames_completed_[s]},
+      passes[slot_name(s)] = {{"frames_completed", frames_completed_[s]},
                               {"frames_lost", frames_lost_[s]},
                               {"frames_without_data", pass_without_data_[s]},
                               {"decode_errors", decode_errors_[s]},
@@ -461,14 +460,18 @@ class LiveClient {
         {"socket.mbps, socket.bytes_per_s, socket.datagrams_per_s", "the session's, on the wire, over duration_s"},
         {"socket.bad_or_foreign", "datagrams dropped, by reason (docs/live-security.md); none counts as loss"}};
     const double seconds = std::max(1e-9, session_seconds_);
+    nlohmann::json predictors = nlohmann::json::object();
+    for (int s = 0; s < pass_slot_count(); ++s) {
+      const BackendChoice& p = c_.pass(slot_name(s)).predictor;
+      predictors[slot_name(s)] = {{"name", p.name}, {"params", p.params}};
+    }
     const nlohmann::json out = {
         {"role", "client"},
         {"server", o_.server.to_string()},
         {"session", session_},
         {"end_reason", end_reason_},
         {"offer", offer_},
-        {"predictor", {{"visibility", {{"name", c_.predictor.name}, {"params", c_.predictor.params}}},
-                       {"ao", {{"name", c_.ao_predictor.name}, {"params", c_.ao_predictor.params}}}}},
+        {"predictor", predictors},
         {"frames",
          {{"requested", o_.frames},
           {"displayed", rows_.size()},
@@ -530,14 +533,14 @@ class LiveClient {
   PassGate gate_;
   bool gate_camera_sent_ = false;
   uint32_t last_camera_ = 0;
-  int64_t newest_completed_[kPassSlots] = {-1, -1};  // per pass: the newest frame whose packets all arrived
+  int64_t newest_completed_[kPassSlots] = {-1, -1, -1, -1, -1, -1, -1, -1};  // per pass: the newest frame whose packets all arrived
   Clock::time_point t0_, last_heard_;
   std::string end_reason_;
   double session_seconds_ = 0;
   std::vector<uint8_t> buffer_;
   Assembler assembler_;
   ClientPipeline client_;       // core/pipeline.h: decode, predict, composite, the G-buffer history
-  int pass_of_slot_[2] = {-1, -1};  // per stream (visibility, ao): its pass in client_, -1: none
+  int pass_of_slot_[kPassSlots] = {-1, -1, -1, -1, -1, -1, -1, -1};  // per stream: its pass in client_, -1: none
   bool keyframe_request_ = false;
   bool has_prev_ = false;
   Camera prev_camera_;
@@ -557,9 +560,9 @@ class LiveClient {
   std::map<std::string, uint64_t> bad_;
   uint64_t datagrams_ = 0, bytes_ = 0, frames_skipped_ = 0, without_data_ = 0;
   uint64_t session_datagrams_ = 0, session_bytes_ = 0, session_pass_datagrams_ = 0, session_pass_bytes_ = 0;
-  uint64_t frames_completed_[2] = {0, 0}, frames_lost_[2] = {0, 0}, decode_errors_[2] = {0, 0};
-  uint64_t pass_without_data_[2] = {0, 0};  // displayed frames that showed the pass's local fallback
-  std::vector<double> round_trip_ms_[2];
+  uint64_t frames_completed_[kPassSlots] = {}, frames_lost_[kPassSlots] = {}, decode_errors_[kPassSlots] = {};
+  uint64_t pass_without_data_[kPassSlots] = {};  // displayed frames that showed the pass's local fallback
+  std::vector<double> round_trip_ms_[kPassSlots];
 };
 
 }  // namespace

@@ -83,9 +83,14 @@ inline nlohmann::json percentiles(std::vector<double> v) {
 }
 
 inline int slot_of(PassKind k) { return pass_slot(k); }
-// The stream (0: visibility, 1: ao) of a planned pass: the protocol's slots (core/live_protocol.h).
-inline int stream_slot(const PlannedPass& p) { return p.meaning == PassMeaning::Visibility ? 0 : 1; }
-constexpr const char* kSlotName[2] = {"visibility", "ao"};
+// The stream of a planned pass: its index in pass_types(), the protocol's slots
+// (core/live_protocol.h).
+inline int stream_slot(const PlannedPass& p) {
+  for (int i = 0; i < pass_slot_count(); ++i)
+    if (p.name == pass_types()[size_t(i)].name) return i;
+  fail("live: the pass '{}' has no stream", p.name);
+}
+inline const char* slot_name(int slot) { return pass_types()[size_t(slot)].name; }
 
 inline ControlMessage msg(ControlType type, uint32_t session, std::string text = {}) {
   ControlMessage m;

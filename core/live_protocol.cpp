@@ -4,6 +4,7 @@
 #include "core/checksum.h"
 #include "core/error.h"
 #include "core/json_io.h"
+#include "core/passes.h"
 
 #include <fcntl.h>
 #include <openssl/core_names.h>
@@ -321,15 +322,26 @@ BodyCheck parse_offer(std::string_view text, SessionOffer& out) {
 }
 
 int pass_slot(PassKind kind) {
-  if (kind == PassKind::Visibility || kind == PassKind::SoftVisibility) return 0;
-  if (kind == PassKind::Ao) return 1;
+  const PassMeaning meaning = pass_meaning(kind);
+  for (size_t i = 0; i < pass_types().size(); ++i)
+    if (pass_types()[i].meaning == meaning) return int(i);
   return -1;
 }
 
+int pass_slot_count() {
+  static const int n = [] {
+    if (pass_types().size() > size_t(kPassSlots)) fail("live: {} pass types, at most {} streams", pass_types().size(), kPassSlots);
+    return int(pass_types().size());
+  }();
+  return n;
+}
+
 std::string welcome_text(const WelcomeBody& w) {
+  nlohmann::json first_sequences = nlohmann::json::object();
+  for (int i = 0; i < pass_slot_count(); ++i) first_sequences[pass_types()[size_t(i)].name] = w.first_sequence[i];
   return nlohmann::json{{"session", w.session},
                         {"client_nonce", w.client_nonce},
-                        {"first_sequence", {{"visibility", w.first_sequence[0]}, {"ao", w.first_sequence[1]}}},
+                        {"first_sequence", first_sequences},
                         {"offer", w.offer.json}}
       .dump();
 }
@@ -344,7 +356,8 @@ BodyCheck parse_welcome(std::string_view text, WelcomeBody& out) {
         f.object("first_sequence", seq) && f.object("offer", offer)))
     return f.check;
   Fields s{seq, "first_sequence.", {}};
-  if (!(s.uint32("visibility", out.first_sequence[0]) && s.uint32("ao", out.first_sequence[1]))) return s.check;
+  for (int i = 0; i < pass_slot_count(); ++i)
+    if (!s.uint32(pass_types()[size_t(i)].name, out.first_sequence[i])) return s.check;
   BodyCheck c = parse_offer_json(offer, out.offer);
   if (!c.ok()) c.field = "offer." + c.field;
   return c;

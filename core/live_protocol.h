@@ -136,14 +136,16 @@ struct SessionOffer {
 BodyCheck parse_offer(std::string_view text, SessionOffer& out);
 BodyCheck parse_offer_json(const nlohmann::json& offer, SessionOffer& out);
 
-// Pass streams of a session: slot 0 carries visibility (hard or soft), slot 1 AO.
-constexpr int kPassSlots = 2;
-int pass_slot(PassKind kind);  // -1 for a pass live mode does not stream
+// Pass streams of a session: slot i carries pass_types()[i] (core/passes.h); kPassSlots is
+// their most (pass_types() checks it).
+constexpr int kPassSlots = 8;
+int pass_slot(PassKind kind);  // -1 for a pass live mode does not stream (colour)
+int pass_slot_count();         // pass_types().size()
 
 struct WelcomeBody {
   uint32_t session = 0;       // equals the header's token
   uint32_t client_nonce = 0;  // the nonce of the Hello it answers
-  uint32_t first_sequence[kPassSlots] = {0, 0};  // random, per stream (see PassGate)
+  uint32_t first_sequence[kPassSlots] = {};  // random, per stream (see PassGate)
   SessionOffer offer;         // the server's
 };
 std::string welcome_text(const WelcomeBody& w);
@@ -195,10 +197,10 @@ class PassGate {
 
  private:
   uint16_t stream_ = 0;
-  bool streams_[kPassSlots] = {false, false};
-  uint32_t codec_[kPassSlots] = {0, 0};
-  uint32_t first_[kPassSlots] = {0, 0};
-  uint64_t newest_offset_[kPassSlots] = {0, 0};  // past the newest accepted, from first_
+  bool streams_[kPassSlots] = {};
+  uint32_t codec_[kPassSlots] = {};
+  uint32_t first_[kPassSlots] = {};
+  uint64_t newest_offset_[kPassSlots] = {};  // past the newest accepted, from first_
   bool any_camera_ = false;
   uint32_t newest_camera_ = 0;
 };

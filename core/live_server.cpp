@@ -18,8 +18,10 @@ class LiveServer {
     if (c.mode != "hybrid") fail("live mode serves hybrid rendering only (mode '{}' given)", c.mode);
     rt_ = std::make_unique<RtScene>(*s.scene);
     write_port_file(o.port_file, socket_.local());
-    say(o_.quiet, "serve", "listening on UDP {} (scene {}, {}x{} at {} Hz, passes:{}{}; {})", socket_.local().to_string(),
-        s.name, c.width, c.height, c.display_hz, plan_.visibility() ? " visibility" : "", plan_.ao ? " ao" : "",
+    std::string passes;
+    for (const PlannedPass& p : traced_passes(plan_, c.width, c.height)) passes += " " + p.name;
+    say(o_.quiet, "serve", "listening on UDP {} (scene {}, {}x{} at {} Hz, passes:{}; {})", socket_.local().to_string(),
+        s.name, c.width, c.height, c.display_hz, passes,
         mac_ ? "every datagram authenticated (HMAC-SHA256)" : "no key: sessions bound by address and token");
   }
 
@@ -46,7 +48,7 @@ class LiveServer {
     uint32_t nonce = 0;  // the client's Hello nonce (a repeated Hello gets the Welcome again)
     Endpoint peer;
     std::unique_ptr<ServerPipeline> pipeline;  // core/pipeline.h: the simulator's server stages
-    uint32_t first_sequence[2] = {0, 0};       // per stream (visibility, ao): random, sent in the Welcome
+    uint32_t first_sequence[kPassSlots] = {};  // per stream: random, sent in the Welcome
     int64_t last_frame = -1;
     std::optional<CameraUpdate> pending;
     bool keyframe = false;
@@ -170,7 +172,7 @@ class LiveServer {
     s->id = os_random_u32();
     s->nonce = nonce;
     s->peer = from;
-    for (int slot = 0; slot < 2; ++slot) s->first_sequence[slot] = os_random_u32();
+    for (int slot = 0; slot < pass_slot_count(); ++slot) s->first_sequence[slot] = os_random_u32();
     s->pipeline = std::make_unique<ServerPipeline>(c_, *scene_.scene, registries_, direct_tracer(*rt_, c_), stream_of(s->id));
     for (size_t i = 0; i < s->pipeline->passes().size(); ++i)
       s->pipeline->set_next_sequence(i, s->first_sequence[stream_slot(s->pipeline->passes()[i])]);
@@ -191,8 +193,7 @@ class LiveServer {
     WelcomeBody w;
     w.session = session_->id;
     w.client_nonce = session_->nonce;
-    w.first_sequence[0] = session_->first_sequence[0];
-    w.first_sequence[1] = session_->first_sequence[1];
+    std::copy(std::begin(session_->first_sequence), std::end(session_->first_sequence), w.first_sequence);
     w.offer.json = offer_;
     return welcome_text(w);
   }

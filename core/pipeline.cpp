@@ -38,7 +38,7 @@ DenoiseStage::DenoiseStage(const SimConfig& c, const std::vector<PlannedPass>& t
   for (const PlannedPass& p : traced) {
     planes_.emplace_back();
     if (p.layout() != PassLayout::Planes8) continue;
-    const BackendChoice denoiser = c.choice(p.meaning).denoiser;
+    const BackendChoice denoiser = c.pass(p.name).denoiser;
     for (int plane = 0; plane < p.desc.channels; ++plane) planes_.back().push_back(r.denoisers.create(denoiser.name, denoiser.params));
   }
 }
@@ -99,7 +99,7 @@ ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Reg
       sent_(sent_passes(plan_, c.mode == "remote", c.width, c.height)), trace_(std::move(trace)),
       stream_id_(stream_id), denoise_(c, traced_, r) {
   for (const PlannedPass& p : sent_) {
-    const BackendChoice codec = c.choice(p.meaning).codec;
+    const BackendChoice codec = c.pass(p.name).codec;
     codecs_.push_back(r.codecs.create(codec.name, codec.params));
     codec_ids_.push_back(codec_id(codec.name));
     sequence_.push_back(0);
@@ -186,7 +186,7 @@ ClientPipeline::ClientPipeline(const SimConfig& c, const Scene& scene, const Reg
     : c_(c), scene_(scene), remote_(c.mode == "remote"),
       passes_(sent_passes(plan_passes(scene, c.trace), remote_, c.width, c.height)) {
   for (const PlannedPass& p : passes_) {
-    const PassChoice choice = c.choice(p.meaning);
+    const PassChoice choice = c.pass(p.name);
     receivers_.emplace_back();
     receivers_.back().codec = r.codecs.create(choice.codec.name, choice.codec.params);
     predictors_.push_back(r.predictors.create(choice.predictor.name, choice.predictor.params));

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <set>
+#include <utility>
 
 namespace dhr {
 
@@ -125,26 +126,29 @@ std::vector<RunSetting> make_settings() {
   v.push_back(with(field("trace.ao_pass", SettingType::Boolean, "trace the AO pass (when the scene has an ao block)",
                          [](auto& c) -> auto& { return c.trace.ao_pass; }),
                    kTraced));
-  v.push_back(with(backend("passes.visibility.codec", "codec", "visibility_codec", "the visibility pass's codec",
-                           [](auto& c) -> auto& { return c.visibility_codec; }),
-                   kInLiveOffer));
-  v.push_back(with(backend("passes.visibility.denoiser", "denoiser", "visibility_denoiser",
-                           "the server's denoiser of 8-bit soft visibility (bitmasks are never denoised)",
-                           [](auto& c) -> auto& { return c.visibility_denoiser; }),
-                   kInLiveOffer));
-  v.push_back(backend("passes.visibility.predictor", "predictor", "predictor",
-                      "the client's predictor of the visibility pass", [](auto& c) -> auto& { return c.predictor; }));
-  v.push_back(with(backend("passes.ao.codec", "codec", "ao_codec", "the AO pass's codec", [](auto& c) -> auto& { return c.ao_codec; }),
-                   kInLiveOffer));
-  v.push_back(with(backend("passes.ao.denoiser", "denoiser", "ao_denoiser", "the server's AO denoiser (remote mode too)",
-                           [](auto& c) -> auto& { return c.ao_denoiser; }),
-                   kInLiveOffer));
-  v.push_back(backend("passes.ao.predictor", "predictor", "predictor", "the client's predictor of the AO pass",
-                      [](auto& c) -> auto& { return c.ao_predictor; }));
-  v.push_back(backend("passes.colour.codec", "codec", "colour_codec", "remote mode: the colour frame's codec",
-                      [](auto& c) -> auto& { return c.colour_codec; }));
-  v.push_back(backend("passes.colour.predictor", "predictor", "colour_predictor",
-                      "remote mode: the client's predictor of the colour frame", [](auto& c) -> auto& { return c.colour_predictor; }));
+  // passes.<name>.{codec,denoiser,predictor} for every pass of the table, then colour's codec
+  // and predictor. The passes of version-1 files keep their version-1 keys.
+  const auto pass_backend = [](const std::string& pass, const char* kind, BackendChoice PassChoice::*member,
+                               std::string v1_key, std::string doc) {
+    RunSetting s = backend(("passes." + pass + "." + kind).c_str(), kind, v1_key.c_str(), doc.c_str(),
+                           [pass, member](auto& c) -> auto& { return c.pass(pass).*member; });
+    return s;
+  };
+  for (const PassType& t : pass_types()) {
+    const std::string n = t.name;
+    const bool v1 = n == "visibility" || n == "ao";  // the passes version-1 files know
+    v.push_back(with(pass_backend(n, "codec", &PassChoice::codec, v1 ? n + "_codec" : "", "the " + n + " pass's codec"),
+                     kInLiveOffer));
+    v.push_back(with(pass_backend(n, "denoiser", &PassChoice::denoiser, v1 ? n + "_denoiser" : "",
+                                  "the server's denoiser of the " + n +
+                                      " pass's 8-bit planes (bitmasks are never denoised; remote mode too)"),
+                     kInLiveOffer));
+    v.push_back(pass_backend(n, "predictor", &PassChoice::predictor, v1 ? "predictor" : "",
+                             "the client's predictor of the " + n + " pass"));
+  }
+  v.push_back(pass_backend(kColourPassName, "codec", &PassChoice::codec, "colour_codec", "remote mode: the colour frame's codec"));
+  v.push_back(pass_backend(kColourPassName, "predictor", &PassChoice::predictor, "colour_predictor",
+                           "remote mode: the client's predictor of the colour frame"));
   RunSetting timing;
   timing.key = "server_timing";
   timing.type = SettingType::Choice;
@@ -256,6 +260,23 @@ void check_keys(const nlohmann::json& obj, const std::string& prefix, const std:
 }
 
 }  // namespace
+
+std::map<std::string, PassChoice, std::less<>> default_pass_choices() {
+  std::map<std::string, PassChoice, std::less<>> out;
+  for (const PassType& t : pass_types()) out[t.name] = {{t.codec}, {t.denoiser}, {t.predictor}};
+  out[kColourPassName] = {{"h264"}, {"none"}, {"none"}};
+  return out;
+}
+
+const PassChoice& SimConfig::pass(std::string_view name) const {
+  const auto it = passes.find(name);
+  if (it == passes.end()) fail("run settings: no pass '{}' (passes: {})", name, join(all_pass_names()));
+  return it->second;
+}
+
+PassChoice& SimConfig::pass(std::string_view name) {
+  return const_cast<PassChoice&>(std::as_const(*this).pass(name));
+}
 
 const char* setting_type_name(SettingType type) {
   switch (type) {

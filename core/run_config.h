@@ -13,11 +13,16 @@
 
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace dhr {
+
+// The default backends of every pass (pass_types()'s defaults; colour: h264, predictor none).
+std::map<std::string, PassChoice, std::less<>> default_pass_choices();
 
 struct SimConfig {
   std::string mode = "hybrid";  // hybrid | remote
@@ -30,13 +35,11 @@ struct SimConfig {
   uint64_t seed = 1;
 
   TraceSettings trace;  // seed and frame are set per frame from `seed` and the frame index
-  // Per pass: codec, denoiser (AO and soft visibility; bitmasks are never denoised) and
-  // predictor. Remote mode uses `colour` (codec and predictor) and the AO denoiser.
-  BackendChoice visibility_codec{"lz4"}, ao_codec{"lz4"}, colour_codec{"h264"};
-  BackendChoice ao_denoiser{"none"}, visibility_denoiser{"none"};
-  // `predictor` is the visibility pass's (passes.visibility.predictor), `ao_predictor` the AO
-  // pass's (passes.ao.predictor); a version-1 file's "predictor" sets both.
-  BackendChoice predictor{"reprojection"}, ao_predictor{"reprojection"}, colour_predictor{"none"};
+  // Per pass, by name (every entry of pass_types(), then colour): its codec, denoiser (8-bit
+  // planes; bitmasks are never denoised) and predictor, the settings
+  // passes.<name>.{codec,denoiser,predictor}. Remote mode uses colour's codec and predictor and
+  // the traced passes' denoisers; colour itself is never denoised.
+  std::map<std::string, PassChoice, std::less<>> passes = default_pass_choices();
 
   enum class ServerTiming { Fixed, Measured };
   ServerTiming server_timing = ServerTiming::Fixed;
@@ -55,16 +58,9 @@ struct SimConfig {
                                  // (<pass>.<Codec::stream_format()>; dhrbench run --dump-streams)
 
   nlohmann::json to_json() const;
-  // The backends of the pass with `meaning` (colour: the remote baseline's codec and predictor;
-  // it is never denoised itself, its inputs are).
-  PassChoice choice(PassMeaning meaning) const {
-    switch (meaning) {
-      case PassMeaning::Visibility: return {visibility_codec, visibility_denoiser, predictor};
-      case PassMeaning::Ao: return {ao_codec, ao_denoiser, ao_predictor};
-      case PassMeaning::Colour: break;
-    }
-    return {colour_codec, {"none"}, colour_predictor};
-  }
+  // The backends of the pass `name` (dhr::Error for a name that is not a pass).
+  const PassChoice& pass(std::string_view name) const;
+  PassChoice& pass(std::string_view name);
   // `trace` with this run's seed and client frame `frame`: what the server traces for that
   // frame (the simulator, live mode and the local references all use it).
   TraceSettings trace_for_frame(uint32_t frame) const {

@@ -44,9 +44,9 @@ TEST(FrameLoop, ZeroLatencyLosslessEqualsLocalReferenceBitForBit) {
     SimConfig c = small_config(30);
     c.width = 160;
     c.height = 90;
-    c.ao_denoiser = {denoiser};
-    c.visibility_codec = {"lz4"};
-    c.ao_codec = {"zstd"};
+    c.pass("ao").denoiser = {denoiser};
+    c.pass("visibility").codec = {"lz4"};
+    c.pass("ao").codec = {"zstd"};
     RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
     ASSERT_EQ(r.frames.size(), 30u);
     for (const FrameRecord& f : r.frames) {
@@ -75,7 +75,7 @@ TEST(FrameLoop, ReprojectionBeatsNoneUnderLatencyOnEveryBuiltinScene) {
         c.start_time_s = 2.0;
         c.uplink.latency_ms = latency / 2;
         c.downlink.latency_ms = latency / 2;
-        c.predictor = {predictor};
+        c.pass("visibility").predictor = {predictor};
         RunResult r = run_simulation(c, scene(name), name, cache(), registries());
         ssim[i++] = r.metrics()["ssim_local_mean"].get<double>();
       }
@@ -121,7 +121,7 @@ TEST(FrameLoop, DeterministicAcrossRunsAndThreadCounts) {
   c.downlink.jitter_ms = 10;
   c.downlink.loss_model = LinkConfig::Loss::Independent;
   c.downlink.loss_rate = 0.05;
-  c.ao_denoiser = {"svgf_ao"};
+  c.pass("ao").denoiser = {"svgf_ao"};
   c.ground_truth_every = 5;
   auto run = [&](int threads) {
     tbb::global_control g(tbb::global_control::max_allowed_parallelism, size_t(threads));
@@ -155,7 +155,7 @@ TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
     c.downlink.ge_p_good_to_bad = 0.05;
     c.downlink.ge_p_bad_to_good = 0.5;
     c.downlink.ge_loss_bad = 1.0;
-    c.ao_codec = {codec, {{"rate_control", "crf"}, {"crf", 18}}};
+    c.pass("ao").codec = {codec, {{"rate_control", "crf"}, {"crf", 18}}};
     RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
     ASSERT_EQ(r.frames.size(), 60u);
     const nlohmann::json m = r.metrics();
@@ -185,7 +185,7 @@ TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
 TEST(FrameLoop, RemoteBaselineShowsNewestColourFrame) {
   SimConfig c = small_config(6);
   c.mode = "remote";
-  c.colour_codec = {"zstd"};
+  c.pass("colour").codec = {"zstd"};
   RunResult r = run_simulation(c, scene("temple"), "temple", cache(), registries());
   for (const auto& f : r.frames) EXPECT_EQ(f.score("ssim"), 1.0) << "zero latency, lossless colour";
   EXPECT_EQ(r.traffic.size(), 1u);
@@ -195,9 +195,9 @@ TEST(FrameLoop, RemoteBaselineShowsNewestColourFrame) {
 TEST(FrameLoop, InvalidConfigurationReportsEveryProblem) {
   SimConfig c = small_config(0);
   c.width = 2;
-  c.ao_codec = {"lz5"};
-  c.predictor = {"reprojection", {{"bogus", 1}}};
-  c.visibility_codec = {"h264", {{"rate_control", "crf"}}};
+  c.pass("ao").codec = {"lz5"};
+  c.pass("visibility").predictor = {"reprojection", {{"bogus", 1}}};
+  c.pass("visibility").codec = {"h264", {{"rate_control", "crf"}}};
   try {
     run_simulation(c, scene("room"), "room", cache(), registries());
     FAIL() << "no error";
@@ -235,9 +235,9 @@ TEST(FrameLoop, EveryCodecUnderOneAndFivePercentLoss) {
       c.downlink.loss_model = LinkConfig::Loss::Independent;
       c.downlink.loss_rate = loss;
       c.seed = 7;
-      c.ao_denoiser = {"svgf_ao"};
-      c.ao_codec = {codec};
-      c.visibility_codec = {carries_bitmask ? codec : "zstd"};
+      c.pass("ao").denoiser = {"svgf_ao"};
+      c.pass("ao").codec = {codec};
+      c.pass("visibility").codec = {carries_bitmask ? codec : "zstd"};
       RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
       const nlohmann::json m = r.metrics();
       const auto& ao = m["passes"][1];

@@ -118,7 +118,7 @@ TEST(LiveProtocol, DamagedAndForeignDatagramsAreRefused) {
 TEST(LiveOffer, MismatchesNameEveryField) {
   SimConfig a, b;
   b.width = 640;
-  b.ao_codec.name = "zstd";
+  b.pass("ao").codec.name = "zstd";
   const json oa = session_offer(a, registries(), "room", "abc"), ob = session_offer(b, registries(), "scenes/room.json", "abc");
   EXPECT_TRUE(offer_mismatches(oa, session_offer(a, registries(), "other-name", "abc")).empty()) << "the name alone may differ";
   const auto why = offer_mismatches(oa, ob);
@@ -136,7 +136,7 @@ TEST(LiveOffer, MismatchesNameEveryField) {
   EXPECT_NE(all.find("ao_codec.name: client \"lz4\", server \"zstd\""), std::string::npos) << all;
   // Effective parameters: an explicit default equals an omitted one.
   SimConfig c = a;
-  c.ao_codec.params = {{"mode", "fast"}};
+  c.pass("ao").codec.params = {{"mode", "fast"}};
   EXPECT_TRUE(offer_mismatches(oa, session_offer(c, registries(), "room", "abc")).empty());
   const auto scene = offer_mismatches(oa, session_offer(a, registries(), "room", "def"));
   ASSERT_FALSE(scene.empty());

@@ -156,7 +156,7 @@ TEST(RunSettings, OldKeysInVersion1GiveTheSameConfigAsTheNewKeys) {
   EXPECT_TRUE(p1.empty()) << joined(p1);
   EXPECT_TRUE(p2.empty()) << joined(p2);
   EXPECT_EQ(a.to_json(), b.to_json());
-  EXPECT_EQ(a.choice(PassMeaning::Ao).predictor.name, "none") << "\"predictor\" sets both passes";
+  EXPECT_EQ(a.pass("ao").predictor.name, "none") << "\"predictor\" sets both passes";
   // Every version-1 key is covered above.
   for (const auto& [old, replacements] : v1_run_keys()) EXPECT_TRUE(kOld.contains(old)) << old;
   // Both spellings of one setting at once: an error.
@@ -184,9 +184,9 @@ TEST(RunSettings, PerPassPredictorsMayDiffer) {
   j["passes"]["ao"]["predictor"] = {{"name", "reprojection"}};
   const SimConfig c = read(j, 2, problems);
   EXPECT_TRUE(problems.empty()) << joined(problems);
-  EXPECT_EQ(c.choice(PassMeaning::Visibility).predictor.name, "none");
-  EXPECT_EQ(c.choice(PassMeaning::Ao).predictor.name, "reprojection");
-  EXPECT_EQ(c.choice(PassMeaning::Colour).predictor.name, "rotation_warp");
+  EXPECT_EQ(c.pass("visibility").predictor.name, "none");
+  EXPECT_EQ(c.pass("ao").predictor.name, "reprojection");
+  EXPECT_EQ(c.pass("colour").predictor.name, "rotation_warp");
 }
 
 TEST(RunSettings, CacheKeysChangeWithExactlyTheFlaggedSettings) {
@@ -235,7 +235,7 @@ TEST(RunSettings, LiveModeNamesTheSettingsItIgnores) {
   }
   // The live client runs ClientPipeline, which predicts each pass with its own predictor.
   SimConfig c;
-  c.ao_predictor = {"none"};
+  c.pass("ao").predictor = {"none"};
   EXPECT_TRUE(live_ignored_fields(c).empty());
 }
 

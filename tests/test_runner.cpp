@@ -202,7 +202,7 @@ TEST(Experiment, SweepExpandsTheCartesianProduct) {
                                        {R"(sweep={"ao_denoiser.name": ["none", "atrous"], "network": ["slow"], "trace.ao_rays": [1, 2, 4]})"});
   EXPECT_EQ(e.runs.size(), 2u * 2u * 1u * 3u);
   EXPECT_EQ(e.runs[0].config.downlink.latency_ms, 40.0);
-  EXPECT_EQ(e.runs[0].config.ao_codec.name, "lz4");
+  EXPECT_EQ(e.runs[0].config.pass("ao").codec.name, "lz4");
 }
 
 TEST(Experiment, BadFilesAreErrors) {
