@@ -16,6 +16,8 @@ extern "C" {
 #include <x264.h>
 }
 
+#include <dlfcn.h>
+
 #include <array>
 #include <cstdio>
 #include <fstream>
@@ -45,6 +47,16 @@ std::string cpu_model() {
 }
 
 std::string av_version(unsigned v) { return fmt::format("{}.{}.{}", v >> 16, (v >> 8) & 255, v & 255); }
+
+// The version string of a library that libavcodec loads (x265, libaom, dav1d: their headers
+// are not installed, so they are not linked directly), from the library's own version call or
+// variable found in the running process; "not loaded" when the symbol is absent.
+std::string wrapped_version(const char* symbol, bool is_function) {
+  void* sym = dlsym(RTLD_DEFAULT, symbol);
+  if (!sym) return "not loaded";
+  const char* v = is_function ? reinterpret_cast<const char* (*)()>(sym)() : *static_cast<const char* const*>(sym);
+  return v ? v : "unknown";
+}
 
 }  // namespace
 
@@ -85,6 +97,9 @@ nlohmann::json run_context(const std::string& build_type) {
       {"libavcodec", av_version(avcodec_version())},
       {"libavutil", av_version(avutil_version())},
       {"x264", fmt::format("build {} (compile time: x264 has no run-time version call)", X264_BUILD)},
+      {"x265", wrapped_version("x265_version_str", false)},
+      {"libaom", wrapped_version("aom_codec_version_str", true)},
+      {"dav1d", wrapped_version("dav1d_version", true)},
       {"opencv", cv::getVersionString()},
       {"openimageio", fmt::format("{}.{}.{}", OIIO::openimageio_version() / 10000, OIIO::openimageio_version() / 100 % 100,
                                   OIIO::openimageio_version() % 100)},
