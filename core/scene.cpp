@@ -136,7 +136,14 @@ glm::vec4 Texture::sample_bilinear(glm::vec2 uv) const {
   const float y = (1.0f - (uv.y - std::floor(uv.y))) * float(height) - 0.5f;
   const float fx = std::floor(x), fy = std::floor(y);
   const float wx = x - fx, wy = y - fy;
-  auto wrap = [](long v, int size) { return int(((v % size) + size) % size); };
+  // x and y lie in [-0.5, size - 0.5): v is almost always within one size of the range, where
+  // the two modulos (integer divisions) are not needed; same result.
+  auto wrap = [](long v, int size) {
+    if (v >= 0 && v < size) return int(v);
+    if (v < 0 && v >= -long(size)) return int(v + size);
+    if (v >= size && v < 2 * long(size)) return int(v - size);
+    return int(((v % size) + size) % size);
+  };
   const int x0 = wrap(long(fx), width), x1 = wrap(long(fx) + 1, width);
   const int y0 = wrap(long(fy), height), y1 = wrap(long(fy) + 1, height);
   const auto& lut = srgb_table();
