@@ -9,7 +9,8 @@
 // The memory floor of a stage (docs/performance.md, "Client stages (item 5)"): one streaming
 // pass over exactly the bytes the stage reads (every plane it reads, once) and writes (its
 // output), on the same TBB row split, timed in process CPU time beside the stage's own
-// process CPU time per frame (`cpu_ms`, `floor_cpu_ms`, `x_floor`). Reprojection reads the dst
+// process CPU time per frame (`cpu_ms`, `floor_cpu_ms`, `x_floor`), both on one thread (TBB
+// limited to 1: no worker spinning in the CPU time, the same basis as bench_raster's ratio). Reprojection reads the dst
 // G-buffer's object_id, position and normal, the src G-buffer's object_id, position, normal and
 // geo_normal and the received bytes, and writes the predicted bytes (70 B/px for 1-byte passes);
 // BM_Composite (room, rasterized at 1280x720, three lights, a synthetic visibility bitmask and
@@ -23,6 +24,7 @@
 #include "core/rng.h"
 
 #include <benchmark/benchmark.h>
+#include <tbb/global_control.h>
 #include <glm/gtc/matrix_transform.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -229,6 +231,7 @@ void run_reprojection(benchmark::State& state, const PassBuffer& in, const nlohm
   PassBuffer out;
   PredictStats st = p->predict({in, f.src, f.dst}, out);  // warm: sizes the output once
   double total_ms = 0.0;
+  const tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
   const double cpu0 = process_cpu_ms();
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
@@ -295,6 +298,7 @@ void BM_Composite(benchmark::State& state) {
   }
   const CompositeSettings settings;
   ImageRGB8 img = composite(g, scene, &vis, &ao, settings);
+  const tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
   const double cpu0 = process_cpu_ms();
   for (auto _ : state) {
     img = composite(g, scene, &vis, &ao, settings);
