@@ -2,6 +2,7 @@
 
 #include "core/error.h"
 
+#include <emmintrin.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -17,6 +18,7 @@ namespace {
 constexpr int kRadius = 5;  // 11x11 window
 constexpr double kC1 = (0.01 * 255) * (0.01 * 255);
 constexpr double kC2 = (0.03 * 255) * (0.03 * 255);
+constexpr int kBlock = 256;  // columns per block of SSIM's vertical pass (double moments on the stack)
 
 std::array<float, 2 * kRadius + 1> gaussian_weights() {
   std::array<float, 2 * kRadius + 1> w{};
@@ -34,6 +36,52 @@ inline int reflect101(int i, int n) {
     if (i >= n) i = 2 * n - 2 - i;
   }
   return i;
+}
+
+// The horizontal taps of columns [i0, i1) of one row (no reflection needed there) into the
+// five moment planes: per column the taps in window order, as the border loop does them.
+void horizontal_taps(const float* __restrict ra, const float* __restrict rb, const float* __restrict g, int i0,
+                     int i1, float* __restrict p0, float* __restrict p1, float* __restrict p2, float* __restrict p3,
+                     float* __restrict p4) {
+  for (int x = i0; x < i1; ++x) p0[x] = p1[x] = p2[x] = p3[x] = p4[x] = 0.0f;
+  for (int k = -kRadius; k <= kRadius; ++k) {
+    const float gk = g[k + kRadius];
+    for (int x = i0; x < i1; ++x) {
+      const float wa = ra[x + k], wb = rb[x + k];
+      p0[x] += gk * wa;
+      p1[x] += gk * wb;
+      p2[x] += gk * wa * wa;
+      p3[x] += gk * wb * wb;
+      p4[x] += gk * wa * wb;
+    }
+  }
+}
+
+// SSIM of n <= kBlock pixels from their blurred moments, in three loops that run on vectors
+// (the square roots through SSE2: std::sqrt's errno path keeps the compiler from it), each
+// pixel's operations as in one scalar expression.
+void ssim_from_moments(const double* __restrict m_a, const double* __restrict m_b, const double* __restrict m_aa,
+                       const double* __restrict m_bb, const double* __restrict m_ab, double* __restrict v, int n) {
+  double var_a[kBlock], var_b[kBlock], bound[kBlock];
+  for (int i = 0; i < n; ++i) {
+    const double mu_a = m_a[i], mu_b = m_b[i];
+    var_a[i] = std::max(0.0, m_aa[i] - mu_a * mu_a);
+    var_b[i] = std::max(0.0, m_bb[i] - mu_b * mu_b);
+    bound[i] = var_a[i] * var_b[i];
+  }
+  int i = 0;
+  for (; i + 2 <= n; i += 2) _mm_storeu_pd(bound + i, _mm_sqrt_pd(_mm_loadu_pd(bound + i)));
+  for (; i < n; ++i) bound[i] = std::sqrt(bound[i]);
+  for (i = 0; i < n; ++i) {
+    const double mu_a = m_a[i], mu_b = m_b[i];
+    // Rounding can push the moments slightly outside what they can be: clamp the variances at
+    // 0 (above) and the covariance to |cov| <= sqrt(var_a var_b) (Cauchy-Schwarz), so that
+    // identical images score exactly 1 and flat regions never go negative.
+    const double c = m_ab[i] - mu_a * mu_b;  // std::clamp(c, -bound, bound), spelled out
+    const double cov = c < -bound[i] ? -bound[i] : (bound[i] < c ? bound[i] : c);
+    v[i] = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
+           ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a[i] + var_b[i] + kC2));
+  }
 }
 
 // SSIM map of two float planes (values in 0..255), returns the mean over all pixels (Mirrored)
@@ -57,7 +105,6 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map, Ssi
   // window into [y - 5, y + 5] clipped to the image), so 16 ring slots never collide.
   constexpr int kRing = 16;
   constexpr int kBandRows = 32;
-  constexpr int kBlock = 256;  // columns per vertical-pass block (double moments on the stack)
   const int bands = (y1 - y0 + kBandRows - 1) / kBandRows;
   tbb::parallel_for(0, bands, [&](int band) {
     // Per thread, reused across calls: 16 rows x 5 planes of w floats.
@@ -72,27 +119,14 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map, Ssi
       tag[slot] = y;
       const float* ra = a + size_t(y) * ws;
       const float* rb = b + size_t(y) * ws;
-      float* __restrict p0 = out;
-      float* __restrict p1 = out + ws;
-      float* __restrict p2 = out + 2 * ws;
-      float* __restrict p3 = out + 3 * ws;
-      float* __restrict p4 = out + 4 * ws;
+      float* p0 = out;
+      float* p1 = out + ws;
+      float* p2 = out + 2 * ws;
+      float* p3 = out + 3 * ws;
+      float* p4 = out + 4 * ws;
       // Columns whose window needs no reflection: the taps run as 11 vector passes.
       const int i0 = std::max(x0, kRadius), i1 = std::min(x1, w - kRadius);
-      for (int x = i0; x < i1; ++x) p0[x] = p1[x] = p2[x] = p3[x] = p4[x] = 0.0f;
-      for (int k = -kRadius; k <= kRadius; ++k) {
-        const float gk = g[k + kRadius];
-        const float* __restrict sa = ra + k;
-        const float* __restrict sb = rb + k;
-        for (int x = i0; x < i1; ++x) {
-          const float wa = sa[x], wb = sb[x];
-          p0[x] += gk * wa;
-          p1[x] += gk * wb;
-          p2[x] += gk * wa * wa;
-          p3[x] += gk * wb * wb;
-          p4[x] += gk * wa * wb;
-        }
-      }
+      if (i0 < i1) horizontal_taps(ra, rb, g.data(), i0, i1, p0, p1, p2, p3, p4);
       // The border columns (and every column of an image narrower than one window).
       for (int x = x0; x < x1; ++x) {
         if (x >= i0 && x < i1) {
@@ -131,17 +165,7 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map, Ssi
             for (int i = 0; i < n; ++i) sc[i] += gk * p[i];
           }
         }
-        for (int i = 0; i < n; ++i) {
-          const double mu_a = s[0][i], mu_b = s[1][i];
-          const double var_a = std::max(0.0, s[2][i] - mu_a * mu_a);
-          const double var_b = std::max(0.0, s[3][i] - mu_b * mu_b);
-          // Rounding can push the moments slightly outside what they can be: clamp the
-          // variances at 0 and the covariance to |cov| <= sqrt(var_a var_b) (Cauchy-Schwarz),
-          // so that identical images score exactly 1 and flat regions never go negative.
-          const double bound = std::sqrt(var_a * var_b);
-          const double cov = std::clamp(s[4][i] - mu_a * mu_b, -bound, bound);
-          v[i] = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) / ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a + var_b + kC2));
-        }
+        ssim_from_moments(s[0], s[1], s[2], s[3], s[4], v, n);
         if (map)
           for (int i = 0; i < n; ++i) (*map)(bx + i, y) = float(v[i]);
         for (int i = 0; i < n; ++i)  // in column order, as one sum per row
