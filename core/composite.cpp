@@ -26,6 +26,21 @@ const std::array<float, 255>& code_boundaries() {
   return table;
 }
 
+// The 8-bit sRGB code of a linear value: the number of code boundaries <= linear (what
+// std::upper_bound counts), by a binary search without branches (8 conditional moves over the
+// 255 sorted boundaries); 0 for linear <= 0 and NaN.
+inline uint8_t srgb8_code(const std::array<float, 255>& b, float linear) {
+  if (!(linear > 0.0f)) return 0;
+  const float* base = b.data();
+  size_t n = b.size();
+  while (n > 1) {
+    const size_t half = n / 2;
+    base = base[half] <= linear ? base + half : base;
+    n -= half;
+  }
+  return uint8_t((base - b.data()) + (*base <= linear ? 1 : 0));
+}
+
 void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, bool is_ao) {
   const std::string problem = pb.desc.validate();
   if (!problem.empty()) fail("composite: {} pass: {}", pass_kind_name(pb.desc.kind), problem);
@@ -64,7 +79,9 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
         if (!(glm::dot(n, n) > 0.0f)) n = g.geo_normal(x, y);
         const glm::vec3 c = shade_lambert(scene, g.albedo(x, y), g.position(x, y), n, ao_at(pixel),
                                           [&](size_t l) { return vis_at(l, pixel); });
-        out(x, y) = tonemap_srgb8(c * settings.exposure);
+        const glm::vec3 linear = c * settings.exposure;
+        const auto& b = code_boundaries();
+        out(x, y) = {srgb8_code(b, linear.x), srgb8_code(b, linear.y), srgb8_code(b, linear.z)};
       }
     }
   });
@@ -73,11 +90,7 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
 
 }  // namespace
 
-uint8_t tonemap_srgb8(float linear) {
-  if (!(linear > 0.0f)) return 0;  // also NaN
-  const auto& b = code_boundaries();
-  return uint8_t(std::upper_bound(b.begin(), b.end(), linear) - b.begin());
-}
+uint8_t tonemap_srgb8(float linear) { return srgb8_code(code_boundaries(), linear); }
 
 Rgb8 tonemap_srgb8(const glm::vec3& linear) {
   return {tonemap_srgb8(linear.x), tonemap_srgb8(linear.y), tonemap_srgb8(linear.z)};

@@ -2,6 +2,7 @@
 
 #include "core/error.h"
 
+#include <emmintrin.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -17,6 +18,7 @@ namespace {
 constexpr int kRadius = 5;  // 11x11 window
 constexpr double kC1 = (0.01 * 255) * (0.01 * 255);
 constexpr double kC2 = (0.03 * 255) * (0.03 * 255);
+constexpr int kBlock = 256;  // columns per block of SSIM's vertical pass (double moments on the stack)
 
 std::array<float, 2 * kRadius + 1> gaussian_weights() {
   std::array<float, 2 * kRadius + 1> w{};
@@ -36,61 +38,141 @@ inline int reflect101(int i, int n) {
   return i;
 }
 
+// The horizontal taps of columns [i0, i1) of one row (no reflection needed there) into the
+// five moment planes: per column the taps in window order, as the border loop does them.
+void horizontal_taps(const float* __restrict ra, const float* __restrict rb, const float* __restrict g, int i0,
+                     int i1, float* __restrict p0, float* __restrict p1, float* __restrict p2, float* __restrict p3,
+                     float* __restrict p4) {
+  for (int x = i0; x < i1; ++x) p0[x] = p1[x] = p2[x] = p3[x] = p4[x] = 0.0f;
+  for (int k = -kRadius; k <= kRadius; ++k) {
+    const float gk = g[k + kRadius];
+    for (int x = i0; x < i1; ++x) {
+      const float wa = ra[x + k], wb = rb[x + k];
+      p0[x] += gk * wa;
+      p1[x] += gk * wb;
+      p2[x] += gk * wa * wa;
+      p3[x] += gk * wb * wb;
+      p4[x] += gk * wa * wb;
+    }
+  }
+}
+
+// SSIM of n <= kBlock pixels from their blurred moments, in three loops that run on vectors
+// (the square roots through SSE2: std::sqrt's errno path keeps the compiler from it), each
+// pixel's operations as in one scalar expression.
+void ssim_from_moments(const double* __restrict m_a, const double* __restrict m_b, const double* __restrict m_aa,
+                       const double* __restrict m_bb, const double* __restrict m_ab, double* __restrict v, int n) {
+  double var_a[kBlock], var_b[kBlock], bound[kBlock];
+  for (int i = 0; i < n; ++i) {
+    const double mu_a = m_a[i], mu_b = m_b[i];
+    var_a[i] = std::max(0.0, m_aa[i] - mu_a * mu_a);
+    var_b[i] = std::max(0.0, m_bb[i] - mu_b * mu_b);
+    bound[i] = var_a[i] * var_b[i];
+  }
+  int i = 0;
+  for (; i + 2 <= n; i += 2) _mm_storeu_pd(bound + i, _mm_sqrt_pd(_mm_loadu_pd(bound + i)));
+  for (; i < n; ++i) bound[i] = std::sqrt(bound[i]);
+  for (i = 0; i < n; ++i) {
+    const double mu_a = m_a[i], mu_b = m_b[i];
+    // Rounding can push the moments slightly outside what they can be: clamp the variances at
+    // 0 (above) and the covariance to |cov| <= sqrt(var_a var_b) (Cauchy-Schwarz), so that
+    // identical images score exactly 1 and flat regions never go negative.
+    const double c = m_ab[i] - mu_a * mu_b;  // std::clamp(c, -bound, bound), spelled out
+    const double cov = c < -bound[i] ? -bound[i] : (bound[i] < c ? bound[i] : c);
+    v[i] = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
+           ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a[i] + var_b[i] + kC2));
+  }
+}
+
 // SSIM map of two float planes (values in 0..255), returns the mean over all pixels (Mirrored)
-// or over the valid interior (Valid). The five local moments are blurred separably: a
-// horizontal pass into row buffers, then a vertical pass per row. Without a map, Valid skips the
-// pixels it does not average (their windows would only be needed for the map).
+// or over the valid interior (Valid). The five local moments (a, b, a^2, b^2, ab) are blurred
+// separably, fused per band of rows: each row's horizontal pass goes into a ring of row planes
+// (float, the taps in window order), the vertical pass of a row then reads its 11 rows from the
+// ring (double, in window order) -- the same operations in the same order per pixel as one
+// horizontal pass over the whole image followed by one vertical pass, so the same bits, without
+// the image-sized intermediate. Without a map, Valid skips the pixels it does not average
+// (their windows would only be needed for the map).
 double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map, SsimBorder border) {
   const bool valid = border == SsimBorder::Valid;
   // Columns and rows whose SSIM is computed: all, or the interior when nothing else needs them.
   const int x0 = valid && !map ? kRadius : 0, x1 = valid && !map ? w - kRadius : w;
   const int y0 = valid && !map ? kRadius : 0, y1 = valid && !map ? h - kRadius : h;
   static const auto g = gaussian_weights();
-  // Horizontal pass: 5 planes (a, b, a^2, b^2, ab).
-  std::vector<float> hz(size_t(w) * h * 5);
-  tbb::parallel_for(0, h, [&](int y) {
-    const float* ra = a + size_t(y) * w;
-    const float* rb = b + size_t(y) * w;
-    float* out = &hz[size_t(y) * w * 5];
-    for (int x = x0; x < x1; ++x) {
-      float s[5] = {0, 0, 0, 0, 0};
-      for (int k = -kRadius; k <= kRadius; ++k) {
-        const int xx = reflect101(x + k, w);
-        const float wa = ra[xx], wb = rb[xx], gk = g[k + kRadius];
-        s[0] += gk * wa;
-        s[1] += gk * wb;
-        s[2] += gk * wa * wa;
-        s[3] += gk * wb * wb;
-        s[4] += gk * wa * wb;
-      }
-      for (int c = 0; c < 5; ++c) out[x * 5 + c] = s[c];
-    }
-  });
   std::vector<double> row_sums(size_t(h), 0.0);
   if (map) map->resize(w, h);
-  tbb::parallel_for(y0, y1, [&](int y) {
-    double row = 0;
-    for (int x = x0; x < x1; ++x) {
-      double s[5] = {0, 0, 0, 0, 0};
-      for (int k = -kRadius; k <= kRadius; ++k) {
-        const float* p = &hz[(size_t(reflect101(y + k, h)) * w + x) * 5];
-        const double gk = g[k + kRadius];
-        for (int c = 0; c < 5; ++c) s[c] += gk * p[c];
+  const size_t ws = size_t(w);
+  // The rows one output row reads lie within 11 consecutive image rows (reflect101 maps the
+  // window into [y - 5, y + 5] clipped to the image), so 16 ring slots never collide.
+  constexpr int kRing = 16;
+  constexpr int kBandRows = 32;
+  const int bands = (y1 - y0 + kBandRows - 1) / kBandRows;
+  tbb::parallel_for(0, bands, [&](int band) {
+    // Per thread, reused across calls: 16 rows x 5 planes of w floats.
+    static thread_local std::vector<float> ring;
+    ring.resize(size_t(kRing) * 5 * ws);
+    int tag[kRing];
+    std::fill(tag, tag + kRing, -1);
+    auto horizontal = [&](int y) -> const float* {
+      const int slot = y % kRing;
+      float* out = &ring[size_t(slot) * 5 * ws];
+      if (tag[slot] == y) return out;
+      tag[slot] = y;
+      const float* ra = a + size_t(y) * ws;
+      const float* rb = b + size_t(y) * ws;
+      float* p0 = out;
+      float* p1 = out + ws;
+      float* p2 = out + 2 * ws;
+      float* p3 = out + 3 * ws;
+      float* p4 = out + 4 * ws;
+      // Columns whose window needs no reflection: the taps run as 11 vector passes.
+      const int i0 = std::max(x0, kRadius), i1 = std::min(x1, w - kRadius);
+      if (i0 < i1) horizontal_taps(ra, rb, g.data(), i0, i1, p0, p1, p2, p3, p4);
+      // The border columns (and every column of an image narrower than one window).
+      for (int x = x0; x < x1; ++x) {
+        if (x >= i0 && x < i1) {
+          x = i1 - 1;
+          continue;
+        }
+        float s[5] = {0, 0, 0, 0, 0};
+        for (int k = -kRadius; k <= kRadius; ++k) {
+          const int xx = reflect101(x + k, w);
+          const float wa = ra[xx], wb = rb[xx], gk = g[k + kRadius];
+          s[0] += gk * wa;
+          s[1] += gk * wb;
+          s[2] += gk * wa * wa;
+          s[3] += gk * wb * wb;
+          s[4] += gk * wa * wb;
+        }
+        p0[x] = s[0], p1[x] = s[1], p2[x] = s[2], p3[x] = s[3], p4[x] = s[4];
       }
-      const double mu_a = s[0], mu_b = s[1];
-      const double var_a = std::max(0.0, s[2] - mu_a * mu_a);
-      const double var_b = std::max(0.0, s[3] - mu_b * mu_b);
-      // Rounding can push the moments slightly outside what they can be: clamp the variances
-      // at 0 and the covariance to |cov| <= sqrt(var_a var_b) (Cauchy-Schwarz), so that
-      // identical images score exactly 1 and flat regions never go negative.
-      const double bound = std::sqrt(var_a * var_b);
-      const double cov = std::clamp(s[4] - mu_a * mu_b, -bound, bound);
-      const double v = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
-                       ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a + var_b + kC2));
-      if (map) (*map)(x, y) = float(v);
-      if (!valid || (x >= kRadius && x < w - kRadius)) row += v;
+      return out;
+    };
+    const int ya = y0 + band * kBandRows, yb = std::min(y1, ya + kBandRows);
+    const float* rows[2 * kRadius + 1];
+    double s[5][kBlock];
+    double v[kBlock];
+    for (int y = ya; y < yb; ++y) {
+      for (int k = -kRadius; k <= kRadius; ++k) rows[k + kRadius] = horizontal(reflect101(y + k, h));
+      double row = 0;
+      for (int bx = x0; bx < x1; bx += kBlock) {
+        const int n = std::min(kBlock, x1 - bx);
+        for (int c = 0; c < 5; ++c) {
+          double* __restrict sc = s[c];
+          for (int i = 0; i < n; ++i) sc[i] = 0.0;
+          for (int k = 0; k < 2 * kRadius + 1; ++k) {
+            const double gk = g[size_t(k)];
+            const float* __restrict p = rows[k] + size_t(c) * ws + size_t(bx);
+            for (int i = 0; i < n; ++i) sc[i] += gk * p[i];
+          }
+        }
+        ssim_from_moments(s[0], s[1], s[2], s[3], s[4], v, n);
+        if (map)
+          for (int i = 0; i < n; ++i) (*map)(bx + i, y) = float(v[i]);
+        for (int i = 0; i < n; ++i)  // in column order, as one sum per row
+          if (!valid || (bx + i >= kRadius && bx + i < w - kRadius)) row += v[i];
+      }
+      row_sums[size_t(y)] = row;
     }
-    row_sums[size_t(y)] = row;
   });
   double total = 0;
   if (!valid) {
@@ -119,7 +201,9 @@ ImageU8 luma(const ImageRGB8& image) {
   ImageU8 out(image.width(), image.height());
   for (size_t i = 0; i < image.size(); ++i) {
     const Rgb8 p = image[i];
-    out[i] = uint8_t(std::lround(0.299 * p.r + 0.587 * p.g + 0.114 * p.b));
+    // Truncating x + 0.5 gives std::lround(x) for every (r, g, b) (all 2^24 checked by
+    // tests/test_metrics.cpp), without the library call.
+    out[i] = uint8_t(int(0.299 * p.r + 0.587 * p.g + 0.114 * p.b + 0.5));
   }
   return out;
 }

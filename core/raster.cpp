@@ -505,9 +505,34 @@ void cover(const Context& ctx, const CoverTri& c, int X0, int Y0, int X1, int Y1
   }
   const ObjectPrep& p = ctx.objects[c.object];
   uint32_t sid = kNoSetup;
+  // Rows wider than this find their covered span [xa, xb] from the edge functions (exact
+  // integer division) instead of testing every pixel of the bounding box.
+  constexpr int kSpanMinWidth = 8;
+  const bool spans = x1 - x0 >= kSpanMinWidth;
   for (int y = y0; y <= y1; ++y) {
-    int64_t e0 = row[0], e1 = row[1], e2 = row[2];
-    for (int x = x0; x <= x1; ++x, e0 += step_x[0], e1 += step_x[1], e2 += step_x[2]) {
+    int xa = x0, xb = x1;
+    if (spans) {
+      // E_k(x) = row[k] + (x - x0) step_x[k] >= 0 for all k: one bound per edge.
+      int64_t lo = 0, hi = x1 - x0;
+      for (int k = 0; k < 3 && lo <= hi; ++k) {
+        const int64_t e = row[k], st = step_x[k];
+        if (st > 0) {
+          if (e < 0) lo = std::max(lo, (-e + st - 1) / st);
+        } else if (st < 0) {
+          hi = e < 0 ? -1 : std::min(hi, e / -st);
+        } else if (e < 0) {
+          hi = -1;
+        }
+      }
+      if (lo > hi) {
+        for (int k = 0; k < 3; ++k) row[k] += step_y[k];
+        continue;
+      }
+      xa = x0 + int(lo), xb = x0 + int(hi);
+    }
+    int64_t e0 = row[0] + int64_t(xa - x0) * step_x[0], e1 = row[1] + int64_t(xa - x0) * step_x[1],
+            e2 = row[2] + int64_t(xa - x0) * step_x[2];
+    for (int x = xa; x <= xb; ++x, e0 += step_x[0], e1 += step_x[1], e2 += step_x[2]) {
       if ((e0 | e1 | e2) < 0) continue;
       ++fragments;
       if (sid == kNoSetup) {

@@ -75,6 +75,16 @@ const std::array<float, 256>& srgb_table() {
   return table;
 }
 
+// Alpha of an 8-bit texel, float(i) / 255.0f: looked up instead of divided per fetch.
+const std::array<float, 256>& alpha_table() {
+  static const std::array<float, 256> table = [] {
+    std::array<float, 256> t{};
+    for (int i = 0; i < 256; ++i) t[size_t(i)] = float(i) / 255.0f;
+    return t;
+  }();
+  return table;
+}
+
 }  // namespace
 
 glm::mat4 Animation::at(double time_s) const {
@@ -136,13 +146,21 @@ glm::vec4 Texture::sample_bilinear(glm::vec2 uv) const {
   const float y = (1.0f - (uv.y - std::floor(uv.y))) * float(height) - 0.5f;
   const float fx = std::floor(x), fy = std::floor(y);
   const float wx = x - fx, wy = y - fy;
-  auto wrap = [](long v, int size) { return int(((v % size) + size) % size); };
+  // x and y lie in [-0.5, size - 0.5): v is almost always within one size of the range, where
+  // the two modulos (integer divisions) are not needed; same result.
+  auto wrap = [](long v, int size) {
+    if (v >= 0 && v < size) return int(v);
+    if (v < 0 && v >= -long(size)) return int(v + size);
+    if (v >= size && v < 2 * long(size)) return int(v - size);
+    return int(((v % size) + size) % size);
+  };
   const int x0 = wrap(long(fx), width), x1 = wrap(long(fx) + 1, width);
   const int y0 = wrap(long(fy), height), y1 = wrap(long(fy) + 1, height);
   const auto& lut = srgb_table();
+  const auto& alpha = alpha_table();
   auto fetch = [&](int xi, int yi) {
     const glm::u8vec4 t = texels[size_t(yi) * size_t(width) + size_t(xi)];
-    return glm::vec4(lut[t.x], lut[t.y], lut[t.z], float(t.w) / 255.0f);
+    return glm::vec4(lut[t.x], lut[t.y], lut[t.z], alpha[t.w]);
   };
   return glm::mix(glm::mix(fetch(x0, y0), fetch(x1, y0), wx), glm::mix(fetch(x0, y1), fetch(x1, y1), wx), wy);
 }

@@ -5,11 +5,26 @@
 // precomputed (the nearest source pixel of each dst pixel), on the same TBB row split.
 // Each reprojection benchmark reports ms per frame and, as counters, the gather's ms and
 // the ratio (reprojection / gather).
+//
+// The memory floor of a stage (docs/performance.md, "Client stages (item 5)"): one streaming
+// pass over exactly the bytes the stage reads (every plane it reads, once) and writes (its
+// output), on the same TBB row split, timed in process CPU time beside the stage's own
+// process CPU time per frame (`cpu_ms`, `floor_cpu_ms`, `x_floor`), both on one thread (TBB
+// limited to 1: no worker spinning in the CPU time, the same basis as bench_raster's ratio). Reprojection reads the dst
+// G-buffer's object_id, position and normal, the src G-buffer's object_id, position, normal and
+// geo_normal and the received bytes, and writes the predicted bytes (70 B/px for 1-byte passes);
+// BM_Composite (room, rasterized at 1280x720, three lights, a synthetic visibility bitmask and
+// AO) reads object_id, normal, albedo, position and both passes and writes the RGB8 image
+// (45 B/px; geo_normal only where the normal is zero, not counted).
 #include "backends/register_all.h"
 #include "core/backend.h"
+#include "core/composite.h"
+#include "core/raster.h"
+#include "core/scene_load.h"
 #include "core/rng.h"
 
 #include <benchmark/benchmark.h>
+#include <tbb/global_control.h>
 #include <glm/gtc/matrix_transform.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -17,6 +32,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
+#include <ctime>
+#include <span>
 #include <vector>
 
 namespace {
@@ -156,20 +174,81 @@ double gather_ms() {
   return elapsed_ms / runs;
 }
 
+double process_cpu_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) * 1e3 + double(ts.tv_nsec) * 1e-6;
+}
+
+// A plane the floor streams: `bytes_per_pixel` bytes per pixel, row-major.
+struct Plane {
+  const void* data;
+  size_t bytes_per_pixel;
+};
+
+// One streaming pass: every read plane summed as 64-bit words row by row, the output rows
+// written (filled with a byte of that sum, so nothing is optimised away).
+void stream_floor(std::span<const Plane> reads, uint8_t* out, size_t out_bpp, std::vector<uint64_t>& sums) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, kH, 2), [&](const tbb::blocked_range<int>& r) {
+    uint64_t acc = 0;
+    for (int y = r.begin(); y < r.end(); ++y) {
+      for (const Plane& p : reads) {
+        const size_t row = size_t(kW) * p.bytes_per_pixel;
+        const auto* bytes = static_cast<const uint8_t*>(p.data) + size_t(y) * row;
+        for (size_t i = 0; i + 8 <= row; i += 8) {
+          uint64_t v;
+          std::memcpy(&v, bytes + i, 8);
+          acc += v;
+        }
+      }
+      const size_t orow = size_t(kW) * out_bpp;
+      std::memset(out + size_t(y) * orow, int(acc & 255), orow);
+    }
+    sums[size_t(r.begin())] = acc;
+  });
+}
+
+// Process CPU ms per floor pass, over at least 0.5 s (as gather_ms).
+double floor_cpu_ms(std::span<const Plane> reads, size_t out_bpp) {
+  std::vector<uint8_t> out(size_t(kW) * kH * out_bpp);
+  std::vector<uint64_t> sums(size_t(kH), 0);
+  const auto start = std::chrono::steady_clock::now();
+  const double cpu0 = process_cpu_ms();
+  int runs = 0;
+  while (std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count() < 500.0 ||
+         runs < 10) {
+    stream_floor(reads, out.data(), out_bpp, sums);
+    benchmark::DoNotOptimize(out.data());
+    benchmark::DoNotOptimize(sums.data());
+    ++runs;
+  }
+  return (process_cpu_ms() - cpu0) / runs;
+}
+
 void run_reprojection(benchmark::State& state, const PassBuffer& in, const nlohmann::json& params) {
   const Frames& f = frames();
   auto p = registries().predictors.create("reprojection", params);
   PassBuffer out;
   PredictStats st = p->predict({in, f.src, f.dst}, out);  // warm: sizes the output once
   double total_ms = 0.0;
+  const tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+  const double cpu0 = process_cpu_ms();
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
     st = p->predict({in, f.src, f.dst}, out);
     benchmark::DoNotOptimize(out.bytes.data());
     total_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   }
+  const double cpu_ms = (process_cpu_ms() - cpu0) / double(state.iterations());
   const double ceiling = gather_ms();
   const double per_frame = total_ms / double(state.iterations());
+  const Plane reads[] = {{in.bytes.data(), 1},         {f.dst.object_id.data(), 4},   {f.dst.position.data(), 12},
+                         {f.dst.normal.data(), 12},    {f.src.object_id.data(), 4},   {f.src.position.data(), 12},
+                         {f.src.normal.data(), 12},    {f.src.geo_normal.data(), 12}};
+  const double floor_ms = floor_cpu_ms(reads, 1);
+  state.counters["cpu_ms"] = cpu_ms;
+  state.counters["floor_cpu_ms"] = floor_ms;
+  state.counters["x_floor"] = cpu_ms / floor_ms;
   state.counters["gather_ms"] = ceiling;
   state.counters["x_gather"] = per_frame / ceiling;
   state.counters["disoccluded_%"] = 100.0 * double(st.disoccluded) / double(std::max<uint64_t>(st.pixels, 1));
@@ -190,6 +269,52 @@ void BM_Reprojection_Visibility4(benchmark::State& state) {
   run_reprojection(state, frames().vis4, nlohmann::json::object());
 }
 BENCHMARK(BM_Reprojection_Visibility4)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The composite of room (three lights) at 1280x720: a visibility bitmask and an AO pass of
+// synthetic bytes over the rasterized G-buffer.
+void BM_Composite(benchmark::State& state) {
+  Scene scene;
+  try {
+    for (const std::string& f : builtin_scene_files())
+      if (f.ends_with("/room.json")) scene = load_scene(f, SceneSearchPath::standard());
+  } catch (const std::exception& e) {
+    state.SkipWithError(e.what());
+    return;
+  }
+  const Camera cam = scene.camera.at(0.0, kW, kH);
+  GBuffer g;
+  rasterize({&scene, cam, 0.0, cam, 0.0}, g);
+  const size_t n = size_t(kW) * kH;
+  const int lights = int(scene.lights.size());
+  PassBuffer vis, ao;
+  vis.desc = {PassKind::Visibility, kW, kH, lights, 255};
+  ao.desc = {PassKind::Ao, kW, kH, 1, 255};
+  vis.bytes.resize(vis.desc.byte_size());
+  ao.bytes.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    const uint64_t h = rng_bits({2, uint32_t(i), 0, 0, 9});
+    ao.bytes[i] = uint8_t(128 + (h & 127));
+    for (size_t b = 0; b < vis.bytes.size() / n; ++b) vis.bytes[i * (vis.bytes.size() / n) + b] = uint8_t(h >> (8 + 8 * b));
+  }
+  const CompositeSettings settings;
+  ImageRGB8 img = composite(g, scene, &vis, &ao, settings);
+  const tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+  const double cpu0 = process_cpu_ms();
+  for (auto _ : state) {
+    img = composite(g, scene, &vis, &ao, settings);
+    benchmark::DoNotOptimize(img.data());
+  }
+  const double cpu_ms = (process_cpu_ms() - cpu0) / double(state.iterations());
+  const Plane reads[] = {{g.object_id.data(), 4}, {g.normal.data(), 12},
+                         {g.albedo.data(), 12},    {g.position.data(), 12},
+                         {vis.bytes.data(), vis.bytes.size() / n}, {ao.bytes.data(), 1}};
+  const double floor_ms = floor_cpu_ms(reads, 3);
+  state.counters["lights"] = lights;
+  state.counters["cpu_ms"] = cpu_ms;
+  state.counters["floor_cpu_ms"] = floor_ms;
+  state.counters["x_floor"] = cpu_ms / floor_ms;
+}
+BENCHMARK(BM_Composite)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // The ceiling on its own, for reference (the counters above re-measure it beside each run).
 void BM_GatherCeiling_U8(benchmark::State& state) {

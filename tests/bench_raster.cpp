@@ -3,7 +3,10 @@
 // cores and with one thread. Counters: the scene's triangle count, triangles per second,
 // fragments, and `x_fill`: the frame time over the ceiling measured in the same run -- the
 // time to write the same G-buffer bytes (76 B/px) with std::fill (BM_GBufferFill), i.e. what
-// a rasterizer that did nothing but write its output would cost.
+// a rasterizer that did nothing but write its output would cost. `cpu_ms` is the process CPU
+// time per frame (all threads) and `x_fill_cpu` its ratio to the fill's process CPU time (one
+// thread, best of 7): on a shared machine the wall times measure the neighbours, the CPU time
+// a frame consumes much less (docs/performance.md, "Client stages (item 5)").
 //
 //   build-*/tests/bench_raster --benchmark_min_time=0.5s
 #include "core/error.h"
@@ -18,6 +21,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <ctime>
 #include <filesystem>
 #include <map>
 #include <memory>
@@ -76,6 +80,30 @@ double fill_ms() {
   return ms;
 }
 
+double process_cpu_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) * 1e3 + double(ts.tv_nsec) * 1e-6;
+}
+
+// The same ceiling in process CPU time (one thread writes; best of 7).
+double fill_cpu_ms() {
+  static const double ms = [] {
+    dhr::GBuffer g;
+    g.resize(kWidth, kHeight);
+    double best = 1e30;
+    for (int i = 0; i < 7; ++i) {
+      const double t0 = process_cpu_ms();
+      fill_gbuffer(g, float(i));
+      benchmark::DoNotOptimize(g.depth.data());
+      benchmark::ClobberMemory();
+      best = std::min(best, process_cpu_ms() - t0);
+    }
+    return best;
+  }();
+  return ms;
+}
+
 // Scenes are loaded once per process (real ones take seconds).
 const dhr::Scene& cached_scene(const std::string& path) {
   static std::map<std::string, std::unique_ptr<dhr::Scene>> cache;
@@ -106,6 +134,7 @@ void BM_Raster(benchmark::State& state, const std::string& path, bool real) {
   dhr::GBuffer g;
   dhr::RasterStats stats = dhr::rasterize(frame, g);  // warm-up, allocates the G-buffer
   double wall_ms = 0.0;
+  const double cpu0 = process_cpu_ms();
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
     stats = dhr::rasterize(frame, g);
@@ -114,7 +143,9 @@ void BM_Raster(benchmark::State& state, const std::string& path, bool real) {
   }
   // Rates from wall time (Google Benchmark's rate counters divide by the main thread's CPU
   // time, which misses TBB's worker threads).
-  const double ms = wall_ms / double(std::max<benchmark::IterationCount>(state.iterations(), 1));
+  const double iterations = double(std::max<benchmark::IterationCount>(state.iterations(), 1));
+  const double cpu_ms = (process_cpu_ms() - cpu0) / iterations;
+  const double ms = wall_ms / iterations;
   const double tris = double(scene->triangle_count());
   state.counters["ms"] = ms;
   state.counters["triangles"] = tris;
@@ -126,6 +157,9 @@ void BM_Raster(benchmark::State& state, const std::string& path, bool real) {
   state.counters["clipped"] = double(stats.triangles_clipped);
   state.counters["fill_ms"] = fill_ms();
   state.counters["x_fill"] = ms / fill_ms();  // frame time in units of the output-write ceiling
+  state.counters["cpu_ms"] = cpu_ms;
+  state.counters["fill_cpu_ms"] = fill_cpu_ms();
+  state.counters["x_fill_cpu"] = cpu_ms / fill_cpu_ms();
 }
 
 std::string stem(const std::string& path) { return std::filesystem::path(path).stem().string(); }

@@ -10,8 +10,10 @@
 #include <tbb/global_control.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -231,6 +233,125 @@ TEST(Metrics, ValidSsimMapIsTheMirroredMapAndIdenticalScoresOne) {
   EXPECT_EQ(valid, compare_images(a, b, SsimChannel::Luma, nullptr, SsimBorder::Valid).ssim);
   EXPECT_EQ(compare_images(a, a, SsimChannel::Luma, nullptr, SsimBorder::Valid).ssim, 1.0);
   EXPECT_EQ(compare_images(a, a, SsimChannel::RgbMean, nullptr, SsimBorder::Valid).ssim, 1.0);
+}
+
+// The two-pass SSIM as it was computed before the fused version of core/metrics.cpp (one
+// horizontal pass over the whole image into five interleaved planes, then one vertical pass):
+// the definition of the bits the fused version must reproduce.
+double two_pass_ssim(const ImageU8& ia, const ImageU8& ib, ImageF* map, SsimBorder border) {
+  constexpr int kRadius = 5;
+  constexpr double kC1 = (0.01 * 255) * (0.01 * 255);
+  constexpr double kC2 = (0.03 * 255) * (0.03 * 255);
+  const int w = ia.width(), h = ia.height();
+  std::vector<float> fa(ia.pixels().begin(), ia.pixels().end()), fb(ib.pixels().begin(), ib.pixels().end());
+  const float* a = fa.data();
+  const float* b = fb.data();
+  std::array<float, 2 * kRadius + 1> g{};
+  double gsum = 0;
+  for (int i = -kRadius; i <= kRadius; ++i) gsum += std::exp(-(i * i) / (2.0 * 1.5 * 1.5));
+  for (int i = -kRadius; i <= kRadius; ++i) g[size_t(i + kRadius)] = float(std::exp(-(i * i) / (2.0 * 1.5 * 1.5)) / gsum);
+  auto reflect101 = [](int i, int n) {
+    if (n == 1) return 0;
+    while (i < 0 || i >= n) {
+      if (i < 0) i = -i;
+      if (i >= n) i = 2 * n - 2 - i;
+    }
+    return i;
+  };
+  const bool valid = border == SsimBorder::Valid;
+  const int x0 = valid && !map ? kRadius : 0, x1 = valid && !map ? w - kRadius : w;
+  const int y0 = valid && !map ? kRadius : 0, y1 = valid && !map ? h - kRadius : h;
+  std::vector<float> hz(size_t(w) * h * 5);
+  for (int y = 0; y < h; ++y) {
+    const float* ra = a + size_t(y) * w;
+    const float* rb = b + size_t(y) * w;
+    float* out = &hz[size_t(y) * w * 5];
+    for (int x = x0; x < x1; ++x) {
+      float s[5] = {0, 0, 0, 0, 0};
+      for (int k = -kRadius; k <= kRadius; ++k) {
+        const int xx = reflect101(x + k, w);
+        const float wa = ra[xx], wb = rb[xx], gk = g[size_t(k + kRadius)];
+        s[0] += gk * wa;
+        s[1] += gk * wb;
+        s[2] += gk * wa * wa;
+        s[3] += gk * wb * wb;
+        s[4] += gk * wa * wb;
+      }
+      for (int c = 0; c < 5; ++c) out[x * 5 + c] = s[c];
+    }
+  }
+  std::vector<double> row_sums(size_t(h), 0.0);
+  if (map) map->resize(w, h);
+  for (int y = y0; y < y1; ++y) {
+    double row = 0;
+    for (int x = x0; x < x1; ++x) {
+      double s[5] = {0, 0, 0, 0, 0};
+      for (int k = -kRadius; k <= kRadius; ++k) {
+        const float* p = &hz[(size_t(reflect101(y + k, h)) * w + x) * 5];
+        const double gk = g[size_t(k + kRadius)];
+        for (int c = 0; c < 5; ++c) s[c] += gk * p[c];
+      }
+      const double mu_a = s[0], mu_b = s[1];
+      const double var_a = std::max(0.0, s[2] - mu_a * mu_a);
+      const double var_b = std::max(0.0, s[3] - mu_b * mu_b);
+      const double bound = std::sqrt(var_a * var_b);
+      const double cov = std::clamp(s[4] - mu_a * mu_b, -bound, bound);
+      const double v = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
+                       ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a + var_b + kC2));
+      if (map) (*map)(x, y) = float(v);
+      if (!valid || (x >= kRadius && x < w - kRadius)) row += v;
+    }
+    row_sums[size_t(y)] = row;
+  }
+  double total = 0;
+  if (!valid) {
+    for (double r : row_sums) total += r;
+    return total / (double(w) * h);
+  }
+  for (int y = kRadius; y < h - kRadius; ++y) total += row_sums[size_t(y)];
+  return total / (double(w - 2 * kRadius) * double(h - 2 * kRadius));
+}
+
+TEST(Metrics, SsimIsBitIdenticalToTheTwoPassDefinition) {
+  // Sizes: narrower and shorter than a window, odd, around the fused pass's 32-row bands and
+  // 256-column blocks, and a full frame.
+  const int sizes[][2] = {{1, 1}, {3, 7}, {9, 4}, {11, 11}, {12, 33}, {37, 29}, {257, 65}, {300, 97}, {1280, 720}};
+  uint64_t seed = 1;
+  for (const auto& sz : sizes) {
+    const int w = sz[0], h = sz[1];
+    const ImageRGB8 a = test_image(w, h, seed++), b = test_image(w, h, seed++);
+    const ImageU8 la = luma(a), lb = luma(b);
+    for (SsimBorder border : {SsimBorder::Mirrored, SsimBorder::Valid}) {
+      if (border == SsimBorder::Valid && (w < 11 || h < 11)) continue;
+      for (bool with_map : {false, true}) {
+        ImageF map, ref_map;
+        const double got = ssim_u8(la, lb, with_map ? &map : nullptr, border);
+        const double want = two_pass_ssim(la, lb, with_map ? &ref_map : nullptr, border);
+        EXPECT_EQ(std::memcmp(&got, &want, sizeof got), 0) << w << "x" << h << " map " << with_map << ": " << got
+                                                         << " vs " << want;
+        if (with_map) {
+          ASSERT_EQ(map.size(), ref_map.size());
+          EXPECT_EQ(std::memcmp(map.data(), ref_map.data(), map.size() * sizeof(float)), 0) << w << "x" << h;
+        }
+      }
+    }
+  }
+}
+
+// luma() rounds with a truncation of x + 0.5 where it called std::lround: the same integer for
+// every (r, g, b), all 2^24 of them.
+TEST(Metrics, LumaRoundsAsLround) {
+  ImageRGB8 img(256, 256);
+  for (int r = 0; r < 256; ++r) {
+    for (int g = 0; g < 256; ++g)
+      for (int b = 0; b < 256; ++b) img(b, g) = {uint8_t(r), uint8_t(g), uint8_t(b)};
+    const ImageU8 l = luma(img);
+    int bad = 0;
+    for (int g = 0; g < 256; ++g)
+      for (int b = 0; b < 256; ++b)
+        bad += l(b, g) != uint8_t(std::lround(0.299 * r + 0.587 * g + 0.114 * b));
+    ASSERT_EQ(bad, 0) << "r = " << r;
+  }
 }
 
 TEST(Metrics, ValidSsimRefusesImagesSmallerThanOneWindow) {

@@ -13,12 +13,15 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <numbers>
 
 namespace dhr {
@@ -639,6 +642,35 @@ TEST(Composite, ToneMapIsExactSrgb) {
     if (std::abs(enc - std::floor(enc) - 0.5) < 1e-4) continue;  // a tie: either code is right
     EXPECT_EQ(tonemap_srgb8(float(v)), std::lround(enc)) << v;
   }
+}
+
+// The code is the number of boundaries <= the value (std::upper_bound over the table of
+// core/composite.cpp, rebuilt here the same way): at every boundary, the floats next to it and
+// a million random floats (half over every finite positive float, half over [0, 1.2)).
+TEST(Composite, ToneMapCountsBoundariesLikeUpperBound) {
+  std::array<float, 255> b{};
+  for (int k = 1; k <= 255; ++k) {
+    const double v = (k - 0.5) / 255.0;
+    b[size_t(k - 1)] = float(v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4));
+  }
+  auto want = [&](float v) {
+    return v > 0.0f ? int(std::upper_bound(b.begin(), b.end(), v) - b.begin()) : 0;
+  };
+  for (float x : b)
+    for (float v : {std::nextafter(x, 0.0f), x, std::nextafter(x, 2.0f)}) EXPECT_EQ(int(tonemap_srgb8(v)), want(v)) << v;
+  uint32_t state = 12345;
+  for (int i = 0; i < 1000000; ++i) {
+    state = state * 1664525u + 1013904223u;
+    float v;
+    if (i % 2 == 0) {
+      const uint32_t bits = state & 0x7f7fffffu;  // any finite positive float
+      std::memcpy(&v, &bits, sizeof v);
+    } else {
+      v = float(state >> 8) * (1.2f / 16777216.0f);  // the codes' range, densely
+    }
+    ASSERT_EQ(int(tonemap_srgb8(v)), want(v)) << v;
+  }
+  EXPECT_EQ(int(tonemap_srgb8(std::numeric_limits<float>::infinity())), 255);
 }
 
 TEST(Composite, NoLightsIsAlbedoTimesAmbient) {
