@@ -19,6 +19,9 @@
 #include <cstdint>
 #include <cstring>
 #include <type_traits>
+#if DHR_DENOISE_AVX512
+#include <immintrin.h>
+#endif
 
 namespace dhr::denoise {
 namespace {
@@ -125,6 +128,164 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
   L::store(sv_out, sv);
 }
 
+#if DHR_DENOISE_AVX512
+// The same taps as atrous_block for NB blocks of 16 pixels at x, x + 16, ... (AVX-512), written
+// for throughput: the taps are unrolled (radius R known at compile time) and the blocks are
+// interleaved, so independent chains (7 squarings, the exponential's polynomial) overlap. The
+// bits are those of atrous_block: every product and sum is the same IEEE operation in the same
+// order; only these steps are done by other instructions with the same result:
+//  - exp_neg(-(wz + wl)): wz, wl >= 0, so its clamp at 0 never acts and is left out;
+//    t = -(s) 1.44269504 is s (-1.44269504) (rounding is symmetric); the clamp at -60 and the
+//    final "x < -60 ? 0" become a mask (s > 60) that zeroes the weight (the masked product
+//    (h wn) r gives the same +0); the rounding of t - 0.5 by truncation to an integer and back
+//    is vrndscaleps (truncate), exact for |t| < 2^23; adding i to the exponent bits of p
+//    (p in [0.7, 1.5), i >= -87) is p 2^i by vscalefps, exact in the normal range it stays in.
+//  - max(0, d) is vmaxps(d, 0) (d > 0 ? d : 0, NaN to 0 as well).
+template <int K, int R, int NB>
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const AtrousArgs& a, int y, int x,
+                                                                        const float* ipl_row, const float (*hk)[5],
+                                                                        const float (*inv_len)[5], float* sw_out,
+                                                                        float* sl_out, float* sv_out) {
+  using L = VectorLane16;
+  using T = VecF16;
+  const int step = a.step, nsq = a.normal_squarings;
+  const size_t c = size_t(y) * size_t(a.width) + size_t(x);
+  T zc[NB], ncx[NB], ncy[NB], ncz[NB], ipz[NB], ipl[NB], lc[NB], sw[NB], sl[NB], sv[NB];
+  const float hc = a.k1d[0] * a.k1d[0];
+  for (int b = 0; b < NB; ++b) {
+    const size_t cb = c + size_t(16 * b);
+    zc[b] = L::load(a.depth + cb);
+    ncx[b] = L::load(a.nx + cb);
+    ncy[b] = L::load(a.ny + cb);
+    ncz[b] = L::load(a.nz + cb);
+    ipz[b] = L::load(a.inv_phi_z + cb);
+    ipl[b] = L::load(ipl_row + x + 16 * b);
+    lc[b] = L::load(a.v_in + cb);
+    sw[b] = T{} + hc;
+    sl[b] = hc * lc[b];
+    sv[b] = (hc * hc) * L::load(a.var_in + cb);
+  }
+  const __m512 zero = _mm512_setzero_ps(), sixty = _mm512_set1_ps(60.0f);
+  const __mmask16 all = 0xffff;  // the zero-masked forms: GCC 12 warns on the plain ones' undefined source
+#pragma GCC unroll 5
+  for (int ty = -R; ty <= R; ++ty) {
+    const int qy = y + ty * step;
+    if (qy < 0 || qy >= a.height) continue;
+    const size_t qrow = size_t(qy) * size_t(a.width) + size_t(x);
+#pragma GCC unroll 5
+    for (int tx = -R; tx <= R; ++tx) {
+      if (tx == 0 && ty == 0) continue;
+      const size_t q0 = qrow + size_t(tx * step);  // x + tx step >= 0 here
+      const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
+#pragma GCC unroll 4
+      for (int b = 0; b < NB; ++b) {
+        const size_t q = q0 + size_t(16 * b);
+        const T d = ncx[b] * L::load(a.nx + q) + ncy[b] * L::load(a.ny + q) + ncz[b] * L::load(a.nz + q);
+        T wn = (T)_mm512_maskz_max_ps(all, (__m512)d, zero);  // then pow_2k's squarings
+        if constexpr (K >= 0) {
+          for (int i = 0; i < K; ++i) wn = wn * wn;
+        } else {
+          for (int i = 0; i < nsq; ++i) wn = wn * wn;
+        }
+        const T wz = abs_f(zc[b] - L::load(a.depth + q)) * ipz[b] * il;
+        const T lq = L::load(a.v_in + q);
+        const T wl = abs_f(lc[b] - lq) * ipl[b];
+        const T s = wz + wl;
+        const T t = s * -1.44269504f;
+        const __m512 fi = _mm512_maskz_roundscale_ps(all, (__m512)(t - 0.5f), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC);
+        const T f = t - (T)fi;
+        T p = T{} + 9.6181291e-3f;
+        p = p * f + 5.5504109e-2f;
+        p = p * f + 2.4022651e-1f;
+        p = p * f + 6.9314718e-1f;
+        p = p * f + 1.0f;
+        const __m512 r = _mm512_maskz_scalef_ps(all, (__m512)p, fi);
+        const __mmask16 keep = _mm512_cmp_ps_mask((__m512)s, sixty, _CMP_NGT_UQ);
+        const T wgt = (T)_mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
+        sw[b] = sw[b] + wgt;
+        sl[b] = sl[b] + wgt * lq;
+        sv[b] = sv[b] + wgt * wgt * L::load(a.var_in + q);
+      }
+    }
+  }
+  for (int b = 0; b < NB; ++b) {
+    L::store(sw_out + 16 * b, sw[b]);
+    L::store(sl_out + 16 * b, sl[b]);
+    L::store(sv_out + 16 * b, sv[b]);
+  }
+}
+// The 16-pixel blocks of [xb, xm) of row y, two at a time where both have an active pixel;
+// returns where they end (the rest, under 16 pixels, is left to the 8-lane blocks). A call
+// per row (not inlined: atrous_rows_impl is compiled for the baseline target too).
+template <int K, int R>
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_blocks16(const AtrousArgs& a, int y, int xb, int xm,
+                                                                const uint8_t* cls, const float* ipl_row,
+                                                                const float (*hk)[5], const float (*inv_len)[5],
+                                                                float* sw, float* sl, float* sv) {
+  const uint8_t ac = a.active_cls;
+  for (; xb + 2 * kLanes16 <= xm; xb += 2 * kLanes16) {
+    const bool b0 = !cls || block_has(cls, xb, kLanes16, ac);
+    const bool b1 = !cls || block_has(cls, xb + kLanes16, kLanes16, ac);
+    if (b0 && b1) {
+      atrous_block16_unrolled<K, R, 2>(a, y, xb, ipl_row, hk, inv_len, sw + xb, sl + xb, sv + xb);
+    } else if (b0 || b1) {
+      const int x1 = b0 ? xb : xb + kLanes16;
+      atrous_block16_unrolled<K, R, 1>(a, y, x1, ipl_row, hk, inv_len, sw + x1, sl + x1, sv + x1);
+    }
+  }
+  for (; xb + kLanes16 <= xm; xb += kLanes16)
+    if (!cls || block_has(cls, xb, kLanes16, ac))
+      atrous_block16_unrolled<K, R, 1>(a, y, xb, ipl_row, hk, inv_len, sw + xb, sl + xb, sv + xb);
+  return xb;
+}
+
+
+// The end of a row (the loop at the end of atrous_rows_impl) for pixels [0, w - w % 16) of the
+// row at `row`, 16 at a time: the same IEEE operations per pixel (1 / sw, the products, the
+// clamps as the same comparisons), so the same bits; the pixels a cls leaves out keep v_out and
+// var_out and take to_u8 of v_out. Returns where it ended.
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_finish16(const AtrousArgs& a, size_t row, int w,
+                                                                        const float* sw, const float* sl,
+                                                                        const float* sv) {
+  using L = VectorLane16;
+  using T = VecF16;
+  const uint8_t ac = a.active_cls;
+  const __mmask16 all = 0xffff;  // the zero-masked forms: see atrous_block16_unrolled
+  int x = 0;
+  for (; x + kLanes16 <= w; x += kLanes16) {
+    const size_t i = row + size_t(x);
+    const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.valid + i));
+    const __mmask16 valid = _mm512_test_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, vb), _mm512_maskz_cvtepu8_epi32(all, vb));
+    __mmask16 act = 0xffff;
+    if (a.cls) {
+      const __m128i cb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.cls + i));
+      act = _mm512_cmpeq_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, cb), _mm512_set1_epi32(ac));
+    }
+    const T inv = T{} + 1.0f / L::load(sw + x);  // sw >= h_c > 0 at a valid pixel
+    const T t = L::load(sl + x) * inv;
+    const T lo = T{}, hi = T{} + 1.0f;
+    T v = t < lo ? lo : (hi < t ? hi : t);  // std::clamp(t, 0, 1)
+    const T q = L::load(sv + x) * inv * inv;
+    T var = lo < q ? q : lo;  // std::max(0, q)
+    v = (T)_mm512_mask_blend_ps(valid, (__m512)L::load(a.v_in + i), (__m512)v);
+    var = (T)_mm512_maskz_mov_ps(valid, (__m512)var);
+    _mm512_mask_storeu_ps(a.v_out + i, act, (__m512)v);
+    _mm512_mask_storeu_ps(a.var_out + i, act, (__m512)var);
+    if (a.v_out2) _mm512_mask_storeu_ps(a.v_out2 + i, act, (__m512)v);
+    if (a.v_out3) _mm512_mask_storeu_ps(a.v_out3 + i, act, (__m512)v);
+    if (a.var_out2) _mm512_mask_storeu_ps(a.var_out2 + i, act, (__m512)var);
+    if (a.u8_out) {  // to_u8 (filters.h), of v_out as it is where a cls leaves the pixel out
+      const T vo = (T)_mm512_mask_blend_ps(act, (__m512)L::load(a.v_out + i), (__m512)v);
+      T f = vo * 255.0f + 0.5f;
+      f = f >= lo ? f : lo;
+      f = f <= T{} + 255.0f ? f : T{} + 255.0f;
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(a.u8_out + i), _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_cvttps_epi32(all, (__m512)f)));
+    }
+  }
+  return x;
+}
+#endif
+
 // The AO phi of row y into out (w floats), from var_in (see AtrousArgs::inv_phi_l). The 3x3
 // sums are taken in the same order for every pixel (dy, then dx, from -1), starting from 0.
 DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) {
@@ -185,10 +346,14 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
     const float* ipl_row = a.inv_phi_l ? a.inv_phi_l + row : acc + 3 * w;
     if (!a.inv_phi_l) inv_phi_l_of_row(a, y, acc + 3 * w);
     int xb = xl;
-    if constexpr (Wide)
-      for (; xb + kLanes16 <= xm; xb += kLanes16)
-        if (!cls || block_has(cls, xb, kLanes16, ac))
-          atrous_block<K, VectorLane16>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
+#if DHR_DENOISE_AVX512
+    if constexpr (Wide) {
+      if (r == 2)
+        xb = atrous_blocks16<K, 2>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+      else
+        xb = atrous_blocks16<K, 1>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+    }
+#endif
     for (; xb < xm; xb += kLanes)
       if (!cls || block_has(cls, xb, kLanes, ac))
         atrous_block<K, VectorLane>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
@@ -229,7 +394,11 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
         }
       }
     }
-    for (int x = 0; x < w; ++x) {
+    int x0 = 0;
+#if DHR_DENOISE_AVX512
+    if constexpr (Wide) x0 = atrous_finish16(a, row, w, p.sw, p.sl, p.sv);
+#endif
+    for (int x = x0; x < w; ++x) {
       const size_t i = row + x;
       if (cls && cls[x] != ac) {
         if (a.u8_out) a.u8_out[i] = to_u8(a.v_out[i]);
