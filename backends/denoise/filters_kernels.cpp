@@ -287,26 +287,46 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_finish16(const At
 #endif
 
 // The AO phi of row y into out (w floats), from var_in (see AtrousArgs::inv_phi_l). The 3x3
-// sums are taken in the same order for every pixel (dy, then dx, from -1), starting from 0.
+// sums are taken in the same order for every pixel (dy, then dx, from -1), starting from 0:
+// in registers, a block of L's lanes at a time, for the pixels with both horizontal neighbours,
+// one at a time (the same sums, the missing neighbours left out) at the row's two ends.
+template <class L>
 DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) {
+  using T = typename L::T;
+  constexpr int n = sizeof(T) / sizeof(float);
   const int w = a.width, h = a.height;
   const size_t row = size_t(y) * size_t(w);
   if (!(a.sigma_l > 0.0f)) {
     for (int x = 0; x < w; ++x) out[x] = 0.0f;
     return;
   }
-  for (int x = 0; x < w; ++x) out[x] = 0.0f;
+  const float* vr[3];
   for (int dy = -1; dy <= 1; ++dy) {
     const int qy = y + dy;
-    if (qy < 0 || qy >= h) continue;
-    const float* vq = a.var_in + size_t(qy) * w;
-    for (int dx = -1; dx <= 1; ++dx) {
-      const float k = (dx == 0 ? 0.5f : 0.25f) * (dy == 0 ? 0.5f : 0.25f);
-      const int lo = std::max(0, -dx), hi = std::min(w, w - dx);
-      for (int x = lo; x < hi; ++x) out[x] += k * vq[x + dx];
-    }
+    vr[dy + 1] = qy < 0 || qy >= h ? nullptr : a.var_in + size_t(qy) * w;
   }
+  auto k_of = [](int dx, int dy) { return (dx == 0 ? 0.5f : 0.25f) * (dy == 0 ? 0.5f : 0.25f); };
+  auto one = [&](int x) {
+    float s = 0.0f;
+    for (int dy = -1; dy <= 1; ++dy) {
+      if (!vr[dy + 1]) continue;
+      for (int dx = -1; dx <= 1; ++dx)
+        if (x + dx >= 0 && x + dx < w) s += k_of(dx, dy) * vr[dy + 1][x + dx];
+    }
+    out[x] = s;
+  };
   int x = 0;
+  if (w > 0) one(x++);
+  for (; x + n <= w - 1; x += n) {
+    T s = T{};
+    for (int dy = -1; dy <= 1; ++dy) {
+      if (!vr[dy + 1]) continue;
+      for (int dx = -1; dx <= 1; ++dx) s = s + k_of(dx, dy) * L::load(vr[dy + 1] + x + dx);
+    }
+    L::store(out + x, s);
+  }
+  for (; x < w; ++x) one(x);
+  x = 0;
   for (; x + kLanes <= w; x += kLanes)
     inv_phi_l_lanes<VectorLane>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
   for (; x < w; ++x)
@@ -344,7 +364,7 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
     p.sl = acc + w;
     p.sv = acc + 2 * w;
     const float* ipl_row = a.inv_phi_l ? a.inv_phi_l + row : acc + 3 * w;
-    if (!a.inv_phi_l) inv_phi_l_of_row(a, y, acc + 3 * w);
+    if (!a.inv_phi_l) inv_phi_l_of_row<std::conditional_t<Wide, VectorLane16, VectorLane>>(a, y, acc + 3 * w);
     int xb = xl;
 #if DHR_DENOISE_AVX512
     if constexpr (Wide) {
