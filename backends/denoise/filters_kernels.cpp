@@ -41,8 +41,10 @@ DHR_ALWAYS_INLINE void inv_phi_l_lanes(const float* sum_kv, const float* inv_val
   T y;
   if constexpr (std::is_same_v<T, float>) {
     y = std::bit_cast<float>(int32_t(0x5f3759df) - (std::bit_cast<int32_t>(v) >> 1));
-  } else {
+  } else if constexpr (std::is_same_v<T, VecF>) {
     y = (VecF)(int32_t(0x5f3759df) - ((VecI)v >> 1));
+  } else {
+    y = (VecF16)(int32_t(0x5f3759df) - ((VecI16)v >> 1));
   }
   y = y * (1.5f - 0.5f * v * y * y);
   y = y * (1.5f - 0.5f * v * y * y);
@@ -306,6 +308,8 @@ DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) 
   }
   for (; x < w; ++x) one(x);
   x = 0;
+  for (; x + n <= w; x += n)
+    inv_phi_l_lanes<L>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
   for (; x + kLanes <= w; x += kLanes)
     inv_phi_l_lanes<VectorLane>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
   for (; x < w; ++x)
