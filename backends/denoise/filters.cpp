@@ -77,6 +77,55 @@ struct GuideRowArgs {
   Guide* out;
 };
 
+#if DHR_DENOISE_AVX512
+// Pixels [0, w - w % 16) of a row of the guide, 16 at a time with AVX-512: guide_row's 8-lane
+// operations lane for lane (the normals' x, y, z picked out of the 16 vec3 by permutes; sqrt
+// and the division are IEEE, correctly rounded), so the same bits. Returns where it ended.
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int guide_row16(const GuideRowArgs& a, size_t row, int w) {
+  Guide& o = *a.out;
+  const __mmask16 all = 0xffff;
+  // Component k of vec3 number l is float 3 l + k of the 48: lanes 0-10 (3 l + k < 32 for
+  // k = 0; for k = 1, 2 lanes 0-9 / 0-10 likewise) from the first two loads, the rest from the third.
+  auto idx = [](int k, bool second) {
+    alignas(64) int32_t v[16];
+    for (int l = 0; l < 16; ++l) {
+      const int f = 3 * l + k;
+      v[l] = second ? (f < 32 ? l : 16 + (f - 32)) : (f < 32 ? f : 0);
+    }
+    return _mm512_load_si512(v);
+  };
+  const __m512i i0a = idx(0, false), i0b = idx(0, true), i1a = idx(1, false), i1b = idx(1, true);
+  const __m512i i2a = idx(2, false), i2b = idx(2, true);
+  const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f);
+  int x = 0;
+  for (; x + 16 <= w; x += 16) {
+    const size_t i = row + size_t(x);
+    const float* n = reinterpret_cast<const float*>(a.n + i);
+    const __m512 n0 = _mm512_loadu_ps(n), n1 = _mm512_loadu_ps(n + 16), n2 = _mm512_loadu_ps(n + 32);
+    const __m512 nx = _mm512_permutex2var_ps(_mm512_permutex2var_ps(n0, i0a, n1), i0b, n2);
+    const __m512 ny = _mm512_permutex2var_ps(_mm512_permutex2var_ps(n0, i1a, n1), i1b, n2);
+    const __m512 nz = _mm512_permutex2var_ps(_mm512_permutex2var_ps(n0, i2a, n1), i2b, n2);
+    const __m512 z = _mm512_loadu_ps(a.z + i);
+    const __m512i id = _mm512_loadu_si512(a.id + i);
+    const __m512 len2 = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(nx, nx), _mm512_mul_ps(ny, ny)), _mm512_mul_ps(nz, nz));
+    const __mmask16 ok = _mm512_test_epi32_mask(id, id) & _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) &
+                         _mm512_cmp_ps_mask(z, _mm512_set1_ps(1e30f), _CMP_LT_OQ) &
+                         _mm512_cmp_ps_mask(len2, _mm512_set1_ps(0.25f), _CMP_GE_OQ) &
+                         _mm512_cmp_ps_mask(len2, _mm512_set1_ps(4.0f), _CMP_LE_OQ);
+    const __m512 inv_len = _mm512_maskz_div_ps(ok, one, _mm512_maskz_sqrt_ps(all, len2));
+    _mm512_storeu_ps(o.depth.data() + i, _mm512_maskz_mov_ps(ok, z));
+    _mm512_storeu_ps(o.nx.data() + i, _mm512_maskz_mul_ps(ok, nx, inv_len));
+    _mm512_storeu_ps(o.ny.data() + i, _mm512_maskz_mul_ps(ok, ny, inv_len));
+    _mm512_storeu_ps(o.nz.data() + i, _mm512_maskz_mul_ps(ok, nz, inv_len));
+    _mm512_storeu_si512(o.id.data() + i, _mm512_maskz_mov_epi32(ok, id));
+    _mm512_storeu_ps(o.valid_f.data() + i, _mm512_maskz_mov_ps(ok, one));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(o.valid.data() + i),
+                     _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(1))));
+  }
+  return x;
+}
+#endif
+
 // One row of the guide: pixels [0, w) of row `row` (offset of the row's first pixel).
 // 8 pixels at a time with the same IEEE operations as the scalar tail: "finite and in range"
 // is tested by the range comparisons alone (NaN fails them, inf is out of range).
@@ -135,6 +184,16 @@ void build_guide(const GBuffer& g, Guide& out) {
          g.motion.width(), g.motion.height());
   if (out.width != w || out.height != h) out.resize(w, h);
   const GuideRowArgs a{g.depth.data(), g.normal.data(), g.object_id.data(), &out};
+#if DHR_DENOISE_AVX512
+  if (cpu_has_avx512()) {
+    parallel_rows(h, [&](int y) {
+      const size_t row = size_t(y) * size_t(w);
+      const int x = guide_row16(a, row, w);
+      if (x < w) guide_row(a, row + size_t(x), w - x);
+    });
+    return;
+  }
+#endif
   parallel_rows(h, [&](int y) { guide_row(a, size_t(y) * size_t(w), w); });
 }
 
