@@ -317,7 +317,7 @@ struct AccumulateArgs {
   const uint8_t* noisy;
   const uint8_t* cvalid;
   const uint32_t *cid, *pid;
-  const float *cz, *pz, *cnx, *cny, *cnz, *pnx, *pny, *pnz, *pvalid_f;
+  const float *cz, *pz, *cnx, *cny, *cnz, *pnx, *pny, *pnz;
   const float *pv, *pm1, *pm2, *ph, *pk;
   float *nv, *nm1, *nm2, *nh, *nk, *var;
   uint8_t *cls, *out;
@@ -331,9 +331,8 @@ struct AccumulateArgs {
 // which say what each step is), 16 at a time with AVX-512: the same IEEE operations per pixel
 // in the same order, so the same bits. A previous tap that the scalar code skips ("continue")
 // is left out of the sums by a mask (not adding it is what skipping does); the tests "x > t"
-// that skip become "!(x > t)" masks (NaN kept as there); the previous pixel's valid flag is
-// read from valid_f (1 exactly where valid is 1), the taps by masked gathers (no address
-// outside the image is read). xa, xb: the span of pixels that need the spatial variance.
+// that skip become "!(x > t)" masks (NaN kept as there); the taps are read by masked gathers
+// (no address outside the image is read). xa, xb: the span of pixels that need the spatial variance.
 __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const AccumulateArgs& a, int y, int& xa,
                                                                           int& xb) {
   using V = __m512;
@@ -390,7 +389,8 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const A
         auto gather = [&](const float* base, __mmask16 mm) {
           return _mm512_mask_i32gather_ps(zero, mm, j, base, 4);
         };
-        mk &= _mm512_cmp_ps_mask(gather(a.pvalid_f, mk), zero, _CMP_NEQ_UQ);
+        // "pvalid and pid == idc" is "pid == idc" alone: an invalid pixel has id kBackgroundId
+        // (0) and a valid one another id (guide_row), and this pixel is valid.
         mk &= _mm512_cmpeq_epi32_mask(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, j, a.pid, 4), idc);
         const V phj = gather(a.ph, mk);
         mk &= _mm512_cmp_ps_mask(phj, zero, _CMP_NLE_UQ);
@@ -662,11 +662,10 @@ void FilterPipeline::accumulate(const DenoiseInput& in, uint8_t* out) {
   int* const span_lo = span_lo_.data();
   int* const span_hi = span_hi_.data();
 #if DHR_DENOISE_AVX512
-  const AccumulateArgs args16{mo,     noisy,  cvalid, cid,   pid,   cz,      pz,     cnx,   cny,
-                              cnz,    pnx,    pny,    pnz,   gp.valid_f.data(), pv, pm1,  pm2,
-                              ph,     pk,     nv,     nm1,   nm2,   nh,      nk,     var,   cls,
-                              out,    w,      h,      fs,    inv_fs, tol,    nthr,   alpha, cap,
-                              min_h,  light_h, wmax,  hmax,  have_history, spatial, lt};
+  const AccumulateArgs args16{mo,  noisy, cvalid, cid, pid, cz,  pz,  cnx,    cny,     cnz,  pnx,  pny,
+                              pnz, pv,    pm1,    pm2, ph,  pk,  nv,  nm1,    nm2,     nh,   nk,   var,
+                              cls, out,   w,      h,   fs,  inv_fs, tol, nthr, alpha,  cap,  min_h, light_h,
+                              wmax, hmax, have_history, spatial, lt};
   const bool wide = cpu_has_avx512();
 #endif
   parallel_rows(h, [=](int y) {
