@@ -8,8 +8,9 @@
 // to 26 CPU ms, the reset path from 9 to 4; the rest of a frame is memory-bound (the
 // reprojection touches about 25 planes; on a cache-resident crop it is 5-7x faster per pixel).
 // svgf_ao's light_history path (one 3x3 iteration where the history is long) takes a steady
-// frame from about 140 to 40 CPU ms. With AVX-512 the accumulation's rows run 16 pixels at a
-// time (accumulate_row16): temporal from 21.7 to 16.2 CPU ms (docs/performance.md, svgf_ao).
+// frame from about 140 to 40 CPU ms. With AVX-512 the guide's and the accumulation's rows run
+// 16 pixels at a time (guide_row16, accumulate_row16): temporal from 21.2 to 12.1 CPU ms
+// (docs/performance.md, svgf_ao).
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 #include "core/error.h"

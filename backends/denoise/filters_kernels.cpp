@@ -11,7 +11,8 @@
 // svgf_ao went from 189 to 131 CPU ms per frame on a 2-vCPU Zen 5 (room, 1280x720;
 // bench_denoise). With the 16-lane taps unrolled around a 14-instruction exponential
 // (atrous_block16_unrolled), the row ends 16 at a time and the AO phi's sums in registers:
-// from 3.79x to 2.69x the CPU time of one traced AO ray (docs/performance.md, svgf_ao).
+// from 3.79x to 2.69x the CPU time of one traced AO ray, 2.41x with the temporal part's rows
+// in 16 lanes too (docs/performance.md, svgf_ao).
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 
