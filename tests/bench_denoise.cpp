@@ -146,16 +146,17 @@ void BM_TraceAoOneRay(benchmark::State& state) {
 BENCHMARK(BM_TraceAoOneRay)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // ---- The arithmetic floor of svgf_ao's a-trous iterations (docs/performance.md). Each of
-// the 24 off-centre taps of a 16-pixel AVX-512 block is 52 vector instructions in the compiled
-// kernel (atrous_block in backends/denoise/filters_kernels.cpp, counted in its disassembly:
-// 23 multiplies, 14 adds/subtracts, 15 compares, masks, conversions and logic ops) and at
-// least 47 in any version with the same bits (dot 5, clamp 1, 7 squarings, depth term 4, AO
-// term 3, their sum 1, exponential 18 -- clamp 1, scale 1, rounding 4, polynomial 8, exponent
-// 2, underflow select 2 --, weight 2, sums 6: the operations the bits depend on, in order).
-// The machine's rate of independent 16-lane float multiplies and adds (no loads, no
-// dependencies between the chains, all threads) turns those counts into CPU milliseconds per
-// frame: the least the five iterations can cost at 1280x720 on this machine.
-constexpr int kTapOpsCompiled = 52, kTapOpsMinimal = 47;
+// the 24 off-centre taps of a 16-pixel AVX-512 block is 45 vector instructions in the compiled
+// kernel (atrous_block16_unrolled in backends/denoise/filters_kernels.cpp, counted in its
+// disassembly: 23 multiplies, 14 adds/subtracts, 2 abs (and), max, compare, vrndscaleps,
+// vscalefps, and 2 broadcasts of the tap's constants) and 43 without the broadcasts, the fewest
+// known with the same bits (dot 5, clamp 1, 7 squarings, depth term 4, AO term 3, their sum 1,
+// exponential 14 -- scale 1, rounding 3, polynomial 8, exponent 1, underflow mask 1 --, weight
+// 2, sums 6: the operations the bits depend on, in order). The machine's rate of independent
+// 16-lane float multiplies and adds (no loads, no dependencies between the chains, all
+// threads) turns those counts into CPU milliseconds per frame: the least the five iterations
+// can cost at 1280x720 on this machine.
+constexpr int kTapOpsCompiled = 45, kTapOpsMinimal = 43;
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 using Vec16 = float __attribute__((vector_size(64)));

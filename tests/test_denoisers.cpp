@@ -586,6 +586,8 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
           EXPECT_TRUE(o8.v == o16.v);
           EXPECT_TRUE(o8.var == o16.var);
           EXPECT_TRUE(o8.u8 == o16.u8);
+          EXPECT_TRUE(o8.v2 == o16.v2);
+          EXPECT_TRUE(o8.var2 == o16.var2);
           int filtered = 0, untouched = 0;
           for (size_t i = 0; i < n; ++i) {
             if (cls[i] != active) {  // left as it was; the 8-bit output is of that value

@@ -8,7 +8,9 @@
 // to 26 CPU ms, the reset path from 9 to 4; the rest of a frame is memory-bound (the
 // reprojection touches about 25 planes; on a cache-resident crop it is 5-7x faster per pixel).
 // svgf_ao's light_history path (one 3x3 iteration where the history is long) takes a steady
-// frame from about 140 to 40 CPU ms.
+// frame from about 140 to 40 CPU ms. With AVX-512 the guide's and the accumulation's rows run
+// 16 pixels at a time (guide_row16, accumulate_row16): temporal from 21.2 to 12.1 CPU ms
+// (docs/performance.md, svgf_ao).
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 #include "core/error.h"
@@ -22,6 +24,9 @@
 #include <bit>
 #if defined(__SSE__)
 #include <xmmintrin.h>
+#endif
+#if DHR_DENOISE_AVX512
+#include <immintrin.h>
 #endif
 #include <cmath>
 #include <cstdint>
@@ -72,6 +77,55 @@ struct GuideRowArgs {
   const uint32_t* id;
   Guide* out;
 };
+
+#if DHR_DENOISE_AVX512
+// Pixels [0, w - w % 16) of a row of the guide, 16 at a time with AVX-512: guide_row's 8-lane
+// operations lane for lane (the normals' x, y, z picked out of the 16 vec3 by permutes; sqrt
+// and the division are IEEE, correctly rounded), so the same bits. Returns where it ended.
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int guide_row16(const GuideRowArgs& a, size_t row, int w) {
+  Guide& o = *a.out;
+  const __mmask16 all = 0xffff;
+  // Component k of vec3 number l is float 3 l + k of the 48: lanes 0-10 (3 l + k < 32 for
+  // k = 0; for k = 1, 2 lanes 0-9 / 0-10 likewise) from the first two loads, the rest from the third.
+  auto idx = [](int k, bool second) {
+    alignas(64) int32_t v[16];
+    for (int l = 0; l < 16; ++l) {
+      const int f = 3 * l + k;
+      v[l] = second ? (f < 32 ? l : 16 + (f - 32)) : (f < 32 ? f : 0);
+    }
+    return _mm512_load_si512(v);
+  };
+  const __m512i i0a = idx(0, false), i0b = idx(0, true), i1a = idx(1, false), i1b = idx(1, true);
+  const __m512i i2a = idx(2, false), i2b = idx(2, true);
+  const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f);
+  int x = 0;
+  for (; x + 16 <= w; x += 16) {
+    const size_t i = row + size_t(x);
+    const float* n = reinterpret_cast<const float*>(a.n + i);
+    const __m512 n0 = _mm512_loadu_ps(n), n1 = _mm512_loadu_ps(n + 16), n2 = _mm512_loadu_ps(n + 32);
+    const __m512 nx = _mm512_permutex2var_ps(_mm512_permutex2var_ps(n0, i0a, n1), i0b, n2);
+    const __m512 ny = _mm512_permutex2var_ps(_mm512_permutex2var_ps(n0, i1a, n1), i1b, n2);
+    const __m512 nz = _mm512_permutex2var_ps(_mm512_permutex2var_ps(n0, i2a, n1), i2b, n2);
+    const __m512 z = _mm512_loadu_ps(a.z + i);
+    const __m512i id = _mm512_loadu_si512(a.id + i);
+    const __m512 len2 = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(nx, nx), _mm512_mul_ps(ny, ny)), _mm512_mul_ps(nz, nz));
+    const __mmask16 ok = _mm512_test_epi32_mask(id, id) & _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) &
+                         _mm512_cmp_ps_mask(z, _mm512_set1_ps(1e30f), _CMP_LT_OQ) &
+                         _mm512_cmp_ps_mask(len2, _mm512_set1_ps(0.25f), _CMP_GE_OQ) &
+                         _mm512_cmp_ps_mask(len2, _mm512_set1_ps(4.0f), _CMP_LE_OQ);
+    const __m512 inv_len = _mm512_maskz_div_ps(ok, one, _mm512_maskz_sqrt_ps(all, len2));
+    _mm512_storeu_ps(o.depth.data() + i, _mm512_maskz_mov_ps(ok, z));
+    _mm512_storeu_ps(o.nx.data() + i, _mm512_maskz_mul_ps(ok, nx, inv_len));
+    _mm512_storeu_ps(o.ny.data() + i, _mm512_maskz_mul_ps(ok, ny, inv_len));
+    _mm512_storeu_ps(o.nz.data() + i, _mm512_maskz_mul_ps(ok, nz, inv_len));
+    _mm512_storeu_si512(o.id.data() + i, _mm512_maskz_mov_epi32(ok, id));
+    _mm512_storeu_ps(o.valid_f.data() + i, _mm512_maskz_mov_ps(ok, one));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(o.valid.data() + i),
+                     _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(1))));
+  }
+  return x;
+}
+#endif
 
 // One row of the guide: pixels [0, w) of row `row` (offset of the row's first pixel).
 // 8 pixels at a time with the same IEEE operations as the scalar tail: "finite and in range"
@@ -131,6 +185,16 @@ void build_guide(const GBuffer& g, Guide& out) {
          g.motion.width(), g.motion.height());
   if (out.width != w || out.height != h) out.resize(w, h);
   const GuideRowArgs a{g.depth.data(), g.normal.data(), g.object_id.data(), &out};
+#if DHR_DENOISE_AVX512
+  if (cpu_has_avx512()) {
+    parallel_rows(h, [&](int y) {
+      const size_t row = size_t(y) * size_t(w);
+      const int x = guide_row16(a, row, w);
+      if (x < w) guide_row(a, row + size_t(x), w - x);
+    });
+    return;
+  }
+#endif
   parallel_rows(h, [&](int y) { guide_row(a, size_t(y) * size_t(w), w); });
 }
 
@@ -244,6 +308,169 @@ void guide_spatial_row(const GuideSpatialArgs& a, int y) {
 // The 1D a-trous kernels: B3-spline (5x5) and (1/4, 1/2, 1/4) (3x3).
 constexpr float kB3[5] = {1.0f / 16, 1.0f / 4, 3.0f / 8, 1.0f / 4, 1.0f / 16};
 constexpr float kK3[3] = {0.25f, 0.5f, 0.25f};
+
+
+// ---------------------------------------------------------------- temporal accumulation, 16 pixels at a time
+
+// What FilterPipeline::accumulate's rows read and write (its locals of the same names).
+struct AccumulateArgs {
+  const glm::vec2* mo;
+  const uint8_t* noisy;
+  const uint8_t* cvalid;
+  const uint32_t *cid, *pid;
+  const float *cz, *pz, *cnx, *cny, *cnz, *pnx, *pny, *pnz;
+  const float *pv, *pm1, *pm2, *ph, *pk;
+  float *nv, *nm1, *nm2, *nh, *nk, *var;
+  uint8_t *cls, *out;
+  int w, h, fs;
+  float inv_fs, tol, nthr, alpha, cap, min_h, light_h, wmax, hmax;
+  bool hist, spatial, lt;
+};
+
+#if DHR_DENOISE_AVX512
+// Pixels [0, w - w % 16) of row y of FilterPipeline::accumulate (its reprojection and finish,
+// which say what each step is), 16 at a time with AVX-512: the same IEEE operations per pixel
+// in the same order, so the same bits. A previous tap that the scalar code skips ("continue")
+// is left out of the sums by a mask (not adding it is what skipping does); the tests "x > t"
+// that skip become "!(x > t)" masks (NaN kept as there); the taps are read by masked gathers
+// (no address outside the image is read). xa, xb: the span of pixels that need the spatial variance.
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const AccumulateArgs& a, int y, int& xa,
+                                                                          int& xb) {
+  using V = __m512;
+  using VI = __m512i;
+  const int w = a.w;
+  const size_t row = size_t(y) * size_t(w);
+  const __mmask16 all = 0xffff;
+  const V zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f);
+  const VI lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const VI even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+  const VI odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
+  int x = 0;
+  for (; x + 16 <= w; x += 16) {
+    const size_t i = row + size_t(x);
+    const __mmask16 valid = _mm512_test_epi32_mask(
+        _mm512_maskz_cvtepu8_epi32(all, _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.cvalid + i))),
+        _mm512_set1_epi32(0xff));
+    V len = zero, pval = zero, p1 = zero, p2 = zero, pkk = zero;
+    __mmask16 called = a.hist ? valid : __mmask16(0);  // lanes whose reproject runs
+    if (called) {
+      const float* m = reinterpret_cast<const float*>(a.mo + i);
+      const V m_lo = _mm512_loadu_ps(m), m_hi = _mm512_loadu_ps(m + 16);
+      const V mx = _mm512_permutex2var_ps(m_lo, even, m_hi), my = _mm512_permutex2var_ps(m_lo, odd, m_hi);
+      const VI xi = _mm512_add_epi32(_mm512_set1_epi32(x), lane);
+      const V px = _mm512_add_ps(_mm512_maskz_cvtepi32_ps(all, xi), mx);
+      const V py = _mm512_add_ps(_mm512_set1_ps(float(y)), my);
+      const V m2f = _mm512_set1_ps(-2.0f);
+      const __mmask16 inr = called & _mm512_cmp_ps_mask(px, m2f, _CMP_GT_OQ) & _mm512_cmp_ps_mask(py, m2f, _CMP_GT_OQ) &
+                            _mm512_cmp_ps_mask(px, _mm512_set1_ps(a.wmax), _CMP_LT_OQ) &
+                            _mm512_cmp_ps_mask(py, _mm512_set1_ps(a.hmax), _CMP_LT_OQ);
+      const V two = _mm512_set1_ps(2.0f);
+      const VI x0 = _mm512_sub_epi32(_mm512_maskz_cvttps_epi32(inr, _mm512_add_ps(px, two)), _mm512_set1_epi32(2));
+      const VI y0 = _mm512_sub_epi32(_mm512_maskz_cvttps_epi32(inr, _mm512_add_ps(py, two)), _mm512_set1_epi32(2));
+      const V fx = _mm512_sub_ps(px, _mm512_maskz_cvtepi32_ps(all, x0));
+      const V fy = _mm512_sub_ps(py, _mm512_maskz_cvtepi32_ps(all, y0));
+      const V gx = _mm512_sub_ps(one, fx), gy = _mm512_sub_ps(one, fy);
+      const V bw[4] = {_mm512_mul_ps(gx, gy), _mm512_mul_ps(fx, gy), _mm512_mul_ps(gx, fy), _mm512_mul_ps(fx, fy)};
+      const VI idc = _mm512_loadu_si512(a.cid + i);
+      const V zc = _mm512_loadu_ps(a.cz + i);
+      const V ztol = _mm512_mul_ps(_mm512_set1_ps(a.tol), zc);
+      const V ncx = _mm512_loadu_ps(a.cnx + i), ncy = _mm512_loadu_ps(a.cny + i), ncz = _mm512_loadu_ps(a.cnz + i);
+      const V nthr = _mm512_set1_ps(a.nthr);
+      V sw = zero;
+      for (int k = 0; k < 4; ++k) {
+        const VI xx = _mm512_add_epi32(x0, _mm512_set1_epi32(k & 1));
+        const VI yy = _mm512_add_epi32(y0, _mm512_set1_epi32(k >> 1));
+        __mmask16 mk = inr & _mm512_cmpge_epi32_mask(xx, _mm512_setzero_si512()) &
+                       _mm512_cmpge_epi32_mask(yy, _mm512_setzero_si512()) &
+                       _mm512_cmplt_epi32_mask(xx, _mm512_set1_epi32(w)) &
+                       _mm512_cmplt_epi32_mask(yy, _mm512_set1_epi32(a.h)) &
+                       _mm512_cmp_ps_mask(bw[k], zero, _CMP_NLE_UQ);
+        if (!mk) continue;
+        const VI j = _mm512_add_epi32(_mm512_mullo_epi32(yy, _mm512_set1_epi32(w)), xx);
+        auto gather = [&](const float* base, __mmask16 mm) {
+          return _mm512_mask_i32gather_ps(zero, mm, j, base, 4);
+        };
+        // "pvalid and pid == idc" is "pid == idc" alone: an invalid pixel has id kBackgroundId
+        // (0) and a valid one another id (guide_row), and this pixel is valid.
+        mk &= _mm512_cmpeq_epi32_mask(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, j, a.pid, 4), idc);
+        const V phj = gather(a.ph, mk);
+        mk &= _mm512_cmp_ps_mask(phj, zero, _CMP_NLE_UQ);
+        const V pzj = gather(a.pz, mk);
+        mk &= _mm512_cmp_ps_mask(_mm512_abs_ps(_mm512_sub_ps(pzj, zc)), ztol, _CMP_NGT_UQ);
+        const V d = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(gather(a.pnx, mk), ncx), _mm512_mul_ps(gather(a.pny, mk), ncy)),
+                                  _mm512_mul_ps(gather(a.pnz, mk), ncz));
+        mk &= _mm512_cmp_ps_mask(d, nthr, _CMP_NLT_UQ);
+        if (!mk) continue;
+        const V b = bw[k];
+        sw = _mm512_mask_add_ps(sw, mk, sw, b);
+        pval = _mm512_mask_add_ps(pval, mk, pval, _mm512_mul_ps(b, gather(a.pv, mk)));
+        p1 = _mm512_mask_add_ps(p1, mk, p1, _mm512_mul_ps(b, gather(a.pm1, mk)));
+        p2 = _mm512_mask_add_ps(p2, mk, p2, _mm512_mul_ps(b, gather(a.pm2, mk)));
+        len = _mm512_mask_add_ps(len, mk, len, _mm512_mul_ps(b, phj));
+        pkk = _mm512_mask_add_ps(pkk, mk, pkk, _mm512_mul_ps(b, gather(a.pk, mk)));
+      }
+      // sw >= 0.01: renormalise; else (and where the pixel was out of range) no history.
+      const __mmask16 ok = inr & _mm512_cmp_ps_mask(sw, _mm512_set1_ps(0.01f), _CMP_GE_OQ);
+      const V inv = _mm512_div_ps(one, sw);
+      pval = _mm512_mask_mul_ps(pval, ok, pval, inv);
+      p1 = _mm512_mask_mul_ps(p1, ok, p1, inv);
+      p2 = _mm512_mask_mul_ps(p2, ok, p2, inv);
+      len = _mm512_maskz_mul_ps(ok, len, inv);
+      pkk = _mm512_mask_mul_ps(pkk, ok, pkk, inv);
+    }
+    // finish
+    const VI ivi = _mm512_maskz_min_epi32(all,
+        _mm512_maskz_cvtepu8_epi32(all, _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.noisy + i))),
+        _mm512_set1_epi32(a.fs));  // src > fs ? fs : src
+    const V c = _mm512_mul_ps(_mm512_maskz_cvtepi32_ps(all, ivi), _mm512_set1_ps(a.inv_fs));
+    const __mmask16 has = _mm512_cmp_ps_mask(len, zero, _CMP_GT_OQ);
+    V lh = _mm512_add_ps(len, one);
+    const V capv = _mm512_set1_ps(a.cap);
+    lh = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(capv, lh, _CMP_LT_OQ), lh, capv);  // std::min(len + 1, cap)
+    const V rl = _mm512_div_ps(one, lh), alv = _mm512_set1_ps(a.alpha);
+    const V al = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(alv, rl, _CMP_LT_OQ), alv, rl);  // std::max(alpha, 1 / len)
+    const V cc = _mm512_mul_ps(c, c);
+    const V om = _mm512_sub_ps(one, al);
+    V v = _mm512_add_ps(pval, _mm512_mul_ps(al, _mm512_sub_ps(c, pval)));
+    V m1 = _mm512_add_ps(p1, _mm512_mul_ps(al, _mm512_sub_ps(c, p1)));
+    V m2 = _mm512_add_ps(p2, _mm512_mul_ps(al, _mm512_sub_ps(cc, p2)));
+    V kk = _mm512_add_ps(_mm512_mul_ps(_mm512_mul_ps(om, om), pkk), _mm512_mul_ps(al, al));
+    const V len_new = _mm512_mask_blend_ps(has, _mm512_mask_blend_ps(valid, zero, one), lh);
+    v = _mm512_mask_blend_ps(has, c, v);
+    m1 = _mm512_mask_blend_ps(has, c, m1);
+    m2 = _mm512_mask_blend_ps(has, cc, m2);
+    kk = _mm512_mask_blend_ps(has, one, kk);
+    _mm512_storeu_ps(a.nv + i, v);
+    _mm512_storeu_ps(a.nm1 + i, m1);
+    _mm512_storeu_ps(a.nm2 + i, m2);
+    _mm512_storeu_ps(a.nk + i, kk);
+    _mm512_storeu_ps(a.nh + i, len_new);
+    if (a.spatial) {
+      const V dm = _mm512_sub_ps(m2, _mm512_mul_ps(m1, m1));
+      const V mx0 = _mm512_maskz_mov_ps(_mm512_cmp_ps_mask(zero, dm, _CMP_LT_OQ), dm);  // std::max(0, dm)
+      _mm512_storeu_ps(a.var + i, _mm512_maskz_mul_ps(valid, mx0, kk));
+      const __mmask16 young = valid & _mm512_cmp_ps_mask(len_new, _mm512_set1_ps(a.min_h), _CMP_LT_OQ);
+      if (young) {
+        xa = std::min(xa, x + int(std::countr_zero(unsigned(young))));
+        xb = x + 31 - int(std::countl_zero(unsigned(young)));
+      }
+      if (a.lt) {
+        const __mmask16 lc = valid & _mm512_cmp_ps_mask(len_new, _mm512_set1_ps(a.light_h), _CMP_LT_OQ);
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(a.cls + i),
+                         _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_mov_epi32(lc, _mm512_set1_epi32(1))));
+      }
+    } else {  // to_u8 (filters.h)
+      V f = _mm512_add_ps(_mm512_mul_ps(v, _mm512_set1_ps(255.0f)), _mm512_set1_ps(0.5f));
+      f = _mm512_maskz_mov_ps(_mm512_cmp_ps_mask(f, zero, _CMP_GE_OQ), f);
+      const V f255 = _mm512_set1_ps(255.0f);
+      f = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(f, f255, _CMP_LE_OQ), f255, f);
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(a.out + i),
+                       _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_cvttps_epi32(all, f)));
+    }
+  }
+  return x;
+}
+#endif
 
 }  // namespace
 
@@ -435,6 +662,13 @@ void FilterPipeline::accumulate(const DenoiseInput& in, uint8_t* out) {
   uint8_t* const cls = cls_.data();
   int* const span_lo = span_lo_.data();
   int* const span_hi = span_hi_.data();
+#if DHR_DENOISE_AVX512
+  const AccumulateArgs args16{mo,  noisy, cvalid, cid, pid, cz,  pz,  cnx,    cny,     cnz,  pnx,  pny,
+                              pnz, pv,    pm1,    pm2, ph,  pk,  nv,  nm1,    nm2,     nh,   nk,   var,
+                              cls, out,   w,      h,   fs,  inv_fs, tol, nthr, alpha,  cap,  min_h, light_h,
+                              wmax, hmax, have_history, spatial, lt};
+  const bool wide = cpu_has_avx512();
+#endif
   parallel_rows(h, [=](int y) {
     // Locals, not the closure's members: those live in memory that the byte stores below
     // might alias, so the compiler would reload every pointer for every pixel.
@@ -533,7 +767,11 @@ void FilterPipeline::accumulate(const DenoiseInput& in, uint8_t* out) {
         len = 0.0f;  // disoccluded: no usable history
       }
     };
-    for (int x = 0; x < w_l; ++x) {
+    int x0 = 0;
+#if DHR_DENOISE_AVX512
+    if (wide) x0 = accumulate_row16(args16, y, xa, xb);
+#endif
+    for (int x = x0; x < w_l; ++x) {
       float len = 0.0f, pval = 0.0f, p1 = 0.0f, p2 = 0.0f, pkk = 0.0f;
       if (hist_l && cvalid_l[row + x]) reproject(x, len, pval, p1, p2, pkk);
       finish(x, len, pval, p1, p2, pkk);

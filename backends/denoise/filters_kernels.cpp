@@ -9,7 +9,10 @@
 // 24 taps; the normal power is 7 squarings (sigma_n = 128 is compiled in; other powers of two
 // loop). Where the CPU has AVX-512 the a-trous and spatial-moment kernels take 16 lanes:
 // svgf_ao went from 189 to 131 CPU ms per frame on a 2-vCPU Zen 5 (room, 1280x720;
-// bench_denoise).
+// bench_denoise). With the 16-lane taps unrolled around a 14-instruction exponential
+// (atrous_block16_unrolled), the row ends 16 at a time and the AO phi's sums in registers:
+// from 3.79x to 2.69x the CPU time of one traced AO ray, 2.41x with the temporal part's rows
+// in 16 lanes too (docs/performance.md, svgf_ao).
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 
@@ -19,6 +22,9 @@
 #include <cstdint>
 #include <cstring>
 #include <type_traits>
+#if DHR_DENOISE_AVX512
+#include <immintrin.h>
+#endif
 
 namespace dhr::denoise {
 namespace {
@@ -36,8 +42,10 @@ DHR_ALWAYS_INLINE void inv_phi_l_lanes(const float* sum_kv, const float* inv_val
   T y;
   if constexpr (std::is_same_v<T, float>) {
     y = std::bit_cast<float>(int32_t(0x5f3759df) - (std::bit_cast<int32_t>(v) >> 1));
-  } else {
+  } else if constexpr (std::is_same_v<T, VecF>) {
     y = (VecF)(int32_t(0x5f3759df) - ((VecI)v >> 1));
+  } else {
+    y = (VecF16)(int32_t(0x5f3759df) - ((VecI16)v >> 1));
   }
   y = y * (1.5f - 0.5f * v * y * y);
   y = y * (1.5f - 0.5f * v * y * y);
@@ -125,27 +133,184 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
   L::store(sv_out, sv);
 }
 
+#if DHR_DENOISE_AVX512
+// The same taps as atrous_block for a block of 16 pixels at x (AVX-512), written for
+// throughput: the taps are unrolled (radius R known at compile time) and the exponential takes
+// 14 instructions instead of 18. (Two blocks interleaved were tried and were no faster: their
+// 20 centre values and sums do not fit the 32 registers beside the constants and spill.) The bits are those of atrous_block: every product and sum is
+// the same IEEE operation in the same order; only these steps are done by other instructions
+// with the same result:
+//  - exp_neg(-(wz + wl)): wz, wl >= 0, so its clamp at 0 never acts and is left out;
+//    t = -(s) 1.44269504 is s (-1.44269504) (rounding is symmetric); the clamp at -60 and the
+//    final "x < -60 ? 0" become a mask (s > 60) that zeroes the weight (the masked product
+//    (h wn) r gives the same +0); the rounding of t - 0.5 by truncation to an integer and back
+//    is vrndscaleps (truncate), exact where it is used (|t| < 87); adding i to the exponent bits of p
+//    (p in [0.7, 1.5), i >= -87) is p 2^i by vscalefps, exact in the normal range it stays in.
+//  - max(0, d) is vmaxps(d, 0) (d > 0 ? d : 0, NaN to 0 as well).
+template <int K, int R>
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const AtrousArgs& a, int y, int x,
+                                                                        const float* ipl_row, const float (*hk)[5],
+                                                                        const float (*inv_len)[5], float* sw_out,
+                                                                        float* sl_out, float* sv_out) {
+  using L = VectorLane16;
+  using T = VecF16;
+  const int step = a.step, nsq = a.normal_squarings;
+  const size_t c = size_t(y) * size_t(a.width) + size_t(x);
+  const T zc = L::load(a.depth + c), ncx = L::load(a.nx + c), ncy = L::load(a.ny + c), ncz = L::load(a.nz + c);
+  const T ipz = L::load(a.inv_phi_z + c), ipl = L::load(ipl_row + x), lc = L::load(a.v_in + c);
+  const float hc = a.k1d[0] * a.k1d[0];
+  T sw = T{} + hc;
+  T sl = hc * lc;
+  T sv = (hc * hc) * L::load(a.var_in + c);
+  const __m512 zero = _mm512_setzero_ps(), sixty = _mm512_set1_ps(60.0f);
+  const __mmask16 all = 0xffff;  // the zero-masked forms: GCC 12 warns on the plain ones' undefined source
+#pragma GCC unroll 5
+  for (int ty = -R; ty <= R; ++ty) {
+    const int qy = y + ty * step;
+    if (qy < 0 || qy >= a.height) continue;
+    const size_t qrow = size_t(qy) * size_t(a.width) + size_t(x);
+#pragma GCC unroll 5
+    for (int tx = -R; tx <= R; ++tx) {
+      if (tx == 0 && ty == 0) continue;
+      const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here
+      const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
+      const T d = ncx * L::load(a.nx + q) + ncy * L::load(a.ny + q) + ncz * L::load(a.nz + q);
+      T wn = (T)_mm512_maskz_max_ps(all, (__m512)d, zero);  // then pow_2k's squarings
+      if constexpr (K >= 0) {
+        for (int i = 0; i < K; ++i) wn = wn * wn;
+      } else {
+        for (int i = 0; i < nsq; ++i) wn = wn * wn;
+      }
+      const T wz = abs_f(zc - L::load(a.depth + q)) * ipz * il;
+      const T lq = L::load(a.v_in + q);
+      const T wl = abs_f(lc - lq) * ipl;
+      const T s = wz + wl;
+      const T t = s * -1.44269504f;
+      const __m512 fi = _mm512_maskz_roundscale_ps(all, (__m512)(t - 0.5f), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC);
+      const T f = t - (T)fi;
+      T p = T{} + 9.6181291e-3f;
+      p = p * f + 5.5504109e-2f;
+      p = p * f + 2.4022651e-1f;
+      p = p * f + 6.9314718e-1f;
+      p = p * f + 1.0f;
+      const __m512 r = _mm512_maskz_scalef_ps(all, (__m512)p, fi);
+      const __mmask16 keep = _mm512_cmp_ps_mask((__m512)s, sixty, _CMP_NGT_UQ);
+      const T wgt = (T)_mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
+      sw = sw + wgt;
+      sl = sl + wgt * lq;
+      sv = sv + wgt * wgt * L::load(a.var_in + q);
+    }
+  }
+  L::store(sw_out, sw);
+  L::store(sl_out, sl);
+  L::store(sv_out, sv);
+}
+
+// The 16-pixel blocks of [xb, xm) of row y; returns where they end (the rest, under 16
+// pixels, is left to the 8-lane blocks). A call per row (not inlined: atrous_rows_impl is
+// compiled for the baseline target too).
+template <int K, int R>
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_blocks16(const AtrousArgs& a, int y, int xb, int xm,
+                                                                        const uint8_t* cls, const float* ipl_row,
+                                                                        const float (*hk)[5],
+                                                                        const float (*inv_len)[5], float* sw,
+                                                                        float* sl, float* sv) {
+  const uint8_t ac = a.active_cls;
+  for (; xb + kLanes16 <= xm; xb += kLanes16)
+    if (!cls || block_has(cls, xb, kLanes16, ac))
+      atrous_block16_unrolled<K, R>(a, y, xb, ipl_row, hk, inv_len, sw + xb, sl + xb, sv + xb);
+  return xb;
+}
+
+// The end of a row (the loop at the end of atrous_rows_impl) for pixels [0, w - w % 16) of the
+// row at `row`, 16 at a time: the same IEEE operations per pixel (1 / sw, the products, the
+// clamps as the same comparisons), so the same bits; the pixels a cls leaves out keep v_out and
+// var_out and take to_u8 of v_out. Returns where it ended.
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_finish16(const AtrousArgs& a, size_t row, int w,
+                                                                        const float* sw, const float* sl,
+                                                                        const float* sv) {
+  using L = VectorLane16;
+  using T = VecF16;
+  const uint8_t ac = a.active_cls;
+  const __mmask16 all = 0xffff;  // the zero-masked forms: see atrous_block16_unrolled
+  int x = 0;
+  for (; x + kLanes16 <= w; x += kLanes16) {
+    const size_t i = row + size_t(x);
+    const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.valid + i));
+    const __mmask16 valid = _mm512_test_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, vb), _mm512_maskz_cvtepu8_epi32(all, vb));
+    __mmask16 act = 0xffff;
+    if (a.cls) {
+      const __m128i cb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.cls + i));
+      act = _mm512_cmpeq_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, cb), _mm512_set1_epi32(ac));
+    }
+    const T inv = T{} + 1.0f / L::load(sw + x);  // sw >= h_c > 0 at a valid pixel
+    const T t = L::load(sl + x) * inv;
+    const T lo = T{}, hi = T{} + 1.0f;
+    T v = t < lo ? lo : (hi < t ? hi : t);  // std::clamp(t, 0, 1)
+    const T q = L::load(sv + x) * inv * inv;
+    T var = lo < q ? q : lo;  // std::max(0, q)
+    v = (T)_mm512_mask_blend_ps(valid, (__m512)L::load(a.v_in + i), (__m512)v);
+    var = (T)_mm512_maskz_mov_ps(valid, (__m512)var);
+    _mm512_mask_storeu_ps(a.v_out + i, act, (__m512)v);
+    _mm512_mask_storeu_ps(a.var_out + i, act, (__m512)var);
+    if (a.v_out2) _mm512_mask_storeu_ps(a.v_out2 + i, act, (__m512)v);
+    if (a.v_out3) _mm512_mask_storeu_ps(a.v_out3 + i, act, (__m512)v);
+    if (a.var_out2) _mm512_mask_storeu_ps(a.var_out2 + i, act, (__m512)var);
+    if (a.u8_out) {  // to_u8 (filters.h), of v_out as it is where a cls leaves the pixel out
+      const T vo = (T)_mm512_mask_blend_ps(act, (__m512)L::load(a.v_out + i), (__m512)v);
+      T f = vo * 255.0f + 0.5f;
+      f = f >= lo ? f : lo;
+      f = f <= T{} + 255.0f ? f : T{} + 255.0f;
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(a.u8_out + i), _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_cvttps_epi32(all, (__m512)f)));
+    }
+  }
+  return x;
+}
+#endif
+
 // The AO phi of row y into out (w floats), from var_in (see AtrousArgs::inv_phi_l). The 3x3
-// sums are taken in the same order for every pixel (dy, then dx, from -1), starting from 0.
+// sums are taken in the same order for every pixel (dy, then dx, from -1), starting from 0:
+// in registers, a block of L's lanes at a time, for the pixels with both horizontal neighbours,
+// one at a time (the same sums, the missing neighbours left out) at the row's two ends.
+template <class L>
 DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) {
+  using T = typename L::T;
+  constexpr int n = sizeof(T) / sizeof(float);
   const int w = a.width, h = a.height;
   const size_t row = size_t(y) * size_t(w);
   if (!(a.sigma_l > 0.0f)) {
     for (int x = 0; x < w; ++x) out[x] = 0.0f;
     return;
   }
-  for (int x = 0; x < w; ++x) out[x] = 0.0f;
+  const float* vr[3];
   for (int dy = -1; dy <= 1; ++dy) {
     const int qy = y + dy;
-    if (qy < 0 || qy >= h) continue;
-    const float* vq = a.var_in + size_t(qy) * w;
-    for (int dx = -1; dx <= 1; ++dx) {
-      const float k = (dx == 0 ? 0.5f : 0.25f) * (dy == 0 ? 0.5f : 0.25f);
-      const int lo = std::max(0, -dx), hi = std::min(w, w - dx);
-      for (int x = lo; x < hi; ++x) out[x] += k * vq[x + dx];
-    }
+    vr[dy + 1] = qy < 0 || qy >= h ? nullptr : a.var_in + size_t(qy) * w;
   }
+  auto k_of = [](int dx, int dy) { return (dx == 0 ? 0.5f : 0.25f) * (dy == 0 ? 0.5f : 0.25f); };
+  auto one = [&](int x) {
+    float s = 0.0f;
+    for (int dy = -1; dy <= 1; ++dy) {
+      if (!vr[dy + 1]) continue;
+      for (int dx = -1; dx <= 1; ++dx)
+        if (x + dx >= 0 && x + dx < w) s += k_of(dx, dy) * vr[dy + 1][x + dx];
+    }
+    out[x] = s;
+  };
   int x = 0;
+  if (w > 0) one(x++);
+  for (; x + n <= w - 1; x += n) {
+    T s = T{};
+    for (int dy = -1; dy <= 1; ++dy) {
+      if (!vr[dy + 1]) continue;
+      for (int dx = -1; dx <= 1; ++dx) s = s + k_of(dx, dy) * L::load(vr[dy + 1] + x + dx);
+    }
+    L::store(out + x, s);
+  }
+  for (; x < w; ++x) one(x);
+  x = 0;
+  for (; x + n <= w; x += n)
+    inv_phi_l_lanes<L>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
   for (; x + kLanes <= w; x += kLanes)
     inv_phi_l_lanes<VectorLane>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
   for (; x < w; ++x)
@@ -183,12 +348,16 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
     p.sl = acc + w;
     p.sv = acc + 2 * w;
     const float* ipl_row = a.inv_phi_l ? a.inv_phi_l + row : acc + 3 * w;
-    if (!a.inv_phi_l) inv_phi_l_of_row(a, y, acc + 3 * w);
+    if (!a.inv_phi_l) inv_phi_l_of_row<std::conditional_t<Wide, VectorLane16, VectorLane>>(a, y, acc + 3 * w);
     int xb = xl;
-    if constexpr (Wide)
-      for (; xb + kLanes16 <= xm; xb += kLanes16)
-        if (!cls || block_has(cls, xb, kLanes16, ac))
-          atrous_block<K, VectorLane16>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
+#if DHR_DENOISE_AVX512
+    if constexpr (Wide) {
+      if (r == 2)
+        xb = atrous_blocks16<K, 2>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+      else
+        xb = atrous_blocks16<K, 1>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+    }
+#endif
     for (; xb < xm; xb += kLanes)
       if (!cls || block_has(cls, xb, kLanes, ac))
         atrous_block<K, VectorLane>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
@@ -229,7 +398,11 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
         }
       }
     }
-    for (int x = 0; x < w; ++x) {
+    int x0 = 0;
+#if DHR_DENOISE_AVX512
+    if constexpr (Wide) x0 = atrous_finish16(a, row, w, p.sw, p.sl, p.sv);
+#endif
+    for (int x = x0; x < w; ++x) {
       const size_t i = row + x;
       if (cls && cls[x] != ac) {
         if (a.u8_out) a.u8_out[i] = to_u8(a.v_out[i]);
