@@ -8,7 +8,7 @@
 // thread, best of 7): on a shared machine the wall times measure the neighbours, the CPU time
 // a frame consumes much less (docs/performance.md, "Client stages (item 5)").
 //
-//   build-*/tests/bench_raster --benchmark_min_time=0.5s
+//   build-*/tests/bench_raster --benchmark_min_time=0.5
 #include "core/error.h"
 #include "core/gbuffer.h"
 #include "core/raster.h"
