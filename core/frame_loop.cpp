@@ -64,6 +64,23 @@ std::string trace_key(const std::string& scene_key, const SimConfig& c, int fram
   return fmt::format("trace{}|{}|f{}|{}", kTraceCacheVersion, scene_key, frame, settings_key(c, kInTraceKey));
 }
 
+}  // namespace
+
+// The local reference of client frame a depends on nothing but the traced passes of frames 0..a
+// (the scene, the camera path and the trace settings: the trace key) and the denoisers
+// (core/pipeline.h, LocalReference), so the runs of a sweep that share those share it: the first
+// computes it, the others take it from the cache.
+std::string local_reference_key(const std::string& scene_key, const SimConfig& c, int frame) {
+  std::string denoisers;
+  for (const PassType& t : pass_types()) {
+    const BackendChoice& d = c.pass(t.name).denoiser;
+    denoisers += fmt::format("|{}={}:{}", t.name, d.name, d.params.dump());
+  }
+  return fmt::format("local|{}{}", trace_key(scene_key, c, frame), denoisers);
+}
+
+namespace {
+
 std::string truth_key(const std::string& scene_key, const SimConfig& c, int frame) {
   return fmt::format("truth|{}|f{}|{}", scene_key, frame, settings_key(c, kInTruthKey));
 }
@@ -349,6 +366,7 @@ class Simulation {
 
   RunResult run(const ProgressFn& progress) {
     const int total = c_.warmup_frames + c_.frames;
+    take_cached_local_reference(total);
     for (int a = 0; a < total; ++a) {
       client_frame(a);
       if (progress) progress(a + 1, total);
@@ -377,6 +395,23 @@ class Simulation {
   RtScene& rt() {
     if (!rt_) rt_ = std::make_unique<RtScene>(scene_);
     return *rt_;
+  }
+
+  std::string local_key(int a) const { return local_reference_key(scene_key_, c_, a); }
+
+  // When the cache holds the local reference of every frame this run scores, the run takes them
+  // all from there and never runs its own (a temporal denoiser must see every frame from the
+  // first, so a run takes all or none).
+  void take_cached_local_reference(int total) {
+    for (int a = c_.warmup_frames; a < total; ++a) {
+      if ((a - c_.warmup_frames) % c_.score_every != 0) continue;
+      std::shared_ptr<const ImageRGB8> image = cache_.find_image(local_key(a));
+      if (!image) {
+        local_cached_.clear();
+        return;
+      }
+      local_cached_[a] = std::move(image);
+    }
   }
 
   // The traced passes of client frame a (cached: they depend on nothing but the scene, the
@@ -537,8 +572,12 @@ class Simulation {
     // Local reference: this frame's own passes, denoised by the client-side sequence.
     const bool score_now = count && (rec.frame % c_.score_every == 0);
     std::optional<ImageRGB8> local_image;
-    if (local_.needs_every_frame() || score_now)
+    if (!local_cached_.empty()) {
+      if (score_now) local_image = *local_cached_.at(a);
+    } else if (local_.needs_every_frame() || score_now) {
       local_image = local_.frame(uint32_t(a), gbuf, *traced(a, gbuf), score_now);
+      if (score_now) cache_.insert_image(local_key(a), std::make_shared<const ImageRGB8>(*local_image));
+    }
 
     // Predict each pass and composite.
     ClientFrame shown = client_.display(a, gbuf, [this](int frame) { return camera(frame); });
@@ -588,6 +627,7 @@ class Simulation {
   const Scene& scene_;
   std::string scene_key_;
   std::optional<ImageRGB8> prev_local_, prev_shown_;  // the last scored frame's reference and image
+  std::map<int, std::shared_ptr<const ImageRGB8>> local_cached_;  // the local references taken from the cache
   TraceCache& cache_;
   bool remote_;
   Link uplink_, downlink_;

@@ -89,6 +89,12 @@ using ProgressFn = std::function<void(int, int)>;
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key,
                          TraceCache& cache, const Registries& registries, const ProgressFn& progress = {});
 
+// The cache key of the local reference of client frame `frame` (TraceCache::find_image): the
+// trace key (scene, camera path, trace settings, frame) and every traced pass's denoiser, all it
+// depends on. A run finding the key of every frame it scores takes them instead of computing its
+// own (docs/performance.md, item 2).
+std::string local_reference_key(const std::string& scene_key, const SimConfig& config, int frame);
+
 // The checks run_simulation does first: throws dhr::Error listing every problem.
 void validate_sim_config(const SimConfig& config, const Scene& scene, const Registries& registries);
 

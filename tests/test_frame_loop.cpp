@@ -142,6 +142,55 @@ TEST(FrameLoop, DeterministicAcrossRunsAndThreadCounts) {
   EXPECT_EQ(a, run(1));
 }
 
+// A run whose traced passes and denoisers match an earlier run's takes that run's local reference
+// from the cache instead of computing its own (core/frame_loop.cpp, local_key): it must score
+// exactly as a run that computes its own, and runs that differ in the denoiser or in the traced
+// passes must never take another's.
+TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
+  auto scores = [](const SimConfig& c, TraceCache& cache) {
+    const RunResult r = run_simulation(c, scene("room"), "room", cache, registries());
+    nlohmann::json frames = nlohmann::json::array();
+    for (const auto& f : r.frames) {
+      nlohmann::json local = nlohmann::json::array();
+      for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);  // NaN: a step metric's first frame
+      frames.push_back({f.frame, f.scored, local});
+    }
+    return frames.dump();
+  };
+  SimConfig a = small_config(16);
+  a.warmup_frames = 4;
+  a.score_every = 3;
+  a.pass("ao").denoiser = {"svgf_ao"};  // keeps history: the reference depends on every frame before
+  SimConfig same = a;  // another network and codec: the same local reference
+  same.uplink.latency_ms = same.downlink.latency_ms = 50;
+  same.pass("ao").codec = {"zstd"};
+  SimConfig other_denoiser = same;
+  other_denoiser.pass("ao").denoiser = {"temporal"};
+  SimConfig other_trace = same;
+  other_trace.trace.ao_rays = 6;
+  SimConfig remote = same;
+  remote.mode = "remote";
+  TraceCache shared;
+  (void)scores(a, shared);
+  for (const SimConfig* c : {&same, &other_denoiser, &other_trace, &remote}) {
+    TraceCache fresh;
+    EXPECT_EQ(scores(*c, shared), scores(*c, fresh)) << c->pass("ao").denoiser.name << " " << c->trace.ao_rays << " " << c->mode;
+  }
+  // And a run does take it: a cache holding black images under its keys changes its scores;
+  // a run missing one frame's key computes its own for every frame.
+  auto planted = [&](const SimConfig& c, int skip) {
+    TraceCache cache;
+    for (int f = c.warmup_frames; f < c.warmup_frames + c.frames; ++f)
+      if ((f - c.warmup_frames) % c.score_every == 0 && f != skip)
+        cache.insert_image(local_reference_key("room", c, f), std::make_shared<const ImageRGB8>(c.width, c.height));
+    return scores(c, cache);
+  };
+  TraceCache fresh;
+  const std::string own = scores(same, fresh);
+  EXPECT_NE(planted(same, -1), own);
+  EXPECT_EQ(planted(same, same.warmup_frames + same.score_every), own);
+}
+
 // Every video codec (h264, hevc, av1) through bursty loss: lost frames, a keyframe request,
 // recovery (core/pass_receiver.cpp).
 TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
