@@ -160,8 +160,8 @@ class LiveClient {
 
   void start_session(const WelcomeBody& w) {
     session_ = w.session;
-    uint32_t codec_ids[kPassSlots] = {};
-    bool streams[kPassSlots] = {};
+    std::array<uint32_t, kPassSlots> codec_ids{};
+    std::array<bool, kPassSlots> streams{};
     for (int slot = 0; slot < pass_slot_count(); ++slot) {
       streams[slot] = pass_of_slot_[slot] >= 0;
       codec_ids[slot] = codec_id(c_.pass(slot_name(slot)).codec.name);

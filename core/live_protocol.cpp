@@ -402,8 +402,8 @@ const char* read_control(std::span<const uint8_t> d, TypedControl& out) {
 
 // ---- the session's pass packets ------------------------------------------------------------
 
-PassGate::PassGate(uint32_t token, const uint32_t first_sequence[kPassSlots], const uint32_t codec_ids[kPassSlots],
-                   const bool streams[kPassSlots])
+PassGate::PassGate(uint32_t token, const std::array<uint32_t, kPassSlots>& first_sequence,
+                   const std::array<uint32_t, kPassSlots>& codec_ids, const std::array<bool, kPassSlots>& streams)
     : stream_(uint16_t(token & 0xffffu)) {
   for (int s = 0; s < kPassSlots; ++s) {
     streams_[s] = streams[s];

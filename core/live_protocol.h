@@ -34,6 +34,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -145,7 +146,7 @@ int pass_slot_count();         // pass_types().size()
 struct WelcomeBody {
   uint32_t session = 0;       // equals the header's token
   uint32_t client_nonce = 0;  // the nonce of the Hello it answers
-  uint32_t first_sequence[kPassSlots] = {};  // random, per stream (see PassGate)
+  std::array<uint32_t, kPassSlots> first_sequence{};  // random, per stream (see PassGate)
   SessionOffer offer;         // the server's
 };
 std::string welcome_text(const WelcomeBody& w);
@@ -187,8 +188,8 @@ class PassGate {
 
   PassGate() = default;
   // codec_ids[slot] == 0 and streams[slot] false: that pass is not streamed.
-  PassGate(uint32_t token, const uint32_t first_sequence[kPassSlots], const uint32_t codec_ids[kPassSlots],
-           const bool streams[kPassSlots]);
+  PassGate(uint32_t token, const std::array<uint32_t, kPassSlots>& first_sequence,
+           const std::array<uint32_t, kPassSlots>& codec_ids, const std::array<bool, kPassSlots>& streams);
   void camera_sent(uint32_t frame);
   // nullptr: accepted (the stream's newest sequence number advances); else the counter name:
   // "packet_wrong_token", "packet_unexpected_pass", "packet_wrong_codec", "packet_frame_ahead",

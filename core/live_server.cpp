@@ -48,7 +48,7 @@ class LiveServer {
     uint32_t nonce = 0;  // the client's Hello nonce (a repeated Hello gets the Welcome again)
     Endpoint peer;
     std::unique_ptr<ServerPipeline> pipeline;  // core/pipeline.h: the simulator's server stages
-    uint32_t first_sequence[kPassSlots] = {};  // per stream: random, sent in the Welcome
+    std::array<uint32_t, kPassSlots> first_sequence{};  // per stream: random, sent in the Welcome
     int64_t last_frame = -1;
     std::optional<CameraUpdate> pending;
     bool keyframe = false;
@@ -193,7 +193,7 @@ class LiveServer {
     WelcomeBody w;
     w.session = session_->id;
     w.client_nonce = session_->nonce;
-    std::copy(std::begin(session_->first_sequence), std::end(session_->first_sequence), w.first_sequence);
+    w.first_sequence = session_->first_sequence;
     w.offer.json = offer_;
     return welcome_text(w);
   }

@@ -310,8 +310,9 @@ ParsedPacket pass_packet(std::vector<uint8_t>& storage, uint16_t stream, PassKin
 }
 
 TEST(LiveTrust, ThePassGateRefusesWhatTheSessionDidNotAskFor) {
-  const uint32_t token = 0x12345678, first[2] = {4294967000u, 1000}, codecs[2] = {codec_id("lz4"), codec_id("lz4")};
-  const bool streams[2] = {false, true};  // AO only
+  const uint32_t token = 0x12345678;
+  const std::array<uint32_t, kPassSlots> first{4294967000u, 1000}, codecs{codec_id("lz4"), codec_id("lz4")};
+  const std::array<bool, kPassSlots> streams{false, true};  // AO only
   PassGate gate(token, first, codecs, streams);
   std::vector<uint8_t> b;
   const uint16_t stream = 0x5678;
@@ -333,7 +334,7 @@ TEST(LiveTrust, ThePassGateRefusesWhatTheSessionDidNotAskFor) {
   EXPECT_EQ(check(pass_packet(b, stream, PassKind::Ao, 3, 1000 + 6 + 2 * PassGate::kSequenceWindow)),
             "packet_sequence_out_of_window");
   // Sequence numbers wrap modulo 2^32 (the visibility stream's first one is close to the top).
-  const bool both[2] = {true, true};
+  const std::array<bool, kPassSlots> both{true, true};
   PassGate wrap(token, first, codecs, both);
   wrap.camera_sent(0);
   EXPECT_EQ(name_of(wrap.check(pass_packet(b, stream, PassKind::Visibility, 0, 4294967000u))), "ok");
