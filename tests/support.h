@@ -3,6 +3,8 @@
 
 #include "core/scene.h"
 
+#include <cstddef>
+#include <cstdint>
 #include <functional>
 #include <string>
 
@@ -20,6 +22,29 @@ Object make_object(uint32_t id, Mesh mesh, glm::vec3 offset, uint32_t material =
 // (angular radius 0: hard), as the trace tests build them.
 Light sphere_light(glm::vec3 p, float radius_m, float intensity);
 Light distant_light(glm::vec3 dir, float angular_radius_deg = 0.0f);
+
+// Calls fn(name, scene) for every built-in and real scene (core/scene_load.h) that loads; name is
+// the file's stem. One that does not load (a real scene whose assets are not here) is skipped and
+// said so on stdout.
+void for_each_scene(const std::function<void(const std::string& name, const Scene& scene)>& fn);
+
+// FNV-1a (64 bit) over bytes: the pinned-hash tests (test_trace_bits, test_raster_bits) fold
+// buffers and values into it.
+struct Fnv1a {
+  uint64_t h = 1469598103934665603ull;
+  void bytes(const void* p, size_t n) {
+    const auto* b = static_cast<const unsigned char*>(p);
+    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
+  }
+  template <class T>
+  void value(const T& v) {
+    bytes(&v, sizeof v);
+  }
+  template <class I>
+  void plane(const I& image) {
+    bytes(image.data(), image.size() * sizeof(image[0]));
+  }
+};
 
 // The message of the dhr::Error that `f` throws; "" when it throws none.
 std::string error_of(const std::function<void()>& f);

@@ -24,18 +24,6 @@
 namespace dhr {
 namespace {
 
-struct Fnv {
-  uint64_t h = 1469598103934665603ull;
-  void bytes(const void* p, size_t n) {
-    const auto* b = static_cast<const unsigned char*>(p);
-    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
-  }
-  template <class I>
-  void plane(const I& image) {
-    bytes(image.data(), image.size() * sizeof(image[0]));
-  }
-};
-
 // scene/size -> hash, recorded with DHR_PRINT_RASTER_HASHES=1 from the rasterizer of 9b6eb01.
 const std::map<std::string, uint64_t>& pinned() {
   static const std::map<std::string, uint64_t> m = {
@@ -65,7 +53,7 @@ uint64_t gbuffer_hash(const Scene& scene, int w, int h) {
   const RasterFrame frame{&scene, scene.camera.at(t, w, h), t, scene.camera.at(prev, w, h), prev};
   GBuffer g;
   const RasterStats st = rasterize(frame, g);
-  Fnv f;
+  test::Fnv1a f;
   f.plane(g.depth);
   f.plane(g.position);
   f.plane(g.normal);
@@ -81,18 +69,8 @@ uint64_t gbuffer_hash(const Scene& scene, int w, int h) {
 
 TEST(RasterBits, GBufferIsPinned) {
   const bool print = std::getenv("DHR_PRINT_RASTER_HASHES") != nullptr;
-  std::vector<std::string> files = builtin_scene_files();
-  for (const auto& f : real_scene_files()) files.push_back(f);
   int checked = 0;
-  for (const auto& file : files) {
-    const std::string name = std::filesystem::path(file).stem().string();
-    Scene scene;
-    try {
-      scene = load_scene(file, SceneSearchPath::standard());
-    } catch (const Error& e) {
-      std::printf("skipped %s: %s\n", name.c_str(), e.what());
-      continue;
-    }
+  test::for_each_scene([&](const std::string& name, const Scene& scene) {
     for (const auto& [w, h] : {std::pair{321, 181}, std::pair{1280, 720}}) {
       const std::string key = name + "/" + std::to_string(w) + "x" + std::to_string(h);
       const uint64_t all_threads = gbuffer_hash(scene, w, h);
@@ -111,7 +89,7 @@ TEST(RasterBits, GBufferIsPinned) {
       EXPECT_EQ(all_threads, it->second) << key << ": the G-buffer's bits changed";
       ++checked;
     }
-  }
+  });
   if (!print) {
     EXPECT_GE(checked, 6);  // the built-in scenes, at least
   }

@@ -26,18 +26,6 @@
 namespace dhr {
 namespace {
 
-struct Fnv {
-  uint64_t h = 1469598103934665603ull;
-  void bytes(const void* p, size_t n) {
-    const auto* b = static_cast<const unsigned char*>(p);
-    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
-  }
-  template <class T>
-  void value(const T& v) {
-    bytes(&v, sizeof v);
-  }
-};
-
 // scene/mode -> hash, recorded with DHR_PRINT_TRACE_HASHES=1 at commit d05e197.
 const std::map<std::string, uint64_t>& pinned() {
   static const std::map<std::string, uint64_t> m = {
@@ -70,7 +58,7 @@ uint64_t pass_hash(RtScene& rt, const GBuffer& g, const TraceSettings& s) {
   const PassPlan plan = plan_passes(rt.scene(), s);
   TraceStats st;
   const VisibilityCounts c = trace_visibility_counts(rt, g, plan, s, st);
-  Fnv f;
+  test::Fnv1a f;
   f.bytes(c.visible.data(), c.visible.size() * sizeof(uint16_t));
   for (uint64_t v : {st.covered_pixels, st.shadow_rays, st.invalid_rays, st.unresolved_pixels, st.shadow_skipped_facing,
                      st.shadow_skipped_range, st.shadow_inside_light})
@@ -84,19 +72,9 @@ uint64_t pass_hash(RtScene& rt, const GBuffer& g, const TraceSettings& s) {
 
 TEST(TraceBits, VisibilityPassIsPinned) {
   const bool print = std::getenv("DHR_PRINT_TRACE_HASHES") != nullptr;
-  std::vector<std::string> files = builtin_scene_files();
-  for (const auto& f : real_scene_files()) files.push_back(f);
   int checked = 0;
-  for (const auto& file : files) {
-    const std::string name = std::filesystem::path(file).stem().string();
-    Scene scene;
-    try {
-      scene = load_scene(file, SceneSearchPath::standard());
-    } catch (const Error& e) {
-      std::printf("skipped %s: %s\n", name.c_str(), e.what());
-      continue;
-    }
-    if (scene.lights.empty()) continue;
+  test::for_each_scene([&](const std::string& name, const Scene& scene) {
+    if (scene.lights.empty()) return;
     RtScene rt(scene);
     // 321 x 181: odd sizes, so that rows end in partial vector blocks.
     const Camera cam = scene.camera.at(0.25, 321, 181);
@@ -121,7 +99,7 @@ TEST(TraceBits, VisibilityPassIsPinned) {
       EXPECT_EQ(h, it->second) << key << ": the visibility pass's bits changed";
       ++checked;
     }
-  }
+  });
   if (!print) {
     EXPECT_GE(checked, 6);  // the built-in scenes with lights, at least
   }

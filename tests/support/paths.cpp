@@ -1,6 +1,11 @@
 #include "tests/support.h"
 
+#include "core/error.h"
+#include "core/scene_load.h"
+
+#include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 
 namespace dhr::test {
 
@@ -12,6 +17,22 @@ std::string shared_scenes_dir() {
     return s.substr(0, s.find(':'));
   }
   return DHR_SHARED_SCENES_DEFAULT;
+}
+
+void for_each_scene(const std::function<void(const std::string& name, const Scene& scene)>& fn) {
+  std::vector<std::string> files = builtin_scene_files();
+  for (const auto& f : real_scene_files()) files.push_back(f);
+  for (const auto& file : files) {
+    const std::string name = std::filesystem::path(file).stem().string();
+    Scene scene;
+    try {
+      scene = load_scene(file, SceneSearchPath::standard());
+    } catch (const Error& e) {
+      std::printf("skipped %s: %s\n", name.c_str(), e.what());
+      continue;
+    }
+    fn(name, scene);
+  }
 }
 
 }  // namespace dhr::test
