@@ -7,6 +7,9 @@ then compares OUT/NAME against reports/NAME (or against --baseline DIR/NAME):
   - results.json: per run (matched by id), every value under "metrics" and "backends", except
     wall-clock figures (keys listed in TIMING_KEYS: measured on this machine, they vary run to run)
   - frames.csv: every column of every row (matched by run and frame), except the wall-clock ones
+Runs are matched by what they are (scene, configuration, settings), not by position, so a
+configuration inserted into an experiment still compares the runs it did not change; a run only in
+the new results is a note, one only in the baseline a difference.
 The wall-clock keys and columns are read from the new results' "declared" record (core/results.h),
 joined with TIMING_KEYS / TIMING_COLUMNS for results older than that record.
 Values must be equal bit for bit (floats as written); a figure only in the new results (a metric
@@ -106,6 +109,26 @@ def same(a, b):
     return a == b
 
 
+def run_identity(run):
+    """What a run is, independent of its position in the sweep: scene, configuration and settings."""
+    return (run.get("scene"), run.get("configuration", run.get("label")),
+            json.dumps(run.get("settings", {}), sort_keys=True))
+
+
+def match_runs(new_runs, old_runs):
+    """new run id -> old run id. Runs are matched by identity (run_identity), so that a
+    configuration inserted into an experiment, which shifts the ids after it, still compares run by
+    run; where identities are missing or repeated, by id."""
+    new_ids = {run_identity(r): r["id"] for r in new_runs}
+    old_ids = {run_identity(r): r["id"] for r in old_runs}
+    if len(new_ids) != len(new_runs) or len(old_ids) != len(old_runs):
+        return {r["id"]: r["id"] for r in new_runs}
+    return {new_ids[k]: old_ids.get(k) for k in new_ids}
+
+
+RUN_MAP = {}  # new run id -> old run id, set by compare_results for compare_frames
+
+
 def compare_results(new_path, old_path, problems, notes):
     try:
         new = json.load(open(new_path))
@@ -113,13 +136,20 @@ def compare_results(new_path, old_path, problems, notes):
     except (OSError, ValueError) as e:
         problems.append(f"cannot read results: {e}")
         return 0
-    new_runs = {r["id"]: r for r in new["runs"]}
+    RUN_MAP.clear()
+    RUN_MAP.update(match_runs(new["runs"], old["runs"]))
     old_runs = {r["id"]: r for r in old["runs"]}
-    if set(new_runs) != set(old_runs):
-        problems.append(f"runs differ: only new {sorted(set(new_runs) - set(old_runs))}, "
-                        f"only old {sorted(set(old_runs) - set(new_runs))}")
+    new_runs = {}
+    for r in new["runs"]:
+        old_id = RUN_MAP.get(r["id"])
+        if old_id in old_runs:
+            new_runs[old_id] = r
+        else:
+            notes.add(f"run {r['id']} ({r.get('configuration', r.get('label'))}, {r.get('scene')}): newer than the baseline")
+    if set(old_runs) - set(new_runs):
+        problems.append(f"runs only in the baseline: {sorted(set(old_runs) - set(new_runs))}")
     compared = 0
-    for rid in sorted(set(new_runs) & set(old_runs)):
+    for rid in sorted(set(new_runs) & set(old_runs)):  # the baseline's ids
         for part in ("metrics", "backends"):
             a, b = {}, {}
             flatten(new_runs[rid].get(part, {}), part, a)
@@ -149,7 +179,16 @@ def read_frames(path, passes_of_run):
 def compare_frames(new_path, old_path, problems):
     try:
         passes = pass_names_of_runs(os.path.join(os.path.dirname(old_path), "results.json"))
-        new, old = read_frames(new_path, passes), read_frames(old_path, passes)
+        old = read_frames(old_path, passes)
+        new_passes = pass_names_of_runs(os.path.join(os.path.dirname(new_path), "results.json"))
+        # The new rows under the baseline's run ids (RUN_MAP); rows of runs newer than the
+        # baseline are left out (compare_results notes those runs).
+        old_runs = {run for run, _ in old}
+        new = {}
+        for (run, frame), row in read_frames(new_path, new_passes).items():
+            old_id = RUN_MAP.get(run, run)
+            if old_id in old_runs:
+                new[(old_id, frame)] = dict(row, run=old_id)
     except OSError as e:
         problems.append(f"cannot read frames.csv: {e}")
         return 0
