@@ -9,6 +9,7 @@ per scene, the ground truth, the local reference, and for each run what the clie
 and its error map, all error maps on one fixed colour scale with its colour bar.
 """
 import csv
+import gzip
 import json
 import math
 import os
@@ -242,7 +243,8 @@ def load_frames(path, column):
     """frames.csv rows; the columns the report reads are checked (frame an integer, `column` -- the first
     declared image metric against the local reference, ssim_local -- a number)."""
     try:
-        with open(path, encoding="utf-8", newline="") as f:
+        opener = gzip.open if path.endswith(".gz") else open
+        with opener(path, "rt", encoding="utf-8", newline="") as f:
             rows = list(csv.DictReader(f))
     except OSError as e:
         raise BadResults(f"{path}: cannot read the file: {e.strerror}")
@@ -413,8 +415,10 @@ def main(d):
     HEADLINE = metrics[0]
     headline_column = HEADLINE["columns"]["local"]
     frames = []
-    if os.path.exists(os.path.join(d, "frames.csv")):
-        frames = load_frames(os.path.join(d, "frames.csv"), headline_column)
+    for name in ("frames.csv", "frames.csv.gz"):  # a large one is published compressed
+        if os.path.exists(os.path.join(d, name)):
+            frames = load_frames(os.path.join(d, name), headline_column)
+            break
     load_matplotlib()
     os.makedirs(os.path.join(d, "plots"), exist_ok=True)
     os.makedirs(os.path.join(d, "grids"), exist_ok=True)

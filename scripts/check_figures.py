@@ -28,6 +28,7 @@ Usage:
 """
 import argparse
 import csv
+import gzip
 import json
 import math
 import os
@@ -169,8 +170,16 @@ def compare_results(new_path, old_path, problems, notes):
     return compared
 
 
+def open_frames(path):
+    """frames.csv, or its gzip-compressed form frames.csv.gz (how a published report larger than
+    4 MB keeps it: scripts/regenerate_reports.sh)."""
+    if not os.path.exists(path) and os.path.exists(path + ".gz"):
+        return gzip.open(path + ".gz", "rt", newline="")
+    return open(path, newline="")
+
+
 def read_frames(path, passes_of_run):
-    with open(path, newline="") as f:
+    with open_frames(path) as f:
         rows = [old_frame_columns(r, passes_of_run.get(r["run"], [])) for r in csv.DictReader(f)]
     return {(r["run"], r["frame"]): {ALIASES.get(k, k): v for k, v in r.items() if k not in TIMING_COLUMNS}
             for r in rows}
