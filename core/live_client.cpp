@@ -533,14 +533,14 @@ class LiveClient {
   PassGate gate_;
   bool gate_camera_sent_ = false;
   uint32_t last_camera_ = 0;
-  int64_t newest_completed_[kPassSlots] = {-1, -1, -1, -1, -1, -1, -1, -1};  // per pass: the newest frame whose packets all arrived
+  std::array<int64_t, kPassSlots> newest_completed_ = filled<int64_t>(-1);  // per pass: the newest frame whose packets all arrived
   Clock::time_point t0_, last_heard_;
   std::string end_reason_;
   double session_seconds_ = 0;
   std::vector<uint8_t> buffer_;
   Assembler assembler_;
   ClientPipeline client_;       // core/pipeline.h: decode, predict, composite, the G-buffer history
-  int pass_of_slot_[kPassSlots] = {-1, -1, -1, -1, -1, -1, -1, -1};  // per stream: its pass in client_, -1: none
+  std::array<int, kPassSlots> pass_of_slot_ = filled<int>(-1);  // per stream: its pass in client_, -1: none
   bool keyframe_request_ = false;
   bool has_prev_ = false;
   Camera prev_camera_;

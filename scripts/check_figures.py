@@ -127,22 +127,21 @@ def match_runs(new_runs, old_runs):
     return {new_ids[k]: old_ids.get(k) for k in new_ids}
 
 
-RUN_MAP = {}  # new run id -> old run id, set by compare_results for compare_frames
-
-
-def compare_results(new_path, old_path, problems, notes):
+def compare_results(new_path, old_path, problems, notes, run_map):
+    """Compares results.json run by run; fills `run_map` (new run id -> baseline run id) for
+    compare_frames."""
     try:
         new = json.load(open(new_path))
         old = json.load(open(old_path))
     except (OSError, ValueError) as e:
         problems.append(f"cannot read results: {e}")
         return 0
-    RUN_MAP.clear()
-    RUN_MAP.update(match_runs(new["runs"], old["runs"]))
+    run_map.clear()
+    run_map.update(match_runs(new["runs"], old["runs"]))
     old_runs = {r["id"]: r for r in old["runs"]}
     new_runs = {}
     for r in new["runs"]:
-        old_id = RUN_MAP.get(r["id"])
+        old_id = run_map.get(r["id"])
         if old_id in old_runs:
             new_runs[old_id] = r
         else:
@@ -185,17 +184,17 @@ def read_frames(path, passes_of_run):
             for r in rows}
 
 
-def compare_frames(new_path, old_path, problems):
+def compare_frames(new_path, old_path, problems, run_map):
     try:
         passes = pass_names_of_runs(os.path.join(os.path.dirname(old_path), "results.json"))
         old = read_frames(old_path, passes)
         new_passes = pass_names_of_runs(os.path.join(os.path.dirname(new_path), "results.json"))
-        # The new rows under the baseline's run ids (RUN_MAP); rows of runs newer than the
+        # The new rows under the baseline's run ids (run_map); rows of runs newer than the
         # baseline are left out (compare_results notes those runs).
         old_runs = {run for run, _ in old}
         new = {}
         for (run, frame), row in read_frames(new_path, new_passes).items():
-            old_id = RUN_MAP.get(run, run)
+            old_id = run_map.get(run, run)
             if old_id in old_runs:
                 new[(old_id, frame)] = dict(row, run=old_id)
     except OSError as e:
@@ -218,8 +217,9 @@ def compare_folders(new, old):
     keys, columns = declared_wall_clock(os.path.join(new, "results.json"))
     TIMING_KEYS.update(keys)
     TIMING_COLUMNS.update(columns)
-    n = compare_results(os.path.join(new, "results.json"), os.path.join(old, "results.json"), problems, notes)
-    n += compare_frames(os.path.join(new, "frames.csv"), os.path.join(old, "frames.csv"), problems)
+    run_map = {}
+    n = compare_results(os.path.join(new, "results.json"), os.path.join(old, "results.json"), problems, notes, run_map)
+    n += compare_frames(os.path.join(new, "frames.csv"), os.path.join(old, "frames.csv"), problems, run_map)
     if problems:
         print(f"{new} against {old}: {len(problems)} of {n} figures differ")
         for p in problems[:40]:
@@ -268,8 +268,9 @@ def main():
         keys, columns = declared_wall_clock(os.path.join(out, "results.json"))
         TIMING_KEYS.update(keys)
         TIMING_COLUMNS.update(columns)
-        n = compare_results(os.path.join(out, "results.json"), os.path.join(base, "results.json"), problems, notes)
-        n += compare_frames(os.path.join(out, "frames.csv"), os.path.join(base, "frames.csv"), problems)
+        run_map = {}
+        n = compare_results(os.path.join(out, "results.json"), os.path.join(base, "results.json"), problems, notes, run_map)
+        n += compare_frames(os.path.join(out, "frames.csv"), os.path.join(base, "frames.csv"), problems, run_map)
         for note in sorted(notes):
             print(f"{name}: note: only in the new results: {note}")
         if problems:
