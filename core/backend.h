@@ -23,8 +23,30 @@ namespace dhr {
 
 // ---- Codec: compresses one pass of one frame. Stateful codecs (video) keep state between
 // frames; reset() returns them to their initial state.
+// What one end knows about the frame a pass buffer was made for, beside the buffer: the frame's
+// index and this end's G-buffer of it (the server's for the camera it traced; the client's own
+// rasterization of that camera: the two agree exactly), and the G-buffers of earlier frames
+// this end still keeps. Codecs that predict from what the client already holds (delta with a
+// predictor) need it; the others ignore it.
+struct FrameContext {
+  uint32_t frame = 0;
+  const GBuffer* gbuf = nullptr;                             // null: not available
+  std::function<const GBuffer*(uint32_t)> gbuffer_of;        // null or a null result: not kept
+};
+
 struct EncodeOptions {
   bool force_keyframe = false;
+  FrameContext context;
+  // After the client reported a loss: the newest frame of this stream its decoder still holds
+  // (Codec::holds(); -1: none or not reported). A codec that keeps references predicts from
+  // that frame instead of sending a keyframe.
+  int client_holds = -1;
+
+  static EncodeOptions keyframe(bool force = true) {
+    EncodeOptions o;
+    o.force_keyframe = force;
+    return o;
+  }
 };
 
 class Codec {
@@ -45,6 +67,20 @@ class Codec {
   // unspecified. Never crashes, never returns true with wrong-sized output.
   virtual bool decode(std::span<const uint8_t> in, const PassDesc& desc, PassBuffer& out,
                       std::string& error) = 0;
+  // decode() with what the client knows about the frame; what the receivers call. Codecs that
+  // use the context override this one.
+  virtual bool decode_in_context(std::span<const uint8_t> in, const PassDesc& desc, const FrameContext& context,
+                                 PassBuffer& out, std::string& error) {
+    (void)context;
+    return decode(in, desc, out, error);
+  }
+  // How many earlier frames' G-buffers encode() may ask FrameContext::gbuffer_of for (the
+  // server keeps that many; 0: it uses no context).
+  virtual int gbuffers_referenced() const { return 0; }
+  // A decoder that keeps earlier frames as references: the newest frame it holds decoded (-1:
+  // none, or no such codec). After a loss the receiver does not reset such a decoder; it reports
+  // this frame and the encoder predicts from it (EncodeOptions::client_holds).
+  virtual int holds() const { return -1; }
   virtual void reset() {}
   // The standard stream that this codec's encode() outputs make, one after the other, as a file
   // extension: "h264" or "hevc" (Annex B byte streams), "ivf" (AV1 temporal units, each behind

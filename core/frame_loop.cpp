@@ -43,6 +43,7 @@ struct CameraMessage {
   int frame = 0;
   double arrival_ms = 0.0;
   bool keyframe_request = false;
+  std::vector<int> holds;  // per pass: the newest frame its decoder holds, after a loss (-1: none)
 };
 
 struct Datagram {
@@ -360,6 +361,7 @@ class Simulation {
     else
       for (const PassType& t : pass_types()) traffic_.push_back({t.name});
     for (const PlannedPass& p : server_.passes()) traffic_index_.push_back(traffic_of(p.name));
+    client_holds_.assign(server_.passes().size(), -1);
     result_.config = c.to_json();
     result_.plan = server_.plan();
   }
@@ -450,22 +452,24 @@ class Simulation {
       if (start > until_ms) return;
       int newest = -1;
       bool keyframe = false;
+      std::vector<int> holds(client_holds_.size(), -1);
       for (const auto& m : inbox_)
         if (m.arrival_ms <= start && m.frame > server_last_frame_) {
           newest = std::max(newest, m.frame);
           keyframe = keyframe || m.keyframe_request;
+          for (size_t i = 0; i < m.holds.size() && i < holds.size(); ++i) holds[i] = std::max(holds[i], m.holds[i]);
         }
       for (const auto& m : inbox_)
         if (m.arrival_ms <= start && m.frame > server_last_frame_ && m.frame < newest && scored(newest))
           ++result_.cameras_dropped;
       std::erase_if(inbox_, [&](const CameraMessage& m) { return m.arrival_ms <= start && m.frame <= newest; });
-      server_job(newest, start, keyframe);
+      server_job(newest, start, keyframe, holds);
     }
   }
 
-  void server_job(int j, double start_ms, bool keyframe) {
+  void server_job(int j, double start_ms, bool keyframe, const std::vector<int>& holds) {
     const bool count = scored(j);
-    ServerFrame f = server_.run(uint32_t(j), camera(j), frame_time_s(j), keyframe);
+    ServerFrame f = server_.run(uint32_t(j), camera(j), frame_time_s(j), keyframe, holds);
     for (const StageTime& s : f.stages) stage(s.name, s.ms, count);
     if (count) {
       result_.trace_stats.add(f.trace);
@@ -526,6 +530,7 @@ class Simulation {
       const PassReceiver::Outcome o = client_.receive(pass, f);
       client_decode_ms_ += o.decode_ms;
       keyframe_request_ = keyframe_request_ || o.keyframe_request;
+      if (o.keyframe_request) client_holds_[size_t(pass)] = o.holds;
       if (count) {
         t.decode_errors += o.decode_error ? 1 : 0;
         t.keyframe_requests += o.gap_reset ? 1 : 0;
@@ -557,8 +562,9 @@ class Simulation {
     // Uplink: this frame's camera (and a keyframe request after a loss).
     const Delivery up = uplink_.send(kCameraMessageBytes + kIpUdpOverheadBytes, now);
     if (up.delivered) {
-      inbox_.push_back({a, up.arrival_ms, keyframe_request_});
+      inbox_.push_back({a, up.arrival_ms, keyframe_request_, client_holds_});
       keyframe_request_ = false;
+      std::fill(client_holds_.begin(), client_holds_.end(), -1);
     } else if (count) {
       ++result_.cameras_lost;
     }
@@ -650,6 +656,7 @@ class Simulation {
 
   // client state
   bool keyframe_request_ = false;
+  std::vector<int> client_holds_;  // per pass, sent with the next camera (CameraMessage::holds)
   double client_decode_ms_ = 0.0;
 };
 

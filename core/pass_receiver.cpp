@@ -4,25 +4,28 @@
 
 namespace dhr {
 
-PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f) {
+PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f, const FrameContext& context) {
   Outcome o;
   const bool gap = expected_sequence != f.meta.first_sequence;
   expected_sequence = f.meta.first_sequence + f.packet_count;
+  // Asks for recovery: from the newest frame the decoder holds, else a keyframe after a reset.
+  auto request = [&] {
+    o.keyframe_request = true;
+    o.holds = codec->holds();
+    if (o.holds < 0) codec->reset();
+  };
   if (gap && codec->stateful() && frame >= 0) {
-    codec->reset();
-    o.gap_reset = o.keyframe_request = true;
+    request();
+    o.gap_reset = true;
   }
   PassBuffer out;
   std::string error;
   const auto t0 = std::chrono::steady_clock::now();
-  const bool ok = codec->decode(f.encoded, f.meta.desc, out, error);
+  const bool ok = codec->decode_in_context(f.encoded, f.meta.desc, context, out, error);
   o.decode_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   if (!ok) {
     o.decode_error = true;
-    if (codec->stateful()) {
-      codec->reset();
-      o.keyframe_request = true;
-    }
+    if (codec->stateful()) request();
     return o;
   }
   o.decoded = true;

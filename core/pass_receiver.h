@@ -3,8 +3,10 @@
 // then predicts it to the displayed frame.
 //
 // A gap in the sequence numbers before a completed frame means a frame of the stream was lost:
-// a stateful decoder (h264, delta) cannot go on from it, so it is reset and asks for a
-// keyframe; a failed decode does the same.
+// a stateful decoder (h264) cannot go on from it, so it is reset and asks for a keyframe; a
+// failed decode does the same. A decoder that keeps earlier frames as references (delta:
+// Codec::holds() >= 0) is not reset: it asks the server to predict from the newest frame it
+// holds (Outcome::holds).
 #pragma once
 
 #include "core/assembler.h"
@@ -26,12 +28,15 @@ struct PassReceiver {
   struct Outcome {
     bool decoded = false;           // decoded (and kept when newer than `frame`)
     bool decode_error = false;
-    bool gap_reset = false;         // a lost frame before this one reset the decoder
-    bool keyframe_request = false;  // the decoder was reset (gap or error) and needs a keyframe
+    bool gap_reset = false;         // a lost frame before this one: the decoder was reset, or
+                                    // (one that keeps references) asked to recover
+    bool keyframe_request = false;  // the decoder needs a keyframe (it was reset after a gap or
+                                    // an error), or a frame predicted from `holds`
+    int holds = -1;                 // with keyframe_request: the newest frame the decoder holds
     double decode_ms = 0.0;         // wall time of the decode call
   };
-  // Decodes `f` (its encoded bytes are consumed).
-  Outcome on_frame(AssembledFrame& f);
+  // Decodes `f` (its encoded bytes are consumed); `context`: what the client knows of its frame.
+  Outcome on_frame(AssembledFrame& f, const FrameContext& context = {});
 };
 
 // The buffer to composite for the frame whose G-buffer is `dst`, from the receiver's newest

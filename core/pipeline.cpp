@@ -103,6 +103,7 @@ ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Reg
     codecs_.push_back(r.codecs.create(codec.name, codec.params));
     codec_ids_.push_back(codec_id(codec.name));
     sequence_.push_back(0);
+    gbuffers_kept_ = std::max(gbuffers_kept_, codecs_.back()->gbuffers_referenced());
   }
   dumps_.resize(sent_.size());
 }
@@ -124,7 +125,8 @@ void ServerPipeline::dump(size_t pass, const PassDesc& desc, uint32_t frame, std
   dumps_[pass]->append(encoded, frame);
 }
 
-ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double time_s, bool keyframe) {
+ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double time_s, bool keyframe,
+                                std::span<const int> client_holds) {
   ServerFrame out;
   out.frame = frame;
   auto stage = [&](const char* name, double ms) {
@@ -133,7 +135,8 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
   };
 
   auto t0 = Clock::now();
-  GBuffer gbuf;
+  auto kept = std::make_shared<GBuffer>();
+  GBuffer& gbuf = *kept;
   rasterize({&scene_, camera, time_s, has_prev_ ? prev_camera_ : camera, has_prev_ ? prev_time_s_ : time_s}, gbuf);
   stage("server_rasterize", ms_since(t0));
   has_prev_ = true;
@@ -159,12 +162,20 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     stage("server_composite", ms_since(t0));
   }
 
+  EncodeOptions options;
+  options.force_keyframe = keyframe;
+  options.context = {frame, &gbuf, [this](uint32_t f) -> const GBuffer* {
+                       for (const auto& [kept_frame, g] : gbuffers_)
+                         if (kept_frame == f) return g.get();
+                       return nullptr;
+                     }};
   for (size_t i = 0; i < sent_.size(); ++i) {
     if (!buffers[i]) continue;
     const PassBuffer& buf = *buffers[i];
     std::vector<uint8_t> encoded;
+    options.client_holds = i < client_holds.size() ? client_holds[i] : -1;
     t0 = Clock::now();
-    codecs_[i]->encode(buf, {keyframe}, encoded);
+    codecs_[i]->encode(buf, options, encoded);
     stage("encode", ms_since(t0));
     if (!c_.dump_streams_dir.empty()) dump(i, buf.desc, frame, encoded);
     PacketMeta meta;
@@ -176,6 +187,10 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     SentPass sent{sent_[i].name, buf.desc, encoded.size(), packetize(meta, encoded, c_.max_payload_bytes)};
     sequence_[i] += uint32_t(sent.packets.size());
     out.passes.push_back(std::move(sent));
+  }
+  if (gbuffers_kept_ > 0) {
+    gbuffers_.emplace_back(frame, std::move(kept));
+    while (int(gbuffers_.size()) > gbuffers_kept_) gbuffers_.pop_front();
   }
   return out;
 }
@@ -194,6 +209,20 @@ ClientPipeline::ClientPipeline(const SimConfig& c, const Scene& scene, const Reg
 }
 
 int ClientPipeline::pass_of(PassKind kind) const { return find_pass(passes_, pass_meaning(kind)); }
+
+PassReceiver::Outcome ClientPipeline::receive(int pass, AssembledFrame& frame) {
+  const FrameContext context{frame.meta.frame_id, gbuffer(int(frame.meta.frame_id)),
+                             [this](uint32_t f) { return gbuffer(int(f)); }};
+  PassReceiver& r = receivers_[size_t(pass)];
+  PassReceiver::Outcome o = r.on_frame(frame, context);
+  // A frame held for recovery is of use only while this client still keeps its G-buffer (a
+  // codec that predicts through G-buffers needs it again): else ask for a keyframe.
+  if (o.holds >= 0 && r.codec->gbuffers_referenced() > 0 && !gbuffer(o.holds)) {
+    r.codec->reset();
+    o.holds = -1;
+  }
+  return o;
+}
 
 void ClientPipeline::keep(int frame, GBuffer gbuf) {
   history_.emplace_back(frame, std::move(gbuf));

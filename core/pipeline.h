@@ -30,6 +30,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -92,8 +93,11 @@ class ServerPipeline {
   // each session's streams at random numbers).
   void set_next_sequence(size_t pass, uint32_t sequence) { sequence_.at(pass) = sequence; }
   // Everything the server does for client frame `frame`, seen from `camera` at scene time
-  // `time_s`. The previous call's camera gives the motion vectors.
-  ServerFrame run(uint32_t frame, const Camera& camera, double time_s, bool keyframe);
+  // `time_s`. The previous call's camera gives the motion vectors. `keyframe`: the client
+  // asked for one after a loss; `client_holds`: per sent pass, the newest frame its decoder
+  // still holds when that pass reported the loss (-1: not reported; empty: none).
+  ServerFrame run(uint32_t frame, const Camera& camera, double time_s, bool keyframe,
+                  std::span<const int> client_holds = {});
 
  private:
   void dump(size_t pass, const PassDesc& desc, uint32_t frame, std::span<const uint8_t> encoded);
@@ -110,6 +114,10 @@ class ServerPipeline {
   bool has_prev_ = false;
   Camera prev_camera_;
   double prev_time_s_ = 0.0;
+  // The G-buffers of the last frames, kept when a codec predicts through them
+  // (Codec::gbuffers_referenced; 0: none kept).
+  int gbuffers_kept_ = 0;
+  std::deque<std::pair<uint32_t, std::shared_ptr<const GBuffer>>> gbuffers_;
 };
 
 // ---- client
@@ -131,8 +139,9 @@ class ClientPipeline {
   bool remote() const { return remote_; }
   // The pass a received frame of `kind` belongs to (-1: none of this run's).
   int pass_of(PassKind kind) const;
-  // Decodes one completed frame of pass `pass` (its bytes are consumed).
-  PassReceiver::Outcome receive(int pass, AssembledFrame& frame) { return receivers_[size_t(pass)].on_frame(frame); }
+  // Decodes one completed frame of pass `pass` (its bytes are consumed), with the G-buffers the
+  // client keeps as the decoder's context (FrameContext).
+  PassReceiver::Outcome receive(int pass, AssembledFrame& frame);
   const PassReceiver& receiver(int pass) const { return receivers_[size_t(pass)]; }
   PassReceiver& receiver(int pass) { return receivers_[size_t(pass)]; }
   // The hybrid client keeps its G-buffers (the last history_frames) for prediction.

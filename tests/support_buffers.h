@@ -11,6 +11,7 @@
 // content moves left/up by that much, and newly exposed parts come in from the right/bottom.
 #pragma once
 
+#include "core/gbuffer.h"
 #include "core/pass_buffer.h"
 
 #include <cstdint>
@@ -49,6 +50,12 @@ PassBuffer make_soft_visibility(const SyntheticView& view, int lights, int sampl
 // A shaded RGB8 frame of the scene (textured wall and floor, coloured objects, AO, light
 // falloff, a little fixed texture noise that moves with the scene).
 PassBuffer make_colour(const SyntheticView& view);
+
+// A one-plane pass fixed to the world, for pass-coding tests on real G-buffers: Ao a smooth
+// function of each covered pixel's world position, Visibility (one light) a world-space checker
+// of 0.5 m squares; background fully lit. A perfect reprojection predicts it everywhere except
+// where a surface comes into view.
+PassBuffer make_world_pass(const GBuffer& g, PassKind kind);
 
 // PSNR over all bytes with peak 255, in dB; +inf when equal. Sizes must match (else throws).
 double buffer_psnr_db(const PassBuffer& a, const PassBuffer& b);

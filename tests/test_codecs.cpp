@@ -590,7 +590,7 @@ TEST_P(CodecConformance, DecoderRecoversAfterAFailedDecode) {
   for (const PassBuffer* in : std::initializer_list<const PassBuffer*>{&empty, &normal}) {
     codec->reset();
     std::vector<uint8_t> encoded;
-    codec->encode(*in, EncodeOptions{true}, encoded);
+    codec->encode(*in, EncodeOptions::keyframe(), encoded);
     codec->reset();
     error.clear();
     ASSERT_TRUE(codec->decode(encoded, in->desc, out, error))
@@ -893,7 +893,7 @@ TEST(VideoCodecs, DumpedStreamsDecodeWithFfmpegToOurPictures) {
       for (int f = 0; f < kFrames; ++f) {
         const PassBuffer in = test::make_smooth_ao({kW, kH, 1.5 * f, 0.5 * f, uint32_t(f)});
         std::vector<uint8_t> bytes;
-        codec->encode(in, {f == 5}, bytes);
+        codec->encode(in, EncodeOptions::keyframe(f == 5), bytes);
         dump.append(bytes, uint64_t(f));
         const PassBuffer out = decode_or_fail(*decoder, bytes, in.desc);
         ours.insert(ours.end(), out.bytes.begin(), out.bytes.end());

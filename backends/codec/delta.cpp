@@ -1,18 +1,44 @@
-// delta: temporal prediction from the previous frame before a lossless coder. Beyond the
-// paper (which codes every frame alone): a bitmask is XORed with the previous frame's bitmask
-// and byte buffers (AO, soft visibility, colour) are coded as the byte difference mod 256,
-// then the residual goes through lz4 or zstd (with their checksums and bit-plane layout).
-// Where the camera holds still the residual is almost all zero; where it moves, the
-// unprojected previous frame predicts badly: without the G-buffer this codec cannot reproject,
-// so it only pays off for static or slow views. Reprojected deltas come with the frame loop.
+// delta: temporal prediction before a lossless coder. Beyond the paper (which codes every frame
+// alone): the frame is predicted from one the client already holds, and only the residual is
+// coded: a bitmask is XORed with its prediction and byte buffers (AO, soft visibility, colour)
+// are coded as the byte difference mod 256, then the residual goes through lz4 or zstd (with
+// their checksums and bit-plane layout).
+//
+// The prediction (`predictor`):
+//   none          the reference frame as it is (no reprojection): almost all zero residual where
+//                 the camera holds still, poor where it moves;
+//   reprojection  the registered reprojection predictor carries the reference frame to this
+//                 frame through the G-buffers of both frames, exactly as the client's display
+//                 does (backends/predict/reprojection.cpp). Server and client run the same
+//                 deterministic prediction on G-buffers that agree bit for bit (the server's for
+//                 the camera it traced, the client's own rasterization of it: FrameContext),
+//                 so the residual is what the client cannot predict: disocclusions, moving
+//                 objects, changed shadows and noise.
+//
+// References and losses (docs/architecture.md, "Pass coding against what the client holds"):
+// both ends keep the last `references` frames (encoder: the frames it coded, which a lossless
+// coder reconstructs exactly; decoder: the frames it decoded). A frame is predicted from the
+// newest coded frame; after a loss the client reports the newest frame it holds
+// (Codec::holds(), EncodeOptions::client_holds) and the encoder predicts the next frame from
+// that one instead of sending a keyframe (a keyframe when it no longer keeps it). The decoder
+// refuses a frame whose reference or G-buffers it does not hold, so a loss never yields wrong
+// bytes, only a failure until the recovery frame arrives. Keyframes come every
+// `keyframe_interval` frames, on EncodeOptions::force_keyframe without a reported reference, on
+// the first frame, after reset() and when the buffer description changes.
 //
 // Stream: every output starts with a 9-byte header: type ('K' keyframe, 'D' delta), the
-// frame's index and the index of the frame it was predicted from (uint32 little-endian). The
-// decoder keeps its last decoded frame and refuses a delta whose reference it does not hold
-// (a lost or skipped frame), so a loss never yields wrong bytes, only a failure until the next
-// keyframe. Keyframes come every `keyframe_interval` frames, on
-// EncodeOptions::force_keyframe, on the first frame, after reset() and when the buffer
-// description changes.
+// frame's index (the context's frame when it has a G-buffer, else a count of coded frames) and
+// the index of the frame it was predicted from (uint32 little-endian). With a predictor, 12
+// more bytes follow: the CRC-32C of the frame itself and the mask of predicted planes (uint64,
+// bit p: plane p, a light of a bitmask or a channel of an 8-bit pass, is coded against the
+// prediction; a clear bit: coded as it is). The inner coder's checksum covers the residual
+// only; the CRC covers the reconstruction, so a client whose prediction differed from the
+// server's (G-buffers that do not agree) gets a decode error, never wrong bytes.
+//
+// Why planes are chosen: soft shadows from one jittered ray per light (the paper's bitmask)
+// are fresh noise every frame inside a penumbra; there the XOR of two frames holds more
+// changes than the frame itself, and a light with wide penumbrae is better coded alone. The
+// choice codes every plane alone twice (its cost is in bench_pass_coding).
 //
 // Parameters:
 //   inner              lz4 | zstd             the lossless coder of the residual      default zstd
@@ -20,23 +46,53 @@
 //                                                                                     default 1
 //   layout             interleaved | planes   bitmask layout handed to the inner coder default planes
 //   keyframe_interval  1..100000              a keyframe every this many frames       default 30
-// Example: {"name": "delta", "params": {"inner": "zstd", "level": 1, "keyframe_interval": 30}}
+//   predictor          none | reprojection    how the reference is carried to this frame
+//                                                                                     default none
+//   filter             nearest | bilinear     the reprojection's filter for 8-bit passes
+//                                                                                     default bilinear
+//   references         1..64                  frames each end keeps as references     default 8
+//   plane_choice       true | false           with a predictor and several planes (lights of a
+//                                             bitmask, channels of an 8-bit pass): predict only the
+//                                             planes whose residual the inner coder codes smaller
+//                                             than the plane itself (each coded alone, both ways)
+//                                                                                     default true
+//   intra_check        true | false           with a predictor: also code the frame alone and send
+//                                             whichever is smaller (a keyframe when it is)
+//                                                                                     default true
+// Example: {"name": "delta", "params": {"inner": "zstd", "level": 1, "predictor": "reprojection"}}
 #include "backends/register_all.h"
 #include "core/backend.h"
+#include "core/checksum.h"
 
+#include <algorithm>
 #include <cstring>
+#include <deque>
 
 namespace dhr {
 namespace {
 
-constexpr size_t kHeaderBytes = 9;
+constexpr size_t kHeaderBytes = 9;  // type, frame, reference
+constexpr size_t kPredictedBytes = 12;  // with a predictor: CRC-32C of the frame, mask of predicted planes
 constexpr uint8_t kKeyframe = 'K', kDelta = 'D';
 
 void put_u32(uint8_t* p, uint32_t v) {
   for (int i = 0; i < 4; ++i) p[i] = uint8_t(v >> (8 * i));
 }
+void put_u64(uint8_t* p, uint64_t v) {
+  for (int i = 0; i < 8; ++i) p[i] = uint8_t(v >> (8 * i));
+}
 uint32_t get_u32(const uint8_t* p) {
   return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24;
+}
+uint64_t get_u64(const uint8_t* p) { return uint64_t(get_u32(p)) | uint64_t(get_u32(p + 4)) << 32; }
+
+// Planes of a buffer: the lights of a bitmask (bit p % 8 of byte p / 8 of each pixel), the
+// channels of an 8-bit buffer (byte p of each pixel).
+int plane_count(const PassDesc& d) { return d.kind == PassKind::Visibility || d.kind == PassKind::SoftVisibility ? d.channels : 1; }
+
+uint64_t all_planes(const PassDesc& d) {
+  const int planes = plane_count(d);
+  return planes >= 64 ? ~uint64_t(0) : (uint64_t(1) << planes) - 1;
 }
 
 // residual = cur - prev (XOR for bitmasks); apply(residual, prev) inverts it.
@@ -58,6 +114,43 @@ void apply_residual(std::vector<uint8_t>& bytes, const PassBuffer& prev, PassKin
     for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(bytes[i] + p[i]);
 }
 
+
+// The prediction with the planes outside `mask` cleared (zero: those planes are coded as they are).
+void mask_planes(PassBuffer& prediction, uint64_t mask) {
+  const PassDesc& d = prediction.desc;
+  const int planes = plane_count(d);
+  if (mask == all_planes(d)) return;
+  const size_t stride = d.byte_size() / (size_t(d.width) * size_t(d.height));
+  std::vector<uint8_t> keep(stride, 0);  // per byte of a pixel: what survives
+  for (int p = 0; p < planes; ++p)
+    if (mask >> p & 1) {
+      if (d.kind == PassKind::Visibility) keep[size_t(p / 8)] |= uint8_t(1u << (p % 8));
+      else keep[size_t(p)] = 0xff;
+    }
+  for (size_t i = 0; i < prediction.bytes.size(); ++i) prediction.bytes[i] &= keep[i % stride];
+}
+
+// Plane `p` of `b` (its bit p, or byte p, of every pixel) as a one-plane buffer of the same
+// kind; `minus`: the same plane of a prediction to subtract first (XOR for bitmasks).
+void extract_plane(const PassBuffer& b, const PassBuffer* minus, int p, PassBuffer& out) {
+  const PassDesc& d = b.desc;
+  out.desc = {d.kind, d.width, d.height, 1, d.full_scale};
+  const size_t n = size_t(d.width) * size_t(d.height), stride = d.byte_size() / std::max<size_t>(n, 1);
+  out.bytes.resize(n);
+  const uint8_t* c = b.bytes.data();
+  const uint8_t* q = minus ? minus->bytes.data() : nullptr;
+  if (d.kind == PassKind::Visibility) {
+    const size_t byte = size_t(p / 8);
+    const int bit = p % 8;
+    for (size_t i = 0; i < n; ++i) {
+      const uint8_t v = uint8_t(c[i * stride + byte] ^ (q ? q[i * stride + byte] : 0));
+      out.bytes[i] = uint8_t(v >> bit & 1);
+    }
+  } else {
+    for (size_t i = 0; i < n; ++i) out.bytes[i] = uint8_t(c[i * stride + size_t(p)] - (q ? q[i * stride + size_t(p)] : 0));
+  }
+}
+
 nlohmann::json inner_params(const std::string& inner, int level, const std::string& layout) {
   if (inner == "zstd") return {{"level", level}, {"layout", layout}};
   if (level == 1) return {{"mode", "fast"}, {"layout", layout}};
@@ -65,49 +158,128 @@ nlohmann::json inner_params(const std::string& inner, int level, const std::stri
   fail("codec 'delta': level {} is not valid with inner lz4 (valid: 1 = fast, 3..12 = hc level)", level);
 }
 
+// One frame either end keeps as a reference.
+struct Reference {
+  uint32_t frame = 0;
+  PassBuffer buffer;
+};
+
+const Reference* find_reference(const std::deque<Reference>& refs, uint32_t frame, const PassDesc& desc) {
+  for (const Reference& r : refs)
+    if (r.frame == frame && r.buffer.desc == desc) return &r;
+  return nullptr;
+}
+
+std::string held_text(const std::deque<Reference>& refs) {
+  if (refs.empty()) return "none";
+  std::string s;
+  for (const Reference& r : refs) s += (s.empty() ? "" : ", ") + std::to_string(r.frame);
+  return s;
+}
+
 class DeltaCodec final : public Codec {
  public:
   explicit DeltaCodec(const Params& p)
       : keyframe_interval_(p.get_int("keyframe_interval")),
+        references_(p.get_int("references")),
+        plane_choice_(p.get_bool("plane_choice")),
+        intra_check_(p.get_bool("intra_check")),
         inner_(registries().codecs.create(
-            p.get_string("inner"), inner_params(p.get_string("inner"), p.get_int("level"), p.get_string("layout")))) {}
+            p.get_string("inner"), inner_params(p.get_string("inner"), p.get_int("level"), p.get_string("layout")))) {
+    if (p.get_string("predictor") != "none")
+      predictor_ = registries().predictors.create(p.get_string("predictor"), {{"filter", p.get_string("filter")}});
+  }
 
   bool lossless() const override { return true; }
-  bool stateful() const override { return true; }  // frames reference the previous one
-  std::string refuses(const PassDesc& desc) const override { return inner_->refuses(desc); }
+  bool stateful() const override { return true; }  // frames reference earlier ones
+  std::string refuses(const PassDesc& desc) const override {
+    if (predictor_ && desc.kind == PassKind::Colour)
+      return "delta with predictor reprojection carries lighting passes only (colour frames have no G-buffer "
+             "prediction here; use predictor none)";
+    return inner_->refuses(desc);
+  }
+  int gbuffers_referenced() const override { return predictor_ ? references_ : 0; }
+  int holds() const override {
+    int newest = -1;
+    for (const Reference& r : decoded_) newest = std::max(newest, int(r.frame));
+    return newest;
+  }
 
   void encode(const PassBuffer& in, const EncodeOptions& options, std::vector<uint8_t>& out) override {
     if (std::string why = in.desc.validate(); !why.empty()) fail("delta: invalid buffer description: {}", why);
     if (in.bytes.size() != in.desc.byte_size())
       fail("delta: a {}x{} {} buffer holds {} bytes, {} expected", in.desc.width, in.desc.height,
            pass_kind_name(in.desc.kind), in.bytes.size(), in.desc.byte_size());
-    const bool key = options.force_keyframe || !has_prev_ || !(prev_.desc == in.desc) ||
-                     since_key_ + 1 >= uint32_t(keyframe_interval_);
-    const uint32_t index = next_index_;
-    if (key) {
-      inner_->encode(in, {}, coded_);
-    } else {
-      residual_.desc = in.desc;
-      make_residual(in, prev_, residual_.bytes);
-      inner_->encode(residual_, {}, coded_);
+    const FrameContext& ctx = options.context;
+    if (predictor_ && !ctx.gbuf)
+      fail("delta: predictor reprojection needs the frame's G-buffer (FrameContext), none was given");
+    const uint32_t index = ctx.gbuf ? ctx.frame : next_index_;
+    if (!coded_frames_.empty() && index <= coded_frames_.back().frame)
+      fail("delta: frame {} coded after frame {} (frames must come in increasing order)", index,
+           coded_frames_.back().frame);
+
+    // The reference: the frame the client reported holding after a loss, else the newest coded
+    // frame; none (a keyframe) when it is due, forced, gone or its G-buffer is no longer kept.
+    const Reference* ref = nullptr;
+    if (options.client_holds >= 0)
+      ref = find_reference(coded_frames_, uint32_t(options.client_holds), in.desc);
+    else if (!options.force_keyframe && !coded_frames_.empty())
+      ref = find_reference(coded_frames_, coded_frames_.back().frame, in.desc);
+    if (since_key_ + 1 >= uint32_t(keyframe_interval_)) ref = nullptr;
+    const GBuffer* ref_gbuf = nullptr;
+    if (ref && predictor_) {
+      ref_gbuf = ctx.gbuffer_of ? ctx.gbuffer_of(ref->frame) : nullptr;
+      if (!ref_gbuf) ref = nullptr;
     }
-    out.resize(kHeaderBytes + coded_.size());
-    out[0] = key ? kKeyframe : kDelta;
+
+    uint64_t mask = 0;  // planes coded against the prediction
+    if (ref) {
+      const PassBuffer& prediction = predict(*ref, ref_gbuf, ctx.gbuf);
+      mask = all_planes(in.desc);
+      if (predictor_ && plane_choice_ && plane_count(in.desc) > 1) {
+        mask = choose_planes(in, prediction);
+        mask_planes(prediction_, mask);  // with a predictor, `prediction` is prediction_
+      }
+      if (mask != 0) {
+        residual_.desc = in.desc;
+        make_residual(in, prediction, residual_.bytes);
+        inner_->encode(residual_, {}, coded_);
+      }
+      if (mask == 0 || (predictor_ && intra_check_)) {
+        inner_->encode(in, {}, intra_);
+        if (mask == 0 || intra_.size() <= coded_.size()) {
+          ref = nullptr;  // coded alone: a keyframe
+          coded_.swap(intra_);
+        }
+      }
+    } else {
+      inner_->encode(in, {}, coded_);
+    }
+    const size_t header = header_bytes();
+    out.resize(header + coded_.size());
+    out[0] = ref ? kDelta : kKeyframe;
     put_u32(out.data() + 1, index);
-    put_u32(out.data() + 5, key ? index : prev_index_);
-    std::memcpy(out.data() + kHeaderBytes, coded_.data(), coded_.size());
+    put_u32(out.data() + 5, ref ? ref->frame : index);
+    if (predictor_) {
+      put_u32(out.data() + kHeaderBytes, crc32c(in.bytes));
+      put_u64(out.data() + kHeaderBytes + 4, ref ? mask : 0);
+    }
+    std::memcpy(out.data() + header, coded_.data(), coded_.size());
     // Only now, after everything that can throw, does the state move on.
-    prev_.desc = in.desc;
-    prev_.bytes = in.bytes;
-    has_prev_ = true;
-    prev_index_ = index;
-    since_key_ = key ? 0 : since_key_ + 1;
-    ++next_index_;
+    since_key_ = ref ? since_key_ + 1 : 0;
+    keep(coded_frames_, {index, in});
+    next_index_ = index + 1;
   }
 
   bool decode(std::span<const uint8_t> in, const PassDesc& desc, PassBuffer& out, std::string& error) override {
-    if (in.size() < kHeaderBytes) {
-      error = fmt::format("delta: {} bytes, shorter than the {}-byte header", in.size(), kHeaderBytes);
+    return decode_in_context(in, desc, FrameContext{}, out, error);
+  }
+
+  bool decode_in_context(std::span<const uint8_t> in, const PassDesc& desc, const FrameContext& ctx, PassBuffer& out,
+                         std::string& error) override {
+    const size_t header = header_bytes();
+    if (in.size() < header) {
+      error = fmt::format("delta: {} bytes, shorter than the {}-byte header", in.size(), header);
       return false;
     }
     const uint8_t type = in[0];
@@ -120,57 +292,137 @@ class DeltaCodec final : public Codec {
       error = "delta: corrupt keyframe header";
       return false;
     }
-    if (type == kDelta && !(has_ref_ && ref_index_ == reference && ref_.desc == desc)) {
-      error = has_ref_ ? fmt::format("delta: frame {} needs frame {}, the decoder holds frame {}", index, reference,
-                                     ref_index_)
-                       : fmt::format("delta: frame {} needs frame {}, the decoder holds none", index, reference);
+    const uint64_t mask = predictor_ ? get_u64(in.data() + kHeaderBytes + 4) : all_planes(desc);
+    if (predictor_ && ((mask & ~all_planes(desc)) != 0 || (type == kKeyframe && mask != 0))) {
+      error = fmt::format("delta: plane mask {:#x} is not valid for a {} {} with {} planes", mask,
+                          type == kKeyframe ? "keyframe of" : "frame of", pass_kind_name(desc.kind), plane_count(desc));
       return false;
     }
+    const Reference* ref = nullptr;
+    const GBuffer* ref_gbuf = nullptr;
+    if (type == kDelta) {
+      if (reference >= index) {
+        error = fmt::format("delta: frame {} claims to be predicted from the later frame {}", index, reference);
+        return false;
+      }
+      ref = find_reference(decoded_, reference, desc);
+      if (!ref) {
+        error = fmt::format("delta: frame {} needs frame {}, the decoder holds {}", index, reference, held_text(decoded_));
+        return false;
+      }
+      if (predictor_) {
+        ref_gbuf = ctx.gbuffer_of ? ctx.gbuffer_of(reference) : nullptr;
+        if (!ctx.gbuf || ctx.frame != index || !ref_gbuf) {
+          error = fmt::format("delta: frame {} is predicted from frame {} by reprojection: the client's G-buffers of "
+                              "both frames are needed ({} given)",
+                              index, reference, !ctx.gbuf || ctx.frame != index ? "not this frame's" : "not the reference's");
+          return false;
+        }
+        if (ctx.gbuf->width() != desc.width || ctx.gbuf->height() != desc.height ||
+            ref_gbuf->width() != desc.width || ref_gbuf->height() != desc.height) {
+          error = fmt::format("delta: a {}x{} pass with a {}x{} G-buffer", desc.width, desc.height, ctx.gbuf->width(),
+                              ctx.gbuf->height());
+          return false;
+        }
+      }
+    }
     PassBuffer decoded;
-    if (!inner_->decode(in.subspan(kHeaderBytes), desc, decoded, error)) {
+    if (!inner_->decode(in.subspan(header), desc, decoded, error)) {
       error = "delta: " + error;
       return false;
     }
-    if (type == kDelta) apply_residual(decoded.bytes, ref_, desc.kind);
-    ref_ = decoded;
-    ref_index_ = index;
-    has_ref_ = true;
+    if (ref) {
+      const PassBuffer& prediction = predict(*ref, ref_gbuf, ctx.gbuf);
+      if (predictor_) mask_planes(prediction_, mask);
+      apply_residual(decoded.bytes, prediction, desc.kind);
+    }
+    if (predictor_) {
+      const uint32_t expected = get_u32(in.data() + kHeaderBytes), got = crc32c(decoded.bytes);
+      if (got != expected) {
+        error = fmt::format("delta: frame {} reconstructed from frame {} does not match the server's (CRC-32C "
+                            "{:08x}, expected {:08x}): the two ends' predictions or references differ",
+                            index, reference, got, expected);
+        return false;
+      }
+    }
+    keep(decoded_, {index, decoded});
     out = std::move(decoded);
     return true;
   }
 
   void reset() override {
     inner_->reset();
-    has_prev_ = has_ref_ = false;
+    coded_frames_.clear();
+    decoded_.clear();
     since_key_ = 0;
     next_index_ = 0;
   }
 
  private:
-  int keyframe_interval_;
+  // The planes to code against the prediction: those whose residual the inner coder codes
+  // smaller than the plane itself (each plane coded alone, both ways).
+  uint64_t choose_planes(const PassBuffer& cur, const PassBuffer& prediction) {
+    uint64_t mask = 0;
+    for (int p = 0; p < plane_count(cur.desc); ++p) {
+      extract_plane(cur, nullptr, p, plane_);
+      inner_->encode(plane_, {}, intra_);
+      extract_plane(cur, &prediction, p, plane_);
+      inner_->encode(plane_, {}, coded_);
+      if (coded_.size() < intra_.size()) mask |= uint64_t(1) << p;
+    }
+    return mask;
+  }
+
+  // The reference carried to this frame (itself without a predictor).
+  const PassBuffer& predict(const Reference& ref, const GBuffer* ref_gbuf, const GBuffer* gbuf) {
+    if (!predictor_) return ref.buffer;
+    predictor_->predict({ref.buffer, *ref_gbuf, *gbuf}, prediction_);
+    return prediction_;
+  }
+  void keep(std::deque<Reference>& refs, Reference r) {
+    // A frame index seen again (a resent or reordered frame) replaces the older entry.
+    std::erase_if(refs, [&](const Reference& x) { return x.frame == r.frame; });
+    refs.push_back(std::move(r));
+    while (int(refs.size()) > references_) refs.pop_front();
+  }
+
+  size_t header_bytes() const { return kHeaderBytes + (predictor_ ? kPredictedBytes : 0); }
+
+  int keyframe_interval_, references_;
+  bool plane_choice_, intra_check_;
   std::unique_ptr<Codec> inner_;
+  std::unique_ptr<Predictor> predictor_;  // null: predictor none
   // Encoder state.
-  PassBuffer prev_;
-  bool has_prev_ = false;
-  uint32_t prev_index_ = 0, since_key_ = 0, next_index_ = 0;
-  PassBuffer residual_;
-  std::vector<uint8_t> coded_;
+  std::deque<Reference> coded_frames_;
+  uint32_t since_key_ = 0, next_index_ = 0;
+  PassBuffer residual_, prediction_, plane_;
+  std::vector<uint8_t> coded_, intra_;
   // Decoder state.
-  PassBuffer ref_;
-  bool has_ref_ = false;
-  uint32_t ref_index_ = 0;
+  std::deque<Reference> decoded_;
 };
 
 }  // namespace
 
 CodecEntry make_delta_codec() {
   return {"delta",
-          "previous-frame delta (XOR / byte difference, no reprojection) before lz4 or zstd; keyframes every N",
+          "temporal delta (XOR / byte difference) against a frame the client holds, carried to this frame by "
+          "reprojection or not, before lz4 or zstd; keyframes every N",
           {ParamSpec::choice("inner", "zstd", {"lz4", "zstd"}, "lossless coder of the residual"),
            ParamSpec::integer("level", 1, 1, 19, "zstd level; with lz4: 1 = fast, 3..12 = hc level"),
            ParamSpec::choice("layout", "planes", {"interleaved", "planes"},
                              "visibility bitmasks: one bit-plane per light, or the canonical per-pixel bytes"),
-           ParamSpec::integer("keyframe_interval", 30, 1, 100000, "a keyframe every this many frames")},
+           ParamSpec::integer("keyframe_interval", 30, 1, 100000, "a keyframe every this many frames"),
+           ParamSpec::choice("predictor", "none", {"none", "reprojection"},
+                             "how the reference frame is carried to this frame: as it is, or reprojected through "
+                             "both frames' G-buffers"),
+           ParamSpec::choice("filter", "bilinear", {"nearest", "bilinear"},
+                             "the reprojection's filter for 8-bit passes (bitmasks: always nearest)"),
+           ParamSpec::integer("references", 8, 1, 64, "frames each end keeps as references (loss recovery)"),
+           ParamSpec::boolean("plane_choice", true,
+                              "with a predictor and several planes: predict only the planes (lights, channels) whose "
+                              "residual the inner coder codes smaller than the plane itself"),
+           ParamSpec::boolean("intra_check", true,
+                              "with a predictor: also code the frame alone and send the smaller (a keyframe when it is)")},
           [](const Params& p) { return std::make_unique<DeltaCodec>(p); }};
 }
 

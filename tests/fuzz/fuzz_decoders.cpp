@@ -114,7 +114,13 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const PassBuffer in = buffer_from(desc, stream);
   c.reset();
   std::vector<uint8_t> encoded;
-  c.encode(in, EncodeOptions{true}, encoded);
+  EncodeOptions options = EncodeOptions::keyframe();
+  GBuffer blank;  // a codec that predicts through G-buffers needs this frame's, even for a keyframe
+  if (c.gbuffers_referenced() > 0) {
+    blank.resize(desc.width, desc.height);
+    options.context = {0, &blank, {}};
+  }
+  c.encode(in, options, encoded);
   c.reset();
   PassBuffer out;
   std::string error;

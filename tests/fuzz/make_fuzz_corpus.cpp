@@ -146,7 +146,7 @@ void decoder_seeds(const fs::path& dir) {
         if (d.kind == PassKind::Ao || d.kind == PassKind::SoftVisibility) v = uint8_t(v % (d.full_scale + 1));
       Bytes encoded;
       codec->reset();
-      codec->encode(in, EncodeOptions{true}, encoded);
+      codec->encode(in, EncodeOptions::keyframe(), encoded);
       Bytes seed(e.name.begin(), e.name.end());
       seed.push_back(0);  // end of the name
       seed.push_back(0);  // variant: default parameters

@@ -306,4 +306,26 @@ double buffer_psnr_db(const PassBuffer& a, const PassBuffer& b) {
   return 10 * std::log10(255.0 * 255.0 / (sum / double(a.bytes.size())));
 }
 
+PassBuffer make_world_pass(const GBuffer& g, PassKind kind) {
+  if (kind != PassKind::Ao && kind != PassKind::Visibility)
+    throw Error("make_world_pass: Ao or Visibility only");
+  PassBuffer b;
+  b.desc = {kind, g.width(), g.height(), 1, 255};
+  b.bytes.assign(b.desc.byte_size(), 0);
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x) {
+      const size_t i = size_t(y) * size_t(g.width()) + size_t(x);
+      if (!g.covered(x, y)) {
+        b.bytes[i] = kind == PassKind::Visibility ? 1 : 255;
+        continue;
+      }
+      const glm::vec3 p = g.position(x, y);
+      if (kind == PassKind::Visibility)
+        b.bytes[i] = uint8_t((int(std::floor(p.x * 2.0f)) + int(std::floor(p.y * 2.0f)) + int(std::floor(p.z * 2.0f))) & 1);
+      else
+        b.bytes[i] = uint8_t(128.0f + 100.0f * std::sin(p.x * 1.7f) * std::cos(p.z * 1.3f + p.y));
+    }
+  return b;
+}
+
 }  // namespace dhr::test
