@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -234,14 +235,25 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
       }
     }
     if (r.has("anchor")) {
-      std::string anchor;
-      r.string("anchor", anchor);
+      // One family, or a list of families (the report tabulates BD-rate against each).
+      std::vector<std::string> anchors;
+      const auto& a = cv.at("anchor");
+      if (a.is_string()) {
+        anchors.push_back(a.get<std::string>());
+      } else if (a.is_array() && !a.empty() && std::all_of(a.begin(), a.end(), [](const auto& x) { return x.is_string(); })) {
+        for (const auto& x : a) anchors.push_back(x.get<std::string>());
+      } else {
+        problems.push_back(fmt::format("{}.curves.anchor: {} must be a family's name or a non-empty list of them", path,
+                                       json_excerpt(a)));
+      }
       std::vector<std::string> families;
       for (const auto& c : configs)
         if (std::find(families.begin(), families.end(), c.family) == families.end()) families.push_back(c.family);
-      if (!anchor.empty() && std::find(families.begin(), families.end(), anchor) == families.end())
-        problems.push_back(fmt::format("{}.curves.anchor: '{}' is not a family of the configurations (families: {})", path,
-                                       text_excerpt(anchor), text_excerpt(fmt::format("{}", fmt::join(families, ", ")), 200)));
+      for (const std::string& anchor : anchors)
+        if (!anchor.empty() && std::find(families.begin(), families.end(), anchor) == families.end())
+          problems.push_back(fmt::format("{}.curves.anchor: '{}' is not a family of the configurations (families: {})",
+                                         path, text_excerpt(anchor),
+                                         text_excerpt(fmt::format("{}", fmt::join(families, ", ")), 200)));
     }
   }
 

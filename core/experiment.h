@@ -13,11 +13,13 @@
 //   "networks": { "5g": {"uplink": {...}, "downlink": {...}}, ... }   named networks
 //   "sweep": { "dotted.key": [values...], ... }      Cartesian product over the keys, or
 //   "configurations": [ {"name": "...", "family": "...", "set": {"dotted.key": value, ...}}, ... ]
-//   "curves": {"vary": ["dotted.key", ...], "anchor": "family"}   rate-quality curves (optional)
+//   "curves": {"vary": ["dotted.key", ...], "anchor": "family" | ["family", ...]}
+//                                                                  rate-quality curves (optional)
 // }
 // Rate-quality curves (docs/architecture.md, "Rate-quality curves"): the runs of one family on
 // one scene under the same values of every swept key not in "vary" form one curve; the report
-// draws the curves and the BD-rate of every family against the anchor family.
+// draws the curves and the BD-rate of every family against the anchor family (each of them, for
+// a list).
 // A dotted key addresses a field of "run" (e.g. "passes.ao.denoiser.name", "trace.ao_rays",
 // "downlink.latency_ms"); the key "network" picks a named network.
 // Version 1 (every committed experiment) writes the per-pass backends as top-level keys:

@@ -323,6 +323,7 @@ def rate_quality_section(d, exp, ok, metrics, out):
     vary = [k for k in spec.get("vary", []) if isinstance(k, str)]
     sweep_keys = sorted({k for r in ok for k in r.get("settings", {}) if k not in vary})
     anchor = spec.get("anchor")
+    anchors = [anchor] if isinstance(anchor, str) else [a for a in (anchor or []) if isinstance(a, str)]
     out.append("## Rate-quality curves\n")
     out.append(f"One curve per family, scene and setting of {', '.join(f'`{k}`' for k in sweep_keys) or 'the run'}; "
                f"along a curve {', '.join(f'`{k}`' for k in vary)} varies. Bitrate: every packet on the wire (Mb/s). "
@@ -343,7 +344,7 @@ def rate_quality_section(d, exp, ok, metrics, out):
                 for (s, c, fam), pts in sorted(cm.items()):
                     if s == scene and c == cond:
                         ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3, lw=1.2,
-                                label=fam + (" (anchor)" if fam == anchor else ""))
+                                label=fam + (" (anchor)" if fam in anchors else ""))
                 ax.set_xscale("log")
                 ax.set_title(f"{scene}; " + (", ".join(f"{k.split('.')[-1]}={v}" for k, v in cond) or "all runs"),
                              fontsize=8)
@@ -356,26 +357,30 @@ def rate_quality_section(d, exp, ok, metrics, out):
         fig.savefig(os.path.join(d, "plots", name), dpi=100)
         plt.close(fig)
         out.append(f"![rate against {im['name'].upper()}](plots/{name})\n")
-        if not anchor:
-            continue
-        table = rq.bd_table(cm, anchor)
-        if not table:
-            continue
-        fams = sorted({f for row in table.values() for f in row})
-        out.append(f"BD-rate against **{anchor}** on {im['name'].upper()} (VCEG-M33; negative: the family needs that much "
-                   "less bitrate at equal quality; – : no shared quality range or too few points):\n")
-        out.append("| scene | conditions | " + " | ".join(fams) + " |")
-        out.append("|---|---|" + "---|" * len(fams))
-        for (scene, cond), row in sorted(table.items()):
-            cells = [f"{row[f]:+.1f} %" if isinstance(row.get(f), float) else "–" for f in fams]
-            out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in cond) or '–'} | " + " | ".join(cells) + " |")
+        for anchor in anchors:
+            bd_section(rq, cm, anchor, im, out)
+
+
+def bd_section(rq, cm, anchor, im, out):
+    """The BD-rate table of every family against `anchor` on image metric `im`."""
+    table = rq.bd_table(cm, anchor)
+    if not table:
+        return
+    fams = sorted({f for row in table.values() for f in row})
+    out.append(f"BD-rate against **{anchor}** on {im['name'].upper()} (VCEG-M33; negative: the family needs that much "
+               "less bitrate at equal quality; – : no shared quality range or too few points):\n")
+    out.append("| scene | conditions | " + " | ".join(fams) + " |")
+    out.append("|---|---|" + "---|" * len(fams))
+    for (scene, cond), row in sorted(table.items()):
+        cells = [f"{row[f]:+.1f} %" if isinstance(row.get(f), float) else "–" for f in fams]
+        out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in cond) or '–'} | " + " | ".join(cells) + " |")
+    out.append("")
+    reasons = [f"- {scene}, {', '.join(f'{k}={v}' for k, v in cond) or 'all runs'}, {f}: {row[f]}"
+               for (scene, cond), row in sorted(table.items()) for f in fams if isinstance(row.get(f), str)]
+    if reasons:
+        out.append("Why a cell has no BD-rate:\n")
+        out.extend(reasons)
         out.append("")
-        reasons = [f"- {scene}, {', '.join(f'{k}={v}' for k, v in cond) or 'all runs'}, {f}: {row[f]}"
-                   for (scene, cond), row in sorted(table.items()) for f in fams if isinstance(row.get(f), str)]
-        if reasons:
-            out.append("Why a cell has no BD-rate:\n")
-            out.extend(reasons)
-            out.append("")
 
 
 def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):

@@ -128,6 +128,15 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
   EXPECT_NE(text.str().find("BD-rate against **remote h264** on SSIM"), std::string::npos) << text.str();
   EXPECT_NE(text.str().find("| room | downlink.latency_ms=60 |"), std::string::npos) << text.str();
   EXPECT_TRUE(fs::exists(out / "plots" / "rate_quality_ssim.png"));
+  // A list of anchors: one table against each, the second one too.
+  nlohmann::json two = r;
+  two["experiment"]["curves"]["anchor"] = {"remote h264", "hybrid zstd"};
+  std::ofstream(out / "results.json") << two.dump();
+  ASSERT_EQ(run("report " + out.string(), &log), 0) << log;
+  std::stringstream text2;
+  text2 << std::ifstream(out / "report.md").rdbuf();
+  EXPECT_NE(text2.str().find("BD-rate against **remote h264** on SSIM"), std::string::npos) << text2.str();
+  EXPECT_NE(text2.str().find("BD-rate against **hybrid zstd** on SSIM"), std::string::npos) << text2.str();
   fs::remove_all(out);
 
   // A "vary" key that nothing sets, and an anchor that is no family: both named at once.
@@ -139,6 +148,16 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
   EXPECT_NE(log.find("curves.vary: \"trace.ao_rays\" is not a key of \"sweep\" or of a configuration's \"set\""),
             std::string::npos) << log;
   EXPECT_NE(log.find("curves.anchor: 'remote x265' is not a family"), std::string::npos) << log;
+  // In a list: the one that is no family is named; a list of numbers is refused.
+  e["curves"] = {{"vary", {"passes.ao.codec"}}, {"anchor", {"remote h264", "hybrid x266"}}};
+  std::ofstream(bad) << e.dump();
+  EXPECT_NE(run("validate " + bad.string(), &log), 0);
+  EXPECT_NE(log.find("curves.anchor: 'hybrid x266' is not a family"), std::string::npos) << log;
+  EXPECT_EQ(log.find("'remote h264' is not a family"), std::string::npos) << log;
+  e["curves"] = {{"vary", {"passes.ao.codec"}}, {"anchor", {1, 2}}};
+  std::ofstream(bad) << e.dump();
+  EXPECT_NE(run("validate " + bad.string(), &log), 0);
+  EXPECT_NE(log.find("must be a family's name or a non-empty list of them"), std::string::npos) << log;
   fs::remove(bad);
 }
 
