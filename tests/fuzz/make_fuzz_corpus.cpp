@@ -157,6 +157,40 @@ void decoder_seeds(const fs::path& dir) {
       write(dir, e.name + "_" + pass_kind_name(d.kind), seed);
     }
   }
+  // delta predicting through G-buffers: keyframes (which need no prediction to decode), under the
+  // variant index fuzz_decoders gives {"predictor": "reprojection"} (its variants: the defaults,
+  // then each non-default choice of each parameter, in the parameters' order).
+  const CodecEntry* delta = registries().codecs.find("delta");
+  if (delta) {
+    int variant = 1, reprojection = -1;
+    for (const auto& spec : delta->params)
+      for (const auto& choice : spec.choices) {
+        if (choice == spec.default_value) continue;
+        if (spec.name == "predictor" && choice == "reprojection") reprojection = variant;
+        ++variant;
+      }
+    if (reprojection < 0) throw Error("make_fuzz_corpus: delta has no predictor 'reprojection'");
+    auto codec = registries().codecs.create("delta", {{"predictor", "reprojection"}});
+    for (const auto& d : descs) {
+      if (!codec->refuses(d).empty()) continue;
+      PassBuffer in{d, pattern(d.byte_size(), 11)};
+      for (auto& v : in.bytes)
+        if (d.kind == PassKind::Ao || d.kind == PassKind::SoftVisibility) v = uint8_t(v % (d.full_scale + 1));
+      GBuffer blank;
+      blank.resize(d.width, d.height);
+      EncodeOptions options = EncodeOptions::keyframe();
+      options.context = {0, &blank, {}};
+      Bytes encoded;
+      codec->reset();
+      codec->encode(in, options, encoded);
+      Bytes seed{'d', 'e', 'l', 't', 'a', 0, uint8_t(reprojection)};
+      const Bytes first = desc_bytes(d), again = desc_bytes(d);
+      seed.insert(seed.end(), first.begin(), first.end());
+      seed.insert(seed.end(), again.begin(), again.end());
+      seed.insert(seed.end(), encoded.begin(), encoded.end());
+      write(dir, std::string("delta_reprojection_") + pass_kind_name(d.kind), seed);
+    }
+  }
   write(dir, "unknown_name", Bytes{'?', 0, 0, 0, 16, 16, 0, 1, 1, 1, 0, 0xFF});
 }
 
