@@ -19,16 +19,17 @@ const char* pass_kind_name(PassKind kind) {
   return "unknown";
 }
 
-size_t PassDesc::byte_size() const {
-  const size_t px = size_t(width) * size_t(height);
+size_t PassDesc::pixel_bytes() const {
   switch (kind) {
-    case PassKind::Visibility: return px * size_t((channels + 7) / 8);
-    case PassKind::SoftVisibility: return px * size_t(channels);
-    case PassKind::Ao: return px;
-    case PassKind::Colour: return px * 3;
+    case PassKind::Visibility: return size_t((channels + 7) / 8);
+    case PassKind::SoftVisibility: return size_t(channels);
+    case PassKind::Ao: return 1;
+    case PassKind::Colour: return 3;
   }
   return 0;
 }
+
+size_t PassDesc::byte_size() const { return size_t(width) * size_t(height) * pixel_bytes(); }
 
 std::string PassDesc::validate() const {
   if (width < 0 || height < 0 || width > kMaxImageSide || height > kMaxImageSide ||

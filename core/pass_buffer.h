@@ -24,7 +24,8 @@ struct PassDesc {
   int height = 0;
   int channels = 1;      // lights for (Soft)Visibility, 1 for Ao, 3 for Colour
   int full_scale = 255;  // Ao and SoftVisibility: the value that means 1.0
-  size_t byte_size() const;  // exact size of a buffer with this description
+  size_t pixel_bytes() const;  // bytes of one pixel: ceil(lights / 8) for a bitmask, else channels
+  size_t byte_size() const;    // exact size of a buffer with this description
   // Empty when valid; else what is wrong (channels out of range, sizes out of range).
   std::string validate() const;
   friend bool operator==(const PassDesc&, const PassDesc&) = default;

@@ -38,6 +38,7 @@
 #include "core/raster.h"
 #include "core/passes.h"
 #include "core/rt_scene.h"
+#include "core/run_config.h"
 #include "core/scene_load.h"
 #include "core/trace.h"
 #include "tests/support_buffers.h"
@@ -50,6 +51,7 @@
 #include <cstring>
 #include <ctime>
 #include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -99,7 +101,9 @@ FrameContext context_of(uint32_t i) {
   return {i, &f.g[i % 2], [&f](uint32_t k) { return &f.g[k % 2]; }};
 }
 
-void run_codec(benchmark::State& state, int pass, const std::string& name, const nlohmann::json& params, bool decode) {
+// `key`: where its CPU ms per frame is kept in cpu_of() for the ratios.
+void run_codec(benchmark::State& state, const std::string& key, int pass, const std::string& name,
+               const nlohmann::json& params, bool decode) {
   tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
   const Frames& f = frames();
   auto enc = registries().codecs.create(name, params);
@@ -129,24 +133,25 @@ void run_codec(benchmark::State& state, int pass, const std::string& name, const
     total += bytes.size();
   }
   const double n = double(state.iterations());
-  const std::string key = std::to_string(pass) + "/" + name + (decode ? "/decode" : "") + params.value("predictor", "");
   cpu_of()[key] = cpu / n;
   state.counters["cpu_ms"] = cpu / n;
   state.counters["bytes"] = double(total) / n;
 }
 
-void BM_Inner(benchmark::State& s, int pass) { run_codec(s, pass, "zstd", {{"level", 1}}, false); }
+std::string key_of(int pass, const char* what) { return std::to_string(pass) + "/" + what; }
+
+void BM_Inner(benchmark::State& s, int pass) { run_codec(s, key_of(pass, "inner"), pass, "zstd", {{"level", 1}}, false); }
 void BM_DeltaNone(benchmark::State& s, int pass) {
-  run_codec(s, pass, "delta", {{"inner", "zstd"}, {"level", 1}, {"predictor", "none"}}, false);
+  run_codec(s, key_of(pass, "delta_none"), pass, "delta", {{"inner", "zstd"}, {"level", 1}, {"predictor", "none"}}, false);
 }
 void BM_DeltaReproj(benchmark::State& s, int pass, bool decode) {
-  run_codec(s, pass, "delta", {{"inner", "zstd"}, {"level", 1}, {"predictor", "reprojection"}}, decode);
-  const std::string p = std::to_string(pass);
+  const std::string self = key_of(pass, decode ? "delta_reproj_decode" : "delta_reproj");
+  run_codec(s, self, pass, "delta", {{"inner", "zstd"}, {"level", 1}, {"predictor", "reprojection"}}, decode);
   auto& m = cpu_of();
-  const double self = m[p + "/delta" + (decode ? "/decode" : "") + "reprojection"];
-  if (!decode && m.count(p + "/zstd") && m.count(p + "/predict")) {
-    s.counters["x_inner"] = self / m[p + "/zstd"];
-    s.counters["overhead_minus_predict_ms"] = self - m[p + "/zstd"] - m[p + "/predict"];
+  const std::string inner = key_of(pass, "inner"), predict = key_of(pass, "predict");
+  if (!decode && m.count(inner) && m.count(predict)) {
+    s.counters["x_inner"] = m[self] / m[inner];
+    s.counters["overhead_minus_predict_ms"] = m[self] - m[inner] - m[predict];
   }
 }
 
@@ -159,7 +164,7 @@ void BM_Predict(benchmark::State& state, int pass) {
   const double c0 = process_cpu_ms();
   for (auto _ : state) predictor->predict({f.pass[pass][0], f.g[0], f.g[1]}, out);
   const double cpu = (process_cpu_ms() - c0) / double(state.iterations());
-  cpu_of()[std::to_string(pass) + "/predict"] = cpu;
+  cpu_of()[key_of(pass, "predict")] = cpu;
   state.counters["cpu_ms"] = cpu;
 }
 
@@ -214,28 +219,23 @@ struct RegionTally {
   uint64_t frame_bytes = 0, frames = 0;
 };
 
-std::string scene_file(const std::string& name) {
-  const std::string dir = std::string(DHR_SOURCE_DIR) + "/scenes/";
-  if (name.find('/') != std::string::npos || name.find('.') != std::string::npos) return name;
-  for (const std::string& f : {dir + name + ".json", dir + "real/" + name + ".json"})
-    if (FILE* fp = std::fopen(f.c_str(), "r")) {
-      std::fclose(fp);
-      return f;
-    }
-  return name;
-}
-
 int run_regions(const std::vector<std::string>& scenes, int frames) {
   constexpr int w = 320, h = 180;
   auto zstd = registries().codecs.create("zstd", {{"level", 3}});
   auto bits_pred = registries().predictors.create("reprojection", {{"filter", "nearest"}});
   auto ao_pred = registries().predictors.create("reprojection", {{"filter", "bilinear"}});
   auto hole_pred = registries().predictors.create("reprojection", {{"filter", "nearest"}, {"fill", "local"}});
+  SimConfig trace;  // the headline's tracing: seed 1, 8 AO rays, one jittered ray per light
+  trace.seed = 1;
+  trace.trace.ao_rays = 8;
   std::printf("320x180, frames 1..%d predicted from the frame before (60 Hz from 1.0 s), zstd level 3\n", frames);
   std::printf("%-12s %-10s %-12s %8s %9s %9s %9s\n", "scene", "pass", "region", "pixels", "nonzero", "bytes", "bytes%");
   for (const std::string& name : scenes) {
-    const Scene scene = load_scene(scene_file(name), SceneSearchPath::standard());
+    const Scene scene = load_scene_or_model(name, SceneSearchPath::standard());
     RtScene rt(scene);
+    std::set<uint32_t> moving_ids;
+    for (const Object& o : scene.objects)
+      if (o.moving()) moving_ids.insert(o.id);
     auto svgf = registries().denoisers.create("svgf_ao", nlohmann::json::object());
     std::map<std::string, RegionTally> tally;
     GBuffer prev_g;
@@ -244,11 +244,7 @@ int run_regions(const std::vector<std::string>& scenes, int frames) {
       const double t = 1.0 + k / 60.0, t_prev = k ? t - 1.0 / 60.0 : t;
       GBuffer g;
       rasterize({&scene, scene.camera.at(t, w, h), t, scene.camera.at(t_prev, w, h), t_prev}, g);
-      TraceSettings ts;
-      ts.seed = 1;
-      ts.frame = uint32_t(k);
-      ts.ao_rays = 8;
-      const TraceResult traced = trace_passes(rt, g, ts);
+      const TraceResult traced = trace_passes(rt, g, trace.trace_for_frame(uint32_t(k)));
       std::map<std::string, PassBuffer> cur;
       if (const PassBuffer* v = traced.find("visibility")) cur["visibility"] = *v;
       if (const PassBuffer* a = traced.find("ao")) {
@@ -264,16 +260,13 @@ int run_regions(const std::vector<std::string>& scenes, int frames) {
         PassBuffer zero{{PassKind::Ao, w, h, 1, 255}, std::vector<uint8_t>(size_t(w) * h, 0)}, holes;
         hole_pred->predict({zero, prev_g, g}, holes);
         const PassBuffer* vis = cur.count("visibility") ? &cur["visibility"] : nullptr;
-        const size_t stride = vis ? vis->bytes.size() / (size_t(w) * h) : 0;
+        const size_t stride = vis ? vis->desc.pixel_bytes() : 0;
         std::vector<uint8_t> region(size_t(w) * h, kRegions);  // kRegions: background
         for (int y = 0; y < h; ++y)
           for (int x = 0; x < w; ++x) {
             const size_t i = size_t(y) * w + x;
             if (!g.covered(x, y)) continue;
-            const uint32_t id = g.object_id(x, y);
-            bool moving = false;
-            for (const Object& o : scene.objects)
-              if (o.id == id) moving = o.moving();
+            const bool moving = moving_ids.count(g.object_id(x, y)) > 0;
             bool edge = false;
             if (vis)
               for (auto [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
@@ -288,7 +281,7 @@ int run_regions(const std::vector<std::string>& scenes, int frames) {
           PassBuffer pred;
           (pass == "ao" ? ao_pred : bits_pred)->predict({prev[pass], prev_g, g}, pred);
           PassBuffer residual = buf;
-          const size_t px_bytes = buf.bytes.size() / (size_t(w) * h);
+          const size_t px_bytes = buf.desc.pixel_bytes();
           for (size_t b = 0; b < buf.bytes.size(); ++b)
             residual.bytes[b] = pass == "ao" ? uint8_t(buf.bytes[b] - pred.bytes[b]) : uint8_t(buf.bytes[b] ^ pred.bytes[b]);
           RegionTally& tl = tally[pass];

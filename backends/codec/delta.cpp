@@ -114,13 +114,12 @@ void apply_residual(std::vector<uint8_t>& bytes, const PassBuffer& prev, PassKin
     for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(bytes[i] + p[i]);
 }
 
-
 // The prediction with the planes outside `mask` cleared (zero: those planes are coded as they are).
 void mask_planes(PassBuffer& prediction, uint64_t mask) {
   const PassDesc& d = prediction.desc;
   const int planes = plane_count(d);
   if (mask == all_planes(d)) return;
-  const size_t stride = d.byte_size() / (size_t(d.width) * size_t(d.height));
+  const size_t stride = d.pixel_bytes();
   std::vector<uint8_t> keep(stride, 0);  // per byte of a pixel: what survives
   for (int p = 0; p < planes; ++p)
     if (mask >> p & 1) {
@@ -135,7 +134,7 @@ void mask_planes(PassBuffer& prediction, uint64_t mask) {
 void extract_plane(const PassBuffer& b, const PassBuffer* minus, int p, PassBuffer& out) {
   const PassDesc& d = b.desc;
   out.desc = {d.kind, d.width, d.height, 1, d.full_scale};
-  const size_t n = size_t(d.width) * size_t(d.height), stride = d.byte_size() / std::max<size_t>(n, 1);
+  const size_t n = size_t(d.width) * size_t(d.height), stride = d.pixel_bytes();
   out.bytes.resize(n);
   const uint8_t* c = b.bytes.data();
   const uint8_t* q = minus ? minus->bytes.data() : nullptr;
@@ -234,15 +233,18 @@ class DeltaCodec final : public Codec {
 
     uint64_t mask = 0;  // planes coded against the prediction
     if (ref) {
-      const PassBuffer& prediction = predict(*ref, ref_gbuf, ctx.gbuf);
+      const PassBuffer* prediction = &ref->buffer;  // without a predictor: the reference as it is
       mask = all_planes(in.desc);
-      if (predictor_ && plane_choice_ && plane_count(in.desc) > 1) {
-        mask = choose_planes(in, prediction);
-        mask_planes(prediction_, mask);  // with a predictor, `prediction` is prediction_
+      if (predictor_) {
+        prediction = &reproject(*ref, *ref_gbuf, *ctx.gbuf);
+        if (plane_choice_ && plane_count(in.desc) > 1) {
+          mask = choose_planes(in, prediction_);
+          mask_planes(prediction_, mask);
+        }
       }
       if (mask != 0) {
         residual_.desc = in.desc;
-        make_residual(in, prediction, residual_.bytes);
+        make_residual(in, *prediction, residual_.bytes);
         inner_->encode(residual_, {}, coded_);
       }
       if (mask == 0 || (predictor_ && intra_check_)) {
@@ -294,8 +296,10 @@ class DeltaCodec final : public Codec {
     }
     const uint64_t mask = predictor_ ? get_u64(in.data() + kHeaderBytes + 4) : all_planes(desc);
     if (predictor_ && ((mask & ~all_planes(desc)) != 0 || (type == kKeyframe && mask != 0))) {
-      error = fmt::format("delta: plane mask {:#x} is not valid for a {} {} with {} planes", mask,
-                          type == kKeyframe ? "keyframe of" : "frame of", pass_kind_name(desc.kind), plane_count(desc));
+      error = fmt::format("delta: plane mask {:#x} is not valid for a {} {} with {} planes (valid: {})", mask,
+                          type == kKeyframe ? "keyframe of" : "frame of", pass_kind_name(desc.kind), plane_count(desc),
+                          type == kKeyframe ? std::string("0 on a keyframe")
+                                            : fmt::format("bits within {:#x}", all_planes(desc)));
       return false;
     }
     const Reference* ref = nullptr;
@@ -320,8 +324,10 @@ class DeltaCodec final : public Codec {
         }
         if (ctx.gbuf->width() != desc.width || ctx.gbuf->height() != desc.height ||
             ref_gbuf->width() != desc.width || ref_gbuf->height() != desc.height) {
-          error = fmt::format("delta: a {}x{} pass with a {}x{} G-buffer", desc.width, desc.height, ctx.gbuf->width(),
-                              ctx.gbuf->height());
+          error = fmt::format("delta: a {}x{} pass with G-buffers of {}x{} (this frame) and {}x{} (frame {}); "
+                              "both must be the pass's size",
+                              desc.width, desc.height, ctx.gbuf->width(), ctx.gbuf->height(), ref_gbuf->width(),
+                              ref_gbuf->height(), reference);
           return false;
         }
       }
@@ -332,9 +338,12 @@ class DeltaCodec final : public Codec {
       return false;
     }
     if (ref) {
-      const PassBuffer& prediction = predict(*ref, ref_gbuf, ctx.gbuf);
-      if (predictor_) mask_planes(prediction_, mask);
-      apply_residual(decoded.bytes, prediction, desc.kind);
+      const PassBuffer* prediction = &ref->buffer;
+      if (predictor_) {
+        prediction = &reproject(*ref, *ref_gbuf, *ctx.gbuf);
+        mask_planes(prediction_, mask);
+      }
+      apply_residual(decoded.bytes, *prediction, desc.kind);
     }
     if (predictor_) {
       const uint32_t expected = get_u32(in.data() + kHeaderBytes), got = crc32c(decoded.bytes);
@@ -373,10 +382,9 @@ class DeltaCodec final : public Codec {
     return mask;
   }
 
-  // The reference carried to this frame (itself without a predictor).
-  const PassBuffer& predict(const Reference& ref, const GBuffer* ref_gbuf, const GBuffer* gbuf) {
-    if (!predictor_) return ref.buffer;
-    predictor_->predict({ref.buffer, *ref_gbuf, *gbuf}, prediction_);
+  // The reference carried to this frame by the predictor, into prediction_.
+  PassBuffer& reproject(const Reference& ref, const GBuffer& ref_gbuf, const GBuffer& gbuf) {
+    predictor_->predict({ref.buffer, ref_gbuf, gbuf}, prediction_);
     return prediction_;
   }
   void keep(std::deque<Reference>& refs, Reference r) {

@@ -132,6 +132,19 @@ Bytes desc_bytes(const PassDesc& d) {
   return {b0, uint8_t(d.width), uint8_t(d.height), uint8_t(d.channels - 1)};
 }
 
+// A fuzz_decoders input: the codec's name, a 0 byte, the variant, the description twice (the
+// decoder is tried with both) and the coded stream.
+Bytes decoder_seed(const std::string& codec, uint8_t variant, const PassDesc& d, const Bytes& encoded) {
+  Bytes seed(codec.begin(), codec.end());
+  seed.push_back(0);  // end of the name
+  seed.push_back(variant);
+  const Bytes desc = desc_bytes(d);
+  seed.insert(seed.end(), desc.begin(), desc.end());
+  seed.insert(seed.end(), desc.begin(), desc.end());
+  seed.insert(seed.end(), encoded.begin(), encoded.end());
+  return seed;
+}
+
 void decoder_seeds(const fs::path& dir) {
   const PassDesc descs[] = {{PassKind::Ao, 16, 16, 1, 16},
                             {PassKind::Colour, 16, 12, 3, 1},
@@ -147,14 +160,7 @@ void decoder_seeds(const fs::path& dir) {
       Bytes encoded;
       codec->reset();
       codec->encode(in, EncodeOptions::keyframe(), encoded);
-      Bytes seed(e.name.begin(), e.name.end());
-      seed.push_back(0);  // end of the name
-      seed.push_back(0);  // variant: default parameters
-      const Bytes first = desc_bytes(d), again = desc_bytes(d);
-      seed.insert(seed.end(), first.begin(), first.end());
-      seed.insert(seed.end(), again.begin(), again.end());
-      seed.insert(seed.end(), encoded.begin(), encoded.end());
-      write(dir, e.name + "_" + pass_kind_name(d.kind), seed);
+      write(dir, e.name + "_" + pass_kind_name(d.kind), decoder_seed(e.name, 0, d, encoded));  // 0: default parameters
     }
   }
   // delta predicting through G-buffers: keyframes (which need no prediction to decode), under the
@@ -183,12 +189,8 @@ void decoder_seeds(const fs::path& dir) {
       Bytes encoded;
       codec->reset();
       codec->encode(in, options, encoded);
-      Bytes seed{'d', 'e', 'l', 't', 'a', 0, uint8_t(reprojection)};
-      const Bytes first = desc_bytes(d), again = desc_bytes(d);
-      seed.insert(seed.end(), first.begin(), first.end());
-      seed.insert(seed.end(), again.begin(), again.end());
-      seed.insert(seed.end(), encoded.begin(), encoded.end());
-      write(dir, std::string("delta_reprojection_") + pass_kind_name(d.kind), seed);
+      write(dir, std::string("delta_reprojection_") + pass_kind_name(d.kind),
+            decoder_seed("delta", uint8_t(reprojection), d, encoded));
     }
   }
   write(dir, "unknown_name", Bytes{'?', 0, 0, 0, 16, 16, 0, 1, 1, 1, 0, 0xFF});
