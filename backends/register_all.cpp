@@ -31,6 +31,7 @@ void register_all_backends(Registries& r) {
   DHR_PREDICTOR(make_none_predictor);
   DHR_PREDICTOR(make_reprojection_predictor);
   DHR_PREDICTOR(make_rotation_warp_predictor);
+  DHR_PREDICTOR(make_depth_warp_predictor);
 }
 
 const Registries& registries() {

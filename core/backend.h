@@ -118,6 +118,9 @@ class Denoiser {
 
 // ---- Predictor: turns the newest received server buffer (computed for an older client frame)
 // into a buffer for the frame being displayed.
+// The remote client has no G-buffers: there `src` and `dst` carry the cameras only, and
+// `src.depth` the depth the server sent with the colour frame (empty when the predictor does not
+// read depth, or that frame's depth pass did not arrive).
 struct PredictInput {
   const PassBuffer& received;  // decoded server buffer for frame `src`
   const GBuffer& src;          // the client's G-buffer of the frame the server traced
@@ -134,6 +137,9 @@ class Predictor {
   virtual ~Predictor() = default;
   virtual PredictStats predict(const PredictInput& in, PassBuffer& out) = 0;
   virtual void reset() {}
+  // True for a remote client's colour predictor that reprojects with the server's depth: remote
+  // mode then sends a depth pass beside the colour (its bytes counted; core/depth_pass.h).
+  virtual bool reads_depth() const { return false; }
 };
 
 // ---- Registry

@@ -326,7 +326,7 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
   }
   if (problems.empty()) {
     // A lossy codec must not be asked to carry a bitmask.
-    for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", c.width, c.height)) {
+    for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", remote_sends_depth(c, r), c.width, c.height)) {
       const BackendChoice codec = c.pass(p.name).codec;
       if (std::string why = r.codecs.create(codec.name, codec.params)->refuses(p.desc); !why.empty())
         problems.push_back(fmt::format("passes.{}.codec '{}' cannot carry the {} pass: {}", p.name, codec.name,
@@ -356,8 +356,10 @@ class Simulation {
     ac.max_payload_bytes = c.max_payload_bytes;
     ac.timeout_ms = 500;
     assembler_ = Assembler(ac);
-    // Hybrid runs report both pass streams, planned or not (zero traffic when not planned).
-    if (remote_) traffic_.push_back({kColourPassName});
+    // Hybrid runs report both pass streams, planned or not (zero traffic when not planned);
+    // remote runs the colour stream and, when sent, the depth stream.
+    if (remote_)
+      for (const PlannedPass& p : server_.passes()) traffic_.push_back({p.name});
     else
       for (const PassType& t : pass_types()) traffic_.push_back({t.name});
     for (const PlannedPass& p : server_.passes()) traffic_index_.push_back(traffic_of(p.name));

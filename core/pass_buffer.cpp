@@ -15,6 +15,7 @@ const char* pass_kind_name(PassKind kind) {
     case PassKind::SoftVisibility: return "soft_visibility";
     case PassKind::Ao: return "ao";
     case PassKind::Colour: return "colour";
+    case PassKind::Depth: return "depth";
   }
   return "unknown";
 }
@@ -25,6 +26,7 @@ size_t PassDesc::pixel_bytes() const {
     case PassKind::SoftVisibility: return size_t(channels);
     case PassKind::Ao: return 1;
     case PassKind::Colour: return 3;
+    case PassKind::Depth: return 2;
   }
   return 0;
 }
@@ -46,6 +48,9 @@ std::string PassDesc::validate() const {
     case PassKind::Colour:
       if (channels != 3) return fmt::format("colour has 3 channels, not {}", channels);
       break;
+    case PassKind::Depth:
+      if (channels != 2) return fmt::format("depth has 2 byte planes, not {}", channels);
+      break;
     default: return "unknown pass kind";
   }
   if ((kind == PassKind::Ao || kind == PassKind::SoftVisibility) && (full_scale < 1 || full_scale > 255))
@@ -60,7 +65,7 @@ namespace dhr {
 ImageU8 pass_plane(const PassBuffer& b, int index) {
   if (b.desc.kind == PassKind::Visibility)
     fail("pass_plane: a visibility bitmask has no 8-bit planes (unpack its bits instead)");
-  const int planes = b.desc.kind == PassKind::SoftVisibility ? b.desc.channels : 1;
+  const int planes = b.desc.kind == PassKind::SoftVisibility || b.desc.kind == PassKind::Depth ? b.desc.channels : 1;
   if (index < 0 || index >= planes) fail("pass_plane: plane {} out of range 0..{}", index, planes - 1);
   ImageU8 img(b.desc.width, b.desc.height);
   const size_t n = img.size();

@@ -5,6 +5,9 @@
 // - Ao: one byte per pixel, 0..full_scale; O = value / full_scale (full_scale = N rays before
 //   denoising, 255 after).
 // - Colour: RGB8 interleaved, sRGB encoded (the remote-rendering baseline's frame).
+// - Depth: the remote baseline's depth, sent with its colour when the client's predictor
+//   reprojects with depth (core/depth_pass.h): a 16-bit code per pixel (0: no surface, else
+//   logarithmic in the view depth) as two planes, the high bytes, then the low bytes. channels = 2.
 #pragma once
 
 #include <cstddef>
@@ -14,7 +17,7 @@
 
 namespace dhr {
 
-enum class PassKind : uint8_t { Visibility = 1, SoftVisibility = 2, Ao = 3, Colour = 4 };
+enum class PassKind : uint8_t { Visibility = 1, SoftVisibility = 2, Ao = 3, Colour = 4, Depth = 5 };
 
 const char* pass_kind_name(PassKind kind);
 
@@ -22,7 +25,7 @@ struct PassDesc {
   PassKind kind = PassKind::Ao;
   int width = 0;
   int height = 0;
-  int channels = 1;      // lights for (Soft)Visibility, 1 for Ao, 3 for Colour
+  int channels = 1;      // lights for (Soft)Visibility, 1 for Ao, 3 for Colour, 2 for Depth
   int full_scale = 255;  // Ao and SoftVisibility: the value that means 1.0
   size_t pixel_bytes() const;  // bytes of one pixel: ceil(lights / 8) for a bitmask, else channels
   size_t byte_size() const;    // exact size of a buffer with this description

@@ -41,6 +41,7 @@ const char* pass_meaning_name(PassMeaning meaning) {
     case PassMeaning::Visibility: return "visibility";
     case PassMeaning::Ao: return "ao";
     case PassMeaning::Colour: return "colour";
+    case PassMeaning::Depth: return "depth";
   }
   return "?";
 }
@@ -49,6 +50,7 @@ std::vector<std::string> all_pass_names() {
   std::vector<std::string> names;
   for (const PassType& t : pass_types()) names.push_back(t.name);
   names.push_back(kColourPassName);
+  names.push_back(kDepthPassName);
   return names;
 }
 
@@ -56,6 +58,7 @@ PassLayout pass_layout(PassKind kind) {
   switch (kind) {
     case PassKind::Visibility: return PassLayout::Bitmask;
     case PassKind::Colour: return PassLayout::Rgb8;
+    case PassKind::Depth:
     case PassKind::SoftVisibility:
     case PassKind::Ao: break;
   }
@@ -67,6 +70,7 @@ PassMeaning pass_meaning(PassKind kind) {
     case PassKind::Visibility:
     case PassKind::SoftVisibility: return PassMeaning::Visibility;
     case PassKind::Colour: return PassMeaning::Colour;
+    case PassKind::Depth: return PassMeaning::Depth;
     case PassKind::Ao: break;
   }
   return PassMeaning::Ao;
@@ -79,9 +83,11 @@ std::vector<PlannedPass> traced_passes(const PassPlan& plan, int width, int heig
   return passes;
 }
 
-std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, int width, int height) {
-  if (remote) return {{kColourPassName, PassMeaning::Colour, {PassKind::Colour, width, height, 3, 255}}};
-  return traced_passes(plan, width, height);
+std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, bool remote_depth, int width, int height) {
+  if (!remote) return traced_passes(plan, width, height);
+  std::vector<PlannedPass> passes = {{kColourPassName, PassMeaning::Colour, {PassKind::Colour, width, height, 3, 255}}};
+  if (remote_depth) passes.push_back({kDepthPassName, PassMeaning::Depth, {PassKind::Depth, width, height, 2, 255}});
+  return passes;
 }
 
 int find_pass(const std::vector<PlannedPass>& passes, PassMeaning meaning) {

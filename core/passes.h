@@ -23,7 +23,7 @@
 
 namespace dhr {
 
-enum class PassMeaning : uint8_t { Visibility, Ao, Colour };
+enum class PassMeaning : uint8_t { Visibility, Ao, Colour, Depth };
 enum class PassLayout : uint8_t { Bitmask, Planes8, Rgb8 };
 
 const char* pass_meaning_name(PassMeaning meaning);
@@ -61,11 +61,14 @@ struct PassType {
 const std::vector<PassType>& pass_types();
 const PassType* find_pass_type(std::string_view name);
 
-// The remote baseline's one pass: the composited frame, coded as video.
+// The remote baseline's pass: the composited frame, coded as video.
 inline constexpr const char* kColourPassName = "colour";
+// The remote baseline's depth, sent with the colour when the client's colour predictor
+// reprojects with depth (Predictor::reads_depth: depth_warp); core/depth_pass.h.
+inline constexpr const char* kDepthPassName = "depth";
 
-// Every pass name, traced ones first, then colour: the pass column groups of frames.csv and the
-// passes of results.json.
+// Every pass name, traced ones first, then colour and depth: the pass column groups of
+// frames.csv and the passes of results.json.
 std::vector<std::string> all_pass_names();
 
 struct PlannedPass {
@@ -79,8 +82,9 @@ struct PlannedPass {
 std::vector<PlannedPass> traced_passes(const PassPlan& plan, int width, int height);
 
 // What the server sends: hybrid mode sends the traced passes; remote mode composites them and
-// sends one colour pass.
-std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, int width, int height);
+// sends one colour pass, followed by a depth pass when `remote_depth` (the client's colour
+// predictor reads depth).
+std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, bool remote_depth, int width, int height);
 
 // The index in `passes` of the pass with `meaning`, or -1.
 int find_pass(const std::vector<PlannedPass>& passes, PassMeaning meaning);

@@ -1,6 +1,7 @@
 #include "core/pipeline.h"
 
 #include "core/composite.h"
+#include "core/depth_pass.h"
 #include "core/error.h"
 #include "core/packet.h"
 #include "core/raster.h"
@@ -30,6 +31,12 @@ TraceFn direct_tracer(RtScene& rt, const SimConfig& config) {
     TraceResult r = trace_passes(rt, gbuf, config.trace_for_frame(frame));
     return std::make_shared<const TracedPasses>(std::move(static_cast<TracedPasses&>(r)));
   };
+}
+
+bool remote_sends_depth(const SimConfig& c, const Registries& r) {
+  if (c.mode != "remote") return false;
+  const BackendChoice& p = c.pass(kColourPassName).predictor;
+  return r.predictors.create(p.name, p.params)->reads_depth();
 }
 
 // ---- denoising
@@ -96,7 +103,7 @@ std::vector<CompositePass> composite_inputs(const std::vector<PlannedPass>& pass
 ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Registries& r, TraceFn trace,
                                uint16_t stream_id)
     : c_(c), scene_(scene), plan_(plan_passes(scene, c.trace)), traced_(traced_passes(plan_, c.width, c.height)),
-      sent_(sent_passes(plan_, c.mode == "remote", c.width, c.height)), trace_(std::move(trace)),
+      sent_(sent_passes(plan_, c.mode == "remote", remote_sends_depth(c, r), c.width, c.height)), trace_(std::move(trace)),
       stream_id_(stream_id), denoise_(c, traced_, r) {
   for (const PlannedPass& p : sent_) {
     const BackendChoice codec = c.pass(p.name).codec;
@@ -160,6 +167,11 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     std::memcpy(colour.bytes.data(), img.data(), colour.bytes.size());
     buffers.assign(1, std::move(colour));
     stage("server_composite", ms_since(t0));
+    if (sent_.size() > 1) {  // the depth pass, for a client that reprojects with depth
+      t0 = Clock::now();
+      buffers.push_back(pack_depth(gbuf.depth, camera));
+      stage("pack_depth", ms_since(t0));
+    }
   }
 
   EncodeOptions options;
@@ -199,7 +211,8 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
 
 ClientPipeline::ClientPipeline(const SimConfig& c, const Scene& scene, const Registries& r)
     : c_(c), scene_(scene), remote_(c.mode == "remote"),
-      passes_(sent_passes(plan_passes(scene, c.trace), remote_, c.width, c.height)) {
+      passes_(sent_passes(plan_passes(scene, c.trace), remote_, remote_sends_depth(c, r), c.width, c.height)) {
+  depth_pass_ = find_pass(passes_, PassMeaning::Depth);
   for (const PlannedPass& p : passes_) {
     const PassChoice choice = c.pass(p.name);
     receivers_.emplace_back();
@@ -245,9 +258,11 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
     out.image = ImageRGB8(c_.width, c_.height);  // nothing received yet: black
     const PassReceiver& r = receivers_[0];
     if (r.frame >= 0) {
-      GBuffer src_cams, dst_cams;  // the remote client knows cameras only
+      GBuffer src_cams, dst_cams;  // the remote client knows cameras only (and the depth it received)
       src_cams.camera = camera_of(r.frame);
       dst_cams.camera = camera_of(frame);
+      if (depth_pass_ >= 0 && receivers_[size_t(depth_pass_)].frame == r.frame)
+        src_cams.depth = unpack_depth(receivers_[size_t(depth_pass_)].buffer, src_cams.camera);
       PassBuffer predicted;
       predictors_[0]->predict({r.buffer, src_cams, dst_cams}, predicted);
       std::memcpy(out.image.data(), predicted.bytes.data(),

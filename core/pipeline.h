@@ -43,6 +43,10 @@ using TraceFn = std::function<std::shared_ptr<const TracedPasses>(uint32_t frame
 // Traces with `rt` and no cache.
 TraceFn direct_tracer(RtScene& rt, const SimConfig& config);
 
+// True when the server of this run sends a depth pass with its colour: remote mode with a
+// colour predictor that reads depth (Predictor::reads_depth).
+bool remote_sends_depth(const SimConfig& config, const Registries& registries);
+
 // The wall time of one stage (ms).
 struct StageTime {
   const char* name;
@@ -161,6 +165,7 @@ class ClientPipeline {
   std::vector<PassReceiver> receivers_;
   std::vector<std::unique_ptr<Predictor>> predictors_;
   std::deque<std::pair<int, GBuffer>> history_;
+  int depth_pass_ = -1;  // remote mode: the depth pass's index, when one is sent
 };
 
 // The local reference: what the client would show with zero latency and lossless passes.

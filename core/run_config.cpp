@@ -149,6 +149,9 @@ std::vector<RunSetting> make_settings() {
   v.push_back(pass_backend(kColourPassName, "codec", &PassChoice::codec, "colour_codec", "remote mode: the colour frame's codec"));
   v.push_back(pass_backend(kColourPassName, "predictor", &PassChoice::predictor, "colour_predictor",
                            "remote mode: the client's predictor of the colour frame"));
+  v.push_back(pass_backend(kDepthPassName, "codec", &PassChoice::codec, "",
+                           "remote mode with a colour predictor that reads depth (depth_warp): the depth pass's codec "
+                           "(lossless)"));
   RunSetting timing;
   timing.key = "server_timing";
   timing.type = SettingType::Choice;
@@ -265,6 +268,7 @@ std::map<std::string, PassChoice, std::less<>> default_pass_choices() {
   std::map<std::string, PassChoice, std::less<>> out;
   for (const PassType& t : pass_types()) out[t.name] = {{t.codec}, {t.denoiser}, {t.predictor}};
   out[kColourPassName] = {{"h264"}, {"none"}, {"none"}};
+  out[kDepthPassName] = {{"zstd"}, {"none"}, {"none"}};
   return out;
 }
 

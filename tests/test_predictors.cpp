@@ -4,6 +4,7 @@
 // Camera::primary_ray, so no rasterizer is needed and every pixel's world point is known exactly.
 #include "backends/register_all.h"
 #include "core/backend.h"
+#include "core/depth_pass.h"
 #include "core/rng.h"
 
 #include <glm/gtc/matrix_transform.hpp>
@@ -152,6 +153,9 @@ PassBuffer make_random(const GBuffer& g, PassKind kind, int channels, int full_s
       case PassKind::Ao: b.bytes[i] = bg ? uint8_t(full_scale) : uint8_t(r % uint64_t(full_scale + 1)); break;
       case PassKind::Colour:
         for (int c = 0; c < 3; ++c) b.bytes[i * 3 + c] = uint8_t(r >> (8 * c));
+        break;
+      case PassKind::Depth:
+        for (int c = 0; c < 2; ++c) b.bytes[size_t(c) * n + i] = uint8_t(r >> (8 * c));
         break;
     }
   }
@@ -606,6 +610,136 @@ TEST(RotationWarp, RefusesBitmasksAndMismatchedSizesAndIsThreadCountIndependent)
   EXPECT_EQ(o1.desc.height, 40);
   EXPECT_EQ(o1.bytes.size(), size_t(80 * 40 * 3));
   EXPECT_TRUE(o1.bytes == o2.bytes);
+}
+
+// ---------------------------------------------------------------- depth pass and depth_warp
+
+TEST(DepthPass, CodesRoundTripWithinHalfAStepAndKeepTheBackground) {
+  const Camera c = look({1.0f, 2.0f, 3.0f}, {0.0f, 0.0f, 0.0f});  // near 0.05, far 100
+  const double half_step = 0.5 * std::log(100.0 / 0.05) / 65534.0;
+  uint16_t last = 0;
+  for (float z = 0.05f; z <= 100.0f; z *= 1.37f) {
+    const uint16_t q = depth_code(z, c);
+    EXPECT_GT(q, last) << "codes rise with depth";
+    last = q;
+    EXPECT_LE(std::fabs(std::log(double(depth_of_code(q, c)) / z)), half_step * 1.001) << z;
+  }
+  EXPECT_EQ(depth_code(kBackgroundDepth, c), 0);
+  EXPECT_EQ(depth_code(std::nanf(""), c), 0);
+  EXPECT_EQ(depth_code(-1.0f, c), 0);
+  EXPECT_TRUE(std::isinf(depth_of_code(0, c)));
+  EXPECT_EQ(depth_code(0.001f, c), 1) << "nearer than near: clamped";
+  EXPECT_EQ(depth_code(1e6f, c), 65535) << "beyond far: clamped";
+
+  const GBuffer g = render(Scene{}, oblique());
+  const PassBuffer pass = pack_depth(g.depth, g.camera);
+  EXPECT_EQ(pass.desc, (PassDesc{PassKind::Depth, kW, kH, 2, 255}));
+  EXPECT_EQ(pass.bytes.size(), pass.desc.byte_size());
+  const ImageF back = unpack_depth(pass, g.camera);
+  for (size_t i = 0; i < back.size(); ++i) {
+    if (std::isinf(g.depth[i])) EXPECT_TRUE(std::isinf(back[i]));
+    else EXPECT_LE(std::fabs(std::log(double(back[i]) / g.depth[i])), half_step * 1.001);
+  }
+  PassBuffer wrong = pass;
+  wrong.bytes.pop_back();
+  EXPECT_THROW(unpack_depth(wrong, g.camera), Error);
+  EXPECT_THROW(unpack_depth(make_ao(g), g.camera), Error);
+}
+
+// Colour painted on the world, in cells of 1/2 m: r from x, g from z, b from y and the object.
+Rgb8 painted(const glm::vec3& p, uint32_t id) {
+  auto cell = [](float v) { return uint8_t(((int(std::floor(v * 2.0f)) % 200) + 200) % 200); };
+  return {cell(p.x), cell(p.z), uint8_t(id * 40 + cell(p.y) % 40)};
+}
+
+PassBuffer paint_colour(const GBuffer& g) {
+  PassBuffer b;
+  b.desc = {PassKind::Colour, g.width(), g.height(), 3, 255};
+  b.bytes.resize(b.desc.byte_size());
+  for (size_t i = 0; i < g.object_id.size(); ++i) {
+    const Rgb8 c = g.object_id[i] == kBackgroundId ? Rgb8{0, 0, 250} : painted(g.position[i], g.object_id[i]);
+    b.bytes[3 * i] = c.r;
+    b.bytes[3 * i + 1] = c.g;
+    b.bytes[3 * i + 2] = c.b;
+  }
+  return b;
+}
+
+// Over the pixels of `dst` inside a painted cell (their 3x3 neighbourhood has one colour, so a
+// sub-pixel error cannot change what they should show): the fraction that `out` shows exactly.
+double painted_match(const PassBuffer& out, const GBuffer& dst) {
+  const PassBuffer truth = paint_colour(dst);
+  const int w = dst.width(), h = dst.height();
+  auto at = [&](const PassBuffer& b, int x, int y) {
+    const uint8_t* p = &b.bytes[3 * (size_t(y) * size_t(w) + size_t(x))];
+    return Rgb8{p[0], p[1], p[2]};
+  };
+  size_t inside = 0, ok = 0;
+  for (int y = 1; y + 1 < h; ++y)
+    for (int x = 1; x + 1 < w; ++x) {
+      bool flat = true;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) flat = flat && at(truth, x + dx, y + dy) == at(truth, x, y);
+      if (!flat) continue;
+      ++inside;
+      ok += at(out, x, y) == at(truth, x, y);
+    }
+  return inside ? double(ok) / double(inside) : 0.0;
+}
+
+// A translated and turned camera: reprojecting with depth lands the world-painted colours where
+// the frame rendered at the new camera has them; the rotation-only warp cannot.
+TEST(DepthWarp, TranslationLandsWorldPaintedColoursWhereTheNewFrameHasThem) {
+  const Scene scene;
+  const Camera c0 = look({0.5f, 3.5f, 5.5f}, {0.0f, 0.8f, 0.0f}, {0, 1, 0}, 256, 192);
+  Camera c1 = yawed(translated(c0, c0.right() * 0.5f + c0.forward * 0.4f), 3.0f);
+  const GBuffer src = render(scene, c0), dst = render(scene, c1);
+  const PassBuffer in = paint_colour(src);
+  GBuffer src_received = cameras_only(c0);
+  src_received.depth = unpack_depth(pack_depth(src.depth, c0), c0);  // what the remote client receives
+  PassBuffer by_depth, by_rotation;
+  const PredictStats st = make("depth_warp")->predict({in, src_received, cameras_only(c1)}, by_depth);
+  make("rotation_warp")->predict({in, cameras_only(c0), cameras_only(c1)}, by_rotation);
+  const double d = painted_match(by_depth, dst), r = painted_match(by_rotation, dst);
+  std::printf("painted colours within one cell: depth_warp %.3f (%llu holes), rotation_warp %.3f\n", d,
+              (unsigned long long)st.disoccluded, r);
+  EXPECT_GE(d, 0.95);
+  EXPECT_LT(r, d - 0.2);
+  EXPECT_GT(st.disoccluded, 0u) << "moving beside the box uncovers ground";
+  EXPECT_LT(st.disoccluded, st.pixels / 10);
+}
+
+TEST(DepthWarp, WithoutDepthItIsTheRotationWarp) {
+  const Camera c0 = look({0.0f, 1.0f, 0.0f}, {0.0f, 1.0f, -5.0f});
+  const Camera c1 = yawed(translated(c0, {0.2f, 0.0f, 0.0f}), 4.0f);
+  const PassBuffer in = ramp_colour(kW, kH);
+  PassBuffer a, b;
+  const PredictStats sa = make("depth_warp")->predict({in, cameras_only(c0), cameras_only(c1)}, a);
+  const PredictStats sb = make("rotation_warp")->predict({in, cameras_only(c0), cameras_only(c1)}, b);
+  EXPECT_TRUE(a.bytes == b.bytes);
+  EXPECT_EQ(sa.disoccluded, sb.disoccluded);
+  EXPECT_GT(sa.disoccluded, 0u) << "the yaw uncovers a strip: the comparison covers the fill too";
+}
+
+TEST(DepthWarp, RefusesMismatchedDepthBitmasksAndDepthPasses) {
+  const Camera c0 = oblique();
+  const GBuffer g = render(Scene{}, c0);
+  GBuffer src = cameras_only(c0);
+  src.depth = ImageF(kW / 2, kH, 1.0f);
+  PassBuffer out;
+  auto p = make("depth_warp");
+  try {
+    p->predict({paint_colour(g), src, cameras_only(c0)}, out);
+    ADD_FAILURE() << "a depth of another size was used";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("32x48"), std::string::npos) << m;
+    EXPECT_NE(m.find("64x48"), std::string::npos) << m;
+  }
+  EXPECT_THROW(p->predict({make_random(g, PassKind::Visibility, 4, 255, 1), g, g}, out), Error);
+  EXPECT_THROW(p->predict({pack_depth(g.depth, c0), g, g}, out), Error);
+  EXPECT_TRUE(p->reads_depth());
+  EXPECT_FALSE(make("rotation_warp")->reads_depth());
 }
 
 // ---------------------------------------------------------------- every predictor

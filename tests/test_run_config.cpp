@@ -128,7 +128,7 @@ TEST(RunSettings, UnknownKeysAreNamedWithTheValidOnes) {
   EXPECT_NE(all.find("run.widht: unknown key (valid: mode, width"), std::string::npos) << all;
   EXPECT_NE(all.find("run.trace.ao_ray: unknown key (valid: ao_rays"), std::string::npos) << all;
   EXPECT_NE(all.find("run.passes.ao.codek: unknown key (valid: codec, denoiser, predictor)"), std::string::npos) << all;
-  EXPECT_NE(all.find("run.passes.normal: unknown key (valid: visibility, ao, colour)"), std::string::npos) << all;
+  EXPECT_NE(all.find("run.passes.normal: unknown key (valid: visibility, ao, colour, depth)"), std::string::npos) << all;
 }
 
 // The version-1 keys and the per-pass keys that replace them.

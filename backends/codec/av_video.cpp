@@ -61,6 +61,10 @@ class AvVideoCodec final : public Codec {
       return fmt::format("{} does not carry bitmasks (lossy coding flips bits; lossless codes 1-bit data as 8-bit "
                          "samples): use lz4 or zstd",
                          f_.name);
+    if (desc.kind == PassKind::Depth)
+      return fmt::format("{} does not carry depth (16-bit codes split into a high and a low byte plane: a lossy step "
+                         "in the high byte moves the depth by 1/256 of its range): use lz4 or zstd",
+                         f_.name);
     if (desc.kind == PassKind::Colour && lossless())
       return fmt::format("{} lossless codes YUV 4:2:0, which cannot return RGB bit-exactly: use lossy {}, lz4 or zstd",
                          f_.name, f_.name);

@@ -192,9 +192,10 @@ class DeltaCodec final : public Codec {
   bool lossless() const override { return true; }
   bool stateful() const override { return true; }  // frames reference earlier ones
   std::string refuses(const PassDesc& desc) const override {
-    if (predictor_ && desc.kind == PassKind::Colour)
-      return "delta with predictor reprojection carries lighting passes only (colour frames have no G-buffer "
-             "prediction here; use predictor none)";
+    if (predictor_ && (desc.kind == PassKind::Colour || desc.kind == PassKind::Depth))
+      return fmt::format("delta with predictor reprojection carries lighting passes only ({} frames have no G-buffer "
+                         "prediction here; use predictor none)",
+                         pass_kind_name(desc.kind));
     return inner_->refuses(desc);
   }
   int gbuffers_referenced() const override { return predictor_ ? references_ : 0; }
