@@ -12,8 +12,9 @@ configuration inserted into an experiment still compares the runs it did not cha
 the new results is a note, one only in the baseline a difference.
 The wall-clock keys and columns are read from the new results' "declared" record (core/results.h),
 joined with TIMING_KEYS / TIMING_COLUMNS for results older than that record.
-Values must be equal bit for bit (floats as written); a figure only in the new results (a metric
-added since the baseline) is listed as a note, one only in the baseline is a difference. Exits 1 and lists the differences when
+Values must be equal bit for bit (floats as written); a figure only in the new results (a metric,
+a backend setting or a frames.csv column added since the baseline) is listed as a note, one only
+in the baseline is a difference. Exits 1 and lists the differences when
 any figure changed; 0 when all are identical. A refactor that renames a key or column adds it to
 ALIASES (new name -> old name) in the same commit, so the guard keeps comparing it.
 
@@ -159,6 +160,10 @@ def compare_results(new_path, old_path, problems, notes, run_map):
                 if k not in b and part == "backends" and ".params." in k:
                     # a parameter added after the baseline was made: its default changes nothing
                     notes.add(f"{k.split('.', 1)[1]} = {a[k]!r} (a parameter newer than the baseline)")
+                elif k not in b and part == "backends":
+                    # a backend setting added after the baseline (a new pass's codec): it did
+                    # not exist, so nothing it says changed
+                    notes.add(f"{k.split('.', 1)[1]} (a setting newer than the baseline)")
                 elif k not in b and part == "metrics":
                     # a figure added after the baseline was made: new, so nothing it says changed
                     notes.add(f"{k} (a figure newer than the baseline)")
@@ -184,7 +189,7 @@ def read_frames(path, passes_of_run):
             for r in rows}
 
 
-def compare_frames(new_path, old_path, problems, run_map):
+def compare_frames(new_path, old_path, problems, run_map, notes=None):
     try:
         passes = pass_names_of_runs(os.path.join(os.path.dirname(old_path), "results.json"))
         old = read_frames(old_path, passes)
@@ -207,7 +212,10 @@ def compare_frames(new_path, old_path, problems, run_map):
         a, b = new[key], old[key]
         for col in sorted(set(a) | set(b)):
             compared += 1
-            if a.get(col) != b.get(col):
+            if col not in b and notes is not None:
+                # a column added after the baseline (a new pass's group): new, nothing changed
+                notes.add(f"frames.csv column {col} (newer than the baseline)")
+            elif a.get(col) != b.get(col):
                 problems.append(f"frames.csv {key[0]} frame {key[1]} {col}: new {a.get(col)!r}, old {b.get(col)!r}")
     return compared
 
@@ -219,7 +227,7 @@ def compare_folders(new, old):
     TIMING_COLUMNS.update(columns)
     run_map = {}
     n = compare_results(os.path.join(new, "results.json"), os.path.join(old, "results.json"), problems, notes, run_map)
-    n += compare_frames(os.path.join(new, "frames.csv"), os.path.join(old, "frames.csv"), problems, run_map)
+    n += compare_frames(os.path.join(new, "frames.csv"), os.path.join(old, "frames.csv"), problems, run_map, notes)
     if problems:
         print(f"{new} against {old}: {len(problems)} of {n} figures differ")
         for p in problems[:40]:
@@ -270,7 +278,7 @@ def main():
         TIMING_COLUMNS.update(columns)
         run_map = {}
         n = compare_results(os.path.join(out, "results.json"), os.path.join(base, "results.json"), problems, notes, run_map)
-        n += compare_frames(os.path.join(out, "frames.csv"), os.path.join(base, "frames.csv"), problems, run_map)
+        n += compare_frames(os.path.join(out, "frames.csv"), os.path.join(base, "frames.csv"), problems, run_map, notes)
         for note in sorted(notes):
             print(f"{name}: note: only in the new results: {note}")
         if problems:
