@@ -137,9 +137,10 @@ class Predictor {
   virtual ~Predictor() = default;
   virtual PredictStats predict(const PredictInput& in, PassBuffer& out) = 0;
   virtual void reset() {}
-  // True for a remote client's colour predictor that reprojects with the server's depth: remote
-  // mode then sends a depth pass beside the colour (its bytes counted; core/depth_pass.h).
-  virtual bool reads_depth() const { return false; }
+  // A remote client's colour predictor that reprojects with the server's depth: the bits of
+  // inverse depth it asks for (8..16); remote mode then sends a depth pass of that precision
+  // beside the colour (its bytes counted; core/depth_pass.h). 0: it reads no depth.
+  virtual int depth_bits() const { return 0; }
 };
 
 // ---- Registry

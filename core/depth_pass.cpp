@@ -10,37 +10,40 @@ namespace dhr {
 
 namespace {
 
-constexpr double kSteps = 65534.0;  // codes 1..65535 for surfaces
+// M * near, the scale of the codes (M = 2^bits - 1).
+struct Scale {
+  double m, m_near;
+};
 
-double log_range(const Camera& c) {
-  if (!(c.near_m > 0.0f && c.far_m > c.near_m && std::isfinite(c.far_m)))
-    fail("depth pass: the camera's near {} and far {} must satisfy 0 < near < far (finite)", c.near_m, c.far_m);
-  return std::log(double(c.far_m) / double(c.near_m));
+Scale scale_of(const Camera& c, int bits) {
+  if (!(c.near_m > 0.0f) || !std::isfinite(c.near_m))
+    fail("depth pass: the camera's near {} must be finite and positive", c.near_m);
+  if (bits < 8 || bits > 16) fail("depth pass: codes of {} bits (valid: 8..16)", bits);
+  const double m = double((1 << bits) - 1);
+  return {m, m * double(c.near_m)};
 }
 
-uint16_t code_of(float z, double near, double far, double range) {
+uint16_t code_of(float z, const Scale& s) {
   if (!(z > 0.0f) || !std::isfinite(z)) return 0;
-  return uint16_t(1.0 + std::round(kSteps * std::log(std::clamp(double(z), near, far) / near) / range));
+  return uint16_t(std::clamp(std::round(s.m_near / double(z)), 1.0, s.m));
 }
 
-float z_of(uint16_t q, double near, double range) {
-  return q == 0 ? kBackgroundDepth : float(near * std::exp(double(q - 1) / kSteps * range));
-}
+float z_of(uint16_t q, const Scale& s) { return q == 0 ? kBackgroundDepth : float(s.m_near / double(q)); }
 
 }  // namespace
 
-uint16_t depth_code(float z, const Camera& c) { return code_of(z, c.near_m, c.far_m, log_range(c)); }
+uint16_t depth_code(float z, const Camera& c, int bits) { return code_of(z, scale_of(c, bits)); }
 
-float depth_of_code(uint16_t q, const Camera& c) { return z_of(q, c.near_m, log_range(c)); }
+float depth_of_code(uint16_t q, const Camera& c, int bits) { return z_of(q, scale_of(c, bits)); }
 
-PassBuffer pack_depth(const ImageF& depth, const Camera& camera) {
+PassBuffer pack_depth(const ImageF& depth, const Camera& camera, int bits) {
+  const Scale scale = scale_of(camera, bits);
   PassBuffer out;
-  out.desc = {PassKind::Depth, depth.width(), depth.height(), 2, 255};
+  out.desc = {PassKind::Depth, depth.width(), depth.height(), 2, bits};
   const size_t n = depth.size();
   out.bytes.resize(2 * n);
-  const double range = log_range(camera);
   for (size_t i = 0; i < n; ++i) {
-    const uint16_t q = code_of(depth[i], camera.near_m, camera.far_m, range);
+    const uint16_t q = code_of(depth[i], scale);
     out.bytes[i] = uint8_t(q >> 8);
     out.bytes[n + i] = uint8_t(q & 0xff);
   }
@@ -54,11 +57,11 @@ ImageF unpack_depth(const PassBuffer& pass, const Camera& camera) {
   if (pass.bytes.size() != pass.desc.byte_size())
     fail("depth pass: {} bytes, {} expected for {}x{}", pass.bytes.size(), pass.desc.byte_size(), pass.desc.width,
          pass.desc.height);
-  const double range = log_range(camera);
+  const Scale scale = scale_of(camera, pass.desc.full_scale);
   ImageF out(pass.desc.width, pass.desc.height);
   const size_t n = out.size();
   for (size_t i = 0; i < n; ++i) {
-    out[i] = z_of(uint16_t((unsigned(pass.bytes[i]) << 8) | pass.bytes[n + i]), camera.near_m, range);
+    out[i] = z_of(uint16_t((unsigned(pass.bytes[i]) << 8) | pass.bytes[n + i]), scale);
   }
   return out;
 }

@@ -326,7 +326,7 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
   }
   if (problems.empty()) {
     // A lossy codec must not be asked to carry a bitmask.
-    for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", remote_sends_depth(c, r), c.width, c.height)) {
+    for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)) {
       const BackendChoice codec = c.pass(p.name).codec;
       if (std::string why = r.codecs.create(codec.name, codec.params)->refuses(p.desc); !why.empty())
         problems.push_back(fmt::format("passes.{}.codec '{}' cannot carry the {} pass: {}", p.name, codec.name,

@@ -55,6 +55,8 @@ std::string PassDesc::validate() const {
   }
   if ((kind == PassKind::Ao || kind == PassKind::SoftVisibility) && (full_scale < 1 || full_scale > 255))
     return fmt::format("full_scale {} out of range 1..255", full_scale);
+  if (kind == PassKind::Depth && (full_scale < 8 || full_scale > 16))
+    return fmt::format("depth code of {} bits out of range 8..16", full_scale);
   return {};
 }
 

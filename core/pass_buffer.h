@@ -6,8 +6,8 @@
 //   denoising, 255 after).
 // - Colour: RGB8 interleaved, sRGB encoded (the remote-rendering baseline's frame).
 // - Depth: the remote baseline's depth, sent with its colour when the client's predictor
-//   reprojects with depth (core/depth_pass.h): a 16-bit code per pixel (0: no surface, else
-//   logarithmic in the view depth) as two planes, the high bytes, then the low bytes. channels = 2.
+//   reprojects with depth (core/depth_pass.h): a code of full_scale bits (8..16) per pixel (0: no
+//   surface, else inverse depth) as two planes, the high bytes, then the low bytes. channels = 2.
 #pragma once
 
 #include <cstddef>
@@ -26,7 +26,7 @@ struct PassDesc {
   int width = 0;
   int height = 0;
   int channels = 1;      // lights for (Soft)Visibility, 1 for Ao, 3 for Colour, 2 for Depth
-  int full_scale = 255;  // Ao and SoftVisibility: the value that means 1.0
+  int full_scale = 255;  // Ao and SoftVisibility: the value that means 1.0; Depth: its code's bits
   size_t pixel_bytes() const;  // bytes of one pixel: ceil(lights / 8) for a bitmask, else channels
   size_t byte_size() const;    // exact size of a buffer with this description
   // Empty when valid; else what is wrong (channels out of range, sizes out of range).

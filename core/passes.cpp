@@ -83,10 +83,11 @@ std::vector<PlannedPass> traced_passes(const PassPlan& plan, int width, int heig
   return passes;
 }
 
-std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, bool remote_depth, int width, int height) {
+std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, int remote_depth_bits, int width, int height) {
   if (!remote) return traced_passes(plan, width, height);
   std::vector<PlannedPass> passes = {{kColourPassName, PassMeaning::Colour, {PassKind::Colour, width, height, 3, 255}}};
-  if (remote_depth) passes.push_back({kDepthPassName, PassMeaning::Depth, {PassKind::Depth, width, height, 2, 255}});
+  if (remote_depth_bits > 0)
+    passes.push_back({kDepthPassName, PassMeaning::Depth, {PassKind::Depth, width, height, 2, remote_depth_bits}});
   return passes;
 }
 

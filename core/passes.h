@@ -64,7 +64,7 @@ const PassType* find_pass_type(std::string_view name);
 // The remote baseline's pass: the composited frame, coded as video.
 inline constexpr const char* kColourPassName = "colour";
 // The remote baseline's depth, sent with the colour when the client's colour predictor
-// reprojects with depth (Predictor::reads_depth: depth_warp); core/depth_pass.h.
+// reprojects with depth (Predictor::depth_bits: depth_warp); core/depth_pass.h.
 inline constexpr const char* kDepthPassName = "depth";
 
 // Every pass name, traced ones first, then colour and depth: the pass column groups of
@@ -82,9 +82,9 @@ struct PlannedPass {
 std::vector<PlannedPass> traced_passes(const PassPlan& plan, int width, int height);
 
 // What the server sends: hybrid mode sends the traced passes; remote mode composites them and
-// sends one colour pass, followed by a depth pass when `remote_depth` (the client's colour
-// predictor reads depth).
-std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, bool remote_depth, int width, int height);
+// sends one colour pass, followed by a depth pass of `remote_depth_bits` bits when that is not 0
+// (the client's colour predictor reads depth).
+std::vector<PlannedPass> sent_passes(const PassPlan& plan, bool remote, int remote_depth_bits, int width, int height);
 
 // The index in `passes` of the pass with `meaning`, or -1.
 int find_pass(const std::vector<PlannedPass>& passes, PassMeaning meaning);

@@ -33,10 +33,10 @@ TraceFn direct_tracer(RtScene& rt, const SimConfig& config) {
   };
 }
 
-bool remote_sends_depth(const SimConfig& c, const Registries& r) {
-  if (c.mode != "remote") return false;
+int remote_depth_bits(const SimConfig& c, const Registries& r) {
+  if (c.mode != "remote") return 0;
   const BackendChoice& p = c.pass(kColourPassName).predictor;
-  return r.predictors.create(p.name, p.params)->reads_depth();
+  return r.predictors.create(p.name, p.params)->depth_bits();
 }
 
 // ---- denoising
@@ -103,7 +103,7 @@ std::vector<CompositePass> composite_inputs(const std::vector<PlannedPass>& pass
 ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Registries& r, TraceFn trace,
                                uint16_t stream_id)
     : c_(c), scene_(scene), plan_(plan_passes(scene, c.trace)), traced_(traced_passes(plan_, c.width, c.height)),
-      sent_(sent_passes(plan_, c.mode == "remote", remote_sends_depth(c, r), c.width, c.height)), trace_(std::move(trace)),
+      sent_(sent_passes(plan_, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)), trace_(std::move(trace)),
       stream_id_(stream_id), denoise_(c, traced_, r) {
   for (const PlannedPass& p : sent_) {
     const BackendChoice codec = c.pass(p.name).codec;
@@ -169,7 +169,7 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     stage("server_composite", ms_since(t0));
     if (sent_.size() > 1) {  // the depth pass, for a client that reprojects with depth
       t0 = Clock::now();
-      buffers.push_back(pack_depth(gbuf.depth, camera));
+      buffers.push_back(pack_depth(gbuf.depth, camera, sent_[1].desc.full_scale));
       stage("pack_depth", ms_since(t0));
     }
   }
@@ -211,7 +211,7 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
 
 ClientPipeline::ClientPipeline(const SimConfig& c, const Scene& scene, const Registries& r)
     : c_(c), scene_(scene), remote_(c.mode == "remote"),
-      passes_(sent_passes(plan_passes(scene, c.trace), remote_, remote_sends_depth(c, r), c.width, c.height)) {
+      passes_(sent_passes(plan_passes(scene, c.trace), remote_, remote_depth_bits(c, r), c.width, c.height)) {
   depth_pass_ = find_pass(passes_, PassMeaning::Depth);
   for (const PlannedPass& p : passes_) {
     const PassChoice choice = c.pass(p.name);

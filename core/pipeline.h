@@ -43,9 +43,9 @@ using TraceFn = std::function<std::shared_ptr<const TracedPasses>(uint32_t frame
 // Traces with `rt` and no cache.
 TraceFn direct_tracer(RtScene& rt, const SimConfig& config);
 
-// True when the server of this run sends a depth pass with its colour: remote mode with a
-// colour predictor that reads depth (Predictor::reads_depth).
-bool remote_sends_depth(const SimConfig& config, const Registries& registries);
+// The bits of the depth pass the server of this run sends with its colour (0: none): remote mode
+// with a colour predictor that reads depth (Predictor::depth_bits).
+int remote_depth_bits(const SimConfig& config, const Registries& registries);
 
 // The wall time of one stage (ms).
 struct StageTime {

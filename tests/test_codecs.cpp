@@ -12,6 +12,8 @@
 // bit-exact or bounded-error checks, stateful() the loss and keyframe behaviour.
 #include "backends/register_all.h"
 #include "core/backend.h"
+#include "core/depth_pass.h"
+#include "core/gbuffer.h"
 #include "core/buffer_layout.h"
 #include "core/checksum.h"
 #include "core/rng.h"
@@ -203,6 +205,20 @@ struct Case {
   PassBuffer buffer;
 };
 
+// The depth pass (12 bits) of a floor seen by a rolled camera (so that depth varies along rows
+// and columns), with background above its horizon.
+PassBuffer planar_depth(int w, int h) {
+  const Camera cam = Camera::look_at({0.0f, 1.5f, 0.0f}, {0.0f, 0.0f, -4.0f}, glm::normalize(glm::vec3(0.4f, 1.0f, 0.0f)),
+                                     60.0f, w, h, 0.05f, 100.0f);
+  ImageF depth(w, h, kBackgroundDepth);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const Ray r = cam.primary_ray(float(x) + 0.5f, float(y) + 0.5f);
+      if (r.direction.y < 0.0f) depth(x, y) = cam.view_depth(r.origin - r.direction * (r.origin.y / r.direction.y));
+    }
+  return pack_depth(depth, cam, 12);
+}
+
 std::vector<Case> cases_at(int w, int h) {
   const SyntheticView view{w, h, 0.0, 0.0, 0, 7};
   std::vector<Case> c;
@@ -221,6 +237,8 @@ std::vector<Case> cases_at(int w, int h) {
   c.push_back({"soft_vis_4", test::make_soft_visibility(view, 4)});
   c.push_back({"soft_vis_2_noisy16", test::make_soft_visibility(view, 2, 16)});
   c.push_back({"colour", test::make_colour(view)});
+  c.push_back({"random_depth", test::make_random({PassKind::Depth, w, h, 2, 16}, 16)});
+  c.push_back({"planar_depth", planar_depth(w, h)});
   return c;
 }
 

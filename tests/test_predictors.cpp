@@ -615,30 +615,36 @@ TEST(RotationWarp, RefusesBitmasksAndMismatchedSizesAndIsThreadCountIndependent)
 // ---------------------------------------------------------------- depth pass and depth_warp
 
 TEST(DepthPass, CodesRoundTripWithinHalfAStepAndKeepTheBackground) {
-  const Camera c = look({1.0f, 2.0f, 3.0f}, {0.0f, 0.0f, 0.0f});  // near 0.05, far 100
-  const double half_step = 0.5 * std::log(100.0 / 0.05) / 65534.0;
-  uint16_t last = 0;
-  for (float z = 0.05f; z <= 100.0f; z *= 1.37f) {
-    const uint16_t q = depth_code(z, c);
-    EXPECT_GT(q, last) << "codes rise with depth";
+  const Camera c = look({1.0f, 2.0f, 3.0f}, {0.0f, 0.0f, 0.0f});  // near 0.05
+  // Inverse depth: q = M near / z, so half a step of q is z^2 / (2 M near) in z (M = 65535).
+  auto half_step = [&](double z) { return z * z / (2.0 * 65535.0 * 0.05); };
+  uint16_t last = 65535;
+  for (float z = 0.06f; z <= 500.0f; z *= 1.37f) {
+    const uint16_t q = depth_code(z, c, 16);
+    EXPECT_LT(q, last) << "codes fall with depth";
     last = q;
-    EXPECT_LE(std::fabs(std::log(double(depth_of_code(q, c)) / z)), half_step * 1.001) << z;
+    EXPECT_LE(std::fabs(double(depth_of_code(q, c, 16)) - z), half_step(z) * 1.001 + 1e-6 * z) << z;
   }
-  EXPECT_EQ(depth_code(kBackgroundDepth, c), 0);
-  EXPECT_EQ(depth_code(std::nanf(""), c), 0);
-  EXPECT_EQ(depth_code(-1.0f, c), 0);
-  EXPECT_TRUE(std::isinf(depth_of_code(0, c)));
-  EXPECT_EQ(depth_code(0.001f, c), 1) << "nearer than near: clamped";
-  EXPECT_EQ(depth_code(1e6f, c), 65535) << "beyond far: clamped";
+  EXPECT_EQ(depth_code(kBackgroundDepth, c, 16), 0);
+  EXPECT_EQ(depth_code(std::nanf(""), c, 16), 0);
+  EXPECT_EQ(depth_code(-1.0f, c, 16), 0);
+  EXPECT_TRUE(std::isinf(depth_of_code(0, c, 16)));
+  EXPECT_EQ(depth_code(0.001f, c, 16), 65535) << "nearer than near: clamped";
+  EXPECT_EQ(depth_code(1e6f, c, 16), 1) << "beyond 65535 near: clamped";
 
   const GBuffer g = render(Scene{}, oblique());
-  const PassBuffer pass = pack_depth(g.depth, g.camera);
-  EXPECT_EQ(pass.desc, (PassDesc{PassKind::Depth, kW, kH, 2, 255}));
+  EXPECT_EQ(depth_code(0.001f, c, 12), 4095);
+  EXPECT_EQ(depth_code(0.5f, c, 12), 410) << "round(4095 * 0.05 / 0.5)";
+  EXPECT_THROW(depth_code(1.0f, c, 17), Error);
+  EXPECT_THROW(depth_code(1.0f, c, 7), Error);
+
+  const PassBuffer pass = pack_depth(g.depth, g.camera, 16);
+  EXPECT_EQ(pass.desc, (PassDesc{PassKind::Depth, kW, kH, 2, 16}));
   EXPECT_EQ(pass.bytes.size(), pass.desc.byte_size());
   const ImageF back = unpack_depth(pass, g.camera);
   for (size_t i = 0; i < back.size(); ++i) {
     if (std::isinf(g.depth[i])) EXPECT_TRUE(std::isinf(back[i]));
-    else EXPECT_LE(std::fabs(std::log(double(back[i]) / g.depth[i])), half_step * 1.001);
+    else EXPECT_LE(std::fabs(double(back[i]) - g.depth[i]), half_step(g.depth[i]) * 1.001 + 1e-6 * g.depth[i]);
   }
   PassBuffer wrong = pass;
   wrong.bytes.pop_back();
@@ -696,7 +702,7 @@ TEST(DepthWarp, TranslationLandsWorldPaintedColoursWhereTheNewFrameHasThem) {
   const GBuffer src = render(scene, c0), dst = render(scene, c1);
   const PassBuffer in = paint_colour(src);
   GBuffer src_received = cameras_only(c0);
-  src_received.depth = unpack_depth(pack_depth(src.depth, c0), c0);  // what the remote client receives
+  src_received.depth = unpack_depth(pack_depth(src.depth, c0, 12), c0);  // what the remote client receives
   PassBuffer by_depth, by_rotation;
   const PredictStats st = make("depth_warp")->predict({in, src_received, cameras_only(c1)}, by_depth);
   make("rotation_warp")->predict({in, cameras_only(c0), cameras_only(c1)}, by_rotation);
@@ -737,9 +743,10 @@ TEST(DepthWarp, RefusesMismatchedDepthBitmasksAndDepthPasses) {
     EXPECT_NE(m.find("64x48"), std::string::npos) << m;
   }
   EXPECT_THROW(p->predict({make_random(g, PassKind::Visibility, 4, 255, 1), g, g}, out), Error);
-  EXPECT_THROW(p->predict({pack_depth(g.depth, c0), g, g}, out), Error);
-  EXPECT_TRUE(p->reads_depth());
-  EXPECT_FALSE(make("rotation_warp")->reads_depth());
+  EXPECT_THROW(p->predict({pack_depth(g.depth, c0, 12), g, g}, out), Error);
+  EXPECT_EQ(p->depth_bits(), 12);
+  EXPECT_EQ(make("depth_warp", {{"depth_bits", 16}})->depth_bits(), 16);
+  EXPECT_EQ(make("rotation_warp")->depth_bits(), 0);
 }
 
 // ---------------------------------------------------------------- every predictor

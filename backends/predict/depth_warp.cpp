@@ -28,8 +28,9 @@
 // Accepts any 8-bit pass (colour RGB interleaved, ao, soft_visibility per plane); bitmasks are
 // refused. src.depth must be the received buffer's size when present.
 //
-// Parameters: crack_ratio (1.01..10, default 1.1).
-// Example: {"name": "depth_warp", "params": {"crack_ratio": 1.2}}
+// Parameters: depth_bits (8..16, default 12: the depth pass's precision, core/depth_pass.h),
+// crack_ratio (1.01..10, default 1.1).
+// Example: {"name": "depth_warp", "params": {"depth_bits": 14}}
 #include "backends/predict/warp.h"
 
 #include "backends/register_all.h"
@@ -64,9 +65,9 @@ struct Rays {
 
 class DepthWarp final : public Predictor {
  public:
-  explicit DepthWarp(double crack_ratio) : crack_ratio_(crack_ratio) {}
+  DepthWarp(int depth_bits, double crack_ratio) : depth_bits_(depth_bits), crack_ratio_(crack_ratio) {}
 
-  bool reads_depth() const override { return true; }
+  int depth_bits() const override { return depth_bits_; }
 
   PredictStats predict(const PredictInput& in, PassBuffer& out) override {
     const PassBuffer& rb = in.received;
@@ -233,6 +234,7 @@ class DepthWarp final : public Predictor {
     });
   }
 
+  int depth_bits_;
   double crack_ratio_;
   std::unique_ptr<std::atomic<uint64_t>[]> keys_;
   size_t keys_size_ = 0;
@@ -246,10 +248,13 @@ PredictorEntry make_depth_warp_predictor() {
   return {kName,
           "remote-rendering baseline: reproject the last colour frame with the depth sent beside it (rotation "
           "and translation; remote mode then sends a depth pass, counted)",
-          {ParamSpec::real("crack_ratio", 1.1, 1.01, 10.0,
+          {ParamSpec::integer("depth_bits", 12, 8, 16,
+                              "the precision of the inverse depth the server sends (core/depth_pass.h): more bits, "
+                              "less parallax error and more bytes"),
+           ParamSpec::real("crack_ratio", 1.1, 1.01, 10.0,
                            "a kept point this many times as far as both neighbours (row or column) is a crack and "
                            "takes its neighbour's point")},
-          [](const Params& p) { return std::make_unique<DepthWarp>(p.get_float("crack_ratio")); }};
+          [](const Params& p) { return std::make_unique<DepthWarp>(p.get_int("depth_bits"), p.get_float("crack_ratio")); }};
 }
 
 }  // namespace dhr
