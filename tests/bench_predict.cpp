@@ -19,6 +19,7 @@
 #include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/composite.h"
+#include "core/depth_pass.h"
 #include "core/raster.h"
 #include "core/scene_load.h"
 #include "core/rng.h"
@@ -269,6 +270,52 @@ void BM_Reprojection_Visibility4(benchmark::State& state) {
   run_reprojection(state, frames().vis4, nlohmann::json::object());
 }
 BENCHMARK(BM_Reprojection_Visibility4)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The remote client's warps of an RGB8 colour frame at 1280x720, between the same two cameras:
+// rotation_warp (cameras only) and depth_warp (with the src frame's depth as the client receives
+// it: 12-bit inverse depth, unpacked inside the timed loop as the client does for every frame).
+// Memory floor: reading the colour (3 B/px) and, for depth_warp, the received depth pass (2 B/px),
+// and writing the warped colour (3 B/px). One thread, process CPU time, as above. (The frames
+// above were rendered for the reprojection benchmarks; the colour is random bytes.)
+void run_warp(benchmark::State& state, bool with_depth) {
+  const Frames& f = frames();
+  const size_t n = size_t(kW) * kH;
+  PassBuffer colour;
+  colour.desc = {PassKind::Colour, kW, kH, 3, 255};
+  colour.bytes.resize(3 * n);
+  for (size_t i = 0; i < 3 * n; ++i) colour.bytes[i] = uint8_t(rng_bits({3, uint32_t(i), 0, 0, 9}));
+  const PassBuffer depth = pack_depth(f.src.depth, f.src.camera, 12);
+  GBuffer src, dst;
+  src.camera = f.src.camera;
+  dst.camera = f.dst.camera;
+  auto p = registries().predictors.create(with_depth ? "depth_warp" : "rotation_warp", nlohmann::json::object());
+  PassBuffer out;
+  auto once = [&] {
+    if (with_depth) src.depth = unpack_depth(depth, src.camera);
+    return p->predict({colour, src, dst}, out);
+  };
+  PredictStats st = once();  // warm: sizes the buffers once
+  const tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+  const double cpu0 = process_cpu_ms();
+  for (auto _ : state) {
+    st = once();
+    benchmark::DoNotOptimize(out.bytes.data());
+  }
+  const double cpu_ms = (process_cpu_ms() - cpu0) / double(state.iterations());
+  std::vector<Plane> reads = {{colour.bytes.data(), 3}};
+  if (with_depth) reads.push_back({depth.bytes.data(), 2});
+  const double floor_ms = floor_cpu_ms(reads, 3);
+  state.counters["cpu_ms"] = cpu_ms;
+  state.counters["floor_cpu_ms"] = floor_ms;
+  state.counters["x_floor"] = cpu_ms / floor_ms;
+  state.counters["disoccluded_%"] = 100.0 * double(st.disoccluded) / double(std::max<uint64_t>(st.pixels, 1));
+}
+
+void BM_RotationWarp_Colour(benchmark::State& state) { run_warp(state, false); }
+BENCHMARK(BM_RotationWarp_Colour)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_DepthWarp_Colour(benchmark::State& state) { run_warp(state, true); }
+BENCHMARK(BM_DepthWarp_Colour)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // The composite of room (three lights) at 1280x720: a visibility bitmask and an AO pass of
 // synthetic bytes over the rasterized G-buffer.

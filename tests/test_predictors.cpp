@@ -727,6 +727,23 @@ TEST(DepthWarp, WithoutDepthItIsTheRotationWarp) {
   EXPECT_GT(sa.disoccluded, 0u) << "the yaw uncovers a strip: the comparison covers the fill too";
 }
 
+// Turned around, nothing of the source lies in front of the new camera: every pixel is a hole
+// (counted), and every row is filled from the rotation alone (clamped into the source).
+TEST(DepthWarp, TurnedAroundEveryPixelIsAHoleFilledFromTheRotation) {
+  const Camera c0 = oblique();
+  const GBuffer g = render(Scene{}, c0);
+  GBuffer src = cameras_only(c0);
+  src.depth = g.depth;
+  PassBuffer out;
+  const PassBuffer in = paint_colour(g);
+  const PredictStats st = make("depth_warp")->predict({in, src, cameras_only(yawed(c0, 180.0f))}, out);
+  EXPECT_EQ(st.pixels, uint64_t(kW * kH));
+  EXPECT_EQ(st.disoccluded, st.pixels);
+  ASSERT_EQ(out.bytes.size(), in.bytes.size());
+  const std::set<uint8_t> source(in.bytes.begin(), in.bytes.end());
+  for (uint8_t b : out.bytes) EXPECT_TRUE(source.count(b)) << "every value is a source pixel's";
+}
+
 TEST(DepthWarp, RefusesMismatchedDepthBitmasksAndDepthPasses) {
   const Camera c0 = oblique();
   const GBuffer g = render(Scene{}, c0);

@@ -142,19 +142,26 @@ class DepthWarp final : public Predictor {
     const glm::dvec3 rs(cs.right()), us(cs.up), fs(cs.forward);
     const double ts = std::tan(glm::radians(double(cs.vfov_deg)) * 0.5), as = double(ws) / hs;
     std::vector<uint32_t> holes(size_t(hd), 0);
+    nearest_right_.resize(nd);
     predict::parallel_rows(hd, [&](int y) {
       const uint64_t* row = resolved_.data() + size_t(y) * size_t(wd);
+      int* right = nearest_right_.data() + size_t(y) * size_t(wd);  // the nearest kept point at or right of x
+      for (int x = wd - 1, r = wd; x >= 0; --x) {
+        if (row[x] != kEmpty) r = x;
+        right[x] = r;
+      }
       uint32_t row_holes = 0;
+      int left = -1;  // the nearest kept point left of x
       for (int x = 0; x < wd; ++x) {
         uint64_t k = row[x];
         if (k == kEmpty) {
           ++row_holes;
-          int l = x - 1, r = x + 1;
-          while (l >= 0 && row[l] == kEmpty) --l;
-          while (r < wd && row[r] == kEmpty) ++r;
-          if (l >= 0 && r < wd) k = z_of(row[l]) >= z_of(row[r]) ? row[l] : row[r];
-          else if (l >= 0) k = row[l];
+          const int r = right[x];
+          if (left >= 0 && r < wd) k = z_of(row[left]) >= z_of(row[r]) ? row[left] : row[r];
+          else if (left >= 0) k = row[left];
           else if (r < wd) k = row[r];
+        } else {
+          left = x;
         }
         size_t si = 0;
         if (k != kEmpty) {
@@ -239,6 +246,7 @@ class DepthWarp final : public Predictor {
   std::unique_ptr<std::atomic<uint64_t>[]> keys_;
   size_t keys_size_ = 0;
   std::vector<uint64_t> resolved_;
+  std::vector<int> nearest_right_;
   std::unique_ptr<Predictor> rotation_;  // no depth for the received frame
 };
 

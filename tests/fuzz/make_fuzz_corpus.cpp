@@ -149,7 +149,8 @@ void decoder_seeds(const fs::path& dir) {
   const PassDesc descs[] = {{PassKind::Ao, 16, 16, 1, 16},
                             {PassKind::Colour, 16, 12, 3, 1},
                             {PassKind::Visibility, 12, 12, 8, 1},
-                            {PassKind::SoftVisibility, 10, 10, 2, 32}};
+                            {PassKind::SoftVisibility, 10, 10, 2, 32},
+                            {PassKind::Depth, 12, 10, 2, 12}};
   for (const auto& e : registries().codecs.entries()) {
     auto codec = registries().codecs.create(e.name, nlohmann::json::object());
     for (const auto& d : descs) {
