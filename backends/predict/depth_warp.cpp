@@ -76,12 +76,7 @@ class DepthWarp final : public Predictor {
       fail("predictor '{}' refuses a {} pass (valid: colour, ao, soft_visibility)", kName, pass_kind_name(rb.desc.kind));
     const Camera& cs = in.src.camera;
     const Camera& cd = in.dst.camera;
-    predict::check_camera(kName, "src", cs);
-    predict::check_camera(kName, "dst", cd);
-    if (rb.desc.width != cs.width || rb.desc.height != cs.height)
-      fail("predictor '{}': the received buffer is {}x{} but the src camera it was rendered for is {}x{}", kName,
-           rb.desc.width, rb.desc.height, cs.width, cs.height);
-    check_image_size(cd.width, cd.height);
+    predict::check_warp(kName, rb, cs, cd);
     const ImageF& depth = in.src.depth;
     if (depth.empty()) {
       if (!rotation_) rotation_ = registries().predictors.create("rotation_warp", nlohmann::json::object());
@@ -130,11 +125,7 @@ class DepthWarp final : public Predictor {
 
     // 3. holes, then the output.
     PassBuffer temp;
-    PassBuffer& result = (&out == &rb) ? temp : out;
-    result.desc = rb.desc;
-    result.desc.width = wd;
-    result.desc.height = hd;
-    result.bytes.resize(result.desc.byte_size());
+    PassBuffer& result = predict::output_buffer(rb, out, temp, wd, hd);
     const predict::Layout8 lin = predict::layout8(rb.desc), lout = predict::layout8(result.desc);
     const uint8_t* src = rb.bytes.data();
     uint8_t* dst = result.bytes.data();

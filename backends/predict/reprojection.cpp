@@ -102,13 +102,8 @@ class Reprojection final : public Predictor {
            "three must agree)",
            kName, rb.desc.width, rb.desc.height, in.src.width(), in.src.height(), w, h);
 
-    // Writing into the buffer being read would corrupt it: work in a temporary then.
     PassBuffer temp;
-    PassBuffer& result = (&out == &rb) ? temp : out;
-    result.desc = rb.desc;
-    result.desc.width = w;
-    result.desc.height = h;
-    result.bytes.resize(result.desc.byte_size());
+    PassBuffer& result = predict::output_buffer(rb, out, temp, w, h);
 
     std::vector<uint32_t> covered(size_t(h), 0), disoccluded(size_t(h), 0);
     if (rb.desc.kind == PassKind::Visibility)

@@ -48,19 +48,10 @@ class RotationWarp final : public Predictor {
            kName);
     const Camera& cs = in.src.camera;
     const Camera& cd = in.dst.camera;
-    predict::check_camera(kName, "src", cs);
-    predict::check_camera(kName, "dst", cd);
-    if (rb.desc.width != cs.width || rb.desc.height != cs.height)
-      fail("predictor '{}': the received buffer is {}x{} but the src camera it was rendered for is {}x{}", kName,
-           rb.desc.width, rb.desc.height, cs.width, cs.height);
-    check_image_size(cd.width, cd.height);
+    predict::check_warp(kName, rb, cs, cd);
 
     PassBuffer temp;
-    PassBuffer& result = (&out == &rb) ? temp : out;
-    result.desc = rb.desc;
-    result.desc.width = cd.width;
-    result.desc.height = cd.height;
-    result.bytes.resize(result.desc.byte_size());
+    PassBuffer& result = predict::output_buffer(rb, out, temp, cd.width, cd.height);
 
     // dir(px, py) = F_d + (2 px / W_d - 1) T_d A_d R_d + (1 - 2 py / H_d) T_d U_d (Camera::
     // primary_ray before normalising), dotted with each src axis.

@@ -1,4 +1,4 @@
-// Shared helpers of the predictors (reprojection, rotation_warp): input checks with messages
+// Shared helpers of the predictors (reprojection, rotation_warp, depth_warp): input checks with messages
 // that name the predictor and both sizes, a pinhole projector with its constants hoisted out
 // of the per-pixel loop, the byte layouts of the pass kinds, and a row-parallel loop.
 //
@@ -54,6 +54,30 @@ inline void check_buffer(const char* predictor, const PassBuffer& b) {
     fail("predictor '{}': received {} buffer has {} bytes, {} expected for {}x{} with {} channels", predictor,
          pass_kind_name(b.desc.kind), b.bytes.size(), b.desc.byte_size(), b.desc.width, b.desc.height,
          b.desc.channels);
+}
+
+// The checks of a warp of the remote client's colour frame (rotation_warp, depth_warp): both
+// cameras usable, the received buffer the size of the src camera it was rendered for, the dst
+// camera's size in range. Throws dhr::Error naming `predictor`.
+inline void check_warp(const char* predictor, const PassBuffer& received, const Camera& src, const Camera& dst) {
+  check_camera(predictor, "src", src);
+  check_camera(predictor, "dst", dst);
+  if (received.desc.width != src.width || received.desc.height != src.height)
+    fail("predictor '{}': the received buffer is {}x{} but the src camera it was rendered for is {}x{}", predictor,
+         received.desc.width, received.desc.height, src.width, src.height);
+  check_image_size(dst.width, dst.height);
+}
+
+// The buffer a predictor writes: `out` sized for `width` x `height` with `received`'s layout, or
+// `temp` when `out` is `received` itself (writing into the buffer being read would corrupt it;
+// the caller then moves `temp` into `out`).
+inline PassBuffer& output_buffer(const PassBuffer& received, PassBuffer& out, PassBuffer& temp, int width, int height) {
+  PassBuffer& result = (&out == &received) ? temp : out;
+  result.desc = received.desc;
+  result.desc.width = width;
+  result.desc.height = height;
+  result.bytes.resize(result.desc.byte_size());
+  return result;
 }
 
 // Image point (pixel units, pixel centre = x + 0.5) of a world point, exactly the formula of
