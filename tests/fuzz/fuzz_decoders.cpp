@@ -50,13 +50,20 @@ PassDesc desc_from(uint8_t b0, uint8_t b1, uint8_t b2, uint8_t b3) {
   d.kind = PassKind(1 + b0 % 4);
   d.width = b1 % 49;  // 0..48: small, so that decoding stays fast; 0 tests empty buffers
   d.height = b2 % 49;
+  d.full_scale = 1 + (b0 >> 2) % 255;
+  // Depth: a colour byte pattern with b3's high bit set (older seeds keep their kinds); its
+  // full_scale is the code's bits, 8..16.
+  if (d.kind == PassKind::Colour && (b3 & 0x80)) {
+    d.kind = PassKind::Depth;
+    d.full_scale = 8 + (b0 >> 2) % 9;
+  }
   switch (d.kind) {
     case PassKind::Visibility: d.channels = 1 + b3 % 64; break;
     case PassKind::SoftVisibility: d.channels = 1 + b3 % 8; break;
     case PassKind::Ao: d.channels = 1; break;
     case PassKind::Colour: d.channels = 3; break;
+    case PassKind::Depth: d.channels = 2; break;
   }
-  d.full_scale = 1 + (b0 >> 2) % 255;
   return d;
 }
 

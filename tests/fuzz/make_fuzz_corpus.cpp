@@ -128,6 +128,8 @@ void assembler_seeds(const fs::path& dir) {
 // Seeds for fuzz_decoders: codec name, 0, variant 0, two descriptions, the codec's own output.
 // desc bytes for fuzz_decoders' desc_from(): kind, width, height, channels, full_scale <= 64.
 Bytes desc_bytes(const PassDesc& d) {
+  if (d.kind == PassKind::Depth)  // fuzz_decoders' desc_from: a colour pattern with b3's high bit
+    return {uint8_t((int(PassKind::Colour) - 1) | (d.full_scale - 8) << 2), uint8_t(d.width), uint8_t(d.height), 0x81};
   const uint8_t b0 = uint8_t((int(d.kind) - 1) | ((d.full_scale - 1) % 64) << 2);
   return {b0, uint8_t(d.width), uint8_t(d.height), uint8_t(d.channels - 1)};
 }
