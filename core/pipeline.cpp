@@ -113,6 +113,7 @@ ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Reg
     gbuffers_kept_ = std::max(gbuffers_kept_, codecs_.back()->gbuffers_referenced());
   }
   dumps_.resize(sent_.size());
+  depth_pass_ = find_pass(sent_, PassMeaning::Depth);
 }
 
 // --dump-streams: the pass's encoded frames as <dir>/<pass>.<format>, for a codec whose frames
@@ -167,9 +168,10 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     std::memcpy(colour.bytes.data(), img.data(), colour.bytes.size());
     buffers.assign(1, std::move(colour));
     stage("server_composite", ms_since(t0));
-    if (sent_.size() > 1) {  // the depth pass, for a client that reprojects with depth
+    if (depth_pass_ >= 0) {  // for a client that reprojects with depth
       t0 = Clock::now();
-      buffers.push_back(pack_depth(gbuf.depth, camera, sent_[1].desc.full_scale));
+      buffers.resize(sent_.size());
+      buffers[size_t(depth_pass_)] = pack_depth(gbuf.depth, camera, sent_[size_t(depth_pass_)].desc.full_scale);
       stage("pack_depth", ms_since(t0));
     }
   }
@@ -258,13 +260,18 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
     out.image = ImageRGB8(c_.width, c_.height);  // nothing received yet: black
     const PassReceiver& r = receivers_[0];
     if (r.frame >= 0) {
-      GBuffer src_cams, dst_cams;  // the remote client knows cameras only (and the depth it received)
-      src_cams.camera = camera_of(r.frame);
+      // The remote client knows cameras only (and the depth it received).
+      const bool has_depth = depth_pass_ >= 0 && receivers_[size_t(depth_pass_)].frame == r.frame;
+      if (r.frame != remote_src_frame_ || has_depth != remote_src_has_depth_) {
+        remote_src_.camera = camera_of(r.frame);
+        remote_src_.depth = has_depth ? unpack_depth(receivers_[size_t(depth_pass_)].buffer, remote_src_.camera) : ImageF();
+        remote_src_frame_ = r.frame;
+        remote_src_has_depth_ = has_depth;
+      }
+      GBuffer dst_cams;
       dst_cams.camera = camera_of(frame);
-      if (depth_pass_ >= 0 && receivers_[size_t(depth_pass_)].frame == r.frame)
-        src_cams.depth = unpack_depth(receivers_[size_t(depth_pass_)].buffer, src_cams.camera);
       PassBuffer predicted;
-      predictors_[0]->predict({r.buffer, src_cams, dst_cams}, predicted);
+      predictors_[0]->predict({r.buffer, remote_src_, dst_cams}, predicted);
       std::memcpy(out.image.data(), predicted.bytes.data(),
                   std::min(predicted.bytes.size(), out.image.size() * sizeof(Rgb8)));
       out.source_frame[0] = r.frame;

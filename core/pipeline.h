@@ -122,6 +122,7 @@ class ServerPipeline {
   // (Codec::gbuffers_referenced; 0: none kept).
   int gbuffers_kept_ = 0;
   std::deque<std::pair<uint32_t, std::shared_ptr<const GBuffer>>> gbuffers_;
+  int depth_pass_ = -1;  // remote mode: the depth pass's index in sent_, when one is sent
 };
 
 // ---- client
@@ -166,6 +167,11 @@ class ClientPipeline {
   std::vector<std::unique_ptr<Predictor>> predictors_;
   std::deque<std::pair<int, GBuffer>> history_;
   int depth_pass_ = -1;  // remote mode: the depth pass's index, when one is sent
+  // Remote mode: what the client knows of the colour frame it shows (its camera, and its depth
+  // when that frame's depth pass arrived), unpacked once per received frame, not per display.
+  GBuffer remote_src_;
+  int remote_src_frame_ = -1;
+  bool remote_src_has_depth_ = false;
 };
 
 // The local reference: what the client would show with zero latency and lossless passes.

@@ -72,8 +72,8 @@ class DepthWarp final : public Predictor {
   PredictStats predict(const PredictInput& in, PassBuffer& out) override {
     const PassBuffer& rb = in.received;
     predict::check_buffer(kName, rb);
-    if (rb.desc.kind == PassKind::Visibility || rb.desc.kind == PassKind::Depth)
-      fail("predictor '{}' refuses a {} pass (valid: colour, ao, soft_visibility)", kName, pass_kind_name(rb.desc.kind));
+    if (rb.desc.kind == PassKind::Visibility)
+      fail("predictor '{}' refuses a visibility bitmask (valid: colour, ao, soft_visibility)", kName);
     const Camera& cs = in.src.camera;
     const Camera& cd = in.dst.camera;
     predict::check_warp(kName, rb, cs, cd);
@@ -205,21 +205,12 @@ class DepthWarp final : public Predictor {
       for (int x = 0; x < ws; ++x) {
         const glm::dvec3 ray = src_rays.at(x + 0.5, y + 0.5);
         const float z = depth(x, y);
-        glm::dvec3 rel;  // from the dst camera: a point, or a direction at infinity
-        float key_z;
-        if (std::isfinite(z) && z > 0.0f) {
-          rel = ps + double(z) * ray - pd;
-        } else {
-          rel = ray;
-        }
+        const bool surface = std::isfinite(z) && z > 0.0f;
+        // From the dst camera: the surface point, or the background's direction at infinity.
+        const glm::dvec3 rel = surface ? ps + double(z) * ray - pd : ray;
         const double zd = glm::dot(rel, fd);
-        if (std::isfinite(z) && z > 0.0f) {
-          if (!(zd >= near)) continue;
-          key_z = float(zd);
-        } else {
-          if (!(zd > 0.0)) continue;
-          key_z = std::numeric_limits<float>::infinity();
-        }
+        if (surface ? !(zd >= near) : !(zd > 0.0)) continue;
+        const float key_z = surface ? float(zd) : std::numeric_limits<float>::infinity();
         const double qx = cx + glm::dot(rel, rd) * fx / zd, qy = cy - glm::dot(rel, ud) * fy / zd;
         if (!(qx >= 0.0 && qx < wd && qy >= 0.0 && qy < hd)) continue;
         const size_t o = size_t(int(qy)) * size_t(wd) + size_t(int(qx));

@@ -46,10 +46,16 @@ inline void check_camera(const char* predictor, const char* which, const Camera&
     fail("predictor '{}': the {} camera's size {}x{} must be positive", predictor, which, c.width, c.height);
 }
 
-// The received buffer must be well formed: a valid description and exactly its byte size.
+// The received buffer must be well formed: a valid description and exactly its byte size. A
+// depth pass is never predicted itself (its two byte planes are one 16-bit code, which no
+// per-byte resampling keeps; depth_warp reads it as src.depth).
 inline void check_buffer(const char* predictor, const PassBuffer& b) {
   if (std::string why = b.desc.validate(); !why.empty())
     fail("predictor '{}': invalid received {} buffer: {}", predictor, pass_kind_name(b.desc.kind), why);
+  if (b.desc.kind == PassKind::Depth)
+    fail("predictor '{}' refuses a depth pass: it is read beside the colour frame (depth_warp's src.depth), never "
+         "predicted itself (valid: visibility, soft_visibility, ao, colour, as the predictor accepts)",
+         predictor);
   if (b.bytes.size() != b.desc.byte_size())
     fail("predictor '{}': received {} buffer has {} bytes, {} expected for {}x{} with {} channels", predictor,
          pass_kind_name(b.desc.kind), b.bytes.size(), b.desc.byte_size(), b.desc.width, b.desc.height,

@@ -147,6 +147,14 @@ Bytes decoder_seed(const std::string& codec, uint8_t variant, const PassDesc& d,
   return seed;
 }
 
+// A buffer of `d` filled with pattern(salt), its 8-bit samples kept within full_scale.
+PassBuffer valid_buffer(const PassDesc& d, uint32_t salt) {
+  PassBuffer in{d, pattern(d.byte_size(), salt)};
+  if (d.kind == PassKind::Ao || d.kind == PassKind::SoftVisibility)
+    for (auto& v : in.bytes) v = uint8_t(v % (d.full_scale + 1));
+  return in;
+}
+
 void decoder_seeds(const fs::path& dir) {
   const PassDesc descs[] = {{PassKind::Ao, 16, 16, 1, 16},
                             {PassKind::Colour, 16, 12, 3, 1},
@@ -157,9 +165,7 @@ void decoder_seeds(const fs::path& dir) {
     auto codec = registries().codecs.create(e.name, nlohmann::json::object());
     for (const auto& d : descs) {
       if (!codec->refuses(d).empty()) continue;
-      PassBuffer in{d, pattern(d.byte_size(), 7)};
-      for (auto& v : in.bytes)
-        if (d.kind == PassKind::Ao || d.kind == PassKind::SoftVisibility) v = uint8_t(v % (d.full_scale + 1));
+      const PassBuffer in = valid_buffer(d, 7);
       Bytes encoded;
       codec->reset();
       codec->encode(in, EncodeOptions::keyframe(), encoded);
@@ -182,9 +188,7 @@ void decoder_seeds(const fs::path& dir) {
     auto codec = registries().codecs.create("delta", {{"predictor", "reprojection"}});
     for (const auto& d : descs) {
       if (!codec->refuses(d).empty()) continue;
-      PassBuffer in{d, pattern(d.byte_size(), 11)};
-      for (auto& v : in.bytes)
-        if (d.kind == PassKind::Ao || d.kind == PassKind::SoftVisibility) v = uint8_t(v % (d.full_scale + 1));
+      const PassBuffer in = valid_buffer(d, 11);
       GBuffer blank;
       blank.resize(d.width, d.height);
       EncodeOptions options = EncodeOptions::keyframe();
