@@ -589,6 +589,10 @@ class Simulation {
 
     // Predict each pass and composite.
     ClientFrame shown = client_.display(a, gbuf, [this](int frame) { return camera(frame); });
+    if (client_.upsamples()) {
+      stage("upsample", shown.upsample_ms, count);
+      client_ms += shown.upsample_ms;
+    }
     stage("predict", shown.predict_ms, count);
     client_ms += shown.predict_ms;
     if (shown.composited) {

@@ -36,12 +36,12 @@ PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f, const FrameConte
   return o;
 }
 
-PassBuffer predict_pass(Predictor& predictor, const PassReceiver& r, const GBuffer& src, const GBuffer& dst,
+PassBuffer predict_pass(Predictor& predictor, const PassBuffer& buffer, const GBuffer& src, const GBuffer& dst,
                         bool same_frame, uint64_t& disoccluded) {
   disoccluded = 0;
-  if (same_frame) return r.buffer;
+  if (same_frame) return buffer;
   PassBuffer out;
-  disoccluded = predictor.predict({r.buffer, src, dst}, out).disoccluded;
+  disoccluded = predictor.predict({buffer, src, dst}, out).disoccluded;
   return out;
 }
 

@@ -1,5 +1,7 @@
 #include "core/passes.h"
 
+#include "core/upsample.h"
+
 #include <algorithm>
 #include <chrono>
 
@@ -113,20 +115,29 @@ TraceResult trace_passes(RtScene& rt, const GBuffer& g, const TraceSettings& set
   TraceResult r;
   r.plan = plan_passes(rt.scene(), settings);
   r.stats.pixels = uint64_t(g.width()) * uint64_t(g.height());
+  bool any_reduced = false;
+  std::optional<GBuffer> reduced;  // the sampled G-buffer of a pass traced at reduced resolution
   for (const PassType& t : pass_types()) {
-    if (!t.desc(r.plan, g.width(), g.height())) continue;
+    const std::optional<PassDesc> desc = t.desc(r.plan, g.width(), g.height());
+    if (!desc) continue;
     TraceStats st;
     const auto t0 = std::chrono::steady_clock::now();
-    PassBuffer buffer = t.trace(rt, g, r.plan, settings, st);
+    const bool full = desc->width == g.width() && desc->height == g.height();
+    if (!full && (!reduced || reduced->width() != desc->width || reduced->height() != desc->height))
+      reduced = downsample_gbuffer(g, pass_scale(g.width(), g.height(), desc->width, desc->height));
+    PassBuffer buffer = t.trace(rt, full ? g : *reduced, r.plan, settings, st);
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     // Pixels, covered and unresolved pixels are per G-buffer, not per pass: the first pass's
     // unresolved count, the largest covered count.
-    r.stats.covered_pixels = std::max(r.stats.covered_pixels, st.covered_pixels);
+    if (full) r.stats.covered_pixels = std::max(r.stats.covered_pixels, st.covered_pixels);
+    else any_reduced = true;
     if (!r.passes.empty()) st.unresolved_pixels = 0;
     st.pixels = st.covered_pixels = 0;
     r.stats.add(st);
     r.passes.push_back({t.name, t.meaning, std::move(buffer), ms});
   }
+  if (any_reduced && r.stats.covered_pixels == 0)  // counted at full resolution, as in a full-res trace
+    for (uint32_t id : g.object_id.pixels()) r.stats.covered_pixels += id != kBackgroundId ? 1 : 0;
   return r;
 }
 

@@ -6,6 +6,7 @@
 #include "core/packet.h"
 #include "core/raster.h"
 #include "core/rt_scene.h"
+#include "core/upsample.h"
 
 #include <algorithm>
 #include <chrono>
@@ -39,6 +40,27 @@ int remote_depth_bits(const SimConfig& c, const Registries& r) {
   return r.predictors.create(p.name, p.params)->depth_bits();
 }
 
+// ---- reduced resolution
+
+int reduced_scale(const GBuffer& gbuf, const PassDesc& desc) {
+  const int s = pass_scale(gbuf.width(), gbuf.height(), desc.width, desc.height);
+  if (s == 0)
+    fail("a {}x{} {} pass is no reduced resolution of the {}x{} G-buffer (1/1..1/{})", desc.width, desc.height,
+         pass_kind_name(desc.kind), gbuf.width(), gbuf.height(), kMaxPassScale);
+  return s;
+}
+
+namespace {
+
+// `buffer` at the size of `gbuf`: a pass traced at reduced resolution upsampled with `filter`
+// (core/upsample.h), any other as it is.
+void to_full_size(std::optional<PassBuffer>& buffer, const GBuffer& gbuf, UpsampleFilter filter) {
+  if (!buffer || (buffer->desc.width == gbuf.width() && buffer->desc.height == gbuf.height())) return;
+  buffer = upsample_pass(*buffer, gbuf, reduced_scale(gbuf, buffer->desc), filter);
+}
+
+}  // namespace
+
 // ---- denoising
 
 DenoiseStage::DenoiseStage(const SimConfig& c, const std::vector<PlannedPass>& traced, const Registries& r) {
@@ -56,11 +78,15 @@ void DenoiseStage::run(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuf
   if (pass_layout(buf.desc.kind) != PassLayout::Planes8 || size_t(buf.desc.channels) != denoisers.size())
     fail("denoise: a {} pass of {} planes, planned for {}", pass_kind_name(buf.desc.kind), buf.desc.channels, denoisers.size());
   const size_t n = size_t(buf.desc.width) * size_t(buf.desc.height);
+  // A pass traced at reduced resolution is denoised with the G-buffer of its samples.
+  std::optional<GBuffer> reduced;
+  if (buf.desc.width != gbuf.width() || buf.desc.height != gbuf.height())
+    reduced = downsample_gbuffer(gbuf, reduced_scale(gbuf, buf.desc));
   int scale = buf.desc.full_scale;
   for (size_t plane = 0; plane < denoisers.size(); ++plane) {
     ImageU8 out;
     const ImageU8 noisy = pass_plane(buf, int(plane));
-    denoisers[plane]->denoise({gbuf, noisy, buf.desc.full_scale, frame, true}, out);
+    denoisers[plane]->denoise({reduced ? *reduced : gbuf, noisy, buf.desc.full_scale, frame, true}, out);
     std::copy(out.pixels().begin(), out.pixels().end(), buf.bytes.begin() + std::ptrdiff_t(plane * n));
     scale = denoisers[plane]->output_full_scale(buf.desc.full_scale);
   }
@@ -94,6 +120,14 @@ std::vector<CompositePass> composite_inputs(const std::vector<PlannedPass>& pass
   std::vector<CompositePass> inputs;
   for (size_t i = 0; i < passes.size(); ++i) inputs.push_back({passes[i].meaning, buffers[i] ? &*buffers[i] : nullptr});
   return inputs;
+}
+
+// The composite of `buffers` (the traced passes of `gbuf`'s frame), those at reduced
+// resolution upsampled first.
+ImageRGB8 composite_traced(const GBuffer& gbuf, const Scene& scene, const std::vector<PlannedPass>& traced,
+                           std::vector<std::optional<PassBuffer>> buffers, UpsampleFilter filter) {
+  for (auto& b : buffers) to_full_size(b, gbuf, filter);
+  return composite(gbuf, scene, composite_inputs(traced, buffers));
 }
 
 }  // namespace
@@ -161,7 +195,7 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
 
   if (c_.mode == "remote") {
     t0 = Clock::now();
-    const ImageRGB8 img = composite(gbuf, scene_, composite_inputs(traced_, buffers));
+    const ImageRGB8 img = composite_traced(gbuf, scene_, traced_, std::move(buffers), upsample_filter_of(c_.ao_upsample));
     PassBuffer colour;
     colour.desc = sent_[0].desc;
     colour.bytes.resize(colour.desc.byte_size());
@@ -212,9 +246,10 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
 // ---- client
 
 ClientPipeline::ClientPipeline(const SimConfig& c, const Scene& scene, const Registries& r)
-    : c_(c), scene_(scene), remote_(c.mode == "remote"),
+    : c_(c), scene_(scene), remote_(c.mode == "remote"), filter_(upsample_filter_of(c.ao_upsample)),
       passes_(sent_passes(plan_passes(scene, c.trace), remote_, remote_depth_bits(c, r), c.width, c.height)) {
   depth_pass_ = find_pass(passes_, PassMeaning::Depth);
+  upsampled_.assign(passes_.size(), {-1, PassBuffer{}});
   for (const PlannedPass& p : passes_) {
     const PassChoice choice = c.pass(p.name);
     receivers_.emplace_back();
@@ -223,12 +258,28 @@ ClientPipeline::ClientPipeline(const SimConfig& c, const Scene& scene, const Reg
   }
 }
 
+bool ClientPipeline::upsamples() const {
+  for (const PlannedPass& p : passes_)
+    if (p.desc.width != c_.width || p.desc.height != c_.height) return true;
+  return false;
+}
+
 int ClientPipeline::pass_of(PassKind kind) const { return find_pass(passes_, pass_meaning(kind)); }
 
 PassReceiver::Outcome ClientPipeline::receive(int pass, AssembledFrame& frame) {
   const FrameContext context{frame.meta.frame_id, gbuffer(int(frame.meta.frame_id)),
                              [this](uint32_t f) { return gbuffer(int(f)); }};
   PassReceiver& r = receivers_[size_t(pass)];
+  // A frame of another layout than the pass's plan (a damaged or foreign sender) is refused
+  // before it reaches the decoder: the stages after it rely on the planned size.
+  const PassDesc& planned = passes_[size_t(pass)].desc;
+  const PassDesc& got = frame.meta.desc;
+  if (got.kind != planned.kind || got.width != planned.width || got.height != planned.height ||
+      got.channels != planned.channels) {
+    PassReceiver::Outcome refused;
+    refused.decode_error = true;
+    return refused;
+  }
   PassReceiver::Outcome o = r.on_frame(frame, context);
   // A frame held for recovery is of use only while this client still keeps its G-buffer (a
   // codec that predicts through G-buffers needs it again): else ask for a keyframe.
@@ -292,9 +343,22 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
       continue;
     }
     out.source_frame[i] = r.frame;
-    predicted[i] = predict_pass(*predictors_[i], r, *src, gbuf, r.frame == frame, out.disoccluded[i]);
+    // A pass traced at reduced resolution is upsampled with the G-buffer it was traced for,
+    // once per received frame.
+    const PassBuffer* buffer = &r.buffer;
+    if (r.buffer.desc.width != src->width() || r.buffer.desc.height != src->height()) {
+      auto& [upsampled_frame, upsampled] = upsampled_[i];
+      if (upsampled_frame != r.frame) {
+        const auto t_up = Clock::now();
+        upsampled = upsample_pass(r.buffer, *src, reduced_scale(*src, r.buffer.desc), filter_);
+        upsampled_frame = r.frame;
+        out.upsample_ms += ms_since(t_up);
+      }
+      buffer = &upsampled;
+    }
+    predicted[i] = predict_pass(*predictors_[i], *buffer, *src, gbuf, r.frame == frame, out.disoccluded[i]);
   }
-  out.predict_ms = ms_since(t0);
+  out.predict_ms = ms_since(t0) - out.upsample_ms;
   t0 = Clock::now();
   out.image = composite(gbuf, scene_, composite_inputs(passes_, predicted));
   out.composite_ms = ms_since(t0);
@@ -305,13 +369,14 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
 // ---- local reference
 
 LocalReference::LocalReference(const SimConfig& c, const Scene& scene, const Registries& r)
-    : scene_(scene), traced_(traced_passes(plan_passes(scene, c.trace), c.width, c.height)), denoise_(c, traced_, r) {}
+    : scene_(scene), traced_(traced_passes(plan_passes(scene, c.trace), c.width, c.height)), denoise_(c, traced_, r),
+      filter_(upsample_filter_of(c.ao_upsample)) {}
 
 std::optional<ImageRGB8> LocalReference::frame(uint32_t frame, const GBuffer& gbuf, const TracedPasses& traced,
                                                bool want_image) {
-  const std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, traced, gbuf, frame);
+  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, traced, gbuf, frame);
   if (!want_image) return std::nullopt;
-  return composite(gbuf, scene_, composite_inputs(traced_, buffers));
+  return composite_traced(gbuf, scene_, traced_, std::move(buffers), filter_);
 }
 
 }  // namespace dhr

@@ -25,6 +25,7 @@
 #include "core/scene.h"
 #include "core/stream_dump.h"
 #include "core/trace.h"
+#include "core/upsample.h"
 
 #include <deque>
 #include <functional>
@@ -46,6 +47,10 @@ TraceFn direct_tracer(RtScene& rt, const SimConfig& config);
 // The bits of the depth pass the server of this run sends with its colour (0: none): remote mode
 // with a colour predictor that reads depth (Predictor::depth_bits).
 int remote_depth_bits(const SimConfig& config, const Registries& registries);
+
+// The scale at which `desc` is a reduced-resolution pass of `gbuf` (1: the same size); dhr::Error
+// when it is none (core/upsample.h).
+int reduced_scale(const GBuffer& gbuf, const PassDesc& desc);
 
 // The wall time of one stage (ms).
 struct StageTime {
@@ -134,6 +139,7 @@ struct ClientFrame {
   std::vector<bool> without_data;      // per pass: shown with its local fallback (nothing usable)
   int passes_without_data = 0;         // how many passes were
   double predict_ms = 0.0, composite_ms = 0.0;
+  double upsample_ms = 0.0;            // passes traced at reduced resolution (once per received frame)
   bool composited = false;             // false: a colour frame shown as it is (remote)
 };
 
@@ -142,6 +148,8 @@ class ClientPipeline {
   ClientPipeline(const SimConfig& config, const Scene& scene, const Registries& registries);
   const std::vector<PlannedPass>& passes() const { return passes_; }
   bool remote() const { return remote_; }
+  // Whether a pass comes at reduced resolution (then display upsamples it: ClientFrame::upsample_ms).
+  bool upsamples() const;
   // The pass a received frame of `kind` belongs to (-1: none of this run's).
   int pass_of(PassKind kind) const;
   // Decodes one completed frame of pass `pass` (its bytes are consumed), with the G-buffers the
@@ -162,10 +170,13 @@ class ClientPipeline {
   const SimConfig& c_;
   const Scene& scene_;
   bool remote_;
+  UpsampleFilter filter_;
   std::vector<PlannedPass> passes_;
   std::vector<PassReceiver> receivers_;
   std::vector<std::unique_ptr<Predictor>> predictors_;
   std::deque<std::pair<int, GBuffer>> history_;
+  // Per pass traced at reduced resolution: its newest received frame, upsampled (and which).
+  std::vector<std::pair<int, PassBuffer>> upsampled_;
   int depth_pass_ = -1;  // remote mode: the depth pass's index, when one is sent
   // Remote mode: what the client knows of the colour frame it shows (its camera, and its depth
   // when that frame's depth pass arrived), unpacked once per received frame, not per display.
@@ -187,6 +198,7 @@ class LocalReference {
   const Scene& scene_;
   std::vector<PlannedPass> traced_;
   DenoiseStage denoise_;
+  UpsampleFilter filter_;
 };
 
 }  // namespace dhr

@@ -5,6 +5,7 @@
 #include "core/error.h"
 #include "core/json_io.h"
 #include "core/packet.h"
+#include "core/upsample.h"
 
 #include <algorithm>
 #include <cmath>
@@ -126,6 +127,17 @@ std::vector<RunSetting> make_settings() {
   v.push_back(with(field("trace.ao_pass", SettingType::Boolean, "trace the AO pass (when the scene has an ao block)",
                          [](auto& c) -> auto& { return c.trace.ao_pass; }),
                    kTraced));
+  v.push_back(with(ranged("trace.ao_scale", SettingType::Integer, 1, kMaxPassScale,
+                          "the AO pass traced, denoised and sent at 1/ao_scale of the width and height, upsampled by "
+                          "the client (ao_upsample)",
+                          [](auto& c) -> auto& { return c.trace.ao_scale; }),
+                   kTraced));
+  RunSetting upsample = field("ao_upsample", SettingType::Choice,
+                              "trace.ao_scale > 1: the client's upsampling of the AO pass: joint_bilateral (guided by its "
+                              "G-buffer's depth and normals), bilinear or nearest",
+                              [](auto& c) -> auto& { return c.ao_upsample; });
+  upsample.choices = {"joint_bilateral", "bilinear", "nearest"};
+  v.push_back(upsample);
   // passes.<name>.{codec,denoiser,predictor} for every pass of the table, then colour's codec
   // and predictor. The passes of version-1 files keep their version-1 keys.
   const auto pass_backend = [](const std::string& pass, const char* kind, BackendChoice PassChoice::*member,

@@ -35,6 +35,9 @@ struct SimConfig {
   uint64_t seed = 1;
 
   TraceSettings trace;  // seed and frame are set per frame from `seed` and the frame index
+  // trace.ao_scale > 1: how the client (and the server's composite in remote mode, and the local
+  // reference) upsamples the AO pass: joint_bilateral | bilinear | nearest (core/upsample.h).
+  std::string ao_upsample = "joint_bilateral";
   // Per pass, by name (every entry of pass_types(), then colour): its codec, denoiser (8-bit
   // planes; bitmasks are never denoised) and predictor, the settings
   // passes.<name>.{codec,denoiser,predictor}. Remote mode uses colour's codec and predictor and

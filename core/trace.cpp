@@ -14,6 +14,7 @@
 
 #include "core/error.h"
 #include "core/trace_kernels.h"
+#include "core/upsample.h"
 
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
@@ -104,8 +105,8 @@ PassDesc PassPlan::visibility_desc(int width, int height) const {
 PassDesc PassPlan::ao_desc(int width, int height) const {
   PassDesc d;
   d.kind = PassKind::Ao;
-  d.width = width;
-  d.height = height;
+  d.width = reduced_size(width, ao_scale);
+  d.height = reduced_size(height, ao_scale);
   d.channels = 1;
   d.full_scale = ao_rays;
   return d;
@@ -185,7 +186,11 @@ PassPlan plan_passes(const Scene& scene, const TraceSettings& s) {
       fail("scene '{}': ao.rays {} out of range 1..255", scene.name, plan.ao_rays);
     if (!(plan.ao_radius_m > 0.0f) || !std::isfinite(plan.ao_radius_m))
       fail("scene '{}': ao.radius_m {} must be finite and > 0", scene.name, plan.ao_radius_m);
-    plan.reasons.push_back(fmt::format("ao: {} rays, radius {} m", plan.ao_rays, plan.ao_radius_m));
+    if (s.ao_scale < 1 || s.ao_scale > kMaxPassScale)
+      fail("trace.ao_scale {} out of range 1..{}", s.ao_scale, kMaxPassScale);
+    plan.ao_scale = s.ao_scale;
+    plan.reasons.push_back(fmt::format("ao: {} rays, radius {} m", plan.ao_rays, plan.ao_radius_m) +
+                           (s.ao_scale > 1 ? fmt::format(", at 1/{} resolution", s.ao_scale) : std::string()));
   }
   return plan;
 }

@@ -72,6 +72,9 @@ struct TraceSettings {
   // never switch on a pass the scene does not call for.
   bool visibility_pass = true;
   bool ao_pass = true;
+  // The AO pass at 1/ao_scale of the width and height (1..kMaxPassScale): traced on the
+  // G-buffer's sampled pixels and upsampled by the client (core/upsample.h).
+  int ao_scale = 1;
 };
 
 enum class ShadowMode : uint8_t {
@@ -90,6 +93,7 @@ struct PassPlan {
   bool ao = false;
   int ao_rays = 0;
   float ao_radius_m = 0.0f;
+  int ao_scale = 1;  // the AO pass is traced at 1/ao_scale of the image's width and height
   std::vector<std::string> reasons;  // why each pass runs or not (one line each)
 
   bool visibility() const { return shadow != ShadowMode::None; }
@@ -98,7 +102,7 @@ struct PassPlan {
   }
   int visibility_full_scale() const;  // SoftFraction: min(S, 255); else 1
   PassDesc visibility_desc(int width, int height) const;
-  PassDesc ao_desc(int width, int height) const;
+  PassDesc ao_desc(int width, int height) const;  // at 1/ao_scale of width x height
   std::string describe() const;  // the reasons, joined
 };
 

@@ -260,6 +260,38 @@ TEST(FrameLoop, ReprojectedDeltaIsLosslessEndToEndAndSmaller) {
   EXPECT_LE(bytes["reprojection"].first, bytes["none"].first + 12.0) << "visibility";
 }
 
+// AO traced at 1/2 and 1/4 resolution (trace.ao_scale): fewer rays and bytes; with no latency
+// and lossless coding (plain and reprojected delta, which predicts between the sampled
+// G-buffers) the client shows exactly the local reference, which upsamples the same way.
+TEST(FrameLoop, ReducedResolutionAoIsCheaperAndExactEndToEnd) {
+  std::map<int, double> ao_bytes, ao_rays;
+  for (int scale : {1, 2, 4}) {
+    for (const char* codec : {"zstd", "delta"}) {
+      SimConfig c = small_config(20);
+      c.width = 128;
+      c.height = 72;
+      c.trace.ao_scale = scale;
+      c.pass("ao").denoiser = {"svgf_ao"};
+      c.pass("ao").codec = codec == std::string("zstd") ? BackendChoice{"zstd"}
+                                                        : BackendChoice{"delta", {{"inner", "zstd"}, {"predictor", "reprojection"}}};
+      RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
+      const nlohmann::json m = r.metrics();
+      for (const FrameRecord& f : r.frames) EXPECT_EQ(f.score("ssim"), 1.0) << scale << " " << codec << " frame " << f.frame;
+      for (const auto& p : m["passes"]) EXPECT_EQ(p["decode_errors"].get<uint64_t>(), 0u) << scale << " " << codec;
+      EXPECT_EQ(r.frames_without_data, 0u);
+      if (codec == std::string("zstd")) {
+        ao_bytes[scale] = m["passes"][1]["bytes_per_frame"].get<double>();
+        ao_rays[scale] = double(r.trace_stats.ao_rays);
+        std::printf("room 128x72, AO at 1/%d: %.0f B/frame, %.0f AO rays\n", scale, ao_bytes[scale], ao_rays[scale]);
+      }
+    }
+  }
+  EXPECT_LT(ao_bytes[2], 0.5 * ao_bytes[1]);
+  EXPECT_LT(ao_bytes[4], 0.5 * ao_bytes[2]);
+  EXPECT_LT(ao_rays[2], 0.3 * ao_rays[1]);
+  EXPECT_LT(ao_rays[4], 0.3 * ao_rays[2]);
+}
+
 // Under loss the client keeps its references and reports the newest one it holds; the server
 // predicts from it instead of sending a keyframe. With one reference kept, the server no longer
 // has the frame the client holds and must send keyframes: more bytes for the same frames.

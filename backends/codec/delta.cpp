@@ -63,6 +63,7 @@
 #include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/checksum.h"
+#include "core/upsample.h"
 
 #include <algorithm>
 #include <cstring>
@@ -323,12 +324,12 @@ class DeltaCodec final : public Codec {
                               index, reference, !ctx.gbuf || ctx.frame != index ? "not this frame's" : "not the reference's");
           return false;
         }
-        if (ctx.gbuf->width() != desc.width || ctx.gbuf->height() != desc.height ||
-            ref_gbuf->width() != desc.width || ref_gbuf->height() != desc.height) {
+        if (ref_gbuf->width() != ctx.gbuf->width() || ref_gbuf->height() != ctx.gbuf->height() ||
+            pass_scale(ctx.gbuf->width(), ctx.gbuf->height(), desc.width, desc.height) == 0) {
           error = fmt::format("delta: a {}x{} pass with G-buffers of {}x{} (this frame) and {}x{} (frame {}); "
-                              "both must be the pass's size",
+                              "both must be the pass's size, or a multiple of it up to {} (a reduced-resolution pass)",
                               desc.width, desc.height, ctx.gbuf->width(), ctx.gbuf->height(), ref_gbuf->width(),
-                              ref_gbuf->height(), reference);
+                              ref_gbuf->height(), reference, kMaxPassScale);
           return false;
         }
       }
@@ -383,9 +384,20 @@ class DeltaCodec final : public Codec {
     return mask;
   }
 
-  // The reference carried to this frame by the predictor, into prediction_.
+  // The reference carried to this frame by the predictor, into prediction_. A pass traced at
+  // reduced resolution is reprojected between the G-buffers of its samples (core/upsample.h),
+  // which both ends derive alike from their full-res ones.
   PassBuffer& reproject(const Reference& ref, const GBuffer& ref_gbuf, const GBuffer& gbuf) {
-    predictor_->predict({ref.buffer, ref_gbuf, gbuf}, prediction_);
+    const PassDesc& d = ref.buffer.desc;
+    if (d.width == gbuf.width() && d.height == gbuf.height()) {
+      predictor_->predict({ref.buffer, ref_gbuf, gbuf}, prediction_);
+    } else {
+      const int scale = pass_scale(gbuf.width(), gbuf.height(), d.width, d.height);
+      if (scale == 0 || ref_gbuf.width() != gbuf.width() || ref_gbuf.height() != gbuf.height())
+        fail("delta: a {}x{} pass cannot be reprojected with G-buffers of {}x{} and {}x{}", d.width, d.height,
+             ref_gbuf.width(), ref_gbuf.height(), gbuf.width(), gbuf.height());
+      predictor_->predict({ref.buffer, downsample_gbuffer(ref_gbuf, scale), downsample_gbuffer(gbuf, scale)}, prediction_);
+    }
     return prediction_;
   }
   void keep(std::deque<Reference>& refs, Reference r) {
