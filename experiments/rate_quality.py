@@ -13,6 +13,9 @@ relative to the anchor (negative: it needs less). Quality is normalised to the s
 before fitting (a cubic in SSIM values near 1 is otherwise badly conditioned); the result does
 not depend on that scale. Curves whose quality ranges do not overlap have no BD-rate: an error,
 not a number.
+
+BD-quality (the same paper's BD-PSNR, on any metric) is the comparison at equal bandwidth: the
+mean quality difference over the bitrate range both curves share.
 """
 import math
 
@@ -60,6 +63,40 @@ def bd_rate(anchor, test):
     return (10.0 ** (integrals[1] - integrals[0]) - 1.0) * 100.0
 
 
+def bd_quality(anchor, test):
+    """Bjontegaard delta quality of `test` against `anchor` (VCEG-M33's BD-PSNR, on any quality
+    metric): fit each curve's quality as a polynomial in log10(bitrate), integrate both over the
+    log-bitrate range the curves share, and report the mean difference, test - anchor, in the
+    metric's own units: the quality the test family gives at equal bandwidth (positive: more).
+    Curves as in bd_rate; curves whose bitrate ranges do not overlap are an error (NoOverlap)."""
+    curves = []
+    for name, curve in (("anchor", anchor), ("test", test)):
+        pts = [(float(r), float(q)) for r, q in curve]
+        if len(pts) < 2:
+            raise ValueError(f"the {name} curve has {len(pts)} point(s); BD-quality needs at least 2")
+        if any(not (r > 0 and math.isfinite(r)) or not math.isfinite(q) for r, q in pts):
+            raise ValueError(f"the {name} curve has a bitrate <= 0 or a value that is not finite: {pts}")
+        if len({r for r, _ in pts}) < 2:
+            raise ValueError(f"the {name} curve's points all have the same bitrate {pts[0][0]}")
+        curves.append([(math.log10(r), q) for r, q in pts])
+    lo = max(min(x for x, _ in c) for c in curves)
+    hi = min(max(x for x, _ in c) for c in curves)
+    if not hi > lo:
+        raise NoOverlap(f"the bitrate ranges do not overlap (anchor {10 ** min(x for x, _ in curves[0]):.4g}.."
+                        f"{10 ** max(x for x, _ in curves[0]):.4g}, test {10 ** min(x for x, _ in curves[1]):.4g}.."
+                        f"{10 ** max(x for x, _ in curves[1]):.4g} Mb/s)")
+    ulo = min(min(x for x, _ in c) for c in curves)
+    uhi = max(max(x for x, _ in c) for c in curves)
+    means = []
+    for pts in curves:
+        degree = min(3, len({x for x, _ in pts}) - 1)
+        p = _fit([x for x, _ in pts], [q for _, q in pts], ulo, uhi, degree)
+        P = np.polyint(p)
+        a, b = (lo - ulo) / (uhi - ulo), (hi - ulo) / (uhi - ulo)
+        means.append((np.polyval(P, b) - np.polyval(P, a)) / (b - a))
+    return float(means[1] - means[0])
+
+
 def family_of(run):
     return run.get("family") or run.get("configuration") or run.get("label", "")
 
@@ -81,9 +118,9 @@ def curves(runs, sweep_keys, vary, rate, quality):
     return out
 
 
-def bd_table(curve_map, anchor):
-    """Per (scene, conditions), the BD-rate of every other family against `anchor`:
-    {(scene, conditions): {family: percent or the reason there is none}}."""
+def bd_table(curve_map, anchor, measure=bd_rate):
+    """Per (scene, conditions), `measure` (bd_rate: percent; bd_quality: quality units) of every
+    other family against `anchor`: {(scene, conditions): {family: value or the reason there is none}}."""
     table = {}
     groups = sorted({(s, c) for s, c, _ in curve_map})
     for scene, cond in groups:
@@ -95,7 +132,7 @@ def bd_table(curve_map, anchor):
             if fam == anchor:
                 continue
             try:
-                row[fam] = bd_rate([(x, y) for x, y, _ in fams[anchor]], [(x, y) for x, y, _ in pts])
+                row[fam] = measure([(x, y) for x, y, _ in fams[anchor]], [(x, y) for x, y, _ in pts])
             except ValueError as e:
                 row[fam] = str(e)
         table[(scene, cond)] = row

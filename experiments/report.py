@@ -359,26 +359,37 @@ def rate_quality_section(d, exp, ok, metrics, out):
         out.append(f"![rate against {im['name'].upper()}](plots/{name})\n")
         for anchor in anchors:
             bd_section(rq, cm, anchor, im, out)
+        for anchor in anchors:
+            bd_section(rq, cm, anchor, im, out, equal_bandwidth=True)
 
 
-def bd_section(rq, cm, anchor, im, out):
-    """The BD-rate table of every family against `anchor` on image metric `im`."""
-    table = rq.bd_table(cm, anchor)
+def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
+    """The BD-rate table (equal quality) or, with `equal_bandwidth`, the BD-quality table of every
+    family against `anchor` on image metric `im`."""
+    table = rq.bd_table(cm, anchor, rq.bd_quality if equal_bandwidth else rq.bd_rate)
     if not table:
         return
     fams = sorted({f for row in table.values() for f in row})
-    out.append(f"BD-rate against **{anchor}** on {im['name'].upper()} (VCEG-M33; negative: the family needs that much "
-               "less bitrate at equal quality; – : no shared quality range or too few points):\n")
+    name = im["name"].upper()
+    if equal_bandwidth:
+        better = "higher" if im.get("higher_is_better", True) else "lower"
+        out.append(f"At equal bandwidth: BD-{name} against **{anchor}** (VCEG-M33's BD-PSNR on {name}: the mean "
+                   f"{name} difference, family minus anchor, over the bitrate range both curves share; {better} is "
+                   "better; – : no shared bitrate range or too few points):\n")
+    else:
+        out.append(f"BD-rate against **{anchor}** on {name} (VCEG-M33; negative: the family needs that much "
+                   "less bitrate at equal quality; – : no shared quality range or too few points):\n")
     out.append("| scene | conditions | " + " | ".join(fams) + " |")
     out.append("|---|---|" + "---|" * len(fams))
     for (scene, cond), row in sorted(table.items()):
-        cells = [f"{row[f]:+.1f} %" if isinstance(row.get(f), float) else "–" for f in fams]
+        cells = [(f"{row[f]:+.4f}" if equal_bandwidth else f"{row[f]:+.1f} %") if isinstance(row.get(f), float) else "–"
+                 for f in fams]
         out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in cond) or '–'} | " + " | ".join(cells) + " |")
     out.append("")
     reasons = [f"- {scene}, {', '.join(f'{k}={v}' for k, v in cond) or 'all runs'}, {f}: {row[f]}"
                for (scene, cond), row in sorted(table.items()) for f in fams if isinstance(row.get(f), str)]
     if reasons:
-        out.append("Why a cell has no BD-rate:\n")
+        out.append(f"Why a cell has no {'BD-' + name if equal_bandwidth else 'BD-rate'}:\n")
         out.extend(reasons)
         out.append("")
 

@@ -48,6 +48,41 @@ class BdRate(unittest.TestCase):
                 rq.bd_rate(ANCHOR, bad)
 
 
+class BdQuality(unittest.TestCase):
+    def test_same_curve_is_zero(self):
+        self.assertAlmostEqual(rq.bd_quality(ANCHOR, ANCHOR), 0.0, places=9)
+
+    def test_a_constant_quality_offset_is_that_offset(self):
+        self.assertAlmostEqual(rq.bd_quality(ANCHOR, [(r, q + 0.75) for r, q in ANCHOR]), 0.75, places=9)
+        a = [(0.5, 0.91), (1.0, 0.95), (3.0, 0.985)]
+        self.assertAlmostEqual(rq.bd_quality(a, [(r, q - 0.02) for r, q in a]), -0.02, places=9)
+
+    def test_half_the_rate_on_a_log_linear_curve(self):
+        # q = 30 + 10 log10(r): at half the bitrate for the same quality, the test family gives
+        # 10 log10(2) more at equal bitrate.
+        anchor = [(r, 30.0 + 10.0 * math.log10(r)) for r in (1.0, 2.0, 4.0, 8.0)]
+        test = [(r * 0.5, q) for r, q in anchor]
+        self.assertAlmostEqual(rq.bd_quality(anchor, test), 10.0 * math.log10(2.0), places=9)
+
+    def test_disjoint_rate_ranges_are_an_error(self):
+        with self.assertRaises(rq.NoOverlap):
+            rq.bd_quality(ANCHOR, [(20.0, 40.0), (40.0, 42.0)])
+
+    def test_bad_curves_are_errors(self):
+        for bad in ([(1.0, 30.0)], [(0.0, 30.0), (1.0, 31.0)], [(2.0, 30.0), (2.0, 31.0)],
+                    [(1.0, math.inf), (2.0, 31.0)]):
+            with self.assertRaises(ValueError, msg=str(bad)):
+                rq.bd_quality(ANCHOR, bad)
+
+    def test_table_with_bd_quality(self):
+        runs = [{"id": f"r{i}", "scene": "room", "family": fam, "settings": {"crf": crf}, "mbps": mbps, "ssim": ssim}
+                for i, (fam, crf, mbps, ssim) in enumerate([("a", 18, 4.0, 0.95), ("a", 28, 1.0, 0.90),
+                                                            ("b", 18, 4.0, 0.97), ("b", 28, 1.0, 0.92)])]
+        cm = rq.curves(runs, ["crf"], ["crf"], lambda r: r["mbps"], lambda r: r["ssim"])
+        table = rq.bd_table(cm, "a", rq.bd_quality)
+        self.assertAlmostEqual(table[("room", ())]["b"], 0.02, places=9)
+
+
 class Curves(unittest.TestCase):
     def test_grouping_by_scene_conditions_and_family(self):
         runs = []
