@@ -22,6 +22,7 @@
 #include "core/depth_pass.h"
 #include "core/raster.h"
 #include "core/scene_load.h"
+#include "core/upsample.h"
 #include "core/rng.h"
 
 #include <benchmark/benchmark.h>
@@ -316,6 +317,44 @@ BENCHMARK(BM_RotationWarp_Colour)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 void BM_DepthWarp_Colour(benchmark::State& state) { run_warp(state, true); }
 BENCHMARK(BM_DepthWarp_Colour)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The client's upsampling of an AO pass traced at 1/scale (core/upsample.h) to 1280x720, guided
+// by the dst frame's G-buffer (joint_bilateral) or not (bilinear). Memory floor: the full-res
+// G-buffer planes it reads (joint_bilateral: object_id, position, normal, depth, 32 B/px;
+// bilinear: object_id, 4 B/px) and the 1 B/px it writes; the low-res pass it reads (1/scale^2
+// B/px) is left out. One thread, process CPU time, as above.
+void run_upsample(benchmark::State& state, UpsampleFilter filter) {
+  const int scale = int(state.range(0));
+  const Frames& f = frames();
+  PassBuffer low;
+  low.desc = {PassKind::Ao, reduced_size(kW, scale), reduced_size(kH, scale), 1, 255};
+  low.bytes.resize(low.desc.byte_size());
+  for (size_t i = 0; i < low.bytes.size(); ++i) low.bytes[i] = uint8_t(rng_bits({5, uint32_t(i), 0, 0, 9}));
+  PassBuffer out = upsample_pass(low, f.dst, scale, filter);  // warm
+  const tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+  const double cpu0 = process_cpu_ms();
+  for (auto _ : state) {
+    out = upsample_pass(low, f.dst, scale, filter);
+    benchmark::DoNotOptimize(out.bytes.data());
+  }
+  const double cpu_ms = (process_cpu_ms() - cpu0) / double(state.iterations());
+  std::vector<Plane> reads = {{f.dst.object_id.data(), 4}};
+  if (filter == UpsampleFilter::JointBilateral) {
+    reads.push_back({f.dst.position.data(), 12});
+    reads.push_back({f.dst.normal.data(), 12});
+    reads.push_back({f.dst.depth.data(), 4});
+  }
+  const double floor_ms = floor_cpu_ms(reads, 1);
+  state.counters["cpu_ms"] = cpu_ms;
+  state.counters["floor_cpu_ms"] = floor_ms;
+  state.counters["x_floor"] = cpu_ms / floor_ms;
+}
+
+void BM_Upsample_Ao_JointBilateral(benchmark::State& state) { run_upsample(state, UpsampleFilter::JointBilateral); }
+BENCHMARK(BM_Upsample_Ao_JointBilateral)->Arg(2)->Arg(4)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_Upsample_Ao_Bilinear(benchmark::State& state) { run_upsample(state, UpsampleFilter::Bilinear); }
+BENCHMARK(BM_Upsample_Ao_Bilinear)->Arg(2)->Arg(4)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // The composite of room (three lights) at 1280x720: a visibility bitmask and an AO pass of
 // synthetic bytes over the rasterized G-buffer.
