@@ -68,16 +68,18 @@ std::string trace_key(const std::string& scene_key, const SimConfig& c, int fram
 }  // namespace
 
 // The local reference of client frame a depends on nothing but the traced passes of frames 0..a
-// (the scene, the camera path and the trace settings: the trace key) and the denoisers
-// (core/pipeline.h, LocalReference), so the runs of a sweep that share those share it: the first
-// computes it, the others take it from the cache.
+// (the scene, the camera path and the trace settings: the trace key), the denoisers and, for a
+// pass traced at reduced resolution, the upsampling filter (core/pipeline.h, LocalReference), so
+// the runs of a sweep that share those share it: the first computes it, the others take it from
+// the cache.
 std::string local_reference_key(const std::string& scene_key, const SimConfig& c, int frame) {
   std::string denoisers;
   for (const PassType& t : pass_types()) {
     const BackendChoice& d = c.pass(t.name).denoiser;
     denoisers += fmt::format("|{}={}:{}", t.name, d.name, d.params.dump());
   }
-  return fmt::format("local|{}{}", trace_key(scene_key, c, frame), denoisers);
+  const std::string upsample = c.trace.ao_scale > 1 ? "|upsample=" + c.ao_upsample : "";
+  return fmt::format("local|{}{}{}", trace_key(scene_key, c, frame), denoisers, upsample);
 }
 
 namespace {

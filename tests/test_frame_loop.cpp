@@ -292,6 +292,22 @@ TEST(FrameLoop, ReducedResolutionAoIsCheaperAndExactEndToEnd) {
   EXPECT_LT(ao_rays[4], 0.3 * ao_rays[2]);
 }
 
+// Runs that differ only in the upsampling filter share the traces but not the local reference:
+// each shows its own exactly with no latency and lossless coding.
+TEST(FrameLoop, LocalReferenceOfAReducedPassIsKeptPerUpsamplingFilter) {
+  TraceCache shared;
+  for (const char* filter : {"joint_bilateral", "nearest", "joint_bilateral"}) {
+    SimConfig c = small_config(12);
+    c.width = 96;
+    c.height = 54;
+    c.trace.ao_scale = 2;
+    c.ao_upsample = filter;
+    c.pass("ao").codec = {"zstd"};
+    RunResult r = run_simulation(c, scene("room"), "room", shared, registries());
+    for (const FrameRecord& f : r.frames) EXPECT_EQ(f.score("ssim"), 1.0) << filter << " frame " << f.frame;
+  }
+}
+
 // Under loss the client keeps its references and reports the newest one it holds; the server
 // predicts from it instead of sending a keyframe. With one reference kept, the server no longer
 // has the frame the client holds and must send keyframes: more bytes for the same frames.
