@@ -41,6 +41,9 @@ struct EncodeOptions {
   // (Codec::holds(); -1: none or not reported). A codec that keeps references predicts from
   // that frame instead of sending a keyframe.
   int client_holds = -1;
+  // A bit budget's share for this pass (kbit/s; 0: the codec's own rate). Only a codec whose
+  // takes_target_kbps() is true uses it; it may change from frame to frame.
+  double target_kbps = 0.0;
 
   static EncodeOptions keyframe(bool force = true) {
     EncodeOptions o;
@@ -56,6 +59,9 @@ class Codec {
   // True when decoding a frame needs the frames before it (P-frames): after a lost frame the
   // receiver resets its decoder and asks the sender for a keyframe.
   virtual bool stateful() const { return false; }
+  // True when this codec follows EncodeOptions::target_kbps frame by frame (a stream's bit
+  // budget, stream_kbps, is shared among such passes).
+  virtual bool takes_target_kbps() const { return false; }
   // Empty when this codec can carry buffers of `desc` (bit-exactly if lossless()); else the
   // reason it refuses them (a lossy codec refuses a bitmask).
   virtual std::string refuses(const PassDesc& desc) const {

@@ -328,12 +328,21 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
   }
   if (problems.empty()) {
     // A lossy codec must not be asked to carry a bitmask.
+    std::string sent;
+    bool budgeted = false;
     for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)) {
       const BackendChoice codec = c.pass(p.name).codec;
-      if (std::string why = r.codecs.create(codec.name, codec.params)->refuses(p.desc); !why.empty())
+      const std::unique_ptr<Codec> made = r.codecs.create(codec.name, codec.params);
+      if (std::string why = made->refuses(p.desc); !why.empty())
         problems.push_back(fmt::format("passes.{}.codec '{}' cannot carry the {} pass: {}", p.name, codec.name,
                                        pass_kind_name(p.desc.kind), why));
+      budgeted = budgeted || made->takes_target_kbps();
+      sent += fmt::format("{}passes.{}.codec '{}'", sent.empty() ? "" : ", ", p.name, codec.name);
     }
+    if (c.stream_kbps > 0.0 && !budgeted)
+      problems.push_back(fmt::format("stream_kbps {}: no pass's codec takes a target bitrate ({}); give one pass "
+                                     "h264 with rate_control bitrate",
+                                     c.stream_kbps, sent));
   }
   if (!problems.empty()) {
     std::string msg = problems.front();

@@ -148,6 +148,24 @@ ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Reg
   }
   dumps_.resize(sent_.size());
   depth_pass_ = find_pass(sent_, PassMeaning::Depth);
+  for (const auto& codec : codecs_) budgeted_.push_back(c.stream_kbps > 0.0 && codec->takes_target_kbps());
+  if (c.stream_kbps > 0.0 && std::find(budgeted_.begin(), budgeted_.end(), true) == budgeted_.end())
+    fail("stream_kbps {}: no pass's codec takes a target bitrate (h264 with rate_control bitrate does)", c.stream_kbps);
+}
+
+// The bit budget's share of each budgeted pass (kbit/s): the budget per frame at display_hz,
+// less what the other passes used per frame over the last second and the budgeted passes' own
+// packet overhead, split evenly; at least 1 % of the budget.
+double ServerPipeline::budget_share_kbps() const {
+  const double frame_bytes = c_.stream_kbps * 1000.0 / 8.0 / c_.display_hz;
+  double others = 0.0;
+  int shares = 0;
+  for (size_t i = 0; i < sent_.size(); ++i) shares += budgeted_[i] ? 1 : 0;
+  for (const std::vector<size_t>& frame : wire_history_)
+    for (size_t i = 0; i < frame.size(); ++i) others += double(frame[i]);
+  if (!wire_history_.empty()) others /= double(wire_history_.size());
+  const double share_bytes = (frame_bytes - others) / double(std::max(shares, 1));
+  return std::max(0.01 * c_.stream_kbps, share_bytes * 8.0 * c_.display_hz / 1000.0);
 }
 
 // --dump-streams: the pass's encoded frames as <dir>/<pass>.<format>, for a codec whose frames
@@ -217,11 +235,14 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
                          if (kept_frame == f) return g.get();
                        return nullptr;
                      }};
+  const double share_kbps = c_.stream_kbps > 0.0 ? budget_share_kbps() : 0.0;
+  std::vector<size_t> wire(sent_.size(), 0);  // this frame's: other passes whole, budgeted passes' overhead
   for (size_t i = 0; i < sent_.size(); ++i) {
     if (!buffers[i]) continue;
     const PassBuffer& buf = *buffers[i];
     std::vector<uint8_t> encoded;
     options.client_holds = i < client_holds.size() ? client_holds[i] : -1;
+    options.target_kbps = budgeted_[i] ? share_kbps : 0.0;
     t0 = Clock::now();
     codecs_[i]->encode(buf, options, encoded);
     stage("encode", ms_since(t0));
@@ -234,7 +255,13 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     meta.first_sequence = sequence_[i];
     SentPass sent{sent_[i].name, buf.desc, encoded.size(), packetize(meta, encoded, c_.max_payload_bytes)};
     sequence_[i] += uint32_t(sent.packets.size());
+    for (const auto& packet : sent.packets) wire[i] += packet.size() + kIpUdpOverheadBytes;
+    if (budgeted_[i]) wire[i] -= sent.encoded_bytes;
     out.passes.push_back(std::move(sent));
+  }
+  if (c_.stream_kbps > 0.0) {
+    wire_history_.push_back(std::move(wire));
+    while (double(wire_history_.size()) > std::max(1.0, std::round(c_.display_hz))) wire_history_.pop_front();
   }
   if (gbuffers_kept_ > 0) {
     gbuffers_.emplace_back(frame, std::move(kept));

@@ -128,6 +128,11 @@ class ServerPipeline {
   int gbuffers_kept_ = 0;
   std::deque<std::pair<uint32_t, std::shared_ptr<const GBuffer>>> gbuffers_;
   int depth_pass_ = -1;  // remote mode: the depth pass's index in sent_, when one is sent
+  // stream_kbps: per sent pass, whether its codec takes the budget's share; the wire bytes of
+  // every sent pass over the last second of frames.
+  std::vector<bool> budgeted_;
+  std::deque<std::vector<size_t>> wire_history_;
+  double budget_share_kbps() const;
 };
 
 // ---- client

@@ -189,6 +189,12 @@ std::vector<RunSetting> make_settings() {
                           "payload bytes per datagram (plus the header and IP/UDP: at most the downlink MTU)",
                           [](auto& c) -> auto& { return c.max_payload_bytes; }),
                    kInLiveOffer));
+  v.push_back(with(ranged("stream_kbps", SettingType::Number, 0, 1e7,
+                          "a bit budget for the whole stream on the wire in kbit/s (0: none): the passes whose codec "
+                          "takes a target bitrate (h264 with rate_control bitrate) share, frame by frame, what the other "
+                          "passes used over the last second",
+                          [](auto& c) -> auto& { return c.stream_kbps; }),
+                   kInLiveOffer));
   v.push_back(ranged("history_frames", SettingType::Integer, 1, 1024, "client G-buffers kept for prediction",
                      [](auto& c) -> auto& { return c.history_frames; }));
   v.push_back(ranged("score_every", SettingType::Integer, 1, 1e9, "score against the local reference on every n-th frame",

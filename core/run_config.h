@@ -50,6 +50,10 @@ struct SimConfig {
 
   LinkConfig uplink, downlink;
   size_t max_payload_bytes = 1200;
+  // A bit budget for the whole stream on the wire (kbit/s; 0: none): the passes whose codec takes
+  // a target bitrate (Codec::takes_target_kbps: h264 in bitrate mode) share, frame by frame, what
+  // the other passes used over the last second (core/pipeline.h, ServerPipeline).
+  double stream_kbps = 0.0;
   int history_frames = 64;     // client G-buffers kept for prediction
   int score_every = 1;         // quality against the local reference on every n-th frame
   int ground_truth_every = 0;  // against the ground truth on every n-th frame (0: never)

@@ -308,6 +308,58 @@ TEST(FrameLoop, LocalReferenceOfAReducedPassIsKeptPerUpsamplingFilter) {
   }
 }
 
+// A bit budget for the stream (stream_kbps): remote H.264 in bitrate mode follows it, and in
+// hybrid mode the AO pass takes what the lossless visibility pass leaves. x264's rate control
+// over 2 s lands within 30 % of the target here (measured: 6-19 %); a larger budget buys quality.
+TEST(FrameLoop, StreamBudgetIsSharedByTheCodecsThatTakeATargetBitrate) {
+  const BackendChoice h264_bitrate{"h264", {{"rate_control", "bitrate"}}};
+  std::map<double, double> remote_ssim;
+  for (double kbps : {400.0, 1600.0}) {
+    SimConfig c = small_config(120);
+    c.width = 160;
+    c.height = 90;
+    c.mode = "remote";
+    c.stream_kbps = kbps;
+    c.pass("colour").codec = h264_bitrate;
+    RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
+    const nlohmann::json m = r.metrics();
+    const double got = m["bandwidth_mbps"].get<double>() * 1000.0;
+    std::printf("remote h264, stream_kbps %.0f: %.0f kbit/s on the wire\n", kbps, got);
+    EXPECT_NEAR(got, kbps, 0.3 * kbps);
+    remote_ssim[kbps] = m["ssim_local_mean"].get<double>();
+  }
+  EXPECT_GT(remote_ssim[1600.0], remote_ssim[400.0]);
+
+  SimConfig plain = small_config(120);
+  plain.width = 160;
+  plain.height = 90;
+  plain.pass("ao").codec = {"zstd"};
+  const nlohmann::json pm = run_simulation(plain, scene("room"), "room", cache(), registries()).metrics();
+  const double visibility_kbps = pm["passes"][0]["bandwidth_mbps"].get<double>() * 1000.0;
+  for (double ao_kbps : {300.0, 1200.0}) {
+    SimConfig c = plain;
+    c.pass("ao").codec = h264_bitrate;
+    c.stream_kbps = visibility_kbps + ao_kbps;
+    const nlohmann::json m = run_simulation(c, scene("room"), "room", cache(), registries()).metrics();
+    const double got = m["passes"][1]["bandwidth_mbps"].get<double>() * 1000.0;
+    std::printf("hybrid, visibility lz4 %.0f kbit/s + AO h264: stream_kbps %.0f gives AO %.0f kbit/s\n", visibility_kbps,
+                c.stream_kbps, got);
+    EXPECT_NEAR(got, ao_kbps, 0.3 * ao_kbps);
+  }
+
+  SimConfig none = plain;  // no pass can follow a budget: a clear error, not an ignored setting
+  none.stream_kbps = 1000.0;
+  try {
+    run_simulation(none, scene("room"), "room", cache(), registries());
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("stream_kbps 1000: no pass's codec takes a target bitrate"), std::string::npos) << m;
+    EXPECT_NE(m.find("passes.ao.codec 'zstd'"), std::string::npos) << m;
+    EXPECT_NE(m.find("h264 with rate_control bitrate"), std::string::npos) << m;
+  }
+}
+
 // Under loss the client keeps its references and reports the newest one it holds; the server
 // predicts from it instead of sending a keyframe. With one reference kept, the server no longer
 // has the frame the client holds and must send keyframes: more bytes for the same frames.

@@ -8,6 +8,7 @@ extern "C" {
 }
 
 #include <algorithm>
+#include <cmath>
 #include <array>
 #include <cstring>
 
@@ -53,6 +54,7 @@ class AvVideoCodec final : public Codec {
 
   bool lossless() const override { return s_.rate_control == AvRateControl::Lossless; }
   bool stateful() const override { return true; }  // P-frames reference earlier frames
+  bool takes_target_kbps() const override { return s_.rate_control == AvRateControl::Bitrate && f_.retargets_bitrate; }
   std::string stream_format() const override { return f_.stream_format; }
 
   std::string refuses(const PassDesc& desc) const override {
@@ -82,6 +84,11 @@ class AvVideoCodec final : public Codec {
       fail("{}: a {}x{} {} buffer holds {} bytes, {} expected", f_.name, in.desc.width, in.desc.height,
            pass_kind_name(in.desc.kind), in.bytes.size(), in.desc.byte_size());
     if (!enc_ || !(enc_desc_ == in.desc)) open_encoder(in.desc);
+    if (options.target_kbps > 0.0 && takes_target_kbps()) {  // a bit budget's share, from this frame on
+      enc_->bit_rate = std::max<int64_t>(1000, std::llround(std::min(options.target_kbps, 1e9) * 1000.0));
+      enc_->rc_max_rate = enc_->bit_rate;
+      enc_->rc_buffer_size = int(std::min<int64_t>(enc_->bit_rate, INT32_MAX));
+    }
     fill_picture(in);
     frame_->pts = next_pts_++;
     frame_->pict_type = options.force_keyframe ? AV_PICTURE_TYPE_I : AV_PICTURE_TYPE_NONE;

@@ -77,6 +77,8 @@ struct AvVideoFormat {
   std::string install_hint;    // said when the encoder or decoder is missing
   int min_side = 2;            // smaller pictures are padded to this width/height (even)
   std::string stream_format;   // Codec::stream_format(): "h264", "hevc", "ivf"
+  // The encoder follows a bitrate changed between frames (bitrate mode): Codec::takes_target_kbps.
+  bool retargets_bitrate = false;
   // Sets the encoder's own options on a context whose size, pixel format, time base, gop,
   // threads, colour description and (bitrate mode) rates are set; the crf option is set by
   // the layer in crf mode. Lossless mode must be switched on here.

@@ -50,6 +50,7 @@ CodecEntry make_h264_codec() {
             f.decoder = "h264";
             f.install_hint = "install libavcodec with x264 support";
             f.stream_format = "h264";
+            f.retargets_bitrate = true;  // libavcodec's libx264 wrapper reconfigures x264 when bit_rate changes
             f.configure_encoder = [preset = p.get_string("preset"), slice_max = p.get_int("slice_max_size_bytes")](
                                       const AvVideoSettings& s, AvOptions& o) {
               std::string x264_params = "scenecut=0:log=1";
