@@ -26,41 +26,48 @@ class NoOverlap(ValueError):
     """The two curves share no quality range."""
 
 
-def _fit(quality, log_rate, lo, hi, degree):
-    x = (np.asarray(quality, dtype=float) - lo) / (hi - lo)
-    return np.polyfit(x, np.asarray(log_rate, dtype=float), degree)
+def _points(name, curve, measure, distinct_index, distinct_name):
+    """The curve's (bitrate, quality) pairs, checked: at least 2, bitrates > 0, all finite, and at
+    least two distinct values at `distinct_index` (what the fit is a function of)."""
+    pts = [(float(r), float(q)) for r, q in curve]
+    if len(pts) < 2:
+        raise ValueError(f"the {name} curve has {len(pts)} point(s); {measure} needs at least 2")
+    if any(not (r > 0 and math.isfinite(r)) or not math.isfinite(q) for r, q in pts):
+        raise ValueError(f"the {name} curve has a bitrate <= 0 or a value that is not finite: {pts}")
+    if len({p[distinct_index] for p in pts}) < 2:
+        raise ValueError(f"the {name} curve's points all have the same {distinct_name} {pts[0][distinct_index]}")
+    return pts
+
+
+def _mean_gap(anchor, test, what, show=lambda x: x, unit=""):
+    """Fits y as a polynomial in x for each curve (lists of (x, y); degree 3, lower with fewer
+    distinct x), and returns the test curve's mean y minus the anchor's over the x range both
+    share. x is normalised to the union of both ranges first (the result does not depend on it).
+    NoOverlap names `what` and the ranges (x shown through `show`, then `unit`)."""
+    curves = [anchor, test]
+    lo = max(min(x for x, _ in c) for c in curves)
+    hi = min(max(x for x, _ in c) for c in curves)
+    if not hi > lo:
+        span = [f"{show(min(x for x, _ in c)):.4g}..{show(max(x for x, _ in c)):.4g}" for c in curves]
+        raise NoOverlap(f"the {what} ranges do not overlap (anchor {span[0]}, test {span[1]}{unit})")
+    ulo = min(min(x for x, _ in c) for c in curves)
+    uhi = max(max(x for x, _ in c) for c in curves)
+    means = []
+    for pts in curves:
+        degree = min(3, len({x for x, _ in pts}) - 1)
+        x = (np.asarray([x for x, _ in pts], dtype=float) - ulo) / (uhi - ulo)
+        P = np.polyint(np.polyfit(x, np.asarray([y for _, y in pts], dtype=float), degree))
+        a, b = (lo - ulo) / (uhi - ulo), (hi - ulo) / (uhi - ulo)
+        means.append((np.polyval(P, b) - np.polyval(P, a)) / (b - a))
+    return float(means[1] - means[0])
 
 
 def bd_rate(anchor, test):
     """Bjontegaard delta rate of `test` against `anchor`, in percent. Each curve is a list of
     (bitrate, quality) pairs, bitrate > 0, at least 2 points with distinct qualities."""
-    curves = []
-    for name, curve in (("anchor", anchor), ("test", test)):
-        pts = [(float(r), float(q)) for r, q in curve]
-        if len(pts) < 2:
-            raise ValueError(f"the {name} curve has {len(pts)} point(s); BD-rate needs at least 2")
-        if any(not (r > 0 and math.isfinite(r)) or not math.isfinite(q) for r, q in pts):
-            raise ValueError(f"the {name} curve has a bitrate <= 0 or a value that is not finite: {pts}")
-        if len({q for _, q in pts}) < 2:
-            raise ValueError(f"the {name} curve's points all have the same quality {pts[0][1]}")
-        curves.append(pts)
-    lo = max(min(q for _, q in c) for c in curves)
-    hi = min(max(q for _, q in c) for c in curves)
-    if not hi > lo:
-        raise NoOverlap(f"the quality ranges do not overlap (anchor {min(q for _, q in curves[0]):.4g}.."
-                        f"{max(q for _, q in curves[0]):.4g}, test {min(q for _, q in curves[1]):.4g}.."
-                        f"{max(q for _, q in curves[1]):.4g})")
-    # Normalise on the union of both ranges, so that both fits use the same scale.
-    ulo = min(min(q for _, q in c) for c in curves)
-    uhi = max(max(q for _, q in c) for c in curves)
-    integrals = []
-    for pts in curves:
-        degree = min(3, len({q for _, q in pts}) - 1)
-        p = _fit([q for _, q in pts], [math.log10(r) for r, _ in pts], ulo, uhi, degree)
-        P = np.polyint(p)
-        a, b = (lo - ulo) / (uhi - ulo), (hi - ulo) / (uhi - ulo)
-        integrals.append((np.polyval(P, b) - np.polyval(P, a)) / (b - a))
-    return (10.0 ** (integrals[1] - integrals[0]) - 1.0) * 100.0
+    a, t = (_points(n, c, "BD-rate", 1, "quality") for n, c in (("anchor", anchor), ("test", test)))
+    gap = _mean_gap([(q, math.log10(r)) for r, q in a], [(q, math.log10(r)) for r, q in t], "quality")
+    return (10.0 ** gap - 1.0) * 100.0
 
 
 def bd_quality(anchor, test):
@@ -68,33 +75,11 @@ def bd_quality(anchor, test):
     metric): fit each curve's quality as a polynomial in log10(bitrate), integrate both over the
     log-bitrate range the curves share, and report the mean difference, test - anchor, in the
     metric's own units: the quality the test family gives at equal bandwidth (positive: more).
-    Curves as in bd_rate; curves whose bitrate ranges do not overlap are an error (NoOverlap)."""
-    curves = []
-    for name, curve in (("anchor", anchor), ("test", test)):
-        pts = [(float(r), float(q)) for r, q in curve]
-        if len(pts) < 2:
-            raise ValueError(f"the {name} curve has {len(pts)} point(s); BD-quality needs at least 2")
-        if any(not (r > 0 and math.isfinite(r)) or not math.isfinite(q) for r, q in pts):
-            raise ValueError(f"the {name} curve has a bitrate <= 0 or a value that is not finite: {pts}")
-        if len({r for r, _ in pts}) < 2:
-            raise ValueError(f"the {name} curve's points all have the same bitrate {pts[0][0]}")
-        curves.append([(math.log10(r), q) for r, q in pts])
-    lo = max(min(x for x, _ in c) for c in curves)
-    hi = min(max(x for x, _ in c) for c in curves)
-    if not hi > lo:
-        raise NoOverlap(f"the bitrate ranges do not overlap (anchor {10 ** min(x for x, _ in curves[0]):.4g}.."
-                        f"{10 ** max(x for x, _ in curves[0]):.4g}, test {10 ** min(x for x, _ in curves[1]):.4g}.."
-                        f"{10 ** max(x for x, _ in curves[1]):.4g} Mb/s)")
-    ulo = min(min(x for x, _ in c) for c in curves)
-    uhi = max(max(x for x, _ in c) for c in curves)
-    means = []
-    for pts in curves:
-        degree = min(3, len({x for x, _ in pts}) - 1)
-        p = _fit([x for x, _ in pts], [q for _, q in pts], ulo, uhi, degree)
-        P = np.polyint(p)
-        a, b = (lo - ulo) / (uhi - ulo), (hi - ulo) / (uhi - ulo)
-        means.append((np.polyval(P, b) - np.polyval(P, a)) / (b - a))
-    return float(means[1] - means[0])
+    Curves as in bd_rate but with distinct bitrates; curves whose bitrate ranges do not overlap
+    are an error (NoOverlap)."""
+    a, t = (_points(n, c, "BD-quality", 0, "bitrate") for n, c in (("anchor", anchor), ("test", test)))
+    return _mean_gap([(math.log10(r), q) for r, q in a], [(math.log10(r), q) for r, q in t], "bitrate",
+                     lambda x: 10.0 ** x, " Mb/s")
 
 
 def family_of(run):
