@@ -642,6 +642,40 @@ TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
   EXPECT_GE(compared, 4);
 }
 
+// AO traced at half resolution in live mode: the offer carries trace.ao_scale, the server sends
+// the 48x32 pass, the client upsamples it and displays every frame after the first arrival with
+// both passes, and the server's AO frames are as small as the simulator's.
+TEST(LiveMode, AReducedResolutionAoPassStreamsAndIsUpsampled) {
+  const fs::path dir = fresh_dir("reduced");
+  const std::vector<std::string> half{"--set", "trace.ao_scale=2"};
+  Process server = start_server(dir, with({"--out", (dir / "server").string(), "--idle-timeout", "20"}, half));
+  const int port = wait_port(dir / "server.port", server);
+  ASSERT_GT(port, 0);
+  Process client = Process::start(with({"client"}, with(kSettings, with(half, {"--server", "127.0.0.1:" + std::to_string(port),
+                                                                               "--frames", "40", "--out",
+                                                                               (dir / "client").string(), "--score-every",
+                                                                               "10", "--connect-timeout", "30"}))),
+                                  (dir / "client.log").string());
+  ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
+  ASSERT_TRUE(server.wait(30)) << server.output();
+  EXPECT_EQ(client.exit_code, 0) << client.output();
+  EXPECT_EQ(server.exit_code, 0) << server.output();
+  const json c = read_json(dir / "client" / "live.json");
+  EXPECT_EQ(c["end_reason"], "all 40 frames displayed");
+  const PassGaps g = pass_gaps(read_csv(dir / "client" / "frames.csv"));
+  EXPECT_TRUE(g.arrived);
+  EXPECT_EQ(g.gaps, 0);
+  EXPECT_GT(c["quality"]["ssim_local"]["mean"].get<double>(), 0.5);
+  int ao_frames = 0;
+  for (const auto& row : read_csv(dir / "server" / "server_frames.csv")) {
+    if (row.at("pass") != "ao") continue;
+    ++ao_frames;
+    // 48x32 one-byte samples: LZ4 of them cannot exceed that size by much.
+    EXPECT_LT(std::stoull(row.at("encoded_bytes")), 48u * 32u + 64u) << "frame " << row.at("frame");
+  }
+  EXPECT_GT(ao_frames, 0);
+}
+
 TEST(LiveMode, AMismatchedOfferIsRefusedWithTheReason) {
   const fs::path dir = fresh_dir("refuse");
   Process server = start_server(dir);
