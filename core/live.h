@@ -45,7 +45,8 @@
 namespace dhr {
 
 // 2: the Hello carries a nonce, the Welcome a body with the first sequence numbers.
-constexpr int kLiveProtocolVersion = 2;
+// 3: a Camera carries, per pass stream, the newest frame the client holds (CameraUpdate::holds).
+constexpr int kLiveProtocolVersion = 3;
 
 // What client and server must agree on, as JSON: the SimConfig fields that change what the
 // server sends or how the client reads it, with effective backend parameters, plus the scene's

@@ -294,12 +294,16 @@ class LiveClient {
     CameraUpdate cu;
     cu.frame = uint32_t(a);
     cu.keyframe_request = keyframe_request_;
+    cu.holds = holds_;
     cu.scene_time_s = frame_time_s(a);
     cu.camera = camera(a);
     gate_.camera_sent(cu.frame);
     gate_camera_sent_ = true;
     last_camera_ = cu.frame;
-    if (send_control(camera_msg(session_, cu)) == SendResult::Sent) keyframe_request_ = false;
+    if (send_control(camera_msg(session_, cu)) == SendResult::Sent) {
+      keyframe_request_ = false;
+      holds_ = CameraUpdate::filled_holds();
+    }
     send_ms_[size_t(a)] = row.t_ms;
 
     GBuffer g;
@@ -324,6 +328,7 @@ class LiveClient {
         round_trip_ms_[slot].push_back(double(f.completed_ms) - send_ms_[frame_id]);
       const PassReceiver::Outcome out = client_.receive(pass_of_slot_[slot], f);
       keyframe_request_ = keyframe_request_ || out.keyframe_request;
+      if (out.keyframe_request) holds_[size_t(slot)] = out.holds;  // the server may predict from it
       decode_errors_[slot] += out.decode_error ? 1 : 0;
       auto it = socket_bytes_.find({slot, frame_id});
       if (it != socket_bytes_.end()) {
@@ -542,6 +547,7 @@ class LiveClient {
   ClientPipeline client_;       // core/pipeline.h: decode, predict, composite, the G-buffer history
   std::array<int, kPassSlots> pass_of_slot_ = filled<int>(-1);  // per stream: its pass in client_, -1: none
   bool keyframe_request_ = false;
+  std::array<int32_t, kCameraHoldSlots> holds_ = CameraUpdate::filled_holds();  // per stream, with the next camera
   bool has_prev_ = false;
   Camera prev_camera_;
   double prev_time_s_ = 0;

@@ -66,6 +66,11 @@ std::vector<uint8_t> camera_body(const CameraUpdate& c) {
   put_float(p, c.camera.far_m);
   put16(p, uint32_t(c.camera.width));
   put16(p + 2, uint32_t(c.camera.height));
+  p += 4;
+  for (int32_t h : c.holds) {
+    put32(p, h < 0 ? 0xffffffffu : uint32_t(h));
+    p += 4;
+  }
   return b;
 }
 
@@ -84,6 +89,13 @@ bool parse_camera(std::span<const uint8_t> b, CameraUpdate& c) {
   c.camera.far_m = get_float(p);
   c.camera.width = get16(p);
   c.camera.height = get16(p + 2);
+  p += 4;
+  for (int32_t& h : c.holds) {
+    const uint32_t v = get32(p);
+    p += 4;
+    if (v != 0xffffffffu && (v >= c.frame || v > 0x7fffffffu)) return false;  // older than this camera
+    h = v == 0xffffffffu ? -1 : int32_t(v);
+  }
   // Everything the server will compute with is checked here: finite values, unit axes, a
   // usable projection, a non-empty image.
   const Camera& k = c.camera;

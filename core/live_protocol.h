@@ -54,13 +54,23 @@ enum class ControlType : uint8_t { Hello = 1, Welcome = 2, Refuse = 3, Camera = 
 const char* control_type_name(ControlType t);
 
 // One displayed client frame's camera: the server renders its passes for exactly this camera.
+inline constexpr int kCameraHoldSlots = 8;  // = kPassSlots (below)
 struct CameraUpdate {
   uint32_t frame = 0;          // the client's frame index (the pass packets' frame id)
   bool keyframe_request = false;
   double scene_time_s = 0.0;   // scene time of the frame (animation)
   Camera camera;               // every field, bit for bit
+  // Per pass stream (slot), after a loss: the newest frame its decoder still holds, which the
+  // server may predict from instead of sending a keyframe (Codec::holds; -1: none). On the
+  // wire 0xffffffff; any other value must be older than `frame`.
+  std::array<int32_t, kCameraHoldSlots> holds = filled_holds();
+  static constexpr std::array<int32_t, kCameraHoldSlots> filled_holds() {
+    std::array<int32_t, kCameraHoldSlots> a{};
+    for (auto& v : a) v = -1;
+    return a;
+  }
 };
-constexpr size_t kCameraBodyBytes = 4 + 4 + 8 + 12 * 4 + 2 * 2;
+constexpr size_t kCameraBodyBytes = 4 + 4 + 8 + 12 * 4 + 2 * 2 + 4 * kCameraHoldSlots;
 
 struct ControlMessage {
   ControlType type = ControlType::Hello;
@@ -140,6 +150,7 @@ BodyCheck parse_offer_json(const nlohmann::json& offer, SessionOffer& out);
 // Pass streams of a session: slot i carries pass_types()[i] (core/passes.h); kPassSlots is
 // their most (pass_types() checks it).
 constexpr int kPassSlots = 8;
+static_assert(kPassSlots == kCameraHoldSlots, "a camera message holds one frame per pass stream");
 int pass_slot(PassKind kind);  // -1 for a pass live mode does not stream (colour)
 int pass_slot_count();         // pass_types().size()
 

@@ -52,8 +52,11 @@ class LiveServer {
     int64_t last_frame = -1;
     std::optional<CameraUpdate> pending;
     bool keyframe = false;
+    // Per stream: the newest frame the client reported holding since the last frame served.
+    std::array<int32_t, kPassSlots> holds = CameraUpdate::filled_holds();
     Clock::time_point started, last_heard;
     uint64_t cameras = 0, cameras_superseded = 0, cameras_stale = 0, frames_served = 0;
+    uint64_t frames_after_held_report = 0;  // served with a frame the client reported holding
     uint64_t datagrams_sent = 0, bytes_sent = 0, send_dropped = 0;
     std::vector<double> compute_ms;  // the first kMaxSamples frames (for percentiles)
     std::ofstream log;               // server_frames.csv, written as frames are sent
@@ -218,6 +221,7 @@ class LiveServer {
     }
     if (s.pending) ++s.cameras_superseded;  // the server was busy: only the newest is served
     s.keyframe = s.keyframe || m.camera.keyframe_request;
+    for (size_t i = 0; i < s.holds.size(); ++i) s.holds[i] = std::max(s.holds[i], m.camera.holds[i]);
     s.pending = m.camera;
   }
 
@@ -226,10 +230,16 @@ class LiveServer {
     s.pending.reset();
     const bool keyframe = s.keyframe;
     s.keyframe = false;
+    // The client's held frames, by the pipeline's pass order (the codec checks that it still
+    // keeps the frame; an unknown one gives a keyframe).
+    std::vector<int> holds;
+    for (const PlannedPass& p : s.pipeline->passes()) holds.push_back(s.holds[size_t(stream_slot(p))]);
+    if (std::any_of(holds.begin(), holds.end(), [](int h) { return h >= 0; })) ++s.frames_after_held_report;
+    s.holds = CameraUpdate::filled_holds();
     const auto t0 = Clock::now();
     // The same stages, seed and frame index as the simulator: the same camera gives the same
     // passes and the same bytes.
-    ServerFrame f = s.pipeline->run(cam.frame, cam.camera, cam.scene_time_s, keyframe);
+    ServerFrame f = s.pipeline->run(cam.frame, cam.camera, cam.scene_time_s, keyframe, holds);
     if (s.log.is_open())
       for (const SentPass& p : f.passes)
         s.log << fmt::format("{:08x},{},{},{},{},{}\n", s.id, cam.frame, p.name, p.encoded_bytes, p.packets.size(),
@@ -267,6 +277,7 @@ class LiveServer {
                             {"cameras_superseded", s.cameras_superseded},
                             {"cameras_stale", s.cameras_stale},
                             {"frames_served", s.frames_served},
+                            {"frames_after_held_report", s.frames_after_held_report},
                             {"datagrams_sent", s.datagrams_sent},
                             {"bytes_sent", s.bytes_sent},
                             {"wire_bytes_sent", on_the_wire(s.bytes_sent, s.datagrams_sent)},

@@ -49,6 +49,8 @@ CameraUpdate sample_camera() {
   c.keyframe_request = true;
   c.scene_time_s = 0.7;
   c.camera = Camera::look_at({1.5f, 2.0f, -3.25f}, {0.0f, 1.0f, 0.0f}, {0, 1, 0}, 55.0f, 320, 180, 0.05f, 200.0f);
+  c.holds[1] = 39;  // the AO stream's decoder holds frame 39
+  c.holds[kCameraHoldSlots - 1] = 0;
   return c;
 }
 
@@ -73,6 +75,8 @@ TEST(LiveProtocol, EveryMessageRoundTripsBitForBit) {
       EXPECT_EQ(back.camera.camera.vfov_deg, m.camera.camera.vfov_deg);
       EXPECT_EQ(back.camera.camera.width, 320);
       EXPECT_EQ(back.camera.camera.height, 180);
+      EXPECT_EQ(back.camera.holds, m.camera.holds);
+      EXPECT_EQ(back.camera.holds[0], -1);
     } else {
       EXPECT_EQ(back.text, m.text);
     }
@@ -104,13 +108,16 @@ TEST(LiveProtocol, DamagedAndForeignDatagramsAreRefused) {
   pm.desc = {PassKind::Ao, 4, 4, 1, 8};
   const auto packets = packetize(pm, std::vector<uint8_t>(16, 3));
   EXPECT_EQ(parse_control(packets[0], out), ControlParse::NotControl);
-  // A camera that would poison the server: non-finite, not unit, a zero-sized image.
-  for (int bad = 0; bad < 4; ++bad) {
+  // A camera that would poison the server: non-finite, not unit, a zero-sized image, a held
+  // frame that is not older than the camera's.
+  for (int bad = 0; bad < 6; ++bad) {
     ControlMessage c = m;
     if (bad == 0) c.camera.camera.position.x = NAN;
     if (bad == 1) c.camera.camera.forward = {0, 0, -2};
     if (bad == 2) c.camera.camera.width = 0;
     if (bad == 3) c.camera.scene_time_s = INFINITY;
+    if (bad == 4) c.camera.holds[0] = int32_t(c.camera.frame);
+    if (bad == 5) c.camera.holds[2] = int32_t(c.camera.frame) + 5;
     EXPECT_EQ(parse_control(encode_control(c), out), ControlParse::BadBody) << bad;
   }
 }
@@ -674,6 +681,44 @@ TEST(LiveMode, AReducedResolutionAoPassStreamsAndIsUpsampled) {
     EXPECT_LT(std::stoull(row.at("encoded_bytes")), 48u * 32u + 64u) << "frame " << row.at("frame");
   }
   EXPECT_GT(ao_frames, 0);
+}
+
+// Recovery from the frame the client holds (issue 18): with the reprojected delta on both
+// passes through a lossy relay, the client's keyframe requests carry the newest frame each
+// decoder holds and the server predicts from it; the session keeps displaying both passes.
+TEST(LiveMode, AfterALossTheServerHearsWhichFrameTheClientHolds) {
+  const fs::path dir = fresh_dir("holds");
+  const std::vector<std::string> delta{
+      "--set", R"(passes.visibility.codec={"name": "delta", "params": {"inner": "zstd", "predictor": "reprojection"}})",
+      "--set", R"(passes.ao.codec={"name": "delta", "params": {"inner": "zstd", "predictor": "reprojection"}})"};
+  Process server = start_server(dir, with({"--out", (dir / "server").string(), "--idle-timeout", "20"}, delta));
+  const int server_port = wait_port(dir / "server.port", server);
+  ASSERT_GT(server_port, 0);
+  Process relay = Process::start({"relay", "--listen", "127.0.0.1:0", "--server", "127.0.0.1:" + std::to_string(server_port),
+                                  "--port-file", (dir / "relay.port").string(), "--out", (dir / "relay.json").string(),
+                                  "--downlink", R"({"latency_ms": 10, "loss": "independent", "loss_rate": 0.08})",
+                                  "--uplink", R"({"latency_ms": 10})", "--seed", "3", "--idle-timeout", "20"},
+                                 (dir / "relay.log").string());
+  const int relay_port = wait_port(dir / "relay.port", relay);
+  ASSERT_GT(relay_port, 0);
+  Process client = Process::start(with({"client"}, with(kSettings, with(delta, {"--server", "127.0.0.1:" + std::to_string(relay_port),
+                                                                                "--frames", "90", "--out",
+                                                                                (dir / "client").string(), "--score-every",
+                                                                                "0", "--connect-timeout", "30"}))),
+                                  (dir / "client.log").string());
+  ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
+  ASSERT_TRUE(server.wait(30)) << server.output();
+  ASSERT_TRUE(relay.wait(30)) << relay.output();
+  EXPECT_EQ(client.exit_code, 0) << client.output();
+  EXPECT_EQ(server.exit_code, 0) << server.output();
+  const json c = read_json(dir / "client" / "live.json");
+  const json s = read_json(dir / "server" / "server.json");
+  EXPECT_GT(c["packets"]["lost"].get<uint64_t>(), 0u) << c.dump(2);
+  ASSERT_EQ(s["sessions"].size(), 1u);
+  EXPECT_GT(s["sessions"][0]["frames_after_held_report"].get<uint64_t>(), 0u) << s.dump(2);
+  const PassGaps g = pass_gaps(read_csv(dir / "client" / "frames.csv"));
+  EXPECT_TRUE(g.arrived);
+  EXPECT_EQ(g.gaps, 0);
 }
 
 TEST(LiveMode, AMismatchedOfferIsRefusedWithTheReason) {

@@ -64,6 +64,7 @@ void header_seeds(const fs::path& dir) {
   c.camera.frame = 17;
   c.camera.scene_time_s = 0.25;
   c.camera.camera = Camera::look_at({1, 2, 3}, {0, 1, 0}, {0, 1, 0}, 60.0f, 320, 180, 0.05f, 100.0f);
+  c.camera.holds[1] = 12;  // after a loss: the AO stream's decoder holds frame 12
   write(dir, "control_camera", encode_control(c));
   c.type = ControlType::Bye;
   c.text = "client done";
