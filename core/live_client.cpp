@@ -302,7 +302,7 @@ class LiveClient {
     last_camera_ = cu.frame;
     if (send_control(camera_msg(session_, cu)) == SendResult::Sent) {
       keyframe_request_ = false;
-      holds_ = CameraUpdate::filled_holds();
+      holds_ = filled<int32_t>(-1);
     }
     send_ms_[size_t(a)] = row.t_ms;
 
@@ -547,7 +547,7 @@ class LiveClient {
   ClientPipeline client_;       // core/pipeline.h: decode, predict, composite, the G-buffer history
   std::array<int, kPassSlots> pass_of_slot_ = filled<int>(-1);  // per stream: its pass in client_, -1: none
   bool keyframe_request_ = false;
-  std::array<int32_t, kCameraHoldSlots> holds_ = CameraUpdate::filled_holds();  // per stream, with the next camera
+  std::array<int32_t, kPassSlots> holds_ = filled<int32_t>(-1);  // per stream, with the next camera
   bool has_prev_ = false;
   Camera prev_camera_;
   double prev_time_s_ = 0;

@@ -91,13 +91,6 @@ inline int stream_slot(const PlannedPass& p) {
   fail("live: the pass '{}' has no stream", p.name);
 }
 inline const char* slot_name(int slot) { return pass_types()[size_t(slot)].name; }
-// A per-slot array with every entry `value` (-1: "none" for indices and frames).
-template <class T>
-std::array<T, kPassSlots> filled(T value) {
-  std::array<T, kPassSlots> a;
-  a.fill(value);
-  return a;
-}
 
 inline ControlMessage msg(ControlType type, uint32_t session, std::string text = {}) {
   ControlMessage m;

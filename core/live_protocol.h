@@ -53,8 +53,20 @@ constexpr size_t kMaxControlBody = 8192;
 enum class ControlType : uint8_t { Hello = 1, Welcome = 2, Refuse = 3, Camera = 4, Bye = 5 };
 const char* control_type_name(ControlType t);
 
+// Pass streams of a session: slot i carries pass_types()[i] (core/passes.h); kPassSlots is
+// their most (pass_types() checks it).
+constexpr int kPassSlots = 8;
+int pass_slot(PassKind kind);  // -1 for a pass live mode does not stream (colour)
+int pass_slot_count();         // pass_types().size()
+// A per-slot array with every entry `value` (-1: "none" for indices and frames).
+template <class T>
+constexpr std::array<T, kPassSlots> filled(T value) {
+  std::array<T, kPassSlots> a{};
+  a.fill(value);
+  return a;
+}
+
 // One displayed client frame's camera: the server renders its passes for exactly this camera.
-inline constexpr int kCameraHoldSlots = 8;  // = kPassSlots (below)
 struct CameraUpdate {
   uint32_t frame = 0;          // the client's frame index (the pass packets' frame id)
   bool keyframe_request = false;
@@ -63,14 +75,9 @@ struct CameraUpdate {
   // Per pass stream (slot), after a loss: the newest frame its decoder still holds, which the
   // server may predict from instead of sending a keyframe (Codec::holds; -1: none). On the
   // wire 0xffffffff; any other value must be older than `frame`.
-  std::array<int32_t, kCameraHoldSlots> holds = filled_holds();
-  static constexpr std::array<int32_t, kCameraHoldSlots> filled_holds() {
-    std::array<int32_t, kCameraHoldSlots> a{};
-    for (auto& v : a) v = -1;
-    return a;
-  }
+  std::array<int32_t, kPassSlots> holds = filled<int32_t>(-1);
 };
-constexpr size_t kCameraBodyBytes = 4 + 4 + 8 + 12 * 4 + 2 * 2 + 4 * kCameraHoldSlots;
+constexpr size_t kCameraBodyBytes = 4 + 4 + 8 + 12 * 4 + 2 * 2 + 4 * kPassSlots;
 
 struct ControlMessage {
   ControlType type = ControlType::Hello;
@@ -146,13 +153,6 @@ struct SessionOffer {
 // string name and an object of params. Never throws.
 BodyCheck parse_offer(std::string_view text, SessionOffer& out);
 BodyCheck parse_offer_json(const nlohmann::json& offer, SessionOffer& out);
-
-// Pass streams of a session: slot i carries pass_types()[i] (core/passes.h); kPassSlots is
-// their most (pass_types() checks it).
-constexpr int kPassSlots = 8;
-static_assert(kPassSlots == kCameraHoldSlots, "a camera message holds one frame per pass stream");
-int pass_slot(PassKind kind);  // -1 for a pass live mode does not stream (colour)
-int pass_slot_count();         // pass_types().size()
 
 struct WelcomeBody {
   uint32_t session = 0;       // equals the header's token

@@ -53,7 +53,7 @@ class LiveServer {
     std::optional<CameraUpdate> pending;
     bool keyframe = false;
     // Per stream: the newest frame the client reported holding since the last frame served.
-    std::array<int32_t, kPassSlots> holds = CameraUpdate::filled_holds();
+    std::array<int32_t, kPassSlots> holds = filled<int32_t>(-1);
     Clock::time_point started, last_heard;
     uint64_t cameras = 0, cameras_superseded = 0, cameras_stale = 0, frames_served = 0;
     uint64_t frames_after_held_report = 0;  // served with a frame the client reported holding
@@ -235,7 +235,7 @@ class LiveServer {
     std::vector<int> holds;
     for (const PlannedPass& p : s.pipeline->passes()) holds.push_back(s.holds[size_t(stream_slot(p))]);
     if (std::any_of(holds.begin(), holds.end(), [](int h) { return h >= 0; })) ++s.frames_after_held_report;
-    s.holds = CameraUpdate::filled_holds();
+    s.holds = filled<int32_t>(-1);
     const auto t0 = Clock::now();
     // The same stages, seed and frame index as the simulator: the same camera gives the same
     // passes and the same bytes.

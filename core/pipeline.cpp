@@ -52,11 +52,15 @@ int reduced_scale(const GBuffer& gbuf, const PassDesc& desc) {
 
 namespace {
 
-// `buffer` at the size of `gbuf`: a pass traced at reduced resolution upsampled with `filter`
-// (core/upsample.h), any other as it is.
-void to_full_size(std::optional<PassBuffer>& buffer, const GBuffer& gbuf, UpsampleFilter filter) {
-  if (!buffer || (buffer->desc.width == gbuf.width() && buffer->desc.height == gbuf.height())) return;
-  buffer = upsample_pass(*buffer, gbuf, reduced_scale(gbuf, buffer->desc), filter);
+// Whether `buffer` was traced at reduced resolution for `gbuf`'s frame.
+bool is_reduced(const PassBuffer& buffer, const GBuffer& gbuf) {
+  return buffer.desc.width != gbuf.width() || buffer.desc.height != gbuf.height();
+}
+
+// A pass traced at reduced resolution for `gbuf`'s frame, upsampled to its size with `filter`
+// (core/upsample.h).
+PassBuffer upsampled(const PassBuffer& buffer, const GBuffer& gbuf, UpsampleFilter filter) {
+  return upsample_pass(buffer, gbuf, reduced_scale(gbuf, buffer.desc), filter);
 }
 
 }  // namespace
@@ -80,8 +84,7 @@ void DenoiseStage::run(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuf
   const size_t n = size_t(buf.desc.width) * size_t(buf.desc.height);
   // A pass traced at reduced resolution is denoised with the G-buffer of its samples.
   std::optional<GBuffer> reduced;
-  if (buf.desc.width != gbuf.width() || buf.desc.height != gbuf.height())
-    reduced = downsample_gbuffer(gbuf, reduced_scale(gbuf, buf.desc));
+  if (is_reduced(buf, gbuf)) reduced = downsample_gbuffer(gbuf, reduced_scale(gbuf, buf.desc));
   int scale = buf.desc.full_scale;
   for (size_t plane = 0; plane < denoisers.size(); ++plane) {
     ImageU8 out;
@@ -126,7 +129,8 @@ std::vector<CompositePass> composite_inputs(const std::vector<PlannedPass>& pass
 // resolution upsampled first.
 ImageRGB8 composite_traced(const GBuffer& gbuf, const Scene& scene, const std::vector<PlannedPass>& traced,
                            std::vector<std::optional<PassBuffer>> buffers, UpsampleFilter filter) {
-  for (auto& b : buffers) to_full_size(b, gbuf, filter);
+  for (auto& b : buffers)
+    if (b && is_reduced(*b, gbuf)) b = upsampled(*b, gbuf, filter);
   return composite(gbuf, scene, composite_inputs(traced, buffers));
 }
 
@@ -373,15 +377,15 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
     // A pass traced at reduced resolution is upsampled with the G-buffer it was traced for,
     // once per received frame.
     const PassBuffer* buffer = &r.buffer;
-    if (r.buffer.desc.width != src->width() || r.buffer.desc.height != src->height()) {
-      auto& [upsampled_frame, upsampled] = upsampled_[i];
-      if (upsampled_frame != r.frame) {
+    if (is_reduced(r.buffer, *src)) {
+      auto& [full_frame, full] = upsampled_[i];
+      if (full_frame != r.frame) {
         const auto t_up = Clock::now();
-        upsampled = upsample_pass(r.buffer, *src, reduced_scale(*src, r.buffer.desc), filter_);
-        upsampled_frame = r.frame;
+        full = upsampled(r.buffer, *src, filter_);
+        full_frame = r.frame;
         out.upsample_ms += ms_since(t_up);
       }
-      buffer = &upsampled;
+      buffer = &full;
     }
     predicted[i] = predict_pass(*predictors_[i], *buffer, *src, gbuf, r.frame == frame, out.disoccluded[i]);
   }

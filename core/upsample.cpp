@@ -126,8 +126,8 @@ PassBuffer upsample_pass(const PassBuffer& low, const GBuffer& full, int scale, 
       const Span sy = span_of(y, scale, h);
       for (int x = 0; x < fw; ++x) {
         const size_t o = size_t(y) * size_t(fw) + size_t(x);
-        const int nx = std::min(x / scale, w - 1), ny = std::min(y / scale, h - 1);
-        if (filter == UpsampleFilter::Nearest || !full.covered(x, y)) {
+        if (filter == UpsampleFilter::Nearest || !full.covered(x, y)) {  // the sample of its own block
+          const int nx = std::min(x / scale, w - 1), ny = std::min(y / scale, h - 1);
           for (int c = 0; c < channels; ++c)
             out.bytes[size_t(c) * full_plane + o] = low.bytes[size_t(c) * low_plane + size_t(ny) * size_t(w) + size_t(nx)];
           continue;

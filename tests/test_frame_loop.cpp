@@ -4,6 +4,7 @@
 #include "core/frame_loop.h"
 #include "backends/register_all.h"
 #include "core/scene_load.h"
+#include "support.h"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
@@ -349,15 +350,10 @@ TEST(FrameLoop, StreamBudgetIsSharedByTheCodecsThatTakeATargetBitrate) {
 
   SimConfig none = plain;  // no pass can follow a budget: a clear error, not an ignored setting
   none.stream_kbps = 1000.0;
-  try {
-    run_simulation(none, scene("room"), "room", cache(), registries());
-    FAIL() << "no error";
-  } catch (const Error& e) {
-    const std::string m = e.what();
-    EXPECT_NE(m.find("stream_kbps 1000: no pass's codec takes a target bitrate"), std::string::npos) << m;
-    EXPECT_NE(m.find("passes.ao.codec 'zstd'"), std::string::npos) << m;
-    EXPECT_NE(m.find("h264 with rate_control bitrate"), std::string::npos) << m;
-  }
+  const std::string m = test::error_of([&] { run_simulation(none, scene("room"), "room", cache(), registries()); });
+  EXPECT_NE(m.find("stream_kbps 1000: no pass's codec takes a target bitrate"), std::string::npos) << m;
+  EXPECT_NE(m.find("passes.ao.codec 'zstd'"), std::string::npos) << m;
+  EXPECT_NE(m.find("h264 with rate_control bitrate"), std::string::npos) << m;
 }
 
 // Under loss the client keeps its references and reports the newest one it holds; the server

@@ -50,7 +50,7 @@ CameraUpdate sample_camera() {
   c.scene_time_s = 0.7;
   c.camera = Camera::look_at({1.5f, 2.0f, -3.25f}, {0.0f, 1.0f, 0.0f}, {0, 1, 0}, 55.0f, 320, 180, 0.05f, 200.0f);
   c.holds[1] = 39;  // the AO stream's decoder holds frame 39
-  c.holds[kCameraHoldSlots - 1] = 0;
+  c.holds[kPassSlots - 1] = 0;
   return c;
 }
 
@@ -534,6 +534,26 @@ Process start_server(const fs::path& dir, const std::vector<std::string>& extra 
                         (dir / "server.log").string());
 }
 
+// dhrbench client with the test's settings and `extra` options, to 127.0.0.1:port, its output in
+// DIR/client.log.
+Process start_client(const fs::path& dir, int port, const std::vector<std::string>& extra) {
+  return Process::start(
+      with({"client"}, with(kSettings, with({"--server", "127.0.0.1:" + std::to_string(port), "--connect-timeout", "30"},
+                                            extra))),
+      (dir / "client.log").string());
+}
+
+// dhrbench relay in front of the server at 127.0.0.1:server_port with these link models; its
+// port in DIR/relay.port, its results in DIR/relay.json, its output in DIR/relay.log.
+Process start_relay(const fs::path& dir, int server_port, const std::string& downlink, const std::string& uplink,
+                    const std::vector<std::string>& extra) {
+  return Process::start(with({"relay", "--listen", "127.0.0.1:0", "--server", "127.0.0.1:" + std::to_string(server_port),
+                              "--port-file", (dir / "relay.port").string(), "--out", (dir / "relay.json").string(),
+                              "--downlink", downlink, "--uplink", uplink, "--idle-timeout", "20"},
+                             extra),
+                        (dir / "relay.log").string());
+}
+
 TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
   const fs::path dir = fresh_dir("relay");
   Process server = start_server(dir, {"--out", (dir / "server").string(), "--idle-timeout", "20"});
@@ -555,20 +575,13 @@ TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
 
   const std::string downlink =
       R"({"latency": "normal", "latency_ms": 15, "jitter_ms": 4, "preserve_order": false, "loss": "independent", "loss_rate": 0.05})";
-  Process relay = Process::start({"relay", "--listen", "127.0.0.1:0", "--server", "127.0.0.1:" + std::to_string(server_port),
-                                  "--port-file", (dir / "relay.port").string(), "--out", (dir / "relay.json").string(),
-                                  "--downlink", downlink, "--uplink", R"({"latency_ms": 10})", "--duplicate-rate", "0.03",
-                                  "--seed", "5", "--idle-timeout", "20"},
-                                 (dir / "relay.log").string());
+  Process relay = start_relay(dir, server_port, downlink, R"({"latency_ms": 10})", {"--duplicate-rate", "0.03", "--seed", "5"});
   const int relay_port = wait_port(dir / "relay.port", relay);
   ASSERT_GT(relay_port, 0);
 
   constexpr int kFrames = 90;  // 1.5 s at 60 Hz
-  Process client = Process::start(with({"client"}, with(kSettings, {"--server", "127.0.0.1:" + std::to_string(relay_port),
-                                                                     "--frames", std::to_string(kFrames), "--out",
-                                                                     (dir / "client").string(), "--score-every", "15",
-                                                                     "--save-every", "45", "--connect-timeout", "30"})),
-                                  (dir / "client.log").string());
+  Process client = start_client(dir, relay_port, {"--frames", std::to_string(kFrames), "--out", (dir / "client").string(),
+                                                   "--score-every", "15", "--save-every", "45"});
   ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
   ASSERT_TRUE(server.wait(30)) << "the server did not end after the client's bye:\n" << server.output();
   ASSERT_TRUE(relay.wait(30)) << "the relay did not end after the bye:\n" << relay.output();
@@ -658,11 +671,8 @@ TEST(LiveMode, AReducedResolutionAoPassStreamsAndIsUpsampled) {
   Process server = start_server(dir, with({"--out", (dir / "server").string(), "--idle-timeout", "20"}, half));
   const int port = wait_port(dir / "server.port", server);
   ASSERT_GT(port, 0);
-  Process client = Process::start(with({"client"}, with(kSettings, with(half, {"--server", "127.0.0.1:" + std::to_string(port),
-                                                                               "--frames", "40", "--out",
-                                                                               (dir / "client").string(), "--score-every",
-                                                                               "10", "--connect-timeout", "30"}))),
-                                  (dir / "client.log").string());
+  Process client =
+      start_client(dir, port, with(half, {"--frames", "40", "--out", (dir / "client").string(), "--score-every", "10"}));
   ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
   ASSERT_TRUE(server.wait(30)) << server.output();
   EXPECT_EQ(client.exit_code, 0) << client.output();
@@ -694,18 +704,12 @@ TEST(LiveMode, AfterALossTheServerHearsWhichFrameTheClientHolds) {
   Process server = start_server(dir, with({"--out", (dir / "server").string(), "--idle-timeout", "20"}, delta));
   const int server_port = wait_port(dir / "server.port", server);
   ASSERT_GT(server_port, 0);
-  Process relay = Process::start({"relay", "--listen", "127.0.0.1:0", "--server", "127.0.0.1:" + std::to_string(server_port),
-                                  "--port-file", (dir / "relay.port").string(), "--out", (dir / "relay.json").string(),
-                                  "--downlink", R"({"latency_ms": 10, "loss": "independent", "loss_rate": 0.08})",
-                                  "--uplink", R"({"latency_ms": 10})", "--seed", "3", "--idle-timeout", "20"},
-                                 (dir / "relay.log").string());
+  Process relay = start_relay(dir, server_port, R"({"latency_ms": 10, "loss": "independent", "loss_rate": 0.08})",
+                              R"({"latency_ms": 10})", {"--seed", "3"});
   const int relay_port = wait_port(dir / "relay.port", relay);
   ASSERT_GT(relay_port, 0);
-  Process client = Process::start(with({"client"}, with(kSettings, with(delta, {"--server", "127.0.0.1:" + std::to_string(relay_port),
-                                                                                "--frames", "90", "--out",
-                                                                                (dir / "client").string(), "--score-every",
-                                                                                "0", "--connect-timeout", "30"}))),
-                                  (dir / "client.log").string());
+  Process client =
+      start_client(dir, relay_port, with(delta, {"--frames", "90", "--out", (dir / "client").string(), "--score-every", "0"}));
   ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
   ASSERT_TRUE(server.wait(30)) << server.output();
   ASSERT_TRUE(relay.wait(30)) << relay.output();

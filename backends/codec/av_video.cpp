@@ -8,8 +8,8 @@ extern "C" {
 }
 
 #include <algorithm>
-#include <cmath>
 #include <array>
+#include <cmath>
 #include <cstring>
 
 namespace dhr {

@@ -68,6 +68,7 @@
 #include <algorithm>
 #include <cstring>
 #include <deque>
+#include <optional>
 
 namespace dhr {
 namespace {
@@ -238,7 +239,7 @@ class DeltaCodec final : public Codec {
       const PassBuffer* prediction = &ref->buffer;  // without a predictor: the reference as it is
       mask = all_planes(in.desc);
       if (predictor_) {
-        prediction = &reproject(*ref, *ref_gbuf, *ctx.gbuf);
+        prediction = &reproject(*ref, *ref_gbuf, index, *ctx.gbuf);
         if (plane_choice_ && plane_count(in.desc) > 1) {
           mask = choose_planes(in, prediction_);
           mask_planes(prediction_, mask);
@@ -342,7 +343,7 @@ class DeltaCodec final : public Codec {
     if (ref) {
       const PassBuffer* prediction = &ref->buffer;
       if (predictor_) {
-        prediction = &reproject(*ref, *ref_gbuf, *ctx.gbuf);
+        prediction = &reproject(*ref, *ref_gbuf, index, *ctx.gbuf);
         mask_planes(prediction_, mask);
       }
       apply_residual(decoded.bytes, *prediction, desc.kind);
@@ -363,6 +364,7 @@ class DeltaCodec final : public Codec {
 
   void reset() override {
     inner_->reset();
+    sampled_.reset();
     coded_frames_.clear();
     decoded_.clear();
     since_key_ = 0;
@@ -384,20 +386,27 @@ class DeltaCodec final : public Codec {
     return mask;
   }
 
-  // The reference carried to this frame by the predictor, into prediction_. A pass traced at
+  // The reference carried to frame `frame` by the predictor, into prediction_. A pass traced at
   // reduced resolution is reprojected between the G-buffers of its samples (core/upsample.h),
-  // which both ends derive alike from their full-res ones.
-  PassBuffer& reproject(const Reference& ref, const GBuffer& ref_gbuf, const GBuffer& gbuf) {
+  // which both ends derive alike from their full-res ones; this frame's is kept, since the next
+  // frame is usually predicted from it.
+  PassBuffer& reproject(const Reference& ref, const GBuffer& ref_gbuf, uint32_t frame, const GBuffer& gbuf) {
     const PassDesc& d = ref.buffer.desc;
     if (d.width == gbuf.width() && d.height == gbuf.height()) {
       predictor_->predict({ref.buffer, ref_gbuf, gbuf}, prediction_);
-    } else {
-      const int scale = pass_scale(gbuf.width(), gbuf.height(), d.width, d.height);
-      if (scale == 0 || ref_gbuf.width() != gbuf.width() || ref_gbuf.height() != gbuf.height())
-        fail("delta: a {}x{} pass cannot be reprojected with G-buffers of {}x{} and {}x{}", d.width, d.height,
-             ref_gbuf.width(), ref_gbuf.height(), gbuf.width(), gbuf.height());
-      predictor_->predict({ref.buffer, downsample_gbuffer(ref_gbuf, scale), downsample_gbuffer(gbuf, scale)}, prediction_);
+      return prediction_;
     }
+    const int scale = pass_scale(gbuf.width(), gbuf.height(), d.width, d.height);
+    if (scale == 0 || ref_gbuf.width() != gbuf.width() || ref_gbuf.height() != gbuf.height())
+      fail("delta: a {}x{} pass cannot be reprojected with G-buffers of {}x{} and {}x{} (valid: two G-buffers of one "
+           "size, of which the pass is 1/1..1/{} in each side)",
+           d.width, d.height, ref_gbuf.width(), ref_gbuf.height(), gbuf.width(), gbuf.height(), kMaxPassScale);
+    const bool kept = sampled_ && sampled_->first == ref.frame && sampled_->second.width() == d.width &&
+                      sampled_->second.height() == d.height;
+    const GBuffer src = kept ? std::move(sampled_->second) : downsample_gbuffer(ref_gbuf, scale);
+    GBuffer dst = downsample_gbuffer(gbuf, scale);
+    predictor_->predict({ref.buffer, src, dst}, prediction_);
+    sampled_.emplace(frame, std::move(dst));
     return prediction_;
   }
   void keep(std::deque<Reference>& refs, Reference r) {
@@ -417,6 +426,8 @@ class DeltaCodec final : public Codec {
   std::deque<Reference> coded_frames_;
   uint32_t since_key_ = 0, next_index_ = 0;
   PassBuffer residual_, prediction_, plane_;
+  // A reduced-resolution pass: the sampled G-buffer of the last frame predicted to (its index).
+  std::optional<std::pair<uint32_t, GBuffer>> sampled_;
   std::vector<uint8_t> coded_, intra_;
   // Decoder state.
   std::deque<Reference> decoded_;
