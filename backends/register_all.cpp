@@ -19,6 +19,7 @@ void register_all_backends(Registries& r) {
   DHR_CODEC(make_hevc_codec);
   DHR_CODEC(make_av1_codec);
   DHR_CODEC(make_delta_codec);
+  DHR_CODEC(make_delta_video_codec);
 
   // Denoisers (backends/denoise/)
   DHR_DENOISER(make_none_denoiser);

@@ -97,6 +97,13 @@ Exemption exemption(const std::string& name) {
   return it == exemptions().end() ? Exemption{} : it->second;
 }
 
+// The default of a codec's `inner` parameter (the codec it wraps), or "".
+std::string inner_default(const Registry<Codec>& registry, const std::string& name) {
+  for (const ParamSpec& p : registry.get(name).params)
+    if (p.name == "inner" && p.default_value.is_string()) return p.default_value.get<std::string>();
+  return {};
+}
+
 // One codec configuration under test: a registry (the global one, or a local one), a codec
 // name and its parameters.
 struct Variant {
@@ -464,6 +471,10 @@ TEST_P(CodecConformance, ForeignFramesAreRejected) {
   const PassBuffer ao = test::make_smooth_ao({17, 13});
   for (const Variant& other : default_variants(*v.registry)) {
     if (other.name == v.name || exemption(other.name).accepts_any_bytes) continue;
+    // A codec that wraps this one (its default `inner` names it: delta_video around h264) puts
+    // this codec's own stream behind a header; a stream format that skips leading bytes (Annex
+    // B: loose framing, no checksum) cannot tell that from its own frames.
+    if (exemption(v.name).loose_framing && inner_default(*v.registry, other.name) == v.name) continue;
     auto enc = other.create();
     auto dec = v.create();
     if (!enc->refuses(ao.desc).empty() || !dec->refuses(ao.desc).empty()) continue;

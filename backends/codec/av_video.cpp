@@ -21,19 +21,6 @@ std::string av_error_text(int code) {
   return text;
 }
 
-// Lookup tables of the full-range mapping for one full_scale (av_video.h). With map = false
-// both are the identity up to full_scale (decoded values above it clamp to it).
-struct RangeMap {
-  std::array<uint8_t, 256> to_picture{}, from_picture{};
-  RangeMap(int full_scale, bool map) {
-    const int fs = std::clamp(full_scale, 1, 255);
-    for (int v = 0; v < 256; ++v) {
-      to_picture[size_t(v)] = map ? uint8_t((std::min(v, fs) * 255 + fs / 2) / fs) : uint8_t(v);
-      from_picture[size_t(v)] = map ? uint8_t((v * fs + 127) / 255) : uint8_t(std::min(v, fs));
-    }
-  }
-};
-
 class AvVideoCodec final : public Codec {
  public:
   AvVideoCodec(AvVideoFormat format, AvVideoSettings settings) : f_(std::move(format)), s_(settings) {
@@ -266,7 +253,7 @@ class AvVideoCodec final : public Codec {
       fail("{}: cannot write a picture: {}", f_.name, av_error_text(r));
     const Geometry g = geometry_of(in.desc);
     if (!g.colour) {
-      const RangeMap range(in.desc.full_scale, !lossless());
+      const FullRangeMap range(in.desc.full_scale, !lossless());
       for (int y = 0; y < g.padded_height; ++y) {
         const uint8_t* src = in.bytes.data() + size_t(std::min(y, g.height - 1)) * size_t(g.width);
         uint8_t* dst = frame_->data[0] + ptrdiff_t(y) * frame_->linesize[0];
@@ -332,7 +319,7 @@ class AvVideoCodec final : public Codec {
     out.desc = desc;
     out.bytes.resize(desc.byte_size());
     if (!g.colour) {
-      const RangeMap range(desc.full_scale, !lossless());
+      const FullRangeMap range(desc.full_scale, !lossless());
       for (int y = 0; y < g.height; ++y) {
         const uint8_t* src = f->data[0] + ptrdiff_t(y) * f->linesize[0];
         uint8_t* dst = out.bytes.data() + size_t(y) * size_t(g.width);

@@ -31,6 +31,9 @@ extern "C" {
 #include <libavcodec/avcodec.h>
 }
 
+#include <algorithm>
+#include <array>
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <string>
@@ -85,6 +88,20 @@ struct AvVideoFormat {
   std::function<void(const AvVideoSettings&, AvOptions&)> configure_encoder;
   // Decoder private options (name, value), e.g. dav1d's frame delay.
   std::vector<std::pair<std::string, std::string>> decoder_options;
+};
+
+// Lookup tables of the full-range mapping above for one full_scale: to_picture[v] =
+// round(v * 255 / full_scale), from_picture[u] = round(u * full_scale / 255). With map = false
+// both are the identity up to full_scale (values above it clamp to it).
+struct FullRangeMap {
+  std::array<uint8_t, 256> to_picture{}, from_picture{};
+  FullRangeMap(int full_scale, bool map) {
+    const int fs = std::clamp(full_scale, 1, 255);
+    for (int v = 0; v < 256; ++v) {
+      to_picture[size_t(v)] = map ? uint8_t((std::min(v, fs) * 255 + fs / 2) / fs) : uint8_t(v);
+      from_picture[size_t(v)] = map ? uint8_t((v * fs + 127) / 255) : uint8_t(std::min(v, fs));
+    }
+  }
 };
 
 std::unique_ptr<Codec> make_av_video_codec(AvVideoFormat format, AvVideoSettings settings);

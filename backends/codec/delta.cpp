@@ -60,10 +60,10 @@
 //                                             whichever is smaller (a keyframe when it is)
 //                                                                                     default true
 // Example: {"name": "delta", "params": {"inner": "zstd", "level": 1, "predictor": "reprojection"}}
+#include "backends/codec/reference_frames.h"
 #include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/checksum.h"
-#include "core/upsample.h"
 
 #include <algorithm>
 #include <cstring>
@@ -76,17 +76,6 @@ namespace {
 constexpr size_t kHeaderBytes = 9;  // type, frame, reference
 constexpr size_t kPredictedBytes = 12;  // with a predictor: CRC-32C of the frame, mask of predicted planes
 constexpr uint8_t kKeyframe = 'K', kDelta = 'D';
-
-void put_u32(uint8_t* p, uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = uint8_t(v >> (8 * i));
-}
-void put_u64(uint8_t* p, uint64_t v) {
-  for (int i = 0; i < 8; ++i) p[i] = uint8_t(v >> (8 * i));
-}
-uint32_t get_u32(const uint8_t* p) {
-  return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24;
-}
-uint64_t get_u64(const uint8_t* p) { return uint64_t(get_u32(p)) | uint64_t(get_u32(p + 4)) << 32; }
 
 // Planes of a buffer: the lights of a bitmask (bit p % 8 of byte p / 8 of each pixel), the
 // channels of an 8-bit buffer (byte p of each pixel).
@@ -159,25 +148,6 @@ nlohmann::json inner_params(const std::string& inner, int level, const std::stri
   fail("codec 'delta': level {} is not valid with inner lz4 (valid: 1 = fast, 3..12 = hc level)", level);
 }
 
-// One frame either end keeps as a reference.
-struct Reference {
-  uint32_t frame = 0;
-  PassBuffer buffer;
-};
-
-const Reference* find_reference(const std::deque<Reference>& refs, uint32_t frame, const PassDesc& desc) {
-  for (const Reference& r : refs)
-    if (r.frame == frame && r.buffer.desc == desc) return &r;
-  return nullptr;
-}
-
-std::string held_text(const std::deque<Reference>& refs) {
-  if (refs.empty()) return "none";
-  std::string s;
-  for (const Reference& r : refs) s += (s.empty() ? "" : ", ") + std::to_string(r.frame);
-  return s;
-}
-
 class DeltaCodec final : public Codec {
  public:
   explicit DeltaCodec(const Params& p)
@@ -188,24 +158,20 @@ class DeltaCodec final : public Codec {
         inner_(registries().codecs.create(
             p.get_string("inner"), inner_params(p.get_string("inner"), p.get_int("level"), p.get_string("layout")))) {
     if (p.get_string("predictor") != "none")
-      predictor_ = registries().predictors.create(p.get_string("predictor"), {{"filter", p.get_string("filter")}});
+      carrier_.emplace("delta", registries().predictors.create(p.get_string("predictor"), {{"filter", p.get_string("filter")}}));
   }
 
   bool lossless() const override { return true; }
   bool stateful() const override { return true; }  // frames reference earlier ones
   std::string refuses(const PassDesc& desc) const override {
-    if (predictor_ && (desc.kind == PassKind::Colour || desc.kind == PassKind::Depth))
+    if (carrier_ && (desc.kind == PassKind::Colour || desc.kind == PassKind::Depth))
       return fmt::format("delta with predictor reprojection carries lighting passes only ({} frames have no G-buffer "
                          "prediction here; use predictor none)",
                          pass_kind_name(desc.kind));
     return inner_->refuses(desc);
   }
-  int gbuffers_referenced() const override { return predictor_ ? references_ : 0; }
-  int holds() const override {
-    int newest = -1;
-    for (const Reference& r : decoded_) newest = std::max(newest, int(r.frame));
-    return newest;
-  }
+  int gbuffers_referenced() const override { return carrier_ ? references_ : 0; }
+  int holds() const override { return newest_reference(decoded_); }
 
   void encode(const PassBuffer& in, const EncodeOptions& options, std::vector<uint8_t>& out) override {
     if (std::string why = in.desc.validate(); !why.empty()) fail("delta: invalid buffer description: {}", why);
@@ -213,7 +179,7 @@ class DeltaCodec final : public Codec {
       fail("delta: a {}x{} {} buffer holds {} bytes, {} expected", in.desc.width, in.desc.height,
            pass_kind_name(in.desc.kind), in.bytes.size(), in.desc.byte_size());
     const FrameContext& ctx = options.context;
-    if (predictor_ && !ctx.gbuf)
+    if (carrier_ && !ctx.gbuf)
       fail("delta: predictor reprojection needs the frame's G-buffer (FrameContext), none was given");
     const uint32_t index = ctx.gbuf ? ctx.frame : next_index_;
     if (!coded_frames_.empty() && index <= coded_frames_.back().frame)
@@ -229,7 +195,7 @@ class DeltaCodec final : public Codec {
       ref = find_reference(coded_frames_, coded_frames_.back().frame, in.desc);
     if (since_key_ + 1 >= uint32_t(keyframe_interval_)) ref = nullptr;
     const GBuffer* ref_gbuf = nullptr;
-    if (ref && predictor_) {
+    if (ref && carrier_) {
       ref_gbuf = ctx.gbuffer_of ? ctx.gbuffer_of(ref->frame) : nullptr;
       if (!ref_gbuf) ref = nullptr;
     }
@@ -238,11 +204,12 @@ class DeltaCodec final : public Codec {
     if (ref) {
       const PassBuffer* prediction = &ref->buffer;  // without a predictor: the reference as it is
       mask = all_planes(in.desc);
-      if (predictor_) {
-        prediction = &reproject(*ref, *ref_gbuf, index, *ctx.gbuf);
+      if (carrier_) {
+        PassBuffer& predicted = carrier_->carry(*ref, *ref_gbuf, index, *ctx.gbuf);
+        prediction = &predicted;
         if (plane_choice_ && plane_count(in.desc) > 1) {
-          mask = choose_planes(in, prediction_);
-          mask_planes(prediction_, mask);
+          mask = choose_planes(in, predicted);
+          mask_planes(predicted, mask);
         }
       }
       if (mask != 0) {
@@ -250,7 +217,7 @@ class DeltaCodec final : public Codec {
         make_residual(in, *prediction, residual_.bytes);
         inner_->encode(residual_, {}, coded_);
       }
-      if (mask == 0 || (predictor_ && intra_check_)) {
+      if (mask == 0 || (carrier_ && intra_check_)) {
         inner_->encode(in, {}, intra_);
         if (mask == 0 || intra_.size() <= coded_.size()) {
           ref = nullptr;  // coded alone: a keyframe
@@ -265,14 +232,14 @@ class DeltaCodec final : public Codec {
     out[0] = ref ? kDelta : kKeyframe;
     put_u32(out.data() + 1, index);
     put_u32(out.data() + 5, ref ? ref->frame : index);
-    if (predictor_) {
+    if (carrier_) {
       put_u32(out.data() + kHeaderBytes, crc32c(in.bytes));
       put_u64(out.data() + kHeaderBytes + 4, ref ? mask : 0);
     }
     std::memcpy(out.data() + header, coded_.data(), coded_.size());
     // Only now, after everything that can throw, does the state move on.
     since_key_ = ref ? since_key_ + 1 : 0;
-    keep(coded_frames_, {index, in});
+    keep_reference(coded_frames_, {index, in}, references_);
     next_index_ = index + 1;
   }
 
@@ -297,8 +264,8 @@ class DeltaCodec final : public Codec {
       error = "delta: corrupt keyframe header";
       return false;
     }
-    const uint64_t mask = predictor_ ? get_u64(in.data() + kHeaderBytes + 4) : all_planes(desc);
-    if (predictor_ && ((mask & ~all_planes(desc)) != 0 || (type == kKeyframe && mask != 0))) {
+    const uint64_t mask = carrier_ ? get_u64(in.data() + kHeaderBytes + 4) : all_planes(desc);
+    if (carrier_ && ((mask & ~all_planes(desc)) != 0 || (type == kKeyframe && mask != 0))) {
       error = fmt::format("delta: plane mask {:#x} is not valid for a {} {} with {} planes (valid: {})", mask,
                           type == kKeyframe ? "keyframe of" : "frame of", pass_kind_name(desc.kind), plane_count(desc),
                           type == kKeyframe ? std::string("0 on a keyframe")
@@ -317,22 +284,12 @@ class DeltaCodec final : public Codec {
         error = fmt::format("delta: frame {} needs frame {}, the decoder holds {}", index, reference, held_text(decoded_));
         return false;
       }
-      if (predictor_) {
-        ref_gbuf = ctx.gbuffer_of ? ctx.gbuffer_of(reference) : nullptr;
-        if (!ctx.gbuf || ctx.frame != index || !ref_gbuf) {
-          error = fmt::format("delta: frame {} is predicted from frame {} by reprojection: the client's G-buffers of "
-                              "both frames are needed ({} given)",
-                              index, reference, !ctx.gbuf || ctx.frame != index ? "not this frame's" : "not the reference's");
+      if (carrier_) {
+        if (std::string why = reprojection_context_problem(ctx, index, reference, desc); !why.empty()) {
+          error = "delta: " + why;
           return false;
         }
-        if (ref_gbuf->width() != ctx.gbuf->width() || ref_gbuf->height() != ctx.gbuf->height() ||
-            pass_scale(ctx.gbuf->width(), ctx.gbuf->height(), desc.width, desc.height) == 0) {
-          error = fmt::format("delta: a {}x{} pass with G-buffers of {}x{} (this frame) and {}x{} (frame {}); "
-                              "both must be the pass's size, or a multiple of it up to {} (a reduced-resolution pass)",
-                              desc.width, desc.height, ctx.gbuf->width(), ctx.gbuf->height(), ref_gbuf->width(),
-                              ref_gbuf->height(), reference, kMaxPassScale);
-          return false;
-        }
+        ref_gbuf = ctx.gbuffer_of(reference);
       }
     }
     PassBuffer decoded;
@@ -342,13 +299,14 @@ class DeltaCodec final : public Codec {
     }
     if (ref) {
       const PassBuffer* prediction = &ref->buffer;
-      if (predictor_) {
-        prediction = &reproject(*ref, *ref_gbuf, index, *ctx.gbuf);
-        mask_planes(prediction_, mask);
+      if (carrier_) {
+        PassBuffer& predicted = carrier_->carry(*ref, *ref_gbuf, index, *ctx.gbuf);
+        mask_planes(predicted, mask);
+        prediction = &predicted;
       }
       apply_residual(decoded.bytes, *prediction, desc.kind);
     }
-    if (predictor_) {
+    if (carrier_) {
       const uint32_t expected = get_u32(in.data() + kHeaderBytes), got = crc32c(decoded.bytes);
       if (got != expected) {
         error = fmt::format("delta: frame {} reconstructed from frame {} does not match the server's (CRC-32C "
@@ -357,14 +315,14 @@ class DeltaCodec final : public Codec {
         return false;
       }
     }
-    keep(decoded_, {index, decoded});
+    keep_reference(decoded_, {index, decoded}, references_);
     out = std::move(decoded);
     return true;
   }
 
   void reset() override {
     inner_->reset();
-    sampled_.reset();
+    if (carrier_) carrier_->reset();
     coded_frames_.clear();
     decoded_.clear();
     since_key_ = 0;
@@ -386,48 +344,16 @@ class DeltaCodec final : public Codec {
     return mask;
   }
 
-  // The reference carried to frame `frame` by the predictor, into prediction_. A pass traced at
-  // reduced resolution is reprojected between the G-buffers of its samples (core/upsample.h),
-  // which both ends derive alike from their full-res ones; this frame's is kept, since the next
-  // frame is usually predicted from it.
-  PassBuffer& reproject(const Reference& ref, const GBuffer& ref_gbuf, uint32_t frame, const GBuffer& gbuf) {
-    const PassDesc& d = ref.buffer.desc;
-    if (d.width == gbuf.width() && d.height == gbuf.height()) {
-      predictor_->predict({ref.buffer, ref_gbuf, gbuf}, prediction_);
-      return prediction_;
-    }
-    const int scale = pass_scale(gbuf.width(), gbuf.height(), d.width, d.height);
-    if (scale == 0 || ref_gbuf.width() != gbuf.width() || ref_gbuf.height() != gbuf.height())
-      fail("delta: a {}x{} pass cannot be reprojected with G-buffers of {}x{} and {}x{} (valid: two G-buffers of one "
-           "size, of which the pass is 1/1..1/{} in each side)",
-           d.width, d.height, ref_gbuf.width(), ref_gbuf.height(), gbuf.width(), gbuf.height(), kMaxPassScale);
-    const bool kept = sampled_ && sampled_->first == ref.frame && sampled_->second.width() == d.width &&
-                      sampled_->second.height() == d.height;
-    const GBuffer src = kept ? std::move(sampled_->second) : downsample_gbuffer(ref_gbuf, scale);
-    GBuffer dst = downsample_gbuffer(gbuf, scale);
-    predictor_->predict({ref.buffer, src, dst}, prediction_);
-    sampled_.emplace(frame, std::move(dst));
-    return prediction_;
-  }
-  void keep(std::deque<Reference>& refs, Reference r) {
-    // A frame index seen again (a resent or reordered frame) replaces the older entry.
-    std::erase_if(refs, [&](const Reference& x) { return x.frame == r.frame; });
-    refs.push_back(std::move(r));
-    while (int(refs.size()) > references_) refs.pop_front();
-  }
-
-  size_t header_bytes() const { return kHeaderBytes + (predictor_ ? kPredictedBytes : 0); }
+  size_t header_bytes() const { return kHeaderBytes + (carrier_ ? kPredictedBytes : 0); }
 
   int keyframe_interval_, references_;
   bool plane_choice_, intra_check_;
   std::unique_ptr<Codec> inner_;
-  std::unique_ptr<Predictor> predictor_;  // null: predictor none
+  std::optional<ReferenceCarrier> carrier_;  // none: predictor none
   // Encoder state.
   std::deque<Reference> coded_frames_;
   uint32_t since_key_ = 0, next_index_ = 0;
-  PassBuffer residual_, prediction_, plane_;
-  // A reduced-resolution pass: the sampled G-buffer of the last frame predicted to (its index).
-  std::optional<std::pair<uint32_t, GBuffer>> sampled_;
+  PassBuffer residual_, plane_;
   std::vector<uint8_t> coded_, intra_;
   // Decoder state.
   std::deque<Reference> decoded_;
