@@ -389,6 +389,46 @@ TEST(FrameLoop, ReprojectedDeltaRecoversFromTheFrameTheClientHolds) {
   EXPECT_LT(ao_bytes[8], ao_bytes[1]) << "recovery from a held frame should cost less than keyframes";
 }
 
+// delta_video (AO predicted from the reconstruction the client holds, the residual through
+// H.264): without loss every frame decodes (its reconstruction CRC matches the server's); with
+// 5 % of frames lost the client reports the reconstruction it holds and the server restarts the
+// inner stream from it, so the AO pass keeps arriving.
+TEST(FrameLoop, LossyDeltaDecodesEveryFrameAndRecoversFromLoss) {
+  for (double loss : {0.0, 0.05}) {
+    SimConfig c = small_config(60);
+    c.width = 96;
+    c.height = 54;
+    c.uplink.latency_ms = 5;
+    c.downlink.latency_ms = 5;
+    if (loss > 0) {
+      c.downlink.loss_model = LinkConfig::Loss::Independent;
+      c.downlink.loss_rate = loss;
+    }
+    c.seed = 7;
+    c.pass("ao").denoiser = {"svgf_ao"};
+    c.pass("ao").codec = {"delta_video", {{"inner", "h264"}, {"crf", 23}, {"predictor", "reprojection"}}};
+    RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
+    const nlohmann::json m = r.metrics();
+    const auto& ao = m["passes"][1];
+    const uint64_t lost = ao["frames_lost"], sent = ao["server_frames"], errors = ao["decode_errors"];
+    std::printf("room 96x54, delta_video h264 crf 23, %.0f%% loss: AO %.0f B/frame, lost %llu, decode errors %llu, "
+                "SSIM %.4f\n",
+                100 * loss, ao["bytes_per_frame"].get<double>(), (unsigned long long)lost, (unsigned long long)errors,
+                m["ssim_local_mean"].get<double>());
+    for (const auto& f : r.frames) EXPECT_TRUE(std::isfinite(f.score("ssim")));
+    if (loss == 0) {
+      EXPECT_EQ(errors, 0u);
+      EXPECT_EQ(ao["frames_completed"].get<uint64_t>(), sent);
+      EXPECT_GT(m["ssim_local_mean"].get<double>(), 0.9);
+      continue;
+    }
+    EXPECT_GT(lost, 0u) << "the loss model lost no frame: the test does not test anything";
+    EXPECT_LE(errors, 3 * lost + 1);
+    EXPECT_GT(ao["frames_completed"].get<uint64_t>(), sent / 2);
+    EXPECT_GT(m["ssim_local_mean"].get<double>(), 0.8);
+  }
+}
+
 TEST(FrameLoop, RemoteBaselineShowsNewestColourFrame) {
   SimConfig c = small_config(6);
   c.mode = "remote";
