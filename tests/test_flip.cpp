@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <vector>
 
@@ -145,6 +146,40 @@ TEST(Flip, IndependentOfThreadCount) {
   }
   EXPECT_EQ(one.map, two.map);
   EXPECT_EQ(one.mean, two.mean);
+}
+
+// The bits of the map and the mean, pinned: FLIP's filters were rewritten for speed (outputs kept
+// in registers across taps, AVX2 and baseline builds) with every product and sum in the same
+// order, so these digests are those of the one-tap-at-a-time filters they replaced (commit
+// ada004e). Widths around the 32-output blocks, kernels wider than the image, two viewing setups.
+TEST(Flip, SameBitsAsTheOneTapAtATimeFilters) {
+  struct Case {
+    int w, h;
+    double ppd;
+    uint64_t want_map, want_mean;
+  };
+  const Case cases[] = {
+      {150, 90, 67.0, 0xaa6700c3f5f60499, 0x3fc1e2f32bad04a1},
+      {31, 7, 67.0, 0xed23d4a8e8de4d8c, 0x3fc5b01fa04b8097},
+      {33, 40, 67.0, 0x9615d716ef00e692, 0x3fc36f5679eebd49},
+      {97, 61, 20.0, 0xd29bbde0e5cafb1c, 0x3fd527fdcd918032},
+      {64, 64, 150.0, 0x79273f9cdada919e, 0x3fb7c409be018000},
+      {5, 300, 67.0, 0x0db4aa95c269e53e, 0x3fc45b5db5dbd194},
+  };
+  for (const Case& c : cases) {
+    const ImageRGB8 a = scene_like(c.w, c.h, 11), b = with_noise(a, 30, 12);
+    const FlipResult r = flip(a, b, c.ppd);
+    uint64_t map_hash = 1469598103934665603ull;  // FNV-1a over the map's float bits
+    for (size_t i = 0; i < r.map.size(); ++i) {
+      uint32_t bits;
+      std::memcpy(&bits, &r.map[i], sizeof bits);
+      map_hash = (map_hash ^ bits) * 1099511628211ull;
+    }
+    uint64_t mean_bits;
+    std::memcpy(&mean_bits, &r.mean, sizeof mean_bits);
+    EXPECT_EQ(map_hash, c.want_map) << c.w << "x" << c.h << " at " << c.ppd << " ppd";
+    EXPECT_EQ(mean_bits, c.want_mean) << c.w << "x" << c.h << " at " << c.ppd << " ppd";
+  }
 }
 
 TEST(Flip, TinyImagesWork) {
