@@ -173,20 +173,22 @@ void decoder_seeds(const fs::path& dir) {
       write(dir, e.name + "_" + pass_kind_name(d.kind), decoder_seed(e.name, 0, d, encoded));  // 0: default parameters
     }
   }
-  // delta predicting through G-buffers: keyframes (which need no prediction to decode), under the
-  // variant index fuzz_decoders gives {"predictor": "reprojection"} (its variants: the defaults,
-  // then each non-default choice of each parameter, in the parameters' order).
-  const CodecEntry* delta = registries().codecs.find("delta");
-  if (delta) {
+  // Codecs predicting through G-buffers (delta, delta_video): keyframes (which need no
+  // prediction to decode), under the variant index fuzz_decoders gives {"predictor":
+  // "reprojection"} (its variants: the defaults, then each non-default choice of each parameter,
+  // in the parameters' order).
+  int predicting = 0;
+  for (const auto& e : registries().codecs.entries()) {
     int variant = 1, reprojection = -1;
-    for (const auto& spec : delta->params)
+    for (const auto& spec : e.params)
       for (const auto& choice : spec.choices) {
         if (choice == spec.default_value) continue;
         if (spec.name == "predictor" && choice == "reprojection") reprojection = variant;
         ++variant;
       }
-    if (reprojection < 0) throw Error("make_fuzz_corpus: delta has no predictor 'reprojection'");
-    auto codec = registries().codecs.create("delta", {{"predictor", "reprojection"}});
+    if (reprojection < 0) continue;
+    ++predicting;
+    auto codec = registries().codecs.create(e.name, {{"predictor", "reprojection"}});
     for (const auto& d : descs) {
       if (!codec->refuses(d).empty()) continue;
       const PassBuffer in = valid_buffer(d, 11);
@@ -197,10 +199,11 @@ void decoder_seeds(const fs::path& dir) {
       Bytes encoded;
       codec->reset();
       codec->encode(in, options, encoded);
-      write(dir, std::string("delta_reprojection_") + pass_kind_name(d.kind),
-            decoder_seed("delta", uint8_t(reprojection), d, encoded));
+      write(dir, e.name + "_reprojection_" + pass_kind_name(d.kind),
+            decoder_seed(e.name, uint8_t(reprojection), d, encoded));
     }
   }
+  if (predicting == 0) throw Error("make_fuzz_corpus: no codec has a predictor 'reprojection' (delta had)");
   write(dir, "unknown_name", Bytes{'?', 0, 0, 0, 16, 16, 0, 1, 1, 1, 0, 0xFF});
 }
 
