@@ -122,3 +122,68 @@ def bd_table(curve_map, anchor, measure=bd_rate):
                 row[fam] = str(e)
         table[(scene, cond)] = row
     return table
+
+
+def beats(test, other, higher_is_better=True):
+    """Does the `test` curve beat the `other` one (lists of (bitrate, quality))? Where their
+    quality ranges overlap: it needs less bitrate at equal quality (BD-rate < 0). Where they do
+    not: its whole quality range lies on the better side and its cheapest point costs no more than
+    the other's dearest (better quality at a bitrate the other also spends). None when that cannot
+    be told (a curve too short to fit, or better quality only at a higher bitrate than any of the
+    other's)."""
+    try:
+        return bd_rate(other, test) < 0.0
+    except NoOverlap:
+        tq, oq = [q for _, q in test], [q for _, q in other]
+        above = min(tq) > max(oq) if higher_is_better else max(tq) < min(oq)
+        below = max(tq) < min(oq) if higher_is_better else min(tq) > max(oq)
+        if below:
+            return False
+        if above and min(r for r, _ in test) <= max(r for r, _ in other):
+            return True
+        return None
+    except ValueError:
+        return None
+
+
+def crossover(curve_map, is_remote, rtt_of, latency_key="network", higher_is_better=True):
+    """Where hybrid starts to win, per scene (and other conditions than `latency_key`): for every
+    hybrid family, the smallest round-trip time from which on, at every measured RTT, it beats
+    (beats()) every remote family measured there. `is_remote(family)` tells the sides apart;
+    `rtt_of(value)` gives the RTT in ms of a `latency_key` value, or None (a trace: left out).
+    Returns {(scene, other conditions): {"rtts": [...], "families": {family: RTT or None (it does
+    not win at the largest RTT)}, "wins": {family: {rtt: True/False/None}}}}."""
+    groups = {}
+    for (scene, cond, fam), pts in curve_map.items():
+        lat = dict(cond).get(latency_key)
+        rtt = rtt_of(lat) if lat is not None else None
+        if rtt is None:
+            continue
+        rest = tuple((k, v) for k, v in cond if k != latency_key)
+        groups.setdefault((scene, rest), {}).setdefault(rtt, {})[fam] = [(x, y) for x, y, *_ in pts]
+    out = {}
+    for key, by_rtt in sorted(groups.items()):
+        rtts = sorted(by_rtt)
+        hybrids = sorted({f for fams in by_rtt.values() for f in fams if not is_remote(f)})
+        wins = {}
+        for h in hybrids:
+            wins[h] = {}
+            for rtt in rtts:
+                fams = by_rtt[rtt]
+                remotes = [f for f in fams if is_remote(f)]
+                if h not in fams or not remotes:
+                    wins[h][rtt] = None
+                    continue
+                results = [beats(fams[h], fams[r], higher_is_better) for r in remotes]
+                wins[h][rtt] = False if False in results else (None if None in results else True)
+        families = {}
+        for h in hybrids:
+            start = None
+            for rtt in reversed(rtts):
+                if wins[h][rtt] is True:
+                    start = rtt
+                else:
+                    break
+            families[h] = start
+        out[key] = {"rtts": rtts, "families": families, "wins": wins}
+    return out

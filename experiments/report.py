@@ -361,6 +361,68 @@ def rate_quality_section(d, exp, ok, metrics, out):
             bd_section(rq, cm, anchor, im, out)
         for anchor in anchors:
             bd_section(rq, cm, anchor, im, out, equal_bandwidth=True)
+        crossover_section(rq, cm, ok, sweep_keys, im, out)
+
+
+def network_rtt_ms(runs):
+    """{network value: round-trip time in ms} for the networks whose two links have a constant
+    latency (the same in every run of that network); other networks (traces, random latency) are
+    left out."""
+    rtts = {}
+    for r in runs:
+        cfg = r.get("config", {})
+        name = r.get("settings", {}).get("network")
+        up, down = cfg.get("uplink", {}), cfg.get("downlink", {})
+        if name is None:
+            continue
+        rtt = None
+        if up.get("latency") == "constant" and down.get("latency") == "constant":
+            rtt = float(up.get("latency_ms", 0.0)) + float(down.get("latency_ms", 0.0))
+        if rtts.setdefault(str(name), rtt) != rtt:
+            rtts[str(name)] = None
+    return rtts
+
+
+def crossover_section(rq, cm, runs, sweep_keys, im, out):
+    """Per scene, the round-trip time from which on hybrid wins on image metric `im`: the
+    smallest measured RTT from which on, at every larger one too, a hybrid family beats every
+    remote family (less bitrate at equal quality where the curves meet, a better quality range
+    where they do not)."""
+    if "network" not in sweep_keys:
+        return
+    rtts = network_rtt_ms(runs)
+    remote = {rq.family_of(r) for r in runs if r.get("config", {}).get("mode") == "remote"}
+    if not remote or not any(v is not None for v in rtts.values()):
+        return
+    higher = im.get("higher_is_better", True)
+    table = rq.crossover(cm, lambda f: f in remote, lambda v: rtts.get(v), "network", higher)
+    if not table:
+        return
+    name = im["name"].upper()
+    out.append(f"Where hybrid starts to win on {name}: the smallest round-trip time from which on, at every larger "
+               "RTT measured, a hybrid family beats every remote family (less bitrate at equal quality where the "
+               "curves meet, BD-rate < 0; where they do not, a better quality range at a bitrate remote also "
+               "spends); the families that win from there; and, per RTT, how many hybrid families beat every "
+               "remote one (of those measured):\n")
+    rtt_cols = sorted({t for row in table.values() for t in row["rtts"]})
+    out.append("| scene | conditions | hybrid wins from RTT | families | "
+               + " | ".join(f"{t:g} ms" for t in rtt_cols) + " |")
+    out.append("|---|---|---|---|" + "---|" * len(rtt_cols))
+    for (scene, rest), row in sorted(table.items()):
+        starts = [t for t in row["families"].values() if t is not None]
+        best = min(starts) if starts else None
+        fams = sorted(f for f, t in row["families"].items() if t is not None and t == best)
+        per_rtt = []
+        for t in rtt_cols:
+            if t not in row["rtts"]:
+                per_rtt.append("–")
+                continue
+            n = sum(1 for f in row["wins"] if row["wins"][f].get(t) is True)
+            per_rtt.append(f"{n} of {len(row['wins'])}")
+        out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in rest) or '–'} | "
+                   f"{f'{best:g} ms' if best is not None else 'not at the largest RTT'} | "
+                   f"{', '.join(fams) or '–'} | " + " | ".join(per_rtt) + " |")
+    out.append("")
 
 
 def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):

@@ -100,5 +100,42 @@ class Curves(unittest.TestCase):
         self.assertLess(table[("room", (("downlink.latency_ms", "0"),))]["hybrid"], 0.0)
 
 
+class Crossover(unittest.TestCase):
+    REMOTE = [(1.0, 0.80), (2.0, 0.85), (4.0, 0.88)]
+
+    def test_beats(self):
+        r = self.REMOTE
+        self.assertTrue(rq.beats([(x * 0.5, q) for x, q in r], r))      # half the rate at equal quality
+        self.assertFalse(rq.beats([(x * 2.0, q) for x, q in r], r))     # twice
+        self.assertTrue(rq.beats([(1.0, 0.95), (2.0, 0.97)], r))       # above every remote point, no dearer
+        self.assertFalse(rq.beats([(1.0, 0.60), (2.0, 0.70)], r))      # below
+        self.assertIsNone(rq.beats([(8.0, 0.95), (16.0, 0.97)], r))    # above, but only at a higher rate
+        self.assertIsNone(rq.beats([(1.0, 0.9)], r))                   # one point: no curve
+        # Lower is better (FLIP): the test's errors all below the other's.
+        flip_r = [(1.0, 0.20), (2.0, 0.15), (4.0, 0.12)]
+        self.assertTrue(rq.beats([(1.0, 0.05), (2.0, 0.04)], flip_r, higher_is_better=False))
+        self.assertFalse(rq.beats([(1.0, 0.05), (2.0, 0.04)], flip_r, higher_is_better=True))
+
+    def test_crossover_is_where_hybrid_wins_from_on(self):
+        # Remote loses quality with latency, hybrid keeps it: hybrid loses at 0 ms, wins from 50 on.
+        rows = []
+        for rtt, drop in ((0, 0.0), (50, 0.08), (200, 0.2)):
+            rows += [("remote", rtt, x, q - drop) for x, q in self.REMOTE]
+            rows += [("hybrid", rtt, x * 2.0, q - drop / 8) for x, q in self.REMOTE]
+            rows += [("hybrid cheap", rtt, x * 0.25, 0.5) for x in (1.0, 2.0)]  # below every remote point
+        runs = [{"id": f"r{i}", "scene": "room", "family": f, "settings": {"network": f"rtt{rtt}", "crf": i},
+                 "mbps": x, "ssim": q} for i, (f, rtt, x, q) in enumerate(rows)]
+        cm = rq.curves(runs, ["network", "crf"], ["crf"], lambda r: r["mbps"], lambda r: r["ssim"])
+        out = rq.crossover(cm, lambda f: f.startswith("remote"), lambda v: float(v[3:]))
+        c = out[("room", ())]
+        self.assertEqual(c["rtts"], [0.0, 50.0, 200.0])
+        self.assertEqual(c["families"]["hybrid"], 50.0)
+        self.assertIsNone(c["families"]["hybrid cheap"])
+        self.assertFalse(c["wins"]["hybrid"][0.0])
+        # A trace network (no RTT) is left out.
+        out = rq.crossover(cm, lambda f: f.startswith("remote"), lambda v: None if v == "rtt50" else float(v[3:]))
+        self.assertEqual(out[("room", ())]["rtts"], [0.0, 200.0])
+
+
 if __name__ == "__main__":
     unittest.main()
