@@ -73,9 +73,8 @@
 namespace dhr {
 namespace {
 
-constexpr size_t kHeaderBytes = 9;  // type, frame, reference
+constexpr size_t kHeaderBytes = kFrameStartBytes;  // type, frame, reference
 constexpr size_t kPredictedBytes = 12;  // with a predictor: CRC-32C of the frame, mask of predicted planes
-constexpr uint8_t kKeyframe = 'K', kDelta = 'D';
 
 // Planes of a buffer: the lights of a bitmask (bit p % 8 of byte p / 8 of each pixel), the
 // channels of an 8-bit buffer (byte p of each pixel).
@@ -174,31 +173,11 @@ class DeltaCodec final : public Codec {
   int holds() const override { return newest_reference(decoded_); }
 
   void encode(const PassBuffer& in, const EncodeOptions& options, std::vector<uint8_t>& out) override {
-    if (std::string why = in.desc.validate(); !why.empty()) fail("delta: invalid buffer description: {}", why);
-    if (in.bytes.size() != in.desc.byte_size())
-      fail("delta: a {}x{} {} buffer holds {} bytes, {} expected", in.desc.width, in.desc.height,
-           pass_kind_name(in.desc.kind), in.bytes.size(), in.desc.byte_size());
     const FrameContext& ctx = options.context;
-    if (carrier_ && !ctx.gbuf)
-      fail("delta: predictor reprojection needs the frame's G-buffer (FrameContext), none was given");
-    const uint32_t index = ctx.gbuf ? ctx.frame : next_index_;
-    if (!coded_frames_.empty() && index <= coded_frames_.back().frame)
-      fail("delta: frame {} coded after frame {} (frames must come in increasing order)", index,
-           coded_frames_.back().frame);
-
-    // The reference: the frame the client reported holding after a loss, else the newest coded
-    // frame; none (a keyframe) when it is due, forced, gone or its G-buffer is no longer kept.
-    const Reference* ref = nullptr;
-    if (options.client_holds >= 0)
-      ref = find_reference(coded_frames_, uint32_t(options.client_holds), in.desc);
-    else if (!options.force_keyframe && !coded_frames_.empty())
-      ref = find_reference(coded_frames_, coded_frames_.back().frame, in.desc);
-    if (since_key_ + 1 >= uint32_t(keyframe_interval_)) ref = nullptr;
-    const GBuffer* ref_gbuf = nullptr;
-    if (ref && carrier_) {
-      ref_gbuf = ctx.gbuffer_of ? ctx.gbuffer_of(ref->frame) : nullptr;
-      if (!ref_gbuf) ref = nullptr;
-    }
+    const uint32_t index = coded_frame_index("delta", in, options, carrier_.has_value(), next_index_, coded_frames_);
+    const auto [ref_chosen, ref_gbuf] =
+        choose_reference(coded_frames_, options, in.desc, since_key_ + 1 >= uint32_t(keyframe_interval_), carrier_.has_value());
+    const Reference* ref = ref_chosen;
 
     uint64_t mask = 0;  // planes coded against the prediction
     if (ref) {
@@ -229,9 +208,7 @@ class DeltaCodec final : public Codec {
     }
     const size_t header = header_bytes();
     out.resize(header + coded_.size());
-    out[0] = ref ? kDelta : kKeyframe;
-    put_u32(out.data() + 1, index);
-    put_u32(out.data() + 5, ref ? ref->frame : index);
+    put_frame_start(out.data(), {!ref, index, ref ? ref->frame : index});
     if (carrier_) {
       put_u32(out.data() + kHeaderBytes, crc32c(in.bytes));
       put_u64(out.data() + kHeaderBytes + 4, ref ? mask : 0);
@@ -250,48 +227,21 @@ class DeltaCodec final : public Codec {
   bool decode_in_context(std::span<const uint8_t> in, const PassDesc& desc, const FrameContext& ctx, PassBuffer& out,
                          std::string& error) override {
     const size_t header = header_bytes();
-    if (in.size() < header) {
-      error = fmt::format("delta: {} bytes, shorter than the {}-byte header", in.size(), header);
-      return false;
-    }
-    const uint8_t type = in[0];
-    const uint32_t index = get_u32(in.data() + 1), reference = get_u32(in.data() + 5);
-    if (type != kKeyframe && type != kDelta) {
-      error = fmt::format("delta: unknown frame type {:#04x}", type);
-      return false;
-    }
-    if (type == kKeyframe && reference != index) {
-      error = "delta: corrupt keyframe header";
-      return false;
-    }
+    FrameStart start;
+    if (error = read_frame_start("delta", in, header, start); !error.empty()) return false;
+    const uint32_t index = start.index, reference = start.reference;
     const uint64_t mask = carrier_ ? get_u64(in.data() + kHeaderBytes + 4) : all_planes(desc);
-    if (carrier_ && ((mask & ~all_planes(desc)) != 0 || (type == kKeyframe && mask != 0))) {
+    if (carrier_ && ((mask & ~all_planes(desc)) != 0 || (start.keyframe && mask != 0))) {
       error = fmt::format("delta: plane mask {:#x} is not valid for a {} {} with {} planes (valid: {})", mask,
-                          type == kKeyframe ? "keyframe of" : "frame of", pass_kind_name(desc.kind), plane_count(desc),
-                          type == kKeyframe ? std::string("0 on a keyframe")
-                                            : fmt::format("bits within {:#x}", all_planes(desc)));
+                          start.keyframe ? "keyframe of" : "frame of", pass_kind_name(desc.kind), plane_count(desc),
+                          start.keyframe ? std::string("0 on a keyframe")
+                                         : fmt::format("bits within {:#x}", all_planes(desc)));
       return false;
     }
     const Reference* ref = nullptr;
-    const GBuffer* ref_gbuf = nullptr;
-    if (type == kDelta) {
-      if (reference >= index) {
-        error = fmt::format("delta: frame {} claims to be predicted from the later frame {}", index, reference);
-        return false;
-      }
-      ref = find_reference(decoded_, reference, desc);
-      if (!ref) {
-        error = fmt::format("delta: frame {} needs frame {}, the decoder holds {}", index, reference, held_text(decoded_));
-        return false;
-      }
-      if (carrier_) {
-        if (std::string why = reprojection_context_problem(ctx, index, reference, desc); !why.empty()) {
-          error = "delta: " + why;
-          return false;
-        }
-        ref_gbuf = ctx.gbuffer_of(reference);
-      }
-    }
+    if (!start.keyframe &&
+        !(error = find_delta_reference("delta", decoded_, start, desc, ctx, carrier_.has_value(), ref)).empty())
+      return false;
     PassBuffer decoded;
     if (!inner_->decode(in.subspan(header), desc, decoded, error)) {
       error = "delta: " + error;
@@ -300,7 +250,7 @@ class DeltaCodec final : public Codec {
     if (ref) {
       const PassBuffer* prediction = &ref->buffer;
       if (carrier_) {
-        PassBuffer& predicted = carrier_->carry(*ref, *ref_gbuf, index, *ctx.gbuf);
+        PassBuffer& predicted = carrier_->carry(*ref, *ctx.gbuffer_of(reference), index, *ctx.gbuf);
         mask_planes(predicted, mask);
         prediction = &predicted;
       }

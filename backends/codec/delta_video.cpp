@@ -63,7 +63,6 @@ namespace dhr {
 namespace {
 
 constexpr size_t kHeaderBytes = 17;  // type, frame, reference, CRC-32C of the bits, of the reconstruction
-constexpr uint8_t kKeyframe = 'K', kDelta = 'D';
 constexpr int kResidualZero = 128;
 
 nlohmann::json inner_params(const Params& p) {
@@ -120,30 +119,10 @@ class DeltaVideoCodec final : public Codec {
 
   void encode(const PassBuffer& in, const EncodeOptions& options, std::vector<uint8_t>& out) override {
     if (std::string why = refuses(in.desc); !why.empty()) fail("delta_video: cannot encode this buffer: {}", why);
-    if (in.bytes.size() != in.desc.byte_size())
-      fail("delta_video: a {}x{} {} buffer holds {} bytes, {} expected", in.desc.width, in.desc.height,
-           pass_kind_name(in.desc.kind), in.bytes.size(), in.desc.byte_size());
     const FrameContext& ctx = options.context;
-    if (carrier_ && !ctx.gbuf)
-      fail("delta_video: predictor reprojection needs the frame's G-buffer (FrameContext), none was given");
-    const uint32_t index = ctx.gbuf ? ctx.frame : next_index_;
-    if (!coded_.empty() && index <= coded_.back().frame)
-      fail("delta_video: frame {} coded after frame {} (frames must come in increasing order)", index,
-           coded_.back().frame);
-
-    // The reference: the reconstruction the client reported holding after a loss, else the
-    // newest one; none (a keyframe) when one is due, forced, gone or its G-buffer is not kept.
-    const Reference* ref = nullptr;
-    if (options.client_holds >= 0)
-      ref = find_reference(coded_, uint32_t(options.client_holds), in.desc);
-    else if (!options.force_keyframe && !coded_.empty())
-      ref = find_reference(coded_, coded_.back().frame, in.desc);
-    if (since_key_ + 1 >= uint32_t(keyframe_interval_)) ref = nullptr;
-    const GBuffer* ref_gbuf = nullptr;
-    if (ref && carrier_) {
-      ref_gbuf = ctx.gbuffer_of ? ctx.gbuffer_of(ref->frame) : nullptr;
-      if (!ref_gbuf) ref = nullptr;
-    }
+    const uint32_t index = coded_frame_index("delta_video", in, options, carrier_.has_value(), next_index_, coded_);
+    const auto [ref, ref_gbuf] =
+        choose_reference(coded_, options, in.desc, since_key_ + 1 >= uint32_t(keyframe_interval_), carrier_.has_value());
 
     const FullRangeMap range(in.desc.full_scale, true);
     const PassBuffer* prediction = nullptr;
@@ -170,9 +149,7 @@ class DeltaVideoCodec final : public Codec {
     Reference rec{index, reconstruct(decoded_picture_, prediction, in.desc)};
 
     out.resize(kHeaderBytes + bits_.size());
-    out[0] = ref ? kDelta : kKeyframe;
-    put_u32(out.data() + 1, index);
-    put_u32(out.data() + 5, ref ? ref->frame : index);
+    put_frame_start(out.data(), {!ref, index, ref ? ref->frame : index});
     put_u32(out.data() + 9, crc32c(bits_));
     put_u32(out.data() + 13, crc32c(rec.buffer.bytes));
     std::memcpy(out.data() + kHeaderBytes, bits_.data(), bits_.size());
@@ -191,40 +168,14 @@ class DeltaVideoCodec final : public Codec {
       error = "delta_video: " + why;
       return false;
     }
-    if (in.size() < kHeaderBytes) {
-      error = fmt::format("delta_video: {} bytes, shorter than the {}-byte header", in.size(), kHeaderBytes);
-      return false;
-    }
-    const uint8_t type = in[0];
-    const uint32_t index = get_u32(in.data() + 1), reference = get_u32(in.data() + 5);
-    if (type != kKeyframe && type != kDelta) {
-      error = fmt::format("delta_video: unknown frame type {:#04x}", type);
-      return false;
-    }
-    if (type == kKeyframe && reference != index) {
-      error = "delta_video: corrupt keyframe header";
-      return false;
-    }
+    FrameStart start;
+    if (error = read_frame_start("delta_video", in, kHeaderBytes, start); !error.empty()) return false;
+    const uint32_t index = start.index, reference = start.reference;
     const Reference* ref = nullptr;
     const PassBuffer* prediction = nullptr;
-    if (type == kDelta) {
-      if (reference >= index) {
-        error = fmt::format("delta_video: frame {} claims to be predicted from the later frame {}", index, reference);
-        return false;
-      }
-      ref = find_reference(decoded_, reference, desc);
-      if (!ref) {
-        error = fmt::format("delta_video: frame {} needs frame {}, the decoder holds {}", index, reference,
-                            held_text(decoded_));
-        return false;
-      }
-      if (carrier_) {
-        if (std::string why = reprojection_context_problem(ctx, index, reference, desc); !why.empty()) {
-          error = "delta_video: " + why;
-          return false;
-        }
-      }
-    }
+    if (!start.keyframe &&
+        !(error = find_delta_reference("delta_video", decoded_, start, desc, ctx, carrier_.has_value(), ref)).empty())
+      return false;
     const std::span<const uint8_t> bits = in.subspan(kHeaderBytes);
     if (const uint32_t expected = get_u32(in.data() + 9), got = crc32c(bits); got != expected) {
       error = fmt::format("delta_video: frame {}: the {} bytes after the header are damaged (CRC-32C {:08x}, expected "

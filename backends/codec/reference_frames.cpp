@@ -18,6 +18,38 @@ uint32_t get_u32(const uint8_t* p) {
 }
 uint64_t get_u64(const uint8_t* p) { return uint64_t(get_u32(p)) | uint64_t(get_u32(p + 4)) << 32; }
 
+void put_frame_start(uint8_t* p, const FrameStart& start) {
+  p[0] = start.keyframe ? kKeyframeType : kDeltaType;
+  put_u32(p + 1, start.index);
+  put_u32(p + 5, start.keyframe ? start.index : start.reference);
+}
+
+std::string read_frame_start(const std::string& codec, std::span<const uint8_t> in, size_t header_bytes,
+                             FrameStart& start) {
+  if (in.size() < header_bytes) return fmt::format("{}: {} bytes, shorter than the {}-byte header", codec, in.size(), header_bytes);
+  const uint8_t type = in[0];
+  if (type != kKeyframeType && type != kDeltaType) return fmt::format("{}: unknown frame type {:#04x}", codec, type);
+  start = {type == kKeyframeType, get_u32(in.data() + 1), get_u32(in.data() + 5)};
+  if (start.keyframe && start.reference != start.index) return codec + ": corrupt keyframe header";
+  return {};
+}
+
+std::string find_delta_reference(const std::string& codec, const std::deque<Reference>& refs, const FrameStart& start,
+                                 const PassDesc& desc, const FrameContext& ctx, bool needs_gbuffer,
+                                 const Reference*& ref) {
+  if (start.reference >= start.index)
+    return fmt::format("{}: frame {} claims to be predicted from the later frame {}", codec, start.index,
+                       start.reference);
+  ref = find_reference(refs, start.reference, desc);
+  if (!ref)
+    return fmt::format("{}: frame {} needs frame {}, the decoder holds {}", codec, start.index, start.reference,
+                       held_text(refs));
+  if (needs_gbuffer)
+    if (std::string why = reprojection_context_problem(ctx, start.index, start.reference, desc); !why.empty())
+      return codec + ": " + why;
+  return {};
+}
+
 const Reference* find_reference(const std::deque<Reference>& refs, uint32_t frame, const PassDesc& desc) {
   for (const Reference& r : refs)
     if (r.frame == frame && r.buffer.desc == desc) return &r;
@@ -41,6 +73,37 @@ void keep_reference(std::deque<Reference>& refs, Reference r, int limit) {
   std::erase_if(refs, [&](const Reference& x) { return x.frame == r.frame; });
   refs.push_back(std::move(r));
   while (int(refs.size()) > limit) refs.pop_front();
+}
+
+uint32_t coded_frame_index(const std::string& codec, const PassBuffer& in, const EncodeOptions& options,
+                           bool needs_gbuffer, uint32_t next_index, const std::deque<Reference>& coded) {
+  if (std::string why = in.desc.validate(); !why.empty()) fail("{}: invalid buffer description: {}", codec, why);
+  if (in.bytes.size() != in.desc.byte_size())
+    fail("{}: a {}x{} {} buffer holds {} bytes, {} expected", codec, in.desc.width, in.desc.height,
+         pass_kind_name(in.desc.kind), in.bytes.size(), in.desc.byte_size());
+  const FrameContext& ctx = options.context;
+  if (needs_gbuffer && !ctx.gbuf)
+    fail("{}: predictor reprojection needs the frame's G-buffer (FrameContext), none was given", codec);
+  const uint32_t index = ctx.gbuf ? ctx.frame : next_index;
+  if (!coded.empty() && index <= coded.back().frame)
+    fail("{}: frame {} coded after frame {} (frames must come in increasing order)", codec, index, coded.back().frame);
+  return index;
+}
+
+ChosenReference choose_reference(const std::deque<Reference>& coded, const EncodeOptions& options, const PassDesc& desc,
+                                 bool keyframe_due, bool needs_gbuffer) {
+  ChosenReference c;
+  if (options.client_holds >= 0)
+    c.ref = find_reference(coded, uint32_t(options.client_holds), desc);
+  else if (!options.force_keyframe && !coded.empty())
+    c.ref = find_reference(coded, coded.back().frame, desc);
+  if (keyframe_due) c.ref = nullptr;
+  if (c.ref && needs_gbuffer) {
+    const FrameContext& ctx = options.context;
+    c.gbuf = ctx.gbuffer_of ? ctx.gbuffer_of(c.ref->frame) : nullptr;
+    if (!c.gbuf) c.ref = nullptr;
+  }
+  return c;
 }
 
 std::string reprojection_context_problem(const FrameContext& ctx, uint32_t index, uint32_t reference,

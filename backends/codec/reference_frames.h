@@ -11,6 +11,7 @@
 #include <deque>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <utility>
 
@@ -20,6 +21,16 @@ void put_u32(uint8_t* p, uint32_t v);
 void put_u64(uint8_t* p, uint64_t v);
 uint32_t get_u32(const uint8_t* p);
 uint64_t get_u64(const uint8_t* p);
+
+// Every frame of a predicting codec starts with its type, its index and the index of the frame
+// it was predicted from (uint32 little-endian each; a keyframe names itself).
+constexpr uint8_t kKeyframeType = 'K', kDeltaType = 'D';
+constexpr size_t kFrameStartBytes = 9;
+struct FrameStart {
+  bool keyframe = true;
+  uint32_t index = 0, reference = 0;
+};
+void put_frame_start(uint8_t* p, const FrameStart& start);
 
 // One frame either end keeps as a reference.
 struct Reference {
@@ -36,6 +47,34 @@ int newest_reference(const std::deque<Reference>& refs);
 // Keeps `r` as the newest reference, at most `limit` of them; a frame index seen again (a
 // resent or reordered frame) replaces the older entry.
 void keep_reference(std::deque<Reference>& refs, Reference r, int limit);
+
+// The index an encoder codes `in` under: the context's frame when it has a G-buffer, else
+// `next_index` (a count of coded frames). Throws dhr::Error, prefixed with `codec`, on a buffer
+// that does not match its description, a missing G-buffer when `needs_gbuffer`, or a frame not
+// after the last one coded.
+uint32_t coded_frame_index(const std::string& codec, const PassBuffer& in, const EncodeOptions& options,
+                           bool needs_gbuffer, uint32_t next_index, const std::deque<Reference>& coded);
+
+// What an encoder predicts the frame from: the frame the client reported holding after a loss
+// (EncodeOptions::client_holds), else the newest coded frame; none (a keyframe) when one is due
+// or forced, or the frame is no longer kept, or (`needs_gbuffer`) its G-buffer is not.
+struct ChosenReference {
+  const Reference* ref = nullptr;
+  const GBuffer* gbuf = nullptr;  // the reference frame's G-buffer (with needs_gbuffer)
+};
+ChosenReference choose_reference(const std::deque<Reference>& coded, const EncodeOptions& options, const PassDesc& desc,
+                                 bool keyframe_due, bool needs_gbuffer);
+
+// Reads the frame start of `in`, a frame whose whole header is `header_bytes` long. Empty when
+// it is whole and consistent; else the error, prefixed with `codec`.
+std::string read_frame_start(const std::string& codec, std::span<const uint8_t> in, size_t header_bytes,
+                             FrameStart& start);
+// A delta frame's reference among the decoder's `refs` and, with `needs_gbuffer`, the check that
+// the context holds both frames' G-buffers (reprojection_context_problem). Empty with `ref` set,
+// or the error, prefixed with `codec`.
+std::string find_delta_reference(const std::string& codec, const std::deque<Reference>& refs, const FrameStart& start,
+                                 const PassDesc& desc, const FrameContext& ctx, bool needs_gbuffer,
+                                 const Reference*& ref);
 
 // Empty when a decoder of a `desc` pass, frame `index` predicted by reprojection from frame
 // `reference`, has both frames' G-buffers in `ctx` at a size the pass can be predicted on (the
