@@ -356,20 +356,29 @@ TEST(FrameLoop, StreamBudgetIsSharedByTheCodecsThatTakeATargetBitrate) {
   EXPECT_NE(m.find("h264 with rate_control bitrate"), std::string::npos) << m;
 }
 
+// 60 frames at 96x54, 5 ms each way, `loss` of the downlink's packets lost independently (0: none),
+// seed 7: the loss-recovery tests of the predicting codecs.
+SimConfig lossy_room_config(double loss) {
+  SimConfig c = small_config(60);
+  c.width = 96;
+  c.height = 54;
+  c.uplink.latency_ms = 5;
+  c.downlink.latency_ms = 5;
+  if (loss > 0) {
+    c.downlink.loss_model = LinkConfig::Loss::Independent;
+    c.downlink.loss_rate = loss;
+  }
+  c.seed = 7;
+  return c;
+}
+
 // Under loss the client keeps its references and reports the newest one it holds; the server
 // predicts from it instead of sending a keyframe. With one reference kept, the server no longer
 // has the frame the client holds and must send keyframes: more bytes for the same frames.
 TEST(FrameLoop, ReprojectedDeltaRecoversFromTheFrameTheClientHolds) {
   std::map<int, double> ao_bytes;
   for (int references : {1, 8}) {
-    SimConfig c = small_config(60);
-    c.width = 96;
-    c.height = 54;
-    c.uplink.latency_ms = 5;
-    c.downlink.latency_ms = 5;
-    c.downlink.loss_model = LinkConfig::Loss::Independent;
-    c.downlink.loss_rate = 0.05;
-    c.seed = 7;
+    SimConfig c = lossy_room_config(0.05);
     c.pass("ao").denoiser = {"svgf_ao"};
     c.pass("visibility").codec = {"delta", {{"inner", "lz4"}, {"predictor", "reprojection"}, {"references", references}}};
     c.pass("ao").codec = {"delta", {{"inner", "zstd"}, {"predictor", "reprojection"}, {"references", references}}};
@@ -395,16 +404,7 @@ TEST(FrameLoop, ReprojectedDeltaRecoversFromTheFrameTheClientHolds) {
 // inner stream from it, so the AO pass keeps arriving.
 TEST(FrameLoop, LossyDeltaDecodesEveryFrameAndRecoversFromLoss) {
   for (double loss : {0.0, 0.05}) {
-    SimConfig c = small_config(60);
-    c.width = 96;
-    c.height = 54;
-    c.uplink.latency_ms = 5;
-    c.downlink.latency_ms = 5;
-    if (loss > 0) {
-      c.downlink.loss_model = LinkConfig::Loss::Independent;
-      c.downlink.loss_rate = loss;
-    }
-    c.seed = 7;
+    SimConfig c = lossy_room_config(loss);
     c.pass("ao").denoiser = {"svgf_ao"};
     c.pass("ao").codec = {"delta_video", {{"inner", "h264"}, {"crf", 23}, {"predictor", "reprojection"}}};
     RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());

@@ -98,32 +98,43 @@ TEST(PassCoding, ReprojectedDeltaIsExactAndSmallerThanThePlainDelta) {
   }
 }
 
-// A lost frame: the decoder keeps its references; the server, told which frame the client holds,
-// predicts the next frame from that one instead of sending a keyframe.
-TEST(PassCoding, LossRecoversFromTheFrameTheClientHolds) {
-  auto enc = delta("reprojection"), dec = delta("reprojection");
+// Frames 0..frames-1 of the world-fixed AO pass with frame 3 lost on the link: frame 4 (predicted
+// from it) must be refused, the decoder then reports holding frame 2, the server is told so for
+// frame 5, whose recovery frame is a delta from frame 2; `check(f, in, out)` checks every frame
+// that decodes (all but 3 and 4 must).
+template <class Check>
+void lose_frame_3_and_recover(Codec& enc, Codec& dec, int frames, Check check) {
   int holds = -1;
-  for (int f = 0; f < 8; ++f) {
+  for (int f = 0; f < frames; ++f) {
     const PassBuffer in = test::make_world_pass(gbuffer(f), PassKind::Ao);
-    const std::vector<uint8_t> coded = encode(*enc, in, f, f == 5 ? holds : -1);
+    const std::vector<uint8_t> coded = encode(enc, in, f, f == 5 ? holds : -1);
     if (f == 3) continue;  // lost on the link
     PassBuffer out;
     std::string error;
-    const bool ok = dec->decode_in_context(coded, in.desc, context(f), out, error);
+    const bool ok = dec.decode_in_context(coded, in.desc, context(f), out, error);
     if (f == 4) {
       EXPECT_FALSE(ok) << "frame 4 is predicted from the lost frame 3";
       EXPECT_NE(error.find("needs frame 3"), std::string::npos) << error;
-      holds = dec->holds();
+      holds = dec.holds();
       EXPECT_EQ(holds, 2);
       continue;
     }
     ASSERT_TRUE(ok) << "frame " << f << ": " << error;
-    EXPECT_EQ(out.bytes, in.bytes) << "frame " << f;
+    check(f, in, out);
     if (f == 5) {
       EXPECT_EQ(coded[0], 'D') << "the recovery frame is a delta, not a keyframe";
       EXPECT_EQ(reference_of(coded), 2u) << "predicted from the frame the client holds";
     }
   }
+}
+
+// A lost frame: the decoder keeps its references; the server, told which frame the client holds,
+// predicts the next frame from that one instead of sending a keyframe.
+TEST(PassCoding, LossRecoversFromTheFrameTheClientHolds) {
+  auto enc = delta("reprojection"), dec = delta("reprojection");
+  lose_frame_3_and_recover(*enc, *dec, 8, [](int f, const PassBuffer& in, const PassBuffer& out) {
+    EXPECT_EQ(out.bytes, in.bytes) << "frame " << f;
+  });
 }
 
 // The server no longer keeps the frame the client holds (references = 2): a keyframe.
@@ -230,28 +241,9 @@ TEST(PassCoding, LossyDeltaDecodesToTheEncodersReconstructionWithoutDrift) {
 // told which one the client holds, predicts from it and restarts the inner stream.
 TEST(PassCoding, LossyDeltaRecoversFromTheReconstructionTheClientHolds) {
   auto enc = delta_video("reprojection"), dec = delta_video("reprojection");
-  int holds = -1;
-  for (int f = 0; f < 9; ++f) {
-    const PassBuffer in = test::make_world_pass(gbuffer(f), PassKind::Ao);
-    const std::vector<uint8_t> coded = encode(*enc, in, f, f == 5 ? holds : -1);
-    if (f == 3) continue;  // lost on the link
-    PassBuffer out;
-    std::string error;
-    const bool ok = dec->decode_in_context(coded, in.desc, context(f), out, error);
-    if (f == 4) {
-      EXPECT_FALSE(ok) << "frame 4 is predicted from the lost frame 3";
-      EXPECT_NE(error.find("needs frame 3"), std::string::npos) << error;
-      holds = dec->holds();
-      EXPECT_EQ(holds, 2);
-      continue;
-    }
-    ASSERT_TRUE(ok) << "frame " << f << ": " << error;
+  lose_frame_3_and_recover(*enc, *dec, 9, [](int f, const PassBuffer& in, const PassBuffer& out) {
     EXPECT_GT(test::buffer_psnr_db(in, out), 30.0) << "frame " << f;
-    if (f == 5) {
-      EXPECT_EQ(coded[0], 'D') << "the recovery frame is a delta, not a keyframe";
-      EXPECT_EQ(reference_of(coded), 2u) << "predicted from the frame the client holds";
-    }
-  }
+  });
   // Without the recovery (the server never heard of the loss), the frames after the gap are
   // refused, never decoded into wrong bytes: the inner decoder conceals the missing picture, the
   // reconstruction's CRC-32C does not.

@@ -62,7 +62,9 @@
 namespace dhr {
 namespace {
 
-constexpr size_t kHeaderBytes = 17;  // type, frame, reference, CRC-32C of the bits, of the reconstruction
+// The frame start (type, frame, reference), then the CRC-32C of the bits and of the reconstruction.
+constexpr size_t kBitsCrcAt = kFrameStartBytes, kReconstructionCrcAt = kFrameStartBytes + 4;
+constexpr size_t kHeaderBytes = kFrameStartBytes + 8;
 constexpr int kResidualZero = 128;
 
 nlohmann::json inner_params(const Params& p) {
@@ -146,12 +148,12 @@ class DeltaVideoCodec final : public Codec {
     std::string error;
     if (!mirror_->decode(bits_, picture_.desc, decoded_picture_, error))
       fail("delta_video: the encoder cannot decode its own {} picture of frame {}: {}", inner_name_, index, error);
-    Reference rec{index, reconstruct(decoded_picture_, prediction, in.desc)};
+    Reference rec{index, reconstruct(decoded_picture_, prediction, in.desc, range)};
 
     out.resize(kHeaderBytes + bits_.size());
     put_frame_start(out.data(), {!ref, index, ref ? ref->frame : index});
-    put_u32(out.data() + 9, crc32c(bits_));
-    put_u32(out.data() + 13, crc32c(rec.buffer.bytes));
+    put_u32(out.data() + kBitsCrcAt, crc32c(bits_));
+    put_u32(out.data() + kReconstructionCrcAt, crc32c(rec.buffer.bytes));
     std::memcpy(out.data() + kHeaderBytes, bits_.data(), bits_.size());
     since_key_ = ref ? since_key_ + 1 : 0;
     keep_reference(coded_, std::move(rec), references_);
@@ -177,7 +179,7 @@ class DeltaVideoCodec final : public Codec {
         !(error = find_delta_reference("delta_video", decoded_, start, desc, ctx, carrier_.has_value(), ref)).empty())
       return false;
     const std::span<const uint8_t> bits = in.subspan(kHeaderBytes);
-    if (const uint32_t expected = get_u32(in.data() + 9), got = crc32c(bits); got != expected) {
+    if (const uint32_t expected = get_u32(in.data() + kBitsCrcAt), got = crc32c(bits); got != expected) {
       error = fmt::format("delta_video: frame {}: the {} bytes after the header are damaged (CRC-32C {:08x}, expected "
                           "{:08x})",
                           index, bits.size(), got, expected);
@@ -188,8 +190,8 @@ class DeltaVideoCodec final : public Codec {
       return false;
     }
     if (ref) prediction = carrier_ ? &carrier_->carry(*ref, *ctx.gbuffer_of(reference), index, *ctx.gbuf) : &ref->buffer;
-    PassBuffer rec = reconstruct(decoded_picture_, prediction, desc);
-    if (const uint32_t expected = get_u32(in.data() + 13), got = crc32c(rec.bytes); got != expected) {
+    PassBuffer rec = reconstruct(decoded_picture_, prediction, desc, FullRangeMap(desc.full_scale, true));
+    if (const uint32_t expected = get_u32(in.data() + kReconstructionCrcAt), got = crc32c(rec.bytes); got != expected) {
       error = fmt::format("delta_video: frame {} reconstructed{} does not match the server's (CRC-32C {:08x}, "
                           "expected {:08x}): a picture of the inner stream was lost or damaged, or the two ends' "
                           "predictions differ",
@@ -214,9 +216,9 @@ class DeltaVideoCodec final : public Codec {
 
  private:
   // The pass from a decoded full-range picture: the frame itself (no prediction), or the
-  // prediction plus the residual.
-  static PassBuffer reconstruct(const PassBuffer& picture, const PassBuffer* prediction, const PassDesc& desc) {
-    const FullRangeMap range(desc.full_scale, true);
+  // prediction plus the residual; `range`: the pass's full-range map.
+  static PassBuffer reconstruct(const PassBuffer& picture, const PassBuffer* prediction, const PassDesc& desc,
+                                const FullRangeMap& range) {
     PassBuffer rec;
     rec.desc = desc;
     rec.bytes.resize(picture.bytes.size());
