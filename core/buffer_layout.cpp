@@ -65,7 +65,7 @@ size_t to_planes_one_byte_fast(const uint8_t* in, size_t n, int lights, size_t p
 }
 
 void check_desc(const PassDesc& desc, const char* what) {
-  if (desc.kind != PassKind::Visibility)
+  if (desc.layout() != PassLayout::Bitmask)
     fail("{}: a {} buffer is not a visibility bitmask", what, pass_kind_name(desc.kind));
   if (std::string why = desc.validate(); !why.empty()) fail("{}: invalid visibility description: {}", what, why);
 }
@@ -181,7 +181,7 @@ VisibilityLayout parse_visibility_layout(const std::string& name) {
 }
 
 bool needs_layout_conversion(const PassDesc& desc, VisibilityLayout layout) {
-  return desc.kind == PassKind::Visibility && layout == VisibilityLayout::Planes;
+  return desc.layout() == PassLayout::Bitmask && layout == VisibilityLayout::Planes;
 }
 
 size_t coded_size(const PassDesc& desc, VisibilityLayout layout) {

@@ -41,17 +41,46 @@ inline uint8_t srgb8_code(const std::array<float, 255>& b, float linear) {
   return uint8_t((base - b.data()) + (*base <= linear ? 1 : 0));
 }
 
-void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, bool is_ao) {
+// The inputs of the shading, one slot per composited meaning. A new composite term is a slot
+// here (and its case in slot()), the layouts it reads in composite() and composite_fractions()
+// below, and its use in shade_lambert (core/composite.h).
+template <class T>
+struct CompositeInputs {
+  T visibility{};  // V_l per light
+  T ao{};          // AO
+  uint32_t seen = 0;  // bit m: a pass of meaning m was placed
+
+  // Where the pass of `meaning` goes; dhr::Error for a meaning the composite does not shade or
+  // a second pass of one meaning.
+  void place(PassMeaning meaning, T value) {
+    T* slot = nullptr;
+    switch (meaning) {
+      case PassMeaning::Visibility: slot = &visibility; break;
+      case PassMeaning::Ao: slot = &ao; break;
+      case PassMeaning::Colour:
+      case PassMeaning::Depth: break;
+    }
+    if (!slot) fail("composite: a {} pass is displayed or read as it is, not composited", pass_meaning_name(meaning));
+    const uint32_t bit = 1u << unsigned(meaning);
+    if (seen & bit) fail("composite: two {} passes", pass_meaning_name(meaning));
+    seen |= bit;
+    *slot = value;
+  }
+};
+
+// A composited pass must be of its slot's meaning, one channel per light for visibility, and
+// match the G-buffer and its own description.
+void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, PassMeaning meaning) {
   const std::string problem = pb.desc.validate();
   if (!problem.empty()) fail("composite: {} pass: {}", pass_kind_name(pb.desc.kind), problem);
-  if (is_ao ? pb.desc.kind != PassKind::Ao
-            : pb.desc.kind != PassKind::Visibility && pb.desc.kind != PassKind::SoftVisibility)
-    fail("composite: got a {} pass where {} was expected", pass_kind_name(pb.desc.kind),
-         is_ao ? "an ao pass" : "a visibility or soft_visibility pass");
+  const PassLayout layout = pb.desc.layout();
+  if (pass_meaning(pb.desc.kind) != meaning || (layout != PassLayout::Bitmask && layout != PassLayout::Planes8))
+    fail("composite: got a {} pass where a {} pass was expected", pass_kind_name(pb.desc.kind),
+         pass_meaning_name(meaning));
   if (pb.desc.width != g.width() || pb.desc.height != g.height())
     fail("composite: {} pass is {}x{}, the G-buffer {}x{}", pass_kind_name(pb.desc.kind), pb.desc.width,
          pb.desc.height, g.width(), g.height());
-  if (!is_ao && size_t(pb.desc.channels) != scene.lights.size())
+  if (meaning == PassMeaning::Visibility && size_t(pb.desc.channels) != scene.lights.size())
     fail("composite: {} pass has {} channels, the scene {} lights", pass_kind_name(pb.desc.kind), pb.desc.channels,
          scene.lights.size());
   if (pb.bytes.size() != pb.desc.byte_size())
@@ -96,16 +125,22 @@ Rgb8 tonemap_srgb8(const glm::vec3& linear) {
   return {tonemap_srgb8(linear.x), tonemap_srgb8(linear.y), tonemap_srgb8(linear.z)};
 }
 
-ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
+ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const CompositePass> passes,
                     const CompositeSettings& settings) {
-  if (visibility) check_pass(*visibility, g, scene, false);
-  if (ao) check_pass(*ao, g, scene, true);
+  CompositeInputs<const PassBuffer*> in;
+  for (const CompositePass& p : passes)
+    if (p.buffer) {
+      in.place(p.meaning, p.buffer);
+      check_pass(*p.buffer, g, scene, p.meaning);
+    }
+  const PassBuffer* visibility = in.visibility;
+  const PassBuffer* ao = in.ao;
   const size_t npx = size_t(g.width()) * size_t(g.height());
   const float ao_scale = ao ? 1.0f / float(ao->desc.full_scale) : 0.0f;
   auto ao_at = [&](size_t pixel) { return ao ? std::min(1.0f, float(ao->bytes[pixel]) * ao_scale) : 1.0f; };
   if (!visibility) return composite_impl(g, scene, settings, [](size_t, size_t) { return 1.0f; }, ao_at);
   const uint8_t* bytes = visibility->bytes.data();
-  if (visibility->desc.kind == PassKind::Visibility) {
+  if (visibility->desc.layout() == PassLayout::Bitmask) {
     const size_t bpp = size_t((visibility->desc.channels + 7) / 8);
     return composite_impl(
         g, scene, settings,
@@ -117,18 +152,10 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visi
       [&](size_t l, size_t pixel) { return std::min(1.0f, float(bytes[l * npx + pixel]) * vis_scale); }, ao_at);
 }
 
-ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const CompositePass> passes,
+ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
                     const CompositeSettings& settings) {
-  const PassBuffer* visibility = nullptr;
-  const PassBuffer* ao = nullptr;
-  for (const CompositePass& p : passes) {
-    if (!p.buffer) continue;
-    const PassBuffer** slot = p.meaning == PassMeaning::Visibility ? &visibility : p.meaning == PassMeaning::Ao ? &ao : nullptr;
-    if (!slot) fail("composite: a {} pass is displayed as it is, not composited", pass_meaning_name(p.meaning));
-    if (*slot) fail("composite: two {} passes", pass_meaning_name(p.meaning));
-    *slot = p.buffer;
-  }
-  return composite(g, scene, visibility, ao, settings);
+  const CompositePass passes[] = {{PassMeaning::Visibility, visibility}, {PassMeaning::Ao, ao}};
+  return composite(g, scene, passes, settings);
 }
 
 ImageRGB8 composite(const GBuffer& g, const Scene& scene, const TracedPasses& traced, const CompositeSettings& settings) {
@@ -137,8 +164,12 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, const TracedPasses& tr
   return composite(g, scene, inputs, settings);
 }
 
-ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<const float> visibility,
-                              std::span<const float> ao, const CompositeSettings& settings) {
+ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<const CompositeFractions> passes,
+                              const CompositeSettings& settings) {
+  CompositeInputs<std::span<const float>> in;
+  for (const CompositeFractions& p : passes)
+    if (!p.values.empty()) in.place(p.meaning, p.values);
+  const std::span<const float> visibility = in.visibility, ao = in.ao;
   const size_t npx = size_t(g.width()) * size_t(g.height());
   if (!visibility.empty() && visibility.size() != npx * scene.lights.size())
     fail("composite: {} visibility values for {} pixels x {} lights", visibility.size(), npx, scene.lights.size());

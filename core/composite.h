@@ -43,31 +43,40 @@ template <class VisibleFn>
 glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position,
                         const glm::vec3& normal, float ao, VisibleFn&& visible);
 
-// From PassBuffers (null = absent: fully lit / AO = 1). `visibility` is a Visibility or
-// SoftVisibility pass with one channel per scene light; `ao` an Ao pass. Throws dhr::Error when
-// a pass does not match the G-buffer's size, the scene's light count or its own byte size.
-ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
-                    const CompositeSettings& settings = {});
-
 // One received pass for the composite: its meaning picks its term (an absent pass of a meaning
-// is its neutral value: fully lit, AO = 1). A null buffer counts as absent.
+// is its neutral value: fully lit, AO = 1). A null buffer counts as absent. A visibility pass
+// is a bitmask or 8-bit planes with one channel per scene light; an AO pass 8-bit planes of one
+// channel.
 struct CompositePass {
   PassMeaning meaning = PassMeaning::Ao;
   const PassBuffer* buffer = nullptr;
 };
-// The composite of a pass list (at most one pass per meaning; colour passes are displayed as
-// they are, never composited: dhr::Error).
+// The composite of a pass list (at most one pass per meaning; colour and depth passes are
+// displayed or read as they are, never composited: dhr::Error). Throws dhr::Error when a pass
+// does not match the G-buffer's size, the scene's light count or its own byte size.
+//
+// A composite term is one meaning: its slot in CompositeInputs (core/composite.cpp), the layouts
+// it reads there, and its use in shade_lambert.
 ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, std::span<const CompositePass> passes,
+                    const CompositeSettings& settings = {});
+
+// The same for the two lighting passes the server traces today (null = absent).
+ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
                     const CompositeSettings& settings = {});
 
 // The composite of one frame's traced passes as traced (before denoising).
 ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, const TracedPasses& traced,
                     const CompositeSettings& settings = {});
 
-// From float estimates (references): visibility planar [light][pixel] in [0, 1] (empty: fully
-// lit), ao per pixel in [0, 1] (empty: 1).
-ImageRGB8 composite_fractions(const GBuffer& gbuf, const Scene& scene, std::span<const float> visibility,
-                              std::span<const float> ao, const CompositeSettings& settings = {});
+// One pass as float estimates (the ground truth's converged passes, PassType::converged):
+// planar [channel][pixel] in [0, 1] (visibility: a channel per light; ao: one).
+struct CompositeFractions {
+  PassMeaning meaning = PassMeaning::Ao;
+  std::span<const float> values;  // empty: absent
+};
+// The composite of float estimates (at most one per meaning); the same terms as composite().
+ImageRGB8 composite_fractions(const GBuffer& gbuf, const Scene& scene, std::span<const CompositeFractions> passes,
+                              const CompositeSettings& settings = {});
 
 // ---- implementation of the kernel ----
 

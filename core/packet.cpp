@@ -34,7 +34,7 @@ uint64_t count_for(uint64_t total, uint64_t chunk) {
 }
 
 bool known_pass(uint8_t kind) {
-  return kind >= uint8_t(PassKind::Visibility) && kind <= uint8_t(PassKind::Depth);
+  return find_pass_kind(kind) != nullptr;
 }
 
 }  // namespace

@@ -9,26 +9,61 @@
 
 namespace dhr {
 
+const std::vector<PassKindInfo>& pass_kinds() {
+  // A new kind is one value in PassKind and one row here.
+  static const std::vector<PassKindInfo> kinds = {
+      {PassKind::Visibility, "visibility", PassLayout::Bitmask, PassMeaning::Visibility, 1, 64,
+       "{} lights out of range 1..64", 1, 0, ""},
+      {PassKind::SoftVisibility, "soft_visibility", PassLayout::Planes8, PassMeaning::Visibility, 1, 64,
+       "{} lights out of range 1..64", 1, 255, "full_scale {} out of range 1..255"},
+      {PassKind::Ao, "ao", PassLayout::Planes8, PassMeaning::Ao, 1, 1, "ao has 1 channel, not {}", 1, 255,
+       "full_scale {} out of range 1..255"},
+      {PassKind::Colour, "colour", PassLayout::Rgb8, PassMeaning::Colour, 3, 3, "colour has 3 channels, not {}", 1, 0,
+       ""},
+      {PassKind::Depth, "depth", PassLayout::Code16, PassMeaning::Depth, 2, 2, "depth has 2 byte planes, not {}", 8,
+       16, "depth code of {} bits out of range 8..16"},
+  };
+  return kinds;
+}
+
+const PassKindInfo* find_pass_kind(uint8_t kind) {
+  for (const PassKindInfo& k : pass_kinds())
+    if (uint8_t(k.kind) == kind) return &k;
+  return nullptr;
+}
+
 const char* pass_kind_name(PassKind kind) {
-  switch (kind) {
-    case PassKind::Visibility: return "visibility";
-    case PassKind::SoftVisibility: return "soft_visibility";
-    case PassKind::Ao: return "ao";
-    case PassKind::Colour: return "colour";
-    case PassKind::Depth: return "depth";
+  const PassKindInfo* k = find_pass_kind(uint8_t(kind));
+  return k ? k->name : "unknown";
+}
+
+PassLayout pass_layout(PassKind kind) {
+  const PassKindInfo* k = find_pass_kind(uint8_t(kind));
+  return k ? k->layout : PassLayout::Planes8;
+}
+
+PassMeaning pass_meaning(PassKind kind) {
+  const PassKindInfo* k = find_pass_kind(uint8_t(kind));
+  return k ? k->meaning : PassMeaning::Ao;
+}
+
+const char* pass_meaning_name(PassMeaning meaning) {
+  switch (meaning) {
+    case PassMeaning::Visibility: return "visibility";
+    case PassMeaning::Ao: return "ao";
+    case PassMeaning::Colour: return "colour";
+    case PassMeaning::Depth: return "depth";
   }
-  return "unknown";
+  return "?";
 }
 
 size_t PassDesc::pixel_bytes() const {
-  switch (kind) {
-    case PassKind::Visibility: return size_t((channels + 7) / 8);
-    case PassKind::SoftVisibility: return size_t(channels);
-    case PassKind::Ao: return 1;
-    case PassKind::Colour: return 3;
-    case PassKind::Depth: return 2;
-  }
-  return 0;
+  const PassKindInfo* k = find_pass_kind(uint8_t(kind));
+  if (!k) return 0;
+  // A kind of one channel count has that many bytes whatever `channels` says (a description
+  // is validated before its buffer is read).
+  const int c = k->min_channels == k->max_channels ? k->min_channels : channels;
+  return k->layout == PassLayout::Bitmask ? size_t((c + 7) / 8) : size_t(c);
 }
 
 size_t PassDesc::byte_size() const { return size_t(width) * size_t(height) * pixel_bytes(); }
@@ -37,26 +72,11 @@ std::string PassDesc::validate() const {
   if (width < 0 || height < 0 || width > kMaxImageSide || height > kMaxImageSide ||
       int64_t(width) * height > kMaxImagePixels)
     return fmt::format("size {}x{} out of range (each side 0..{})", width, height, kMaxImageSide);
-  switch (kind) {
-    case PassKind::Visibility:
-    case PassKind::SoftVisibility:
-      if (channels < 1 || channels > 64) return fmt::format("{} lights out of range 1..64", channels);
-      break;
-    case PassKind::Ao:
-      if (channels != 1) return fmt::format("ao has 1 channel, not {}", channels);
-      break;
-    case PassKind::Colour:
-      if (channels != 3) return fmt::format("colour has 3 channels, not {}", channels);
-      break;
-    case PassKind::Depth:
-      if (channels != 2) return fmt::format("depth has 2 byte planes, not {}", channels);
-      break;
-    default: return "unknown pass kind";
-  }
-  if ((kind == PassKind::Ao || kind == PassKind::SoftVisibility) && (full_scale < 1 || full_scale > 255))
-    return fmt::format("full_scale {} out of range 1..255", full_scale);
-  if (kind == PassKind::Depth && (full_scale < 8 || full_scale > 16))
-    return fmt::format("depth code of {} bits out of range 8..16", full_scale);
+  const PassKindInfo* k = find_pass_kind(uint8_t(kind));
+  if (!k) return "unknown pass kind";
+  if (channels < k->min_channels || channels > k->max_channels) return fmt::format(fmt::runtime(k->channels_error), channels);
+  if (k->min_full_scale <= k->max_full_scale && (full_scale < k->min_full_scale || full_scale > k->max_full_scale))
+    return fmt::format(fmt::runtime(k->full_scale_error), full_scale);
   return {};
 }
 
@@ -65,9 +85,10 @@ std::string PassDesc::validate() const {
 namespace dhr {
 
 ImageU8 pass_plane(const PassBuffer& b, int index) {
-  if (b.desc.kind == PassKind::Visibility)
-    fail("pass_plane: a visibility bitmask has no 8-bit planes (unpack its bits instead)");
-  const int planes = b.desc.kind == PassKind::SoftVisibility || b.desc.kind == PassKind::Depth ? b.desc.channels : 1;
+  const PassLayout layout = b.desc.layout();
+  if (layout == PassLayout::Bitmask)
+    fail("pass_plane: a {} bitmask has no 8-bit planes (unpack its bits instead)", pass_kind_name(b.desc.kind));
+  const int planes = layout == PassLayout::Planes8 || layout == PassLayout::Code16 ? b.desc.channels : 1;
   if (index < 0 || index >= planes) fail("pass_plane: plane {} out of range 0..{}", index, planes - 1);
   ImageU8 img(b.desc.width, b.desc.height);
   const size_t n = img.size();

@@ -24,9 +24,10 @@ std::optional<PassDesc> ao_desc(const PassPlan& plan, int width, int height) {
 // The table of traced passes. A new pass is one entry here (its kernel in its own file).
 const std::vector<PassType>& pass_types() {
   static const std::vector<PassType> types = {
-      {"visibility", PassMeaning::Visibility, "trace_shadows", visibility_desc, trace_visibility, "lz4", "none",
-       "reprojection", "shadow visibility per light (paper 3.1): a bitmask, or 8-bit fractions with several rays"},
-      {"ao", PassMeaning::Ao, "trace_ao", ao_desc, trace_ao, "lz4", "none", "reprojection",
+      {"visibility", PassMeaning::Visibility, "trace_shadows", visibility_desc, trace_visibility, converged_visibility,
+       "lz4", "none", "reprojection",
+       "shadow visibility per light (paper 3.1): a bitmask, or 8-bit fractions with several rays"},
+      {"ao", PassMeaning::Ao, "trace_ao", ao_desc, trace_ao, converged_ao, "lz4", "none", "reprojection",
        "ray-traced ambient occlusion (paper 3.2): the count of unoccluded rays in 8 bits"},
   };
   return types;
@@ -38,44 +39,12 @@ const PassType* find_pass_type(std::string_view name) {
   return nullptr;
 }
 
-const char* pass_meaning_name(PassMeaning meaning) {
-  switch (meaning) {
-    case PassMeaning::Visibility: return "visibility";
-    case PassMeaning::Ao: return "ao";
-    case PassMeaning::Colour: return "colour";
-    case PassMeaning::Depth: return "depth";
-  }
-  return "?";
-}
-
 std::vector<std::string> all_pass_names() {
   std::vector<std::string> names;
   for (const PassType& t : pass_types()) names.push_back(t.name);
   names.push_back(kColourPassName);
   names.push_back(kDepthPassName);
   return names;
-}
-
-PassLayout pass_layout(PassKind kind) {
-  switch (kind) {
-    case PassKind::Visibility: return PassLayout::Bitmask;
-    case PassKind::Colour: return PassLayout::Rgb8;
-    case PassKind::Depth:
-    case PassKind::SoftVisibility:
-    case PassKind::Ao: break;
-  }
-  return PassLayout::Planes8;
-}
-
-PassMeaning pass_meaning(PassKind kind) {
-  switch (kind) {
-    case PassKind::Visibility:
-    case PassKind::SoftVisibility: return PassMeaning::Visibility;
-    case PassKind::Colour: return PassMeaning::Colour;
-    case PassKind::Depth: return PassMeaning::Depth;
-    case PassKind::Ao: break;
-  }
-  return PassMeaning::Ao;
 }
 
 std::vector<PlannedPass> traced_passes(const PassPlan& plan, int width, int height) {

@@ -23,13 +23,6 @@
 
 namespace dhr {
 
-enum class PassMeaning : uint8_t { Visibility, Ao, Colour, Depth };
-enum class PassLayout : uint8_t { Bitmask, Planes8, Rgb8 };
-
-const char* pass_meaning_name(PassMeaning meaning);
-PassLayout pass_layout(PassKind kind);
-PassMeaning pass_meaning(PassKind kind);
-
 struct BackendChoice {
   std::string name;
   nlohmann::json params = nlohmann::json::object();
@@ -51,6 +44,11 @@ struct PassType {
   // The kernel: the pass's buffer for one G-buffer (raw counts; statistics added to `stats`).
   PassBuffer (*trace)(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
                       TraceStats& stats);
+  // The ground truth's estimate of the pass (core/reference.h): converged, as fractions in
+  // [0, 1], planar [channel][pixel] at the G-buffer's size; `plan` has soft shadows on.
+  std::vector<float> (*converged)(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
+                                  const TraceSettings& settings, const ReferenceSettings& reference,
+                                  TraceStats& stats);
   const char* codec;      // default backends: passes.<name>.codec
   const char* denoiser;   // passes.<name>.denoiser (8-bit planes only; bitmasks are never denoised)
   const char* predictor;  // passes.<name>.predictor

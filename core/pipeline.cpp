@@ -79,7 +79,7 @@ DenoiseStage::DenoiseStage(const SimConfig& c, const std::vector<PlannedPass>& t
 void DenoiseStage::run(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buf) {
   const auto& denoisers = planes_.at(pass);
   if (denoisers.empty()) return;
-  if (pass_layout(buf.desc.kind) != PassLayout::Planes8 || size_t(buf.desc.channels) != denoisers.size())
+  if (buf.desc.layout() != PassLayout::Planes8 || size_t(buf.desc.channels) != denoisers.size())
     fail("denoise: a {} pass of {} planes, planned for {}", pass_kind_name(buf.desc.kind), buf.desc.channels, denoisers.size());
   const size_t n = size_t(buf.desc.width) * size_t(buf.desc.height);
   // A pass traced at reduced resolution is denoised with the G-buffer of its samples.
@@ -181,7 +181,7 @@ void ServerPipeline::dump(size_t pass, const PassDesc& desc, uint32_t frame, std
     std::error_code ec;
     std::filesystem::create_directories(c_.dump_streams_dir, ec);
     if (ec) fail("--dump-streams: cannot create {}: {}", c_.dump_streams_dir, ec.message());
-    const int height = desc.kind == PassKind::SoftVisibility ? desc.height * desc.channels : desc.height;
+    const int height = desc.layout() == PassLayout::Planes8 ? desc.height * desc.channels : desc.height;
     dumps_[pass] = std::make_unique<StreamDump>(
         (std::filesystem::path(c_.dump_streams_dir) / (sent_[pass].name + "." + format)).string(), format, desc.width,
         height, int(std::lround(c_.display_hz)));

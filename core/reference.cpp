@@ -196,25 +196,14 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
   ts.seed = s.seed;
   ts.soft_shadows = true;
   ts.samples_per_light = 1;  // plan_passes caps S at 1024; the counts path takes any S
-  PassPlan plan = plan_passes(scene, ts);
-  std::vector<float> vis, ao;
-  const size_t npx = size_t(g.width()) * size_t(g.height());
-  if (plan.visibility()) {
-    if (plan.shadow != ShadowMode::Hard) {
-      plan.shadow = ShadowMode::SoftFraction;
-      plan.samples_per_light = s.samples_per_light;
-    }
-    const VisibilityCounts vc = trace_visibility_counts(rt, g, plan, ts, out.stats);
-    vis.resize(npx * size_t(vc.lights));
-    for (int l = 0; l < vc.lights; ++l)
-      for (size_t i = 0; i < npx; ++i) vis[size_t(l) * npx + i] = vc.fraction(l, i);
-  }
-  if (plan.ao) {
-    const AoCounts ac = trace_ao_counts(rt, g, s.ao_rays, plan.ao_radius_m, ts, out.stats);
-    ao.resize(npx);
-    for (size_t i = 0; i < npx; ++i) ao[i] = float(ac.unoccluded[i]) / float(ac.rays);
-  }
-  out.image = composite_fractions(g, scene, vis, ao, s.composite);
+  const PassPlan plan = plan_passes(scene, ts);
+  std::vector<std::pair<PassMeaning, std::vector<float>>> estimates;
+  for (const PassType& t : pass_types())
+    if (t.desc(plan, g.width(), g.height()))  // else the scene does not call for it
+      estimates.emplace_back(t.meaning, t.converged(rt, g, plan, ts, s, out.stats));
+  std::vector<CompositeFractions> passes;
+  for (const auto& [meaning, values] : estimates) passes.push_back({meaning, values});
+  out.image = composite_fractions(g, scene, passes, s.composite);
 
   if (s.use_cache) {
     std::error_code ec;

@@ -13,6 +13,7 @@
 #include "core/trace.h"
 
 #include "core/error.h"
+#include "core/reference.h"
 #include "core/trace_kernels.h"
 #include "core/upsample.h"
 
@@ -390,6 +391,30 @@ PassBuffer trace_ao(RtScene& rt, const GBuffer& g, const PassPlan& plan, const T
                     TraceStats& stats) {
   if (!plan.ao) fail("trace_ao: the plan has no AO pass ({})", plan.describe());
   return pack_ao(trace_ao_counts(rt, g, plan.ao_rays, plan.ao_radius_m, settings, stats));
+}
+
+std::vector<float> converged_visibility(RtScene& rt, const GBuffer& g, const PassPlan& scene_plan,
+                                        const TraceSettings& settings, const ReferenceSettings& reference,
+                                        TraceStats& stats) {
+  PassPlan plan = scene_plan;
+  if (plan.shadow != ShadowMode::Hard) {  // S rays per area light; point lights keep their one ray
+    plan.shadow = ShadowMode::SoftFraction;
+    plan.samples_per_light = reference.samples_per_light;
+  }
+  const VisibilityCounts vc = trace_visibility_counts(rt, g, plan, settings, stats);
+  const size_t npx = size_t(g.width()) * size_t(g.height());
+  std::vector<float> vis(npx * size_t(vc.lights));
+  for (int l = 0; l < vc.lights; ++l)
+    for (size_t i = 0; i < npx; ++i) vis[size_t(l) * npx + i] = vc.fraction(l, i);
+  return vis;
+}
+
+std::vector<float> converged_ao(RtScene& rt, const GBuffer& g, const PassPlan& plan, const TraceSettings& settings,
+                                const ReferenceSettings& reference, TraceStats& stats) {
+  const AoCounts ac = trace_ao_counts(rt, g, reference.ao_rays, plan.ao_radius_m, settings, stats);
+  std::vector<float> ao(ac.unoccluded.size());
+  for (size_t i = 0; i < ao.size(); ++i) ao[i] = float(ac.unoccluded[i]) / float(ac.rays);
+  return ao;
 }
 
 }  // namespace dhr

@@ -144,8 +144,19 @@ PassBuffer trace_visibility(RtScene& rt, const GBuffer& gbuf, const PassPlan& pl
 PassBuffer trace_ao(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
                     TraceStats& stats);
 
+// The ground truth's converged estimates of the same passes (PassType::converged, used by
+// core/reference.h): fractions in [0, 1], planar [channel][pixel]. `plan` is the scene's plan
+// with soft shadows; the reference's own ray counts (ReferenceSettings::samples_per_light,
+// ao_rays) replace the plan's.
+struct ReferenceSettings;
+std::vector<float> converged_visibility(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
+                                        const TraceSettings& settings, const ReferenceSettings& reference,
+                                        TraceStats& stats);
+std::vector<float> converged_ao(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
+                                const ReferenceSettings& reference, TraceStats& stats);
+
 // Counts with any sample count: samples_per_light 1..65535 for area lights, ao_rays
-// 1..65535 (used by core/reference.h for converged estimates).
+// 1..65535 (the converged estimates above).
 VisibilityCounts trace_visibility_counts(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
                                          const TraceSettings& settings, TraceStats& stats);
 AoCounts trace_ao_counts(RtScene& rt, const GBuffer& gbuf, int ao_rays, float ao_radius_m,

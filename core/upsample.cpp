@@ -103,8 +103,8 @@ PassBuffer upsample_pass(const PassBuffer& low, const GBuffer& full, int scale, 
   const int fw = full.width(), fh = full.height();
   if (scale < 1 || scale > kMaxPassScale) fail("upsample_pass: scale {} out of range 1..{}", scale, kMaxPassScale);
   const int w = reduced_size(fw, scale), h = reduced_size(fh, scale);
-  if (low.desc.kind == PassKind::Visibility || low.desc.kind == PassKind::Colour || low.desc.kind == PassKind::Depth)
-    fail("upsample_pass: a {} pass; only 8-bit AO and soft-visibility planes are upsampled", pass_kind_name(low.desc.kind));
+  if (low.desc.layout() != PassLayout::Planes8)
+    fail("upsample_pass: a {} pass; only 8-bit planes (AO, soft visibility) are upsampled", pass_kind_name(low.desc.kind));
   if (low.desc.width != w || low.desc.height != h || low.bytes.size() != low.desc.byte_size())
     fail("upsample_pass: a {}x{} pass of {} bytes, {}x{} expected for {}x{} at 1/{}", low.desc.width, low.desc.height,
          low.bytes.size(), w, h, fw, fh, scale);

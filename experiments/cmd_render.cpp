@@ -151,7 +151,7 @@ Runner add_render_command(CLI::App& app) {
         const PassBuffer& v = *tr.find("visibility");
         ImageU8 combined(v.desc.width, v.desc.height, 0);
         for (int l = 0; l < v.desc.channels; ++l) {
-          const ImageU8 p = v.desc.kind == PassKind::Visibility ? bit_plane(v, l) : viewable_plane(v, l);
+          const ImageU8 p = v.desc.layout() == PassLayout::Bitmask ? bit_plane(v, l) : viewable_plane(v, l);
           write_png(prefix + fmt::format("visibility_light{:02d}.png", l), p);
           for (size_t i = 0; i < p.size(); ++i) combined[i] = uint8_t(std::min(255, combined[i] + p[i] / v.desc.channels));
         }

@@ -46,15 +46,15 @@ class AvVideoCodec final : public Codec {
 
   std::string refuses(const PassDesc& desc) const override {
     if (std::string why = desc.validate(); !why.empty()) return "invalid buffer description: " + why;
-    if (desc.kind == PassKind::Visibility)
+    if (desc.layout() == PassLayout::Bitmask)
       return fmt::format("{} does not carry bitmasks (lossy coding flips bits; lossless codes 1-bit data as 8-bit "
                          "samples): use lz4 or zstd",
                          f_.name);
-    if (desc.kind == PassKind::Depth)
+    if (desc.layout() == PassLayout::Code16)
       return fmt::format("{} does not carry depth (16-bit codes split into a high and a low byte plane: a lossy step "
                          "in the high byte moves the depth by 1/256 of its range): use lz4 or zstd",
                          f_.name);
-    if (desc.kind == PassKind::Colour && lossless())
+    if (desc.layout() == PassLayout::Rgb8 && lossless())
       return fmt::format("{} lossless codes YUV 4:2:0, which cannot return RGB bit-exactly: use lossy {}, lz4 or zstd",
                          f_.name, f_.name);
     if (desc.width == 0 || desc.height == 0) return fmt::format("{} has no empty pictures", f_.name);
@@ -166,10 +166,10 @@ class AvVideoCodec final : public Codec {
   Geometry geometry_of(const PassDesc& desc) const {
     Geometry g;
     g.width = desc.width;
-    g.height = desc.kind == PassKind::SoftVisibility ? desc.height * desc.channels : desc.height;
+    g.height = desc.layout() == PassLayout::Planes8 ? desc.height * desc.channels : desc.height;
     g.padded_width = std::max(g.width + (g.width & 1), f_.min_side);
     g.padded_height = std::max(g.height + (g.height & 1), f_.min_side);
-    g.colour = desc.kind == PassKind::Colour;
+    g.colour = desc.layout() == PassLayout::Rgb8;
     return g;
   }
 

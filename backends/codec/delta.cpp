@@ -78,7 +78,9 @@ constexpr size_t kPredictedBytes = 12;  // with a predictor: CRC-32C of the fram
 
 // Planes of a buffer: the lights of a bitmask (bit p % 8 of byte p / 8 of each pixel), the
 // channels of an 8-bit buffer (byte p of each pixel).
-int plane_count(const PassDesc& d) { return d.kind == PassKind::Visibility || d.kind == PassKind::SoftVisibility ? d.channels : 1; }
+int plane_count(const PassDesc& d) {
+  return d.layout() == PassLayout::Bitmask || d.layout() == PassLayout::Planes8 ? d.channels : 1;
+}
 
 uint64_t all_planes(const PassDesc& d) {
   const int planes = plane_count(d);
@@ -90,7 +92,7 @@ void make_residual(const PassBuffer& cur, const PassBuffer& prev, std::vector<ui
   residual.resize(cur.bytes.size());
   const uint8_t* c = cur.bytes.data();
   const uint8_t* p = prev.bytes.data();
-  if (cur.desc.kind == PassKind::Visibility)
+  if (cur.desc.layout() == PassLayout::Bitmask)
     for (size_t i = 0; i < residual.size(); ++i) residual[i] = c[i] ^ p[i];
   else
     for (size_t i = 0; i < residual.size(); ++i) residual[i] = uint8_t(c[i] - p[i]);
@@ -98,7 +100,7 @@ void make_residual(const PassBuffer& cur, const PassBuffer& prev, std::vector<ui
 
 void apply_residual(std::vector<uint8_t>& bytes, const PassBuffer& prev, PassKind kind) {
   const uint8_t* p = prev.bytes.data();
-  if (kind == PassKind::Visibility)
+  if (pass_layout(kind) == PassLayout::Bitmask)
     for (size_t i = 0; i < bytes.size(); ++i) bytes[i] ^= p[i];
   else
     for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(bytes[i] + p[i]);
@@ -113,7 +115,7 @@ void mask_planes(PassBuffer& prediction, uint64_t mask) {
   std::vector<uint8_t> keep(stride, 0);  // per byte of a pixel: what survives
   for (int p = 0; p < planes; ++p)
     if (mask >> p & 1) {
-      if (d.kind == PassKind::Visibility) keep[size_t(p / 8)] |= uint8_t(1u << (p % 8));
+      if (d.layout() == PassLayout::Bitmask) keep[size_t(p / 8)] |= uint8_t(1u << (p % 8));
       else keep[size_t(p)] = 0xff;
     }
   for (size_t i = 0; i < prediction.bytes.size(); ++i) prediction.bytes[i] &= keep[i % stride];
@@ -128,7 +130,7 @@ void extract_plane(const PassBuffer& b, const PassBuffer* minus, int p, PassBuff
   out.bytes.resize(n);
   const uint8_t* c = b.bytes.data();
   const uint8_t* q = minus ? minus->bytes.data() : nullptr;
-  if (d.kind == PassKind::Visibility) {
+  if (d.layout() == PassLayout::Bitmask) {
     const size_t byte = size_t(p / 8);
     const int bit = p % 8;
     for (size_t i = 0; i < n; ++i) {
@@ -163,7 +165,7 @@ class DeltaCodec final : public Codec {
   bool lossless() const override { return true; }
   bool stateful() const override { return true; }  // frames reference earlier ones
   std::string refuses(const PassDesc& desc) const override {
-    if (carrier_ && (desc.kind == PassKind::Colour || desc.kind == PassKind::Depth))
+    if (carrier_ && (desc.layout() == PassLayout::Rgb8 || desc.layout() == PassLayout::Code16))
       return fmt::format("delta with predictor reprojection carries lighting passes only ({} frames have no G-buffer "
                          "prediction here; use predictor none)",
                          pass_kind_name(desc.kind));

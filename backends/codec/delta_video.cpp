@@ -112,7 +112,7 @@ class DeltaVideoCodec final : public Codec {
 
   std::string refuses(const PassDesc& desc) const override {
     if (std::string why = desc.validate(); !why.empty()) return "invalid buffer description: " + why;
-    if (desc.kind != PassKind::Ao && desc.kind != PassKind::SoftVisibility)
+    if (desc.layout() != PassLayout::Planes8)
       return fmt::format("delta_video codes 8-bit passes (AO, soft visibility), not a {} pass: a bitmask's residual "
                          "is its XOR (use delta); colour and depth go to the video codecs and lz4/zstd as they are",
                          pass_kind_name(desc.kind));

@@ -72,7 +72,7 @@ class DepthWarp final : public Predictor {
   PredictStats predict(const PredictInput& in, PassBuffer& out) override {
     const PassBuffer& rb = in.received;
     predict::check_buffer(kName, rb);
-    if (rb.desc.kind == PassKind::Visibility)
+    if (rb.desc.layout() == PassLayout::Bitmask)
       fail("predictor '{}' refuses a visibility bitmask (valid: colour, ao, soft_visibility)", kName);
     const Camera& cs = in.src.camera;
     const Camera& cd = in.dst.camera;

@@ -88,7 +88,7 @@ class Reprojection final : public Predictor {
   PredictStats predict(const PredictInput& in, PassBuffer& out) override {
     const PassBuffer& rb = in.received;
     predict::check_buffer(kName, rb);
-    if (rb.desc.kind == PassKind::Colour)
+    if (rb.desc.layout() == PassLayout::Rgb8)
       fail("predictor '{}' refuses a colour buffer: it reprojects the hybrid client's lighting passes "
            "(visibility, soft_visibility, ao) through G-buffers; the remote-rendering baseline's colour "
            "frame is warped by 'rotation_warp'",
@@ -106,7 +106,7 @@ class Reprojection final : public Predictor {
     PassBuffer& result = predict::output_buffer(rb, out, temp, w, h);
 
     std::vector<uint32_t> covered(size_t(h), 0), disoccluded(size_t(h), 0);
-    if (rb.desc.kind == PassKind::Visibility)
+    if (rb.desc.layout() == PassLayout::Bitmask)
       run<true>(in, rb, result, covered, disoccluded);
     else
       run<false>(in, rb, result, covered, disoccluded);

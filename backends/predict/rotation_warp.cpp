@@ -42,7 +42,7 @@ class RotationWarp final : public Predictor {
   PredictStats predict(const PredictInput& in, PassBuffer& out) override {
     const PassBuffer& rb = in.received;
     predict::check_buffer(kName, rb);
-    if (rb.desc.kind == PassKind::Visibility)
+    if (rb.desc.layout() == PassLayout::Bitmask)
       fail("predictor '{}' refuses a visibility bitmask: it resamples bilinearly and bits cannot be "
            "interpolated (valid: colour, ao, soft_visibility)",
            kName);

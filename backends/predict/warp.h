@@ -52,7 +52,7 @@ inline void check_camera(const char* predictor, const char* which, const Camera&
 inline void check_buffer(const char* predictor, const PassBuffer& b) {
   if (std::string why = b.desc.validate(); !why.empty())
     fail("predictor '{}': invalid received {} buffer: {}", predictor, pass_kind_name(b.desc.kind), why);
-  if (b.desc.kind == PassKind::Depth)
+  if (b.desc.layout() == PassLayout::Code16)
     fail("predictor '{}' refuses a depth pass: it is read beside the colour frame (depth_warp's src.depth), never "
          "predicted itself (valid: visibility, soft_visibility, ao, colour, as the predictor accepts)",
          predictor);
@@ -120,11 +120,13 @@ struct Layout8 {
 
 inline Layout8 layout8(const PassDesc& d) {
   const size_t n = size_t(d.width) * size_t(d.height);
-  switch (d.kind) {
-    case PassKind::SoftVisibility: return {d.channels, 1, n};
-    case PassKind::Colour: return {3, 3, 1};
-    default: return {1, 1, n};
+  switch (d.layout()) {
+    case PassLayout::Planes8: return {d.channels, 1, n};
+    case PassLayout::Rgb8: return {3, 3, 1};
+    case PassLayout::Bitmask:
+    case PassLayout::Code16: break;
   }
+  return {1, 1, n};
 }
 
 // The "nothing known, assume unshadowed" value of one pixel: every light's bit set (bitmask;
