@@ -138,23 +138,22 @@ PassBuffer make_random(const GBuffer& g, PassKind kind, int channels, int full_s
   for (size_t i = 0; i < n; ++i) {
     const bool bg = g.object_id[i] == kBackgroundId;
     const uint64_t r = rng_bits({seed, uint32_t(i), 0, 0, 7});
-    switch (kind) {
-      case PassKind::Visibility: {
+    switch (pass_layout(kind)) {
+      case PassLayout::Bitmask: {
         const int bpp = (channels + 7) / 8;
         const uint64_t mask = channels >= 64 ? ~0ull : (1ull << channels) - 1;
         const uint64_t v = bg ? mask : (r & mask);
         for (int k = 0; k < bpp; ++k) b.bytes[i * bpp + k] = uint8_t(v >> (8 * k));
         break;
       }
-      case PassKind::SoftVisibility:
+      case PassLayout::Planes8:
         for (int c = 0; c < channels; ++c)
           b.bytes[size_t(c) * n + i] = bg ? uint8_t(full_scale) : uint8_t((r >> (8 * c)) % uint64_t(full_scale + 1));
         break;
-      case PassKind::Ao: b.bytes[i] = bg ? uint8_t(full_scale) : uint8_t(r % uint64_t(full_scale + 1)); break;
-      case PassKind::Colour:
+      case PassLayout::Rgb8:
         for (int c = 0; c < 3; ++c) b.bytes[i * 3 + c] = uint8_t(r >> (8 * c));
         break;
-      case PassKind::Depth:
+      case PassLayout::Code16:
         for (int c = 0; c < 2; ++c) b.bytes[size_t(c) * n + i] = uint8_t(r >> (8 * c));
         break;
     }

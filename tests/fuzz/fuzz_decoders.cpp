@@ -57,13 +57,10 @@ PassDesc desc_from(uint8_t b0, uint8_t b1, uint8_t b2, uint8_t b3) {
     d.kind = PassKind::Depth;
     d.full_scale = 8 + (b0 >> 2) % 9;
   }
-  switch (d.kind) {
-    case PassKind::Visibility: d.channels = 1 + b3 % 64; break;
-    case PassKind::SoftVisibility: d.channels = 1 + b3 % 8; break;
-    case PassKind::Ao: d.channels = 1; break;
-    case PassKind::Colour: d.channels = 3; break;
-    case PassKind::Depth: d.channels = 2; break;
-  }
+  // Channels within the kind's range (core/pass_buffer.cpp), at most 8 planes of 8 bits.
+  const PassKindInfo& k = *find_pass_kind(uint8_t(d.kind));
+  const int most = k.layout == PassLayout::Bitmask ? k.max_channels : std::min(k.max_channels, 8);
+  d.channels = k.min_channels + b3 % (most - k.min_channels + 1);
   return d;
 }
 
@@ -73,9 +70,9 @@ PassBuffer buffer_from(const PassDesc& desc, std::span<const uint8_t> src) {
   PassBuffer b{desc, std::vector<uint8_t>(desc.byte_size(), 0)};
   if (src.empty()) return b;
   for (size_t i = 0; i < b.bytes.size(); ++i) b.bytes[i] = src[i % src.size()];
-  if (desc.kind == PassKind::Ao || desc.kind == PassKind::SoftVisibility)
+  if (desc.layout() == PassLayout::Planes8)
     for (auto& v : b.bytes) v = uint8_t(v % (desc.full_scale + 1));
-  if (desc.kind == PassKind::Visibility && desc.channels % 8) {
+  if (desc.layout() == PassLayout::Bitmask && desc.channels % 8) {
     const size_t per_pixel = size_t((desc.channels + 7) / 8);
     const uint8_t last_mask = uint8_t((1u << (desc.channels % 8)) - 1);
     for (size_t i = per_pixel - 1; i < b.bytes.size(); i += per_pixel) b.bytes[i] &= last_mask;
