@@ -47,7 +47,7 @@ struct PassType {
   // The ground truth's estimate of the pass (core/reference.h): converged, as fractions in
   // [0, 1], planar [channel][pixel] at the G-buffer's size; `plan` has soft shadows on.
   std::vector<float> (*converged)(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
-                                  const TraceSettings& settings, const ReferenceSettings& reference,
+                                  const TraceSettings& settings, const ReferenceRays& reference,
                                   TraceStats& stats);
   const char* codec;      // default backends: passes.<name>.codec
   const char* denoiser;   // passes.<name>.denoiser (8-bit planes only; bitmasks are never denoised)

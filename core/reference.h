@@ -29,9 +29,9 @@ namespace dhr {
 // own error (core/trace.h), so converged estimates changed on such triangles.
 constexpr int kReferenceVersion = 2;
 
-struct ReferenceSettings {
-  int ao_rays = 512;            // 1..65535 AO rays per pixel (radius: the scene's ao block)
-  int samples_per_light = 256;  // 1..65535 rays per area light per pixel (point lights: 1)
+// The ray counts (ReferenceRays, core/trace.h: what each pass's converged estimate reads) and
+// the rest of the ground truth's settings.
+struct ReferenceSettings : ReferenceRays {
   uint64_t seed = 0x6a09e667f3bcc908ull;
   CompositeSettings composite;
   std::string cache_dir;  // empty: default_cache_dir()

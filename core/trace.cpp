@@ -13,7 +13,6 @@
 #include "core/trace.h"
 
 #include "core/error.h"
-#include "core/reference.h"
 #include "core/trace_kernels.h"
 #include "core/upsample.h"
 
@@ -394,7 +393,7 @@ PassBuffer trace_ao(RtScene& rt, const GBuffer& g, const PassPlan& plan, const T
 }
 
 std::vector<float> converged_visibility(RtScene& rt, const GBuffer& g, const PassPlan& scene_plan,
-                                        const TraceSettings& settings, const ReferenceSettings& reference,
+                                        const TraceSettings& settings, const ReferenceRays& reference,
                                         TraceStats& stats) {
   PassPlan plan = scene_plan;
   if (plan.shadow != ShadowMode::Hard) {  // S rays per area light; point lights keep their one ray
@@ -410,7 +409,7 @@ std::vector<float> converged_visibility(RtScene& rt, const GBuffer& g, const Pas
 }
 
 std::vector<float> converged_ao(RtScene& rt, const GBuffer& g, const PassPlan& plan, const TraceSettings& settings,
-                                const ReferenceSettings& reference, TraceStats& stats) {
+                                const ReferenceRays& reference, TraceStats& stats) {
   const AoCounts ac = trace_ao_counts(rt, g, reference.ao_rays, plan.ao_radius_m, settings, stats);
   std::vector<float> ao(ac.unoccluded.size());
   for (size_t i = 0; i < ao.size(); ++i) ao[i] = float(ac.unoccluded[i]) / float(ac.rays);

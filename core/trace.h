@@ -144,16 +144,21 @@ PassBuffer trace_visibility(RtScene& rt, const GBuffer& gbuf, const PassPlan& pl
 PassBuffer trace_ao(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
                     TraceStats& stats);
 
+// The ground truth's ray counts (part of ReferenceSettings, core/reference.h). A pass whose
+// converged estimate needs a count of its own adds it here.
+struct ReferenceRays {
+  int ao_rays = 512;            // 1..65535 AO rays per pixel (radius: the scene's ao block)
+  int samples_per_light = 256;  // 1..65535 rays per area light per pixel (point lights: 1)
+};
+
 // The ground truth's converged estimates of the same passes (PassType::converged, used by
 // core/reference.h): fractions in [0, 1], planar [channel][pixel]. `plan` is the scene's plan
-// with soft shadows; the reference's own ray counts (ReferenceSettings::samples_per_light,
-// ao_rays) replace the plan's.
-struct ReferenceSettings;
+// with soft shadows; the reference's own ray counts replace the plan's.
 std::vector<float> converged_visibility(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
-                                        const TraceSettings& settings, const ReferenceSettings& reference,
+                                        const TraceSettings& settings, const ReferenceRays& reference,
                                         TraceStats& stats);
 std::vector<float> converged_ao(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
-                                const ReferenceSettings& reference, TraceStats& stats);
+                                const ReferenceRays& reference, TraceStats& stats);
 
 // Counts with any sample count: samples_per_light 1..65535 for area lights, ao_rays
 // 1..65535 (the converged estimates above).
