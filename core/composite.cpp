@@ -7,8 +7,13 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
+#include <cstring>
+#include <limits>
+#include <vector>
 
 namespace dhr {
 
@@ -16,29 +21,48 @@ namespace {
 
 double srgb_to_linear(double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4); }
 
-// Linear values at which the rounded 8-bit sRGB code steps from k-1 to k (k = 1..255).
-const std::array<float, 255>& code_boundaries() {
-  static const std::array<float, 255> table = [] {
-    std::array<float, 255> t{};
-    for (int k = 1; k <= 255; ++k) t[size_t(k - 1)] = float(srgb_to_linear((k - 0.5) / 255.0));
+// Linear values at which the rounded 8-bit sRGB code steps from k-1 to k (k = 1..255), and for
+// 128 buckets per binade of floats in [2^-13, 1) the code at the bucket's first float. The first
+// boundary, 1.5e-4, lies above 2^-13 and the last, 0.99, below 1; no bucket holds more than
+// kBucketSteps boundaries (checked when the table is built), and boundary[255..] is +inf.
+constexpr int kBucketBits = 7;
+constexpr int kBucketSteps = 2;
+constexpr uint32_t kFirstBucketExponent = 127 - 13;  // biased exponent of 2^-13
+struct SrgbCodes {
+  std::array<float, 255 + kBucketSteps> boundary{};
+  std::array<uint8_t, 13u << kBucketBits> start{};
+};
+
+const SrgbCodes& srgb_codes() {
+  static const SrgbCodes table = [] {
+    SrgbCodes t;
+    for (int k = 1; k <= 255; ++k) t.boundary[size_t(k - 1)] = float(srgb_to_linear((k - 0.5) / 255.0));
+    for (size_t k = 255; k < t.boundary.size(); ++k) t.boundary[k] = std::numeric_limits<float>::infinity();
+    const auto codes = [&](float v) {
+      return std::upper_bound(t.boundary.begin(), t.boundary.begin() + 255, v) - t.boundary.begin();
+    };
+    for (uint32_t i = 0; i < t.start.size(); ++i) {
+      const uint32_t first = (i + (kFirstBucketExponent << kBucketBits)) << (23 - kBucketBits);
+      t.start[i] = uint8_t(codes(std::bit_cast<float>(first)));
+      const float last = std::bit_cast<float>(first + (1u << (23 - kBucketBits)) - 1);
+      if (codes(last) - t.start[i] > kBucketSteps) fail("composite: the sRGB code table needs more steps per bucket");
+    }
     return t;
   }();
   return table;
 }
 
 // The 8-bit sRGB code of a linear value: the number of code boundaries <= linear (what
-// std::upper_bound counts), by a binary search without branches (8 conditional moves over the
-// 255 sorted boundaries); 0 for linear <= 0 and NaN.
-inline uint8_t srgb8_code(const std::array<float, 255>& b, float linear) {
-  if (!(linear > 0.0f)) return 0;
-  const float* base = b.data();
-  size_t n = b.size();
-  while (n > 1) {
-    const size_t half = n / 2;
-    base = base[half] <= linear ? base + half : base;
-    n -= half;
-  }
-  return uint8_t((base - b.data()) + (*base <= linear ? 1 : 0));
+// std::upper_bound counts); 0 for linear <= 0 and NaN. The bucket of the float's exponent and
+// top mantissa bits gives the count at the bucket's start, then the bucket's own boundaries
+// are stepped over without branches.
+inline uint8_t srgb8_code(const SrgbCodes& t, float linear) {
+  if (!(linear >= 0x1p-13f)) return 0;  // NaN, <= 0, or below the first boundary
+  if (linear >= 1.0f) return 255;       // above the last
+  const uint32_t bucket = (std::bit_cast<uint32_t>(linear) >> (23 - kBucketBits)) - (kFirstBucketExponent << kBucketBits);
+  uint32_t code = t.start[bucket];
+  for (int step = 0; step < kBucketSteps; ++step) code += t.boundary[code] <= linear ? 1u : 0u;
+  return uint8_t(code);
 }
 
 // The inputs of the shading, one slot per composited meaning. A new composite term is a slot
@@ -88,6 +112,117 @@ void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, Pass
          pb.desc.byte_size());
 }
 
+// ---- the shading, eight pixels at a time ----
+// shade_lambert (core/composite.h) over a row, written with GCC's vector extension: the same
+// operations per pixel in the same order (every product, sum, square root and division rounded
+// on its own; neither target has FMA instructions, so nothing is contracted), so the same bits
+// as the scalar kernel on every pixel (Composite.RowKernelMatchesShadeLambert in
+// tests/test_trace.cpp). A light that the scalar kernel skips for a pixel (out of range, at its
+// centre, facing away, invisible) leaves that lane's sum untouched.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define DHR_COMPOSITE_TARGETS __attribute__((target_clones("avx2", "default")))
+#else
+#define DHR_COMPOSITE_TARGETS
+#endif
+
+typedef float Vec8 __attribute__((vector_size(32)));
+typedef int32_t Mask8 __attribute__((vector_size(32)));
+
+inline Vec8 load8(const float* p) {
+  Vec8 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+inline void store8(float* p, Vec8 v) { std::memcpy(p, &v, sizeof v); }
+inline Vec8 splat8(float x) { return Vec8{} + x; }
+
+// One light's constants, as the scalar kernel computes them per pixel.
+struct LightTerm {
+  bool sphere = true;
+  bool skip = false;    // a distant light without a direction: no term
+  bool ranged = false;  // range_m > 0
+  float range2 = 0.0f;  // range_m * range_m
+  float radius2 = 0.0f;
+  glm::vec3 position{0.0f}, direction{0.0f}, colour{0.0f};
+  float length = 1.0f;  // |direction|
+  float intensity = 0.0f;
+};
+
+std::vector<LightTerm> light_terms(const Scene& scene) {
+  std::vector<LightTerm> out;
+  for (const Light& L : scene.lights) {
+    LightTerm t;
+    t.sphere = L.type == LightType::Sphere;
+    t.ranged = L.range_m > 0.0f;
+    t.range2 = L.range_m * L.range_m;
+    t.radius2 = L.radius_m * L.radius_m;
+    t.position = L.position;
+    t.direction = L.direction;
+    t.colour = L.colour;
+    t.intensity = L.intensity;
+    if (!t.sphere) {
+      t.length = glm::length(L.direction);
+      t.skip = !(t.length > 0.0f);
+    }
+    out.push_back(t);
+  }
+  return out;
+}
+
+// The inputs of one row, planar, `stride` floats per plane (a multiple of 8).
+struct RowPlanes {
+  size_t stride = 0;
+  std::vector<float> data;  // p.xyz, n.xyz, albedo.xyz, ao, then one plane of V per light
+  float* plane(int i) { return data.data() + size_t(i) * stride; }
+  const float* plane(int i) const { return data.data() + size_t(i) * stride; }
+};
+constexpr int kPlaneAo = 9, kPlaneVisibility = 10;
+
+// linear[c][x] = exposure * albedo * (ambient * AO + sum_l V_l * ...), for x < in.stride.
+DHR_COMPOSITE_TARGETS void shade_row(const RowPlanes& in, const LightTerm* lights, int light_count,
+                                     glm::vec3 ambient, float exposure, float* linear) {
+  constexpr float kMinDistance2 = 1e-6f;
+  const size_t n = in.stride;
+  for (size_t i = 0; i < n; i += 8) {
+    const Vec8 px = load8(in.plane(0) + i), py = load8(in.plane(1) + i), pz = load8(in.plane(2) + i);
+    const Vec8 nx = load8(in.plane(3) + i), ny = load8(in.plane(4) + i), nz = load8(in.plane(5) + i);
+    const Vec8 ao = load8(in.plane(kPlaneAo) + i);
+    Vec8 lx = ambient.x * ao, ly = ambient.y * ao, lz = ambient.z * ao;
+    for (int l = 0; l < light_count; ++l) {
+      const LightTerm& L = lights[l];
+      if (L.skip) continue;
+      Mask8 ok = Mask8{} == 0;  // all lanes
+      Vec8 n_dot_l, falloff;
+      if (L.sphere) {
+        const Vec8 tx = L.position.x - px, ty = L.position.y - py, tz = L.position.z - pz;
+        const Vec8 d2 = tx * tx + ty * ty + tz * tz;
+        if (L.ranged) ok &= !(d2 > L.range2);
+        Vec8 d;
+        for (int k = 0; k < 8; ++k) d[k] = std::sqrt(d2[k]);
+        ok &= d > 0.0f;
+        n_dot_l = (nx * tx + ny * ty + nz * tz) / d;
+        Vec8 m = d2;  // std::max({d2, radius^2, kMinDistance2}): the first largest
+        m = m < L.radius2 ? splat8(L.radius2) : m;
+        m = m < kMinDistance2 ? splat8(kMinDistance2) : m;
+        falloff = 1.0f / m;
+      } else {
+        n_dot_l = (nx * L.direction.x + ny * L.direction.y + nz * L.direction.z) / L.length;
+        falloff = splat8(1.0f);
+      }
+      const Vec8 v = load8(in.plane(kPlaneVisibility + l) + i);
+      ok &= n_dot_l > 0.0f;
+      ok &= v > 0.0f;
+      const Vec8 s = v * L.intensity * n_dot_l * falloff;
+      lx = ok ? lx + s * L.colour.x : lx;
+      ly = ok ? ly + s * L.colour.y : ly;
+      lz = ok ? lz + s * L.colour.z : lz;
+    }
+    store8(linear + i, load8(in.plane(6) + i) * lx * exposure);
+    store8(linear + n + i, load8(in.plane(7) + i) * ly * exposure);
+    store8(linear + 2 * n + i, load8(in.plane(8) + i) * lz * exposure);
+  }
+}
+
 template <class VisAt, class AoAt>
 ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSettings& settings, VisAt&& vis_at,
                          AoAt&& ao_at) {
@@ -96,21 +231,38 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
   const int w = g.width(), h = g.height();
   ImageRGB8 out(w, h);
   const Rgb8 background = tonemap_srgb8(scene.background * settings.exposure);
+  const std::vector<LightTerm> lights = light_terms(scene);
+  const int nl = int(lights.size());
+  const size_t stride = (size_t(w) + 7) / 8 * 8;
+  const SrgbCodes& b = srgb_codes();
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
+    RowPlanes in;
+    in.stride = stride;
+    in.data.assign(stride * size_t(kPlaneVisibility + nl), 0.0f);
+    std::vector<float> linear(3 * stride);
     for (int y = rows.begin(); y < rows.end(); ++y) {
       for (int x = 0; x < w; ++x) {
-        if (!g.covered(x, y)) {
-          out(x, y) = background;
+        const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+        const size_t i = size_t(x);
+        if (!g.covered(x, y)) {  // shaded with zeros, never shown
+          for (int p = 0; p < kPlaneVisibility + nl; ++p) in.plane(p)[i] = 0.0f;
           continue;
         }
-        const size_t pixel = size_t(y) * size_t(w) + size_t(x);
-        glm::vec3 n = g.normal(x, y);
-        if (!(glm::dot(n, n) > 0.0f)) n = g.geo_normal(x, y);
-        const glm::vec3 c = shade_lambert(scene, g.albedo(x, y), g.position(x, y), n, ao_at(pixel),
-                                          [&](size_t l) { return vis_at(l, pixel); });
-        const glm::vec3 linear = c * settings.exposure;
-        const auto& b = code_boundaries();
-        out(x, y) = {srgb8_code(b, linear.x), srgb8_code(b, linear.y), srgb8_code(b, linear.z)};
+        glm::vec3 nrm = g.normal(x, y);
+        if (!(glm::dot(nrm, nrm) > 0.0f)) nrm = g.geo_normal(x, y);
+        const glm::vec3& p = g.position(x, y);
+        const glm::vec3& a = g.albedo(x, y);
+        const float values[9] = {p.x, p.y, p.z, nrm.x, nrm.y, nrm.z, a.x, a.y, a.z};
+        for (int k = 0; k < 9; ++k) in.plane(k)[i] = values[k];
+        in.plane(kPlaneAo)[i] = ao_at(pixel);
+        for (int l = 0; l < nl; ++l) in.plane(kPlaneVisibility + l)[i] = vis_at(size_t(l), pixel);
+      }
+      shade_row(in, lights.data(), nl, scene.ambient, settings.exposure, linear.data());
+      for (int x = 0; x < w; ++x) {
+        const size_t i = size_t(x);
+        out(x, y) = g.covered(x, y) ? Rgb8{srgb8_code(b, linear[i]), srgb8_code(b, linear[stride + i]),
+                                           srgb8_code(b, linear[2 * stride + i])}
+                                    : background;
       }
     }
   });
@@ -119,7 +271,7 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
 
 }  // namespace
 
-uint8_t tonemap_srgb8(float linear) { return srgb8_code(code_boundaries(), linear); }
+uint8_t tonemap_srgb8(float linear) { return srgb8_code(srgb_codes(), linear); }
 
 Rgb8 tonemap_srgb8(const glm::vec3& linear) {
   return {tonemap_srgb8(linear.x), tonemap_srgb8(linear.y), tonemap_srgb8(linear.z)};

@@ -15,6 +15,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -671,6 +672,18 @@ TEST(Composite, ToneMapCountsBoundariesLikeUpperBound) {
     ASSERT_EQ(int(tonemap_srgb8(v)), want(v)) << v;
   }
   EXPECT_EQ(int(tonemap_srgb8(std::numeric_limits<float>::infinity())), 255);
+  // Every float from 2^-14 to 1 (the codes' range; the tone map looks its code up by the float's
+  // bits), against a running count of the boundaries passed.
+  int count = 0;
+  for (uint32_t bits = std::bit_cast<uint32_t>(0x1p-14f); bits <= std::bit_cast<uint32_t>(1.0f); ++bits) {
+    const float v = std::bit_cast<float>(bits);
+    while (count < 255 && b[size_t(count)] <= v) ++count;
+    if (int(tonemap_srgb8(v)) != count) {
+      ADD_FAILURE() << "tone map of " << v << ": " << int(tonemap_srgb8(v)) << ", expected " << count;
+      break;
+    }
+  }
+  EXPECT_EQ(count, 255);
 }
 
 TEST(Composite, NoLightsIsAlbedoTimesAmbient) {
@@ -740,6 +753,88 @@ TEST(Composite, ShadowRemovesExactlyThatLight) {
   PassBuffer wrong = vis;
   wrong.desc.channels = 3;
   EXPECT_THROW(composite(g, s, &wrong, nullptr), Error);
+}
+
+// The composite shades eight pixels at a time (core/composite.cpp); every pixel must be what
+// the scalar kernel, shade_lambert, gives it, bit for bit, also in the hard cases: points inside
+// or at the centre of a sphere light, beyond its range, facing away, zero normals (the geometric
+// normal then), a distant light without a direction, zero and tiny radii, huge and tiny
+// distances, odd widths (partial groups of eight), with bitmask, 8-bit and float visibility.
+TEST(Composite, RowKernelMatchesShadeLambert) {
+  Scene s = base_scene();
+  s.ambient = {0.05f, 0.06f, 0.07f};
+  s.lights = {sphere_light({0.3f, 1.5f, -0.2f}, 0.25f, 3.0f), sphere_light({-2.0f, 0.5f, 1.0f}, 0.0f, 40.0f),
+              distant_light({-0.3f, 1.0f, 0.2f}), distant_light({0.0f, 0.0f, 0.0f}),
+              sphere_light({0.0f, 0.0f, 0.0f}, 1e-4f, 0.5f)};
+  s.lights[0].range_m = 2.5f;
+  s.lights[2].colour = {1.0f, 0.5f, 0.25f};
+  s.lights[4].range_m = 1e-3f;
+  const int nl = int(s.lights.size());
+  for (const int w : {1, 7, 8, 13, 37}) {
+    const int h = 9;
+    GBuffer g;
+    g.camera = cam({0, 2, 2}, {0, 0, 0});
+    g.resize(w, h);
+    const size_t n = size_t(w) * size_t(h);
+    PassBuffer bits, planes, ao;
+    bits.desc = {PassKind::Visibility, w, h, nl, 255};
+    planes.desc = {PassKind::SoftVisibility, w, h, nl, 200};
+    ao.desc = {PassKind::Ao, w, h, 1, 8};
+    bits.bytes.assign(bits.desc.byte_size(), 0);
+    planes.bytes.assign(planes.desc.byte_size(), 0);
+    ao.bytes.assign(n, 0);
+    std::vector<float> fractions(n * size_t(nl)), ao_fractions(n);
+    auto u = [&](size_t i, uint32_t k) { return float(rng_bits({77, uint32_t(i), uint32_t(w), k, 3}) >> 40) / 16777216.0f; };
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const size_t i = size_t(y) * size_t(w) + size_t(x);
+        const uint32_t kind = uint32_t(rng_bits({78, uint32_t(i), uint32_t(w), 0, 3}) % 12);
+        g.object_id(x, y) = kind == 0 ? kBackgroundId : 1;
+        glm::vec3 p{4.0f * u(i, 1) - 2.0f, 2.0f * u(i, 2), 4.0f * u(i, 3) - 2.0f};
+        if (kind == 1) p = s.lights[0].position;                             // at a light's centre
+        if (kind == 2) p = s.lights[0].position + glm::vec3(0.0f, 0.1f, 0.0f);  // inside its sphere
+        if (kind == 3) p = {1e6f, -3e5f, 2e5f};                               // far away
+        if (kind == 4) p = s.lights[4].position + glm::vec3(1e-7f, 0.0f, 0.0f);  // within the clamp
+        g.position(x, y) = p;
+        glm::vec3 nrm = glm::normalize(glm::vec3(u(i, 4) - 0.5f, u(i, 5), u(i, 6) - 0.5f) + glm::vec3(0, 0.1f, 0));
+        if (kind == 5) nrm = -nrm;  // facing away from most lights
+        g.geo_normal(x, y) = glm::normalize(glm::vec3(0.1f, 1.0f, 0.2f));
+        g.normal(x, y) = kind == 6 ? glm::vec3(0.0f) : nrm;  // zero: the geometric normal
+        g.albedo(x, y) = {u(i, 7), u(i, 8), u(i, 9)};
+        ao.bytes[i] = uint8_t(rng_bits({79, uint32_t(i), 0, 0, 3}) % 9);
+        ao_fractions[i] = u(i, 10);
+        for (int l = 0; l < nl; ++l) {
+          const uint64_t r = rng_bits({80, uint32_t(i), uint32_t(l), 0, 3});
+          if (r & 1) bits.bytes[i * size_t((nl + 7) / 8) + size_t(l / 8)] |= uint8_t(1u << (l % 8));
+          planes.bytes[size_t(l) * n + i] = uint8_t((r >> 8) % 201);
+          fractions[size_t(l) * n + i] = (r >> 16 & 3) == 0 ? 0.0f : u(i, 20 + uint32_t(l));
+        }
+      }
+    auto expect = [&](const ImageRGB8& img, auto&& vis_at, auto&& ao_at, const char* what) {
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+          const size_t i = size_t(y) * size_t(w) + size_t(x);
+          Rgb8 want = tonemap_srgb8(s.background);
+          if (g.covered(x, y)) {
+            glm::vec3 nrm = g.normal(x, y);
+            if (!(glm::dot(nrm, nrm) > 0.0f)) nrm = g.geo_normal(x, y);
+            want = tonemap_srgb8(shade_lambert(s, g.albedo(x, y), g.position(x, y), nrm, ao_at(i),
+                                               [&](size_t l) { return vis_at(l, i); }));
+          }
+          ASSERT_EQ(img(x, y), want) << what << " width " << w << " at " << x << "," << y;
+        }
+    };
+    const size_t bpp = size_t((nl + 7) / 8);
+    auto ao_byte = [&](size_t i) { return std::min(1.0f, float(ao.bytes[i]) * (1.0f / 8.0f)); };
+    expect(composite(g, s, &bits, &ao), [&](size_t l, size_t i) { return float((bits.bytes[i * bpp + (l >> 3)] >> (l & 7)) & 1u); },
+           ao_byte, "bitmask");
+    expect(composite(g, s, &planes, nullptr),
+           [&](size_t l, size_t i) { return std::min(1.0f, float(planes.bytes[l * n + i]) * (1.0f / 200.0f)); },
+           [](size_t) { return 1.0f; }, "planes");
+    const CompositeFractions est[] = {{PassMeaning::Visibility, fractions}, {PassMeaning::Ao, ao_fractions}};
+    expect(composite_fractions(g, s, est), [&](size_t l, size_t i) { return fractions[l * n + i]; },
+           [&](size_t i) { return ao_fractions[i]; }, "fractions");
+  }
 }
 
 // ---- references ----

@@ -1,10 +1,10 @@
 // h264: H.264/AVC video (ITU-T H.264) through libavcodec's libx264 encoder and its native
 // H.264 decoder, on the shared libavcodec layer (backends/codec/av_video.h: pictures, full-range
 // mapping of count planes, keyframes, rate control). This is what cloud gaming ships, so it is
-// the fair codec for the remote-rendering baseline's colour frames (design.md); for the DHR
-// passes it carries 8-bit AO and soft-visibility planes, lossy or lossless. Bitmasks are
-// refused: a lossy codec turns bits into wrong bits, and x264's lossless mode would code 1-bit
-// data as 8-bit samples.
+// the fair codec for the remote-rendering baseline's colour frames (docs/architecture.md, "The
+// frame loop"); for the DHR passes it carries 8-bit AO and soft-visibility planes, lossy or
+// lossless. Bitmasks are refused: a lossy codec turns bits into wrong bits, and x264's lossless
+// mode would code 1-bit data as 8-bit samples.
 //
 // x264 settings: tune=zerolatency (no B-frames, no lookahead), scene-cut detection off (so
 // keyframes are predictable), forced keyframes are IDR pictures, SPS/PPS precede every IDR.
