@@ -66,8 +66,9 @@ inline uint8_t srgb8_code(const SrgbCodes& t, float linear) {
 }
 
 // The inputs of the shading, one slot per composited meaning. A new composite term is a slot
-// here (and its case in slot()), the layouts it reads in composite() and composite_fractions()
-// below, and its use in shade_lambert (core/composite.h).
+// here (and its case in place()), the values it reads in composite() and composite_fractions()
+// below, its member of PixelTerms and its plane in RowPlanes, and its use in shade_row and in
+// shade_lambert (core/composite.h).
 template <class T>
 struct CompositeInputs {
   T visibility{};  // V_l per light
@@ -223,9 +224,10 @@ DHR_COMPOSITE_TARGETS void shade_row(const RowPlanes& in, const LightTerm* light
   }
 }
 
-template <class VisAt, class AoAt>
+// vis_at(l, pixel) gives V_l, terms_at(pixel) the pixel's PixelTerms.
+template <class VisAt, class TermsAt>
 ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSettings& settings, VisAt&& vis_at,
-                         AoAt&& ao_at) {
+                         TermsAt&& terms_at) {
   if (!(settings.exposure > 0.0f) || !std::isfinite(settings.exposure))
     fail("composite: exposure {} must be finite and > 0", settings.exposure);
   const int w = g.width(), h = g.height();
@@ -254,7 +256,8 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
         const glm::vec3& a = g.albedo(x, y);
         const float values[9] = {p.x, p.y, p.z, nrm.x, nrm.y, nrm.z, a.x, a.y, a.z};
         for (int k = 0; k < 9; ++k) in.plane(k)[i] = values[k];
-        in.plane(kPlaneAo)[i] = ao_at(pixel);
+        const PixelTerms terms = terms_at(pixel);
+        in.plane(kPlaneAo)[i] = terms.ao;
         for (int l = 0; l < nl; ++l) in.plane(kPlaneVisibility + l)[i] = vis_at(size_t(l), pixel);
       }
       shade_row(in, lights.data(), nl, scene.ambient, settings.exposure, linear.data());
@@ -289,19 +292,21 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const Compos
   const PassBuffer* ao = in.ao;
   const size_t npx = size_t(g.width()) * size_t(g.height());
   const float ao_scale = ao ? 1.0f / float(ao->desc.full_scale) : 0.0f;
-  auto ao_at = [&](size_t pixel) { return ao ? std::min(1.0f, float(ao->bytes[pixel]) * ao_scale) : 1.0f; };
-  if (!visibility) return composite_impl(g, scene, settings, [](size_t, size_t) { return 1.0f; }, ao_at);
+  auto terms_at = [&](size_t pixel) {
+    return PixelTerms{ao ? std::min(1.0f, float(ao->bytes[pixel]) * ao_scale) : 1.0f};
+  };
+  if (!visibility) return composite_impl(g, scene, settings, [](size_t, size_t) { return 1.0f; }, terms_at);
   const uint8_t* bytes = visibility->bytes.data();
   if (visibility->desc.layout() == PassLayout::Bitmask) {
     const size_t bpp = size_t((visibility->desc.channels + 7) / 8);
     return composite_impl(
         g, scene, settings,
-        [&](size_t l, size_t pixel) { return float((bytes[pixel * bpp + (l >> 3)] >> (l & 7)) & 1u); }, ao_at);
+        [&](size_t l, size_t pixel) { return float((bytes[pixel * bpp + (l >> 3)] >> (l & 7)) & 1u); }, terms_at);
   }
   const float vis_scale = 1.0f / float(visibility->desc.full_scale);
   return composite_impl(
       g, scene, settings,
-      [&](size_t l, size_t pixel) { return std::min(1.0f, float(bytes[l * npx + pixel]) * vis_scale); }, ao_at);
+      [&](size_t l, size_t pixel) { return std::min(1.0f, float(bytes[l * npx + pixel]) * vis_scale); }, terms_at);
 }
 
 ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
@@ -329,7 +334,7 @@ ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<co
   return composite_impl(
       g, scene, settings,
       [&](size_t l, size_t pixel) { return visibility.empty() ? 1.0f : visibility[l * npx + pixel]; },
-      [&](size_t pixel) { return ao.empty() ? 1.0f : ao[pixel]; });
+      [&](size_t pixel) { return PixelTerms{ao.empty() ? 1.0f : ao[pixel]}; });
 }
 
 }  // namespace dhr

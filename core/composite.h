@@ -38,10 +38,17 @@ struct CompositeSettings {
 uint8_t tonemap_srgb8(float linear);
 Rgb8 tonemap_srgb8(const glm::vec3& linear);
 
-// Linear radiance of one pixel: the shading kernel. visible(l) gives V_l, ao is AO.
+// The per-pixel scalar terms of the shading, each at the value of an absent pass by default.
+struct PixelTerms {
+  float ao = 1.0f;
+};
+
+// Linear radiance of one pixel: the shading kernel. visible(l) gives V_l. The composite runs
+// the same operations eight pixels at a time (shade_row in core/composite.cpp) and must agree
+// with this kernel bit for bit (tests/test_trace.cpp, Composite.RowKernelMatchesShadeLambert).
 template <class VisibleFn>
 glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position,
-                        const glm::vec3& normal, float ao, VisibleFn&& visible);
+                        const glm::vec3& normal, const PixelTerms& terms, VisibleFn&& visible);
 
 // One received pass for the composite: its meaning picks its term (an absent pass of a meaning
 // is its neutral value: fully lit, AO = 1). A null buffer counts as absent. A visibility pass
@@ -55,8 +62,8 @@ struct CompositePass {
 // displayed or read as they are, never composited: dhr::Error). Throws dhr::Error when a pass
 // does not match the G-buffer's size, the scene's light count or its own byte size.
 //
-// A composite term is one meaning: its slot in CompositeInputs (core/composite.cpp), the layouts
-// it reads there, and its use in shade_lambert.
+// A composite term is one meaning: its slot in CompositeInputs (core/composite.cpp), the values
+// it reads there, its member of PixelTerms, and its use in shade_lambert and shade_row.
 ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, std::span<const CompositePass> passes,
                     const CompositeSettings& settings = {});
 
@@ -82,9 +89,9 @@ ImageRGB8 composite_fractions(const GBuffer& gbuf, const Scene& scene, std::span
 
 template <class VisibleFn>
 glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position,
-                        const glm::vec3& normal, float ao, VisibleFn&& visible) {
+                        const glm::vec3& normal, const PixelTerms& terms, VisibleFn&& visible) {
   constexpr float kMinDistance2 = 1e-6f;
-  glm::vec3 light = scene.ambient * ao;
+  glm::vec3 light = scene.ambient * terms.ao;
   for (size_t l = 0; l < scene.lights.size(); ++l) {
     const Light& L = scene.lights[l];
     float n_dot_l = 0.0f, falloff = 1.0f;

@@ -818,7 +818,7 @@ TEST(Composite, RowKernelMatchesShadeLambert) {
           if (g.covered(x, y)) {
             glm::vec3 nrm = g.normal(x, y);
             if (!(glm::dot(nrm, nrm) > 0.0f)) nrm = g.geo_normal(x, y);
-            want = tonemap_srgb8(shade_lambert(s, g.albedo(x, y), g.position(x, y), nrm, ao_at(i),
+            want = tonemap_srgb8(shade_lambert(s, g.albedo(x, y), g.position(x, y), nrm, PixelTerms{ao_at(i)},
                                                [&](size_t l) { return vis_at(l, i); }));
           }
           ASSERT_EQ(img(x, y), want) << what << " width " << w << " at " << x << "," << y;
