@@ -126,6 +126,10 @@ void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, Pass
 #define DHR_COMPOSITE_TARGETS
 #endif
 
+// The vector helpers pass 32-byte vectors by value inside this file only (clang's -Wpsabi, and
+// GCC's note, are about calls across a library boundary built without AVX).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wpsabi"
 typedef float Vec8 __attribute__((vector_size(32)));
 typedef int32_t Mask8 __attribute__((vector_size(32)));
 
@@ -223,6 +227,8 @@ DHR_COMPOSITE_TARGETS void shade_row(const RowPlanes& in, const LightTerm* light
     store8(linear + 2 * n + i, load8(in.plane(8) + i) * lz * exposure);
   }
 }
+
+#pragma GCC diagnostic pop
 
 // vis_at(l, pixel) gives V_l, terms_at(pixel) the pixel's PixelTerms.
 template <class VisAt, class TermsAt>
