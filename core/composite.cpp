@@ -3,6 +3,7 @@
 #include "core/composite.h"
 
 #include "core/error.h"
+#include "core/vec8.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -45,7 +46,9 @@ const SrgbCodes& srgb_codes() {
       const uint32_t first = (i + (kFirstBucketExponent << kBucketBits)) << (23 - kBucketBits);
       t.start[i] = uint8_t(codes(std::bit_cast<float>(first)));
       const float last = std::bit_cast<float>(first + (1u << (23 - kBucketBits)) - 1);
-      if (codes(last) - t.start[i] > kBucketSteps) fail("composite: the sRGB code table needs more steps per bucket");
+      if (codes(last) - t.start[i] > kBucketSteps)
+        fail("composite: sRGB code bucket {} ([{}, {}]) holds {} boundaries, the lookup steps over at most {}", i,
+             std::bit_cast<float>(first), last, codes(last) - t.start[i], kBucketSteps);
     }
     return t;
   }();
@@ -119,52 +122,29 @@ void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, Pass
 // on its own; neither target has FMA instructions, so nothing is contracted), so the same bits
 // as the scalar kernel on every pixel (Composite.RowKernelMatchesShadeLambert in
 // tests/test_trace.cpp). A light that the scalar kernel skips for a pixel (out of range, at its
-// centre, facing away, invisible) leaves that lane's sum untouched.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define DHR_COMPOSITE_TARGETS __attribute__((target_clones("avx2", "default")))
-#else
-#define DHR_COMPOSITE_TARGETS
-#endif
-
-// The vector helpers pass 32-byte vectors by value inside this file only (clang's -Wpsabi, and
-// GCC's note, are about calls across a library boundary built without AVX).
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wpsabi"
-typedef float Vec8 __attribute__((vector_size(32)));
-typedef int32_t Mask8 __attribute__((vector_size(32)));
-
-inline Vec8 load8(const float* p) {
-  Vec8 v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-inline void store8(float* p, Vec8 v) { std::memcpy(p, &v, sizeof v); }
-inline Vec8 splat8(float x) { return Vec8{} + x; }
+// centre, facing away, invisible) leaves that lane's sum untouched. Vec8 and the AVX2/baseline
+// clones: core/vec8.h.
 
 // One light's constants, as the scalar kernel computes them per pixel.
 struct LightTerm {
+  const Light* light = nullptr;
   bool sphere = true;
   bool skip = false;    // a distant light without a direction: no term
   bool ranged = false;  // range_m > 0
   float range2 = 0.0f;  // range_m * range_m
   float radius2 = 0.0f;
-  glm::vec3 position{0.0f}, direction{0.0f}, colour{0.0f};
   float length = 1.0f;  // |direction|
-  float intensity = 0.0f;
 };
 
 std::vector<LightTerm> light_terms(const Scene& scene) {
   std::vector<LightTerm> out;
   for (const Light& L : scene.lights) {
     LightTerm t;
+    t.light = &L;
     t.sphere = L.type == LightType::Sphere;
     t.ranged = L.range_m > 0.0f;
     t.range2 = L.range_m * L.range_m;
     t.radius2 = L.radius_m * L.radius_m;
-    t.position = L.position;
-    t.direction = L.direction;
-    t.colour = L.colour;
-    t.intensity = L.intensity;
     if (!t.sphere) {
       t.length = glm::length(L.direction);
       t.skip = !(t.length > 0.0f);
@@ -184,7 +164,7 @@ struct RowPlanes {
 constexpr int kPlaneAo = 9, kPlaneVisibility = 10;
 
 // linear[c][x] = exposure * albedo * (ambient * AO + sum_l V_l * ...), for x < in.stride.
-DHR_COMPOSITE_TARGETS void shade_row(const RowPlanes& in, const LightTerm* lights, int light_count,
+DHR_VEC8_TARGETS void shade_row(const RowPlanes& in, const LightTerm* lights, int light_count,
                                      glm::vec3 ambient, float exposure, float* linear) {
   constexpr float kMinDistance2 = 1e-6f;
   const size_t n = in.stride;
@@ -196,10 +176,11 @@ DHR_COMPOSITE_TARGETS void shade_row(const RowPlanes& in, const LightTerm* light
     for (int l = 0; l < light_count; ++l) {
       const LightTerm& L = lights[l];
       if (L.skip) continue;
+      const Light& light = *L.light;
       Mask8 ok = Mask8{} == 0;  // all lanes
       Vec8 n_dot_l, falloff;
       if (L.sphere) {
-        const Vec8 tx = L.position.x - px, ty = L.position.y - py, tz = L.position.z - pz;
+        const Vec8 tx = light.position.x - px, ty = light.position.y - py, tz = light.position.z - pz;
         const Vec8 d2 = tx * tx + ty * ty + tz * tz;
         if (L.ranged) ok &= !(d2 > L.range2);
         Vec8 d;
@@ -211,24 +192,22 @@ DHR_COMPOSITE_TARGETS void shade_row(const RowPlanes& in, const LightTerm* light
         m = m < kMinDistance2 ? splat8(kMinDistance2) : m;
         falloff = 1.0f / m;
       } else {
-        n_dot_l = (nx * L.direction.x + ny * L.direction.y + nz * L.direction.z) / L.length;
+        n_dot_l = (nx * light.direction.x + ny * light.direction.y + nz * light.direction.z) / L.length;
         falloff = splat8(1.0f);
       }
       const Vec8 v = load8(in.plane(kPlaneVisibility + l) + i);
       ok &= n_dot_l > 0.0f;
       ok &= v > 0.0f;
-      const Vec8 s = v * L.intensity * n_dot_l * falloff;
-      lx = ok ? lx + s * L.colour.x : lx;
-      ly = ok ? ly + s * L.colour.y : ly;
-      lz = ok ? lz + s * L.colour.z : lz;
+      const Vec8 s = v * light.intensity * n_dot_l * falloff;
+      lx = ok ? lx + s * light.colour.x : lx;
+      ly = ok ? ly + s * light.colour.y : ly;
+      lz = ok ? lz + s * light.colour.z : lz;
     }
     store8(linear + i, load8(in.plane(6) + i) * lx * exposure);
     store8(linear + n + i, load8(in.plane(7) + i) * ly * exposure);
     store8(linear + 2 * n + i, load8(in.plane(8) + i) * lz * exposure);
   }
 }
-
-#pragma GCC diagnostic pop
 
 // vis_at(l, pixel) gives V_l, terms_at(pixel) the pixel's PixelTerms.
 template <class VisAt, class TermsAt>

@@ -8,6 +8,7 @@
 
 #include "core/error.h"
 #include "core/flip_magma.h"
+#include "core/vec8.h"
 
 #include <tbb/parallel_for.h>
 
@@ -23,14 +24,9 @@ namespace dhr {
 
 namespace {
 
-// The row loops below are built for AVX2 and the baseline and chosen at run time; neither has
-// FMA instructions, so every product and sum is rounded on its own on both (the same bits).
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__AVX2__) && \
-    !defined(__SANITIZE_ADDRESS__)
-#define DHR_FLIP_TARGETS __attribute__((target_clones("avx2", "default")))
-#else
-#define DHR_FLIP_TARGETS
-#endif
+// The row loops below are built for AVX2 and the baseline and chosen at run time
+// (DHR_VEC8_TARGETS, core/vec8.h); neither has FMA instructions, so every product and sum is
+// rounded on its own on both (the same bits).
 
 constexpr double kPi = 3.14159265358979323846;
 
@@ -108,7 +104,7 @@ struct Lab {
 
 // lab_f over a row of values, written without branches so that the compiler can vectorize it
 // (the same arithmetic per value as lab_f).
-DHR_FLIP_TARGETS void lab_f_row(float* v, size_t n) {
+DHR_VEC8_TARGETS void lab_f_row(float* v, size_t n) {
   constexpr float kDelta3 = float((6.0 / 29) * (6.0 / 29) * (6.0 / 29));
   constexpr float kSlope = float(1.0 / (3 * (6.0 / 29) * (6.0 / 29)));
   constexpr float kOffset = float(4.0 / 29);
@@ -239,20 +235,10 @@ FeatureKernels make_feature_kernels(double ppd) {
 // nothing is contracted): the same bits on every target and as the one-tap-at-a-time loop
 // (Flip.SameBitsAsTheOneTapAtATimeFilters in tests/test_flip.cpp).
 
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wpsabi"
-typedef float Vec8 __attribute__((vector_size(32)));
-constexpr int kBlock = 32;  // outputs kept in registers: four vectors
-
-inline Vec8 load8(const float* p) {
-  Vec8 v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-inline void store8(float* p, Vec8 v) { std::memcpy(p, &v, sizeof v); }
+constexpr int kBlock = 32;  // outputs kept in registers: four vectors (core/vec8.h)
 
 // out[x] = sum_t w[t] * src[t][x] for x < width, summed in tap order.
-DHR_FLIP_TARGETS void weighted_rows(const float* const* src, const float* w, int taps, int width, float* out) {
+DHR_VEC8_TARGETS void weighted_rows(const float* const* src, const float* w, int taps, int width, float* out) {
   int x = 0;
   for (; x + kBlock <= width; x += kBlock) {
     const Vec8 w0 = Vec8{} + w[0];
@@ -277,7 +263,6 @@ DHR_FLIP_TARGETS void weighted_rows(const float* const* src, const float* w, int
     out[x] = a;
   }
 }
-#pragma GCC diagnostic pop
 
 // The largest kernel: the CSF's radius at the highest ppd flip() takes (1000) is 136.
 constexpr int kMaxTaps = 2 * 160 + 1;

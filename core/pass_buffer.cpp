@@ -10,7 +10,7 @@
 namespace dhr {
 
 const std::vector<PassKindInfo>& pass_kinds() {
-  // A new kind is one value in PassKind and one row here.
+  // A new kind is one value in PassKind and one row here, in the order of the values.
   static const std::vector<PassKindInfo> kinds = {
       {PassKind::Visibility, "visibility", PassLayout::Bitmask, PassMeaning::Visibility, 1, 64,
        "{} lights out of range 1..64", 1, 0, ""},
@@ -26,10 +26,12 @@ const std::vector<PassKindInfo>& pass_kinds() {
   return kinds;
 }
 
+// The rows are in the order of their values, 1, 2, ...: the row of value v is row v - 1.
 const PassKindInfo* find_pass_kind(uint8_t kind) {
-  for (const PassKindInfo& k : pass_kinds())
-    if (uint8_t(k.kind) == kind) return &k;
-  return nullptr;
+  const std::vector<PassKindInfo>& kinds = pass_kinds();
+  if (kind < 1 || kind > kinds.size()) return nullptr;
+  const PassKindInfo& k = kinds[kind - 1u];
+  return uint8_t(k.kind) == kind ? &k : nullptr;
 }
 
 const char* pass_kind_name(PassKind kind) {

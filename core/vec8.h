@@ -1,0 +1,37 @@
+// Eight floats as one value (GCC's and clang's vector extension) for the core's bit-exact row
+// kernels (core/flip.cpp, core/composite.cpp): lane for lane the same operations as the scalar
+// code, every product and sum rounded on its own. DHR_VEC8_TARGETS clones a kernel for AVX2
+// and the baseline and picks one at run time; neither target has FMA instructions, so nothing is
+// contracted and both give the same bits. (The denoisers have their own lane types:
+// backends/denoise/filters_simd.h.)
+#pragma once
+
+#include <cstdint>
+#include <cstring>
+
+// -Wpsabi off for the rest of the including file: the 32-byte vectors pass by value between
+// inline helpers of one translation unit only, never across a library boundary, and GCC
+// reports it at the end of the translation unit, after any diagnostic pop.
+#pragma GCC diagnostic ignored "-Wpsabi"
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__AVX2__) && \
+    !defined(__SANITIZE_ADDRESS__)
+#define DHR_VEC8_TARGETS __attribute__((target_clones("avx2", "default")))
+#else
+#define DHR_VEC8_TARGETS
+#endif
+
+namespace dhr {
+
+typedef float Vec8 __attribute__((vector_size(32)));
+typedef int32_t Mask8 __attribute__((vector_size(32)));  // a comparison's lanes: -1 true, 0 false
+
+inline Vec8 load8(const float* p) {
+  Vec8 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+inline void store8(float* p, Vec8 v) { std::memcpy(p, &v, sizeof v); }
+inline Vec8 splat8(float x) { return Vec8{} + x; }
+
+}  // namespace dhr
