@@ -466,15 +466,18 @@ TEST(Denoisers, SoftVisibilityPlane) {
 
 // ---------------------------------------------------------------- vector widths
 
-// The a-trous kernel has an AVX-512 version (16 lanes) chosen at run time and an 8-lane one
-// (AVX2 or baseline); both must give the same bits, or results would depend on the machine.
-// Random planes 75 px wide (16-lane blocks, 8-lane blocks, scalar borders), some invalid pixels
-// (zero normal and depth), every step and radius and both normal-power paths; the same for the
-// spatial moments (moment_span, also 16 lanes on AVX-512). On a CPU without
-// AVX-512 both calls take the 8-lane kernel and this compares it with itself.
+// The a-trous kernel has an AVX-512 version (16 lanes) and an unrolled AVX2 one chosen at run
+// time, and a portable 8-lane one (AVX2 or baseline clone); all must give the same bits, or
+// results would depend on the machine. Random planes 75 px wide (16-lane blocks, 8-lane blocks,
+// scalar borders), some invalid pixels (zero normal and depth), every step and radius and both
+// normal-power paths; the same for the spatial moments (moment_span, 16 lanes on AVX-512 only).
+// On a CPU without AVX2 (or in a sanitizer build) both calls take the portable kernel and this
+// compares it with itself.
 TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
-  std::printf("AVX-512 a-trous kernel: %s\n",
-              denoise::cpu_has_avx512() ? "used" : "not used (no AVX-512 on this CPU, or a sanitizer / non-GCC build)");
+  std::printf("a-trous kernel compared with the portable one: %s\n",
+              denoise::cpu_has_avx512() ? "AVX-512, 16 lanes"
+              : denoise::cpu_has_avx2() ? "AVX2, unrolled 8 lanes"
+                                        : "none (no AVX2 on this CPU, or a sanitizer / non-GCC build)");
   constexpr int w = 75, h = 9;
   const size_t n = size_t(w) * h;
   auto u = [](uint32_t i, uint32_t dim) { return rng_uniform(RngKey{3, i, 0, dim, kStreamAo}); };

@@ -86,9 +86,10 @@ struct AtrousArgs {
 };
 
 // Rows [y0, y1) of one a-trous iteration; acc holds 4 * width floats of scratch (need not be
-// initialised). With the widest vectors the CPU has (same bits either way);
-// use_avx512 = false forces the 8-wide kernel (tests compare them).
-void atrous_rows(const AtrousArgs& a, int y0, int y1, float* acc, bool use_avx512 = true);
+// initialised). With the fastest kernel the CPU has (16 lanes on AVX-512, unrolled 8 lanes on
+// AVX2; same bits either way); fastest = false forces the portable 8-wide kernel (tests compare
+// them).
+void atrous_rows(const AtrousArgs& a, int y0, int y1, float* acc, bool fastest = true);
 
 // ---- The spatial moments of one row span [xa, xb] in a (2r+1)^2 window, weighted by depth
 // and normal only (DHR-S 3.3).
@@ -106,6 +107,9 @@ void moment_span(const MomentArgs& a, int y, int xa, int xb, float* acc, bool us
 // Whether atrous_rows and moment_span take their 16-lane AVX-512 kernels on this CPU (GCC
 // builds without sanitizers on x86-64 only).
 bool cpu_has_avx512();
+// Whether the CPU has AVX2 (the same builds only): atrous_rows' unrolled 8-lane kernel where
+// AVX-512 is missing.
+bool cpu_has_avx2();
 
 // A value in [0, 1] to 0..255, rounded to nearest; NaN gives 0. Inline: the kernels call it
 // per pixel.

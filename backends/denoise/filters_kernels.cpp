@@ -134,6 +134,86 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
 }
 
 #if DHR_DENOISE_AVX512
+// The same taps as atrous_block for a block of 8 pixels at x, for AVX2 without AVX-512
+// (atrous_block16_unrolled's idea in 8 lanes): the taps unrolled (radius R known at compile
+// time, so the kernel weights and 1/length are constants) and the exponential's clamps
+// replaced by one mask. The bits are those of atrous_block, every product and sum the same IEEE
+// operation in the same order; only exp_neg(-(wz + wl)) is reached differently, as in the
+// 16-lane kernel: wz, wl >= 0, so the clamp at 0 never acts; t = -(s) 1.44269504 is
+// s (-1.44269504); the clamp at -60 and the final "x < -60 ? 0" become one mask (s > 60) that
+// zeroes the weight ((h wn) r is +0 there too: h wn is finite and >= 0, r finite); the
+// split into i and f, the polynomial and the exponent add are exp_neg's own operations.
+template <int K, int R>
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 void atrous_block8_unrolled(const AtrousArgs& a, int y, int x,
+                                                                     const float* ipl_row, const float (*hk)[5],
+                                                                     const float (*inv_len)[5], float* sw_out,
+                                                                     float* sl_out, float* sv_out) {
+  using L = VectorLane;
+  using T = VecF;
+  const int step = a.step, nsq = a.normal_squarings;
+  const size_t c = size_t(y) * size_t(a.width) + size_t(x);
+  const T zc = L::load(a.depth + c), ncx = L::load(a.nx + c), ncy = L::load(a.ny + c), ncz = L::load(a.nz + c);
+  const T ipz = L::load(a.inv_phi_z + c), ipl = L::load(ipl_row + x), lc = L::load(a.v_in + c);
+  const float hc = a.k1d[0] * a.k1d[0];
+  T sw = T{} + hc;
+  T sl = hc * lc;
+  T sv = (hc * hc) * L::load(a.var_in + c);
+#pragma GCC unroll 5
+  for (int ty = -R; ty <= R; ++ty) {
+    const int qy = y + ty * step;
+    if (qy < 0 || qy >= a.height) continue;
+    const size_t qrow = size_t(qy) * size_t(a.width) + size_t(x);
+#pragma GCC unroll 5
+    for (int tx = -R; tx <= R; ++tx) {
+      if (tx == 0 && ty == 0) continue;
+      const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here
+      const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
+      const T d = ncx * L::load(a.nx + q) + ncy * L::load(a.ny + q) + ncz * L::load(a.nz + q);
+      T wn = (T)_mm256_max_ps((__m256)d, _mm256_setzero_ps());  // d > 0 ? d : 0, then the squarings
+      if constexpr (K >= 0) {
+        for (int i = 0; i < K; ++i) wn = wn * wn;
+      } else {
+        for (int i = 0; i < nsq; ++i) wn = wn * wn;
+      }
+      const T wz = abs_f(zc - L::load(a.depth + q)) * ipz * il;
+      const T lq = L::load(a.v_in + q);
+      const T wl = abs_f(lc - lq) * ipl;
+      const T s = wz + wl;
+      const T t = s * -1.44269504f;
+      const VecI i = __builtin_convertvector(t - 0.5f, VecI);
+      const T f = t - __builtin_convertvector(i, T);
+      T p = T{} + 9.6181291e-3f;
+      p = p * f + 5.5504109e-2f;
+      p = p * f + 2.4022651e-1f;
+      p = p * f + 6.9314718e-1f;
+      p = p * f + 1.0f;
+      const T r = (T)((VecI)p + (VecI)((VecU)i << 23));
+      const __m256 keep = _mm256_cmp_ps((__m256)s, _mm256_set1_ps(60.0f), _CMP_NGT_UQ);
+      const T wgt = (T)_mm256_and_ps(keep, (__m256)((hkv * wn) * r));
+      sw = sw + wgt;
+      sl = sl + wgt * lq;
+      sv = sv + wgt * wgt * L::load(a.var_in + q);
+    }
+  }
+  L::store(sw_out, sw);
+  L::store(sl_out, sl);
+  L::store(sv_out, sv);
+}
+
+// The 8-pixel blocks of [xb, xm) of row y (atrous_blocks16's twin for AVX2).
+template <int K, int R>
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 void atrous_blocks8(const AtrousArgs& a, int y, int xb, int xm,
+                                                                     const uint8_t* cls, const float* ipl_row,
+                                                                     const float (*hk)[5], const float (*inv_len)[5],
+                                                                     float* sw, float* sl, float* sv) {
+  const uint8_t ac = a.active_cls;
+  for (; xb < xm; xb += kLanes)
+    if (!cls || block_has(cls, xb, kLanes, ac))
+      atrous_block8_unrolled<K, R>(a, y, xb, ipl_row, hk, inv_len, sw + xb, sl + xb, sv + xb);
+}
+#endif
+
+#if DHR_DENOISE_AVX512
 // The same taps as atrous_block for a block of 16 pixels at x (AVX-512), written for
 // throughput: the taps are unrolled (radius R known at compile time) and the exponential takes
 // 14 instructions instead of 18. (Two blocks interleaved were tried and were no faster: their
@@ -318,9 +398,11 @@ DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) 
 }
 
 // Rows [y0, y1) of one a-trous iteration; acc holds 4 * width floats of scratch (need not be
-// initialised). Wide: the interior is done 16 pixels at a time where it can (AVX-512), the
-// rest 8 at a time.
-template <int K, bool Wide>
+// initialised). The interior blocks by Path's kernel: kPortable (atrous_block, 8 lanes), kAvx2
+// (atrous_block8_unrolled) or kAvx512 (16 lanes where it can, the rest 8 at a time); the same
+// bits on each.
+enum AtrousPath { kPortable, kAvx2, kAvx512 };
+template <int K, int Path>
 DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, float* acc) {
   const int w = a.width, h = a.height, r = a.radius, step = a.step;
   float hk[5][5] = {}, inv_len[5][5] = {};
@@ -348,14 +430,22 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
     p.sl = acc + w;
     p.sv = acc + 2 * w;
     const float* ipl_row = a.inv_phi_l ? a.inv_phi_l + row : acc + 3 * w;
-    if (!a.inv_phi_l) inv_phi_l_of_row<std::conditional_t<Wide, VectorLane16, VectorLane>>(a, y, acc + 3 * w);
+    if (!a.inv_phi_l)
+      inv_phi_l_of_row<std::conditional_t<Path == kAvx512, VectorLane16, VectorLane>>(a, y, acc + 3 * w);
     int xb = xl;
 #if DHR_DENOISE_AVX512
-    if constexpr (Wide) {
+    if constexpr (Path == kAvx512) {
       if (r == 2)
         xb = atrous_blocks16<K, 2>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
       else
         xb = atrous_blocks16<K, 1>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+    }
+    if constexpr (Path == kAvx2) {
+      if (r == 2)
+        atrous_blocks8<K, 2>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+      else
+        atrous_blocks8<K, 1>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+      xb = xm;
     }
 #endif
     for (; xb < xm; xb += kLanes)
@@ -400,7 +490,7 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
     }
     int x0 = 0;
 #if DHR_DENOISE_AVX512
-    if constexpr (Wide) x0 = atrous_finish16(a, row, w, p.sw, p.sl, p.sv);
+    if constexpr (Path == kAvx512) x0 = atrous_finish16(a, row, w, p.sw, p.sl, p.sv);
 #endif
     for (int x = x0; x < w; ++x) {
       const size_t i = row + x;
@@ -430,18 +520,26 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
 DHR_DENOISE_TARGETS
 void atrous_rows_8(const AtrousArgs& a, int y0, int y1, float* acc) {
   if (a.normal_squarings == kDefaultSquarings)
-    atrous_rows_impl<kDefaultSquarings, false>(a, y0, y1, acc);
+    atrous_rows_impl<kDefaultSquarings, kPortable>(a, y0, y1, acc);
   else
-    atrous_rows_impl<-1, false>(a, y0, y1, acc);
+    atrous_rows_impl<-1, kPortable>(a, y0, y1, acc);
 }
 
 #if DHR_DENOISE_AVX512
+DHR_DENOISE_TARGET_AVX2
+void atrous_rows_avx2(const AtrousArgs& a, int y0, int y1, float* acc) {
+  if (a.normal_squarings == kDefaultSquarings)
+    atrous_rows_impl<kDefaultSquarings, kAvx2>(a, y0, y1, acc);
+  else
+    atrous_rows_impl<-1, kAvx2>(a, y0, y1, acc);
+}
+
 DHR_DENOISE_TARGET_AVX512
 void atrous_rows_16(const AtrousArgs& a, int y0, int y1, float* acc) {
   if (a.normal_squarings == kDefaultSquarings)
-    atrous_rows_impl<kDefaultSquarings, true>(a, y0, y1, acc);
+    atrous_rows_impl<kDefaultSquarings, kAvx512>(a, y0, y1, acc);
   else
-    atrous_rows_impl<-1, true>(a, y0, y1, acc);
+    atrous_rows_impl<-1, kAvx512>(a, y0, y1, acc);
 }
 #endif
 
@@ -521,11 +619,21 @@ bool cpu_has_avx512() {
 #endif
 }
 
-void atrous_rows(const AtrousArgs& a, int y0, int y1, float* acc, bool use_avx512) {
+bool cpu_has_avx2() {
 #if DHR_DENOISE_AVX512
-  if (use_avx512 && cpu_has_avx512()) return atrous_rows_16(a, y0, y1, acc);
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
 #else
-  (void)use_avx512;
+  return false;
+#endif
+}
+
+void atrous_rows(const AtrousArgs& a, int y0, int y1, float* acc, bool fastest) {
+#if DHR_DENOISE_AVX512
+  if (fastest && cpu_has_avx512()) return atrous_rows_16(a, y0, y1, acc);
+  if (fastest && cpu_has_avx2()) return atrous_rows_avx2(a, y0, y1, acc);
+#else
+  (void)fastest;
 #endif
   atrous_rows_8(a, y0, y1, acc);
 }

@@ -42,6 +42,9 @@ namespace dhr::denoise {
 // baseline targets have no FMA instructions, so nothing can be contracted there.
 #define DHR_DENOISE_AVX512 1
 #define DHR_DENOISE_TARGET_AVX512 __attribute__((target("avx512f"), optimize("fp-contract=off")))
+// The a-trous interior's unrolled 8-lane kernel for AVX2 CPUs (atrous_rows); AVX2 alone brings no
+// FMA instructions, so nothing is contracted.
+#define DHR_DENOISE_TARGET_AVX2 __attribute__((target("avx2")))
 #else
 #define DHR_DENOISE_TARGETS
 #define DHR_DENOISE_AVX512 0
