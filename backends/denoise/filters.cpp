@@ -470,6 +470,160 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const A
   }
   return x;
 }
+
+// accumulate_row8's helpers (lambdas would not take the function's target).
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 __m256i bytes8(const uint8_t* p) {  // 8 bytes to 8 int32 lanes
+  return _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
+}
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 void store_bytes8(uint8_t* p, __m256i v) {  // lanes in 0..255 to bytes
+  const __m128i w16 = _mm_packus_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1));
+  _mm_storel_epi64(reinterpret_cast<__m128i*>(p), _mm_packus_epi16(w16, w16));
+}
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 __m256 blend(__m256 if_clear, __m256 if_set, __m256 m) {
+  return _mm256_blendv_ps(if_clear, if_set, m);
+}
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 __m256 gather8(const float* base, __m256i j, __m256 m) {
+  return _mm256_mask_i32gather_ps(_mm256_setzero_ps(), base, j, m, 4);
+}
+
+// The same rows 8 pixels at a time with AVX2, for CPUs without AVX-512 (accumulate_row16's
+// twin, step for step): the masks are vectors of all-ones lanes, a masked add is a blend of
+// the sum, the gathers take the same masks (a lane left out reads nothing).
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 int accumulate_row8(const AccumulateArgs& a, int y, int& xa,
+                                                                     int& xb) {
+  using V = __m256;
+  using VI = __m256i;
+  const int w = a.w;
+  const size_t row = size_t(y) * size_t(w);
+  const V zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+  const VI izero = _mm256_setzero_si256();
+  const VI lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  int x = 0;
+  for (; x + 8 <= w; x += 8) {
+    const size_t i = row + size_t(x);
+    const V valid = _mm256_castsi256_ps(_mm256_xor_si256(_mm256_cmpeq_epi32(bytes8(a.cvalid + i), izero),
+                                                          _mm256_set1_epi32(-1)));
+    V len = zero, pval = zero, p1 = zero, p2 = zero, pkk = zero;
+    const V called = a.hist ? valid : zero;  // lanes whose reproject runs
+    if (_mm256_movemask_ps(called)) {
+      const float* m = reinterpret_cast<const float*>(a.mo + i);
+      const V m_lo = _mm256_loadu_ps(m), m_hi = _mm256_loadu_ps(m + 8);
+      const V mx = _mm256_castpd_ps(
+          _mm256_permute4x64_pd(_mm256_castps_pd(_mm256_shuffle_ps(m_lo, m_hi, _MM_SHUFFLE(2, 0, 2, 0))), 0xd8));
+      const V my = _mm256_castpd_ps(
+          _mm256_permute4x64_pd(_mm256_castps_pd(_mm256_shuffle_ps(m_lo, m_hi, _MM_SHUFFLE(3, 1, 3, 1))), 0xd8));
+      const VI xi = _mm256_add_epi32(_mm256_set1_epi32(x), lane);
+      const V px = _mm256_add_ps(_mm256_cvtepi32_ps(xi), mx);
+      const V py = _mm256_add_ps(_mm256_set1_ps(float(y)), my);
+      const V m2f = _mm256_set1_ps(-2.0f);
+      const V inr = _mm256_and_ps(
+          _mm256_and_ps(_mm256_and_ps(called, _mm256_cmp_ps(px, m2f, _CMP_GT_OQ)), _mm256_cmp_ps(py, m2f, _CMP_GT_OQ)),
+          _mm256_and_ps(_mm256_cmp_ps(px, _mm256_set1_ps(a.wmax), _CMP_LT_OQ),
+                        _mm256_cmp_ps(py, _mm256_set1_ps(a.hmax), _CMP_LT_OQ)));
+      const VI inr_i = _mm256_castps_si256(inr);
+      const V two = _mm256_set1_ps(2.0f);
+      const VI x0 = _mm256_and_si256(
+          inr_i, _mm256_sub_epi32(_mm256_cvttps_epi32(_mm256_add_ps(px, two)), _mm256_set1_epi32(2)));
+      const VI y0 = _mm256_and_si256(
+          inr_i, _mm256_sub_epi32(_mm256_cvttps_epi32(_mm256_add_ps(py, two)), _mm256_set1_epi32(2)));
+      const V fx = _mm256_sub_ps(px, _mm256_cvtepi32_ps(x0));
+      const V fy = _mm256_sub_ps(py, _mm256_cvtepi32_ps(y0));
+      const V gx = _mm256_sub_ps(one, fx), gy = _mm256_sub_ps(one, fy);
+      const V bw[4] = {_mm256_mul_ps(gx, gy), _mm256_mul_ps(fx, gy), _mm256_mul_ps(gx, fy), _mm256_mul_ps(fx, fy)};
+      const VI idc = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(a.cid + i));
+      const V zc = _mm256_loadu_ps(a.cz + i);
+      const V ztol = _mm256_mul_ps(_mm256_set1_ps(a.tol), zc);
+      const V ncx = _mm256_loadu_ps(a.cnx + i), ncy = _mm256_loadu_ps(a.cny + i), ncz = _mm256_loadu_ps(a.cnz + i);
+      const V nthr = _mm256_set1_ps(a.nthr);
+      const V abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+      V sw = zero;
+      for (int k = 0; k < 4; ++k) {
+        const VI xx = _mm256_add_epi32(x0, _mm256_set1_epi32(k & 1));
+        const VI yy = _mm256_add_epi32(y0, _mm256_set1_epi32(k >> 1));
+        const VI in_image = _mm256_and_si256(
+            _mm256_and_si256(_mm256_cmpgt_epi32(xx, _mm256_set1_epi32(-1)), _mm256_cmpgt_epi32(yy, _mm256_set1_epi32(-1))),
+            _mm256_and_si256(_mm256_cmpgt_epi32(_mm256_set1_epi32(w), xx), _mm256_cmpgt_epi32(_mm256_set1_epi32(a.h), yy)));
+        V mk = _mm256_and_ps(_mm256_and_ps(inr, _mm256_castsi256_ps(in_image)), _mm256_cmp_ps(bw[k], zero, _CMP_NLE_UQ));
+        if (!_mm256_movemask_ps(mk)) continue;
+        const VI j = _mm256_add_epi32(_mm256_mullo_epi32(yy, _mm256_set1_epi32(w)), xx);
+        // "pvalid and pid == idc" is "pid == idc" alone (accumulate_row16).
+        const VI pidj = _mm256_mask_i32gather_epi32(izero, reinterpret_cast<const int*>(a.pid), j,
+                                                    _mm256_castps_si256(mk), 4);
+        mk = _mm256_and_ps(mk, _mm256_castsi256_ps(_mm256_cmpeq_epi32(pidj, idc)));
+        const V phj = gather8(a.ph, j, mk);
+        mk = _mm256_and_ps(mk, _mm256_cmp_ps(phj, zero, _CMP_NLE_UQ));
+        const V pzj = gather8(a.pz, j, mk);
+        mk = _mm256_and_ps(mk, _mm256_cmp_ps(_mm256_and_ps(_mm256_sub_ps(pzj, zc), abs_mask), ztol, _CMP_NGT_UQ));
+        const V d = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(gather8(a.pnx, j, mk), ncx), _mm256_mul_ps(gather8(a.pny, j, mk), ncy)),
+                                  _mm256_mul_ps(gather8(a.pnz, j, mk), ncz));
+        mk = _mm256_and_ps(mk, _mm256_cmp_ps(d, nthr, _CMP_NLT_UQ));
+        if (!_mm256_movemask_ps(mk)) continue;
+        const V b = bw[k];
+        sw = blend(sw, _mm256_add_ps(sw, b), mk);
+        pval = blend(pval, _mm256_add_ps(pval, _mm256_mul_ps(b, gather8(a.pv, j, mk))), mk);
+        p1 = blend(p1, _mm256_add_ps(p1, _mm256_mul_ps(b, gather8(a.pm1, j, mk))), mk);
+        p2 = blend(p2, _mm256_add_ps(p2, _mm256_mul_ps(b, gather8(a.pm2, j, mk))), mk);
+        len = blend(len, _mm256_add_ps(len, _mm256_mul_ps(b, phj)), mk);
+        pkk = blend(pkk, _mm256_add_ps(pkk, _mm256_mul_ps(b, gather8(a.pk, j, mk))), mk);
+      }
+      // sw >= 0.01: renormalise; else (and where the pixel was out of range) no history.
+      const V ok = _mm256_and_ps(inr, _mm256_cmp_ps(sw, _mm256_set1_ps(0.01f), _CMP_GE_OQ));
+      const V inv = _mm256_div_ps(one, sw);
+      pval = blend(pval, _mm256_mul_ps(pval, inv), ok);
+      p1 = blend(p1, _mm256_mul_ps(p1, inv), ok);
+      p2 = blend(p2, _mm256_mul_ps(p2, inv), ok);
+      len = _mm256_and_ps(ok, _mm256_mul_ps(len, inv));
+      pkk = blend(pkk, _mm256_mul_ps(pkk, inv), ok);
+    }
+    // finish
+    const VI ivi = _mm256_min_epi32(bytes8(a.noisy + i), _mm256_set1_epi32(a.fs));  // src > fs ? fs : src
+    const V c = _mm256_mul_ps(_mm256_cvtepi32_ps(ivi), _mm256_set1_ps(a.inv_fs));
+    const V has = _mm256_cmp_ps(len, zero, _CMP_GT_OQ);
+    V lh = _mm256_add_ps(len, one);
+    const V capv = _mm256_set1_ps(a.cap);
+    lh = blend(lh, capv, _mm256_cmp_ps(capv, lh, _CMP_LT_OQ));  // std::min(len + 1, cap)
+    const V rl = _mm256_div_ps(one, lh), alv = _mm256_set1_ps(a.alpha);
+    const V al = blend(alv, rl, _mm256_cmp_ps(alv, rl, _CMP_LT_OQ));  // std::max(alpha, 1 / len)
+    const V cc = _mm256_mul_ps(c, c);
+    const V om = _mm256_sub_ps(one, al);
+    V v = _mm256_add_ps(pval, _mm256_mul_ps(al, _mm256_sub_ps(c, pval)));
+    V m1 = _mm256_add_ps(p1, _mm256_mul_ps(al, _mm256_sub_ps(c, p1)));
+    V m2 = _mm256_add_ps(p2, _mm256_mul_ps(al, _mm256_sub_ps(cc, p2)));
+    V kk = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(om, om), pkk), _mm256_mul_ps(al, al));
+    const V len_new = blend(_mm256_and_ps(valid, one), lh, has);
+    v = blend(c, v, has);
+    m1 = blend(c, m1, has);
+    m2 = blend(cc, m2, has);
+    kk = blend(one, kk, has);
+    _mm256_storeu_ps(a.nv + i, v);
+    _mm256_storeu_ps(a.nm1 + i, m1);
+    _mm256_storeu_ps(a.nm2 + i, m2);
+    _mm256_storeu_ps(a.nk + i, kk);
+    _mm256_storeu_ps(a.nh + i, len_new);
+    if (a.spatial) {
+      const V dm = _mm256_sub_ps(m2, _mm256_mul_ps(m1, m1));
+      const V mx0 = _mm256_and_ps(_mm256_cmp_ps(zero, dm, _CMP_LT_OQ), dm);  // std::max(0, dm)
+      _mm256_storeu_ps(a.var + i, _mm256_and_ps(valid, _mm256_mul_ps(mx0, kk)));
+      const unsigned young = unsigned(
+          _mm256_movemask_ps(_mm256_and_ps(valid, _mm256_cmp_ps(len_new, _mm256_set1_ps(a.min_h), _CMP_LT_OQ))));
+      if (young) {
+        xa = std::min(xa, x + int(std::countr_zero(young)));
+        xb = x + 31 - int(std::countl_zero(young));
+      }
+      if (a.lt) {
+        const V lc = _mm256_and_ps(valid, _mm256_cmp_ps(len_new, _mm256_set1_ps(a.light_h), _CMP_LT_OQ));
+        store_bytes8(a.cls + i, _mm256_and_si256(_mm256_castps_si256(lc), _mm256_set1_epi32(1)));
+      }
+    } else {  // to_u8 (filters.h)
+      V f = _mm256_add_ps(_mm256_mul_ps(v, _mm256_set1_ps(255.0f)), _mm256_set1_ps(0.5f));
+      f = _mm256_and_ps(_mm256_cmp_ps(f, zero, _CMP_GE_OQ), f);
+      const V f255 = _mm256_set1_ps(255.0f);
+      f = blend(f255, f, _mm256_cmp_ps(f, f255, _CMP_LE_OQ));
+      store_bytes8(a.out + i, _mm256_cvttps_epi32(f));
+    }
+  }
+  return x;
+}
 #endif
 
 }  // namespace
@@ -667,7 +821,7 @@ void FilterPipeline::accumulate(const DenoiseInput& in, uint8_t* out) {
                               pnz, pv,    pm1,    pm2, ph,  pk,  nv,  nm1,    nm2,     nh,   nk,   var,
                               cls, out,   w,      h,   fs,  inv_fs, tol, nthr, alpha,  cap,  min_h, light_h,
                               wmax, hmax, have_history, spatial, lt};
-  const bool wide = cpu_has_avx512();
+  const bool wide = cpu_has_avx512(), avx2 = cpu_has_avx2();
 #endif
   parallel_rows(h, [=](int y) {
     // Locals, not the closure's members: those live in memory that the byte stores below
@@ -769,7 +923,10 @@ void FilterPipeline::accumulate(const DenoiseInput& in, uint8_t* out) {
     };
     int x0 = 0;
 #if DHR_DENOISE_AVX512
-    if (wide) x0 = accumulate_row16(args16, y, xa, xb);
+    if (wide)
+      x0 = accumulate_row16(args16, y, xa, xb);
+    else if (avx2)
+      x0 = accumulate_row8(args16, y, xa, xb);
 #endif
     for (int x = x0; x < w_l; ++x) {
       float len = 0.0f, pval = 0.0f, p1 = 0.0f, p2 = 0.0f, pkk = 0.0f;

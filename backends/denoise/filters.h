@@ -107,9 +107,12 @@ void moment_span(const MomentArgs& a, int y, int xa, int xb, float* acc, bool us
 // Whether atrous_rows and moment_span take their 16-lane AVX-512 kernels on this CPU (GCC
 // builds without sanitizers on x86-64 only).
 bool cpu_has_avx512();
-// Whether the CPU has AVX2 (the same builds only): atrous_rows' unrolled 8-lane kernel where
-// AVX-512 is missing.
+// Whether the CPU has AVX2 (the same builds only): atrous_rows' unrolled 8-lane kernel and the
+// temporal accumulation's 8-lane rows where AVX-512 is missing.
 bool cpu_has_avx2();
+// Tests only: on, both of the above answer false, so every kernel takes its portable path (the
+// results must not change: tests compare the two).
+void force_portable_kernels(bool on);
 
 // A value in [0, 1] to 0..255, rounded to nearest; NaN gives 0. Inline: the kernels call it
 // per pixel.

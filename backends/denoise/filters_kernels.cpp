@@ -17,6 +17,7 @@
 #include "backends/denoise/filters_simd.h"
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstdint>
@@ -610,10 +611,16 @@ void moment_span_16(const MomentArgs& a, int y, int xa, int xb, float* acc) {
 
 }  // namespace
 
+namespace {
+std::atomic<bool> g_portable_only{false};
+}  // namespace
+
+void force_portable_kernels(bool on) { g_portable_only.store(on, std::memory_order_relaxed); }
+
 bool cpu_has_avx512() {
 #if DHR_DENOISE_AVX512
   static const bool has = __builtin_cpu_supports("avx512f");
-  return has;
+  return has && !g_portable_only.load(std::memory_order_relaxed);
 #else
   return false;
 #endif
@@ -622,7 +629,7 @@ bool cpu_has_avx512() {
 bool cpu_has_avx2() {
 #if DHR_DENOISE_AVX512
   static const bool has = __builtin_cpu_supports("avx2");
-  return has;
+  return has && !g_portable_only.load(std::memory_order_relaxed);
 #else
   return false;
 #endif
