@@ -15,7 +15,6 @@
 
 #include <algorithm>
 #include <atomic>
-#include <chrono>
 #include <cstring>
 #include <cmath>
 #include <deque>
@@ -28,13 +27,6 @@
 namespace dhr {
 
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double ms_since(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
-
 
 // The camera uplink: one small datagram per client frame.
 constexpr uint64_t kCameraMessageBytes = 96;  // frame id, time, position, orientation, fov, flags
@@ -361,7 +353,8 @@ class Simulation {
              const Registries& registries)
       : c_(c), scene_(scene), scene_key_(scene_key), cache_(cache), remote_(c.mode == "remote"),
         uplink_(c.uplink, c.seed, 0), downlink_(c.downlink, c.seed, 1),
-        server_(c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0),
+        server_(c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0,
+                [this](const RasterFrame& f) { return server_raster(f); }),
         client_(c, scene, registries), local_(c, scene, registries) {
     AssemblerConfig ac;
     ac.max_payload_bytes = c.max_payload_bytes;
@@ -454,6 +447,23 @@ class Simulation {
   }
 
   // ---- server: the schedule (the stages are core/pipeline.h's ServerPipeline)
+
+  // The server's G-buffer of `f`: the client's of the same RasterFrame when it rasterized one
+  // (the server's frame j follows its frame j - 1, as the client's does, unless it skipped
+  // frames), else a rasterization now. Computed once: the same bits (same_raster_frame), and
+  // the server's stage time is the client's rasterization of it.
+  Rastered server_raster(const RasterFrame& f) {
+    for (const RasterMemo& m : rasters_)
+      if (same_raster_frame(m.frame, f)) return m.rastered;
+    return rasterize_now(f);
+  }
+  // Keeps the client's last G-buffers for server_raster: as many as the hybrid client keeps for
+  // prediction (shared with those: no more memory), a few in remote mode (which keeps none).
+  void remember_raster(const RasterFrame& f, const Rastered& r) {
+    rasters_.push_back({f, r});
+    const size_t keep = remote_ ? 8 : size_t(c_.history_frames);
+    while (rasters_.size() > keep) rasters_.pop_front();
+  }
 
   void server_advance(double until_ms) {
     for (;;) {
@@ -561,14 +571,14 @@ class Simulation {
     rec.t_ms = now;
     double client_ms = 0;
 
-    auto t0 = Clock::now();
-    GBuffer rastered;
-    rasterize({&scene_, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)}, rastered);
-    const double raster_ms = ms_since(t0);
+    const RasterFrame raster_frame{&scene_, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)};
+    const Rastered rastered = rasterize_now(raster_frame);
+    const double raster_ms = rastered.ms;
+    remember_raster(raster_frame, rastered);
     // The hybrid client keeps its G-buffers for predicting later frames (this one included:
     // with zero latency the server's frame for this very camera may arrive now).
-    if (!remote_) client_.keep(a, std::move(rastered));
-    const GBuffer& gbuf = remote_ ? rastered : *client_.gbuffer(a);
+    if (!remote_) client_.keep(a, rastered.gbuf);
+    const GBuffer& gbuf = *rastered.gbuf;
     stage("rasterize", raster_ms, count);
     if (!remote_) client_ms += raster_ms;  // the remote client does not rasterize
 
@@ -655,6 +665,11 @@ class Simulation {
   bool remote_;
   Link uplink_, downlink_;
   std::unique_ptr<RtScene> rt_;
+  struct RasterMemo {
+    RasterFrame frame;
+    Rastered rastered;
+  };
+  std::deque<RasterMemo> rasters_;  // before server_, which calls server_raster
   ServerPipeline server_;
   ClientPipeline client_;
   LocalReference local_;

@@ -306,10 +306,10 @@ class LiveClient {
     }
     send_ms_[size_t(a)] = row.t_ms;
 
-    GBuffer g;
+    auto g = std::make_shared<GBuffer>();
     rasterize({scene_.scene, cu.camera, cu.scene_time_s, has_prev_ ? prev_camera_ : cu.camera,
                has_prev_ ? prev_time_s_ : cu.scene_time_s},
-              g);
+              *g);
     has_prev_ = true;
     prev_camera_ = cu.camera;
     prev_time_s_ = cu.scene_time_s;

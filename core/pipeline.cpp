@@ -138,11 +138,18 @@ ImageRGB8 composite_traced(const GBuffer& gbuf, const Scene& scene, const std::v
 
 // ---- server
 
+Rastered rasterize_now(const RasterFrame& frame) {
+  const auto t0 = Clock::now();
+  auto g = std::make_shared<GBuffer>();
+  rasterize(frame, *g);
+  return {std::move(g), ms_since(t0)};
+}
+
 ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Registries& r, TraceFn trace,
-                               uint16_t stream_id)
+                               uint16_t stream_id, RasterFn raster)
     : c_(c), scene_(scene), plan_(plan_passes(scene, c.trace)), traced_(traced_passes(plan_, c.width, c.height)),
       sent_(sent_passes(plan_, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)), trace_(std::move(trace)),
-      stream_id_(stream_id), denoise_(c, traced_, r) {
+      raster_(raster ? std::move(raster) : RasterFn(rasterize_now)), stream_id_(stream_id), denoise_(c, traced_, r) {
   for (const PlannedPass& p : sent_) {
     const BackendChoice codec = c.pass(p.name).codec;
     codecs_.push_back(r.codecs.create(codec.name, codec.params));
@@ -198,11 +205,11 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     out.compute_ms += ms;
   };
 
-  auto t0 = Clock::now();
-  auto kept = std::make_shared<GBuffer>();
-  GBuffer& gbuf = *kept;
-  rasterize({&scene_, camera, time_s, has_prev_ ? prev_camera_ : camera, has_prev_ ? prev_time_s_ : time_s}, gbuf);
-  stage("server_rasterize", ms_since(t0));
+  Rastered rastered =
+      raster_({&scene_, camera, time_s, has_prev_ ? prev_camera_ : camera, has_prev_ ? prev_time_s_ : time_s});
+  std::shared_ptr<const GBuffer> kept = std::move(rastered.gbuf);
+  const GBuffer& gbuf = *kept;
+  stage("server_rasterize", rastered.ms);
   has_prev_ = true;
   prev_camera_ = camera;
   prev_time_s_ = time_s;
@@ -211,7 +218,7 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
   out.trace = traced->stats;
   for (const TracedPass& p : traced->passes) stage(find_pass_type(p.name)->stage, p.ms);
 
-  t0 = Clock::now();
+  auto t0 = Clock::now();
   std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, *traced, gbuf, frame);
   if (!traced_.empty()) stage("denoise", ms_since(t0));
 
@@ -321,14 +328,14 @@ PassReceiver::Outcome ClientPipeline::receive(int pass, AssembledFrame& frame) {
   return o;
 }
 
-void ClientPipeline::keep(int frame, GBuffer gbuf) {
+void ClientPipeline::keep(int frame, std::shared_ptr<const GBuffer> gbuf) {
   history_.emplace_back(frame, std::move(gbuf));
   while (int(history_.size()) > c_.history_frames) history_.pop_front();
 }
 
 const GBuffer* ClientPipeline::gbuffer(int frame) const {
   for (const auto& [f, g] : history_)
-    if (f == frame) return &g;
+    if (f == frame) return g.get();
   return nullptr;
 }
 

@@ -20,6 +20,7 @@
 #include "core/gbuffer.h"
 #include "core/image.h"
 #include "core/pass_receiver.h"
+#include "core/raster.h"
 #include "core/passes.h"
 #include "core/run_config.h"
 #include "core/scene.h"
@@ -43,6 +44,17 @@ class RtScene;
 using TraceFn = std::function<std::shared_ptr<const TracedPasses>(uint32_t frame, const GBuffer& gbuf)>;
 // Traces with `rt` and no cache.
 TraceFn direct_tracer(RtScene& rt, const SimConfig& config);
+
+// The server's G-buffer of a frame and the wall time its rasterization took: rasterized now,
+// or one the simulator's client already rasterized for the same RasterFrame (then `ms` is that
+// rasterization's time, so the server's stage time still says what the work costs).
+struct Rastered {
+  std::shared_ptr<const GBuffer> gbuf;
+  double ms = 0.0;
+};
+using RasterFn = std::function<Rastered(const RasterFrame& frame)>;
+// Rasterizes `frame` now.
+Rastered rasterize_now(const RasterFrame& frame);
 
 // The bits of the depth pass the server of this run sends with its colour (0: none): remote mode
 // with a colour predictor that reads depth (Predictor::depth_bits).
@@ -94,8 +106,9 @@ struct ServerFrame {
 class ServerPipeline {
  public:
   // `stream_id` goes into every packet header (the simulator: 0; live mode: the session's).
+  // `raster`: where the server's G-buffers come from (null: rasterize_now).
   ServerPipeline(const SimConfig& config, const Scene& scene, const Registries& registries, TraceFn trace,
-                 uint16_t stream_id);
+                 uint16_t stream_id, RasterFn raster = nullptr);
   const std::vector<PlannedPass>& passes() const { return sent_; }
   const PassPlan& plan() const { return plan_; }
   // The sequence number of the next packet of pass `pass` (0 at the start; live mode starts
@@ -115,6 +128,7 @@ class ServerPipeline {
   PassPlan plan_;
   std::vector<PlannedPass> traced_, sent_;
   TraceFn trace_;
+  RasterFn raster_;
   uint16_t stream_id_;
   DenoiseStage denoise_;
   std::vector<std::unique_ptr<Codec>> codecs_;  // per sent pass
@@ -163,7 +177,7 @@ class ClientPipeline {
   const PassReceiver& receiver(int pass) const { return receivers_[size_t(pass)]; }
   PassReceiver& receiver(int pass) { return receivers_[size_t(pass)]; }
   // The hybrid client keeps its G-buffers (the last history_frames) for prediction.
-  void keep(int frame, GBuffer gbuf);
+  void keep(int frame, std::shared_ptr<const GBuffer> gbuf);
   const GBuffer* gbuffer(int frame) const;
   // The displayed image of client frame `frame` with G-buffer `gbuf`: every pass's newest
   // buffer predicted to it, composited (remote: the colour frame predicted with the cameras
@@ -179,7 +193,7 @@ class ClientPipeline {
   std::vector<PlannedPass> passes_;
   std::vector<PassReceiver> receivers_;
   std::vector<std::unique_ptr<Predictor>> predictors_;
-  std::deque<std::pair<int, GBuffer>> history_;
+  std::deque<std::pair<int, std::shared_ptr<const GBuffer>>> history_;
   // Per pass traced at reduced resolution: its newest received frame, upsampled (and which).
   std::vector<std::pair<int, PassBuffer>> upsampled_;
   int depth_pass_ = -1;  // remote mode: the depth pass's index, when one is sent

@@ -699,6 +699,11 @@ bool has_size(const GBuffer& g, int w, int h) {
 
 }  // namespace
 
+bool same_raster_frame(const RasterFrame& a, const RasterFrame& b) {
+  return a.scene == b.scene && a.time_s == b.time_s && a.prev_time_s == b.prev_time_s &&
+         same_camera(a.camera, b.camera) && same_camera(a.prev_camera, b.prev_camera);
+}
+
 RasterStats rasterize(const RasterFrame& frame, GBuffer& out) {
   const auto start = std::chrono::steady_clock::now();
   if (!frame.scene) fail("rasterize: frame.scene is null");

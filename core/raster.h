@@ -76,4 +76,8 @@ struct RasterStats {
 // texture is inconsistent, or a mesh has normals or uvs whose count differs from its positions.
 RasterStats rasterize(const RasterFrame& frame, GBuffer& out);
 
+// Whether two frames rasterize to the same G-buffer: the same scene, times and cameras (every
+// field equal). The rasterizer is deterministic, so one's G-buffer stands for the other's.
+bool same_raster_frame(const RasterFrame& a, const RasterFrame& b);
+
 }  // namespace dhr
