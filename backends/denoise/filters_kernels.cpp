@@ -183,11 +183,7 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 void atrous_block8_unrolled(const Atro
       const T t = s * -1.44269504f;
       const VecI i = __builtin_convertvector(t - 0.5f, VecI);
       const T f = t - __builtin_convertvector(i, T);
-      T p = T{} + 9.6181291e-3f;
-      p = p * f + 5.5504109e-2f;
-      p = p * f + 2.4022651e-1f;
-      p = p * f + 6.9314718e-1f;
-      p = p * f + 1.0f;
+      const T p = exp2_poly(f);
       const T r = (T)((VecI)p + (VecI)((VecU)i << 23));
       const __m256 keep = _mm256_cmp_ps((__m256)s, _mm256_set1_ps(60.0f), _CMP_NGT_UQ);
       const T wgt = (T)_mm256_and_ps(keep, (__m256)((hkv * wn) * r));

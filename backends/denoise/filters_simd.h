@@ -62,6 +62,17 @@ using VecU16 = uint32_t __attribute__((vector_size(4 * kLanes16)));
 
 DHR_ALWAYS_INLINE VecF splat(float v) { return VecF{} + v; }
 
+// 2^f for f in [-0.5, 0.5]: the degree-4 Taylor polynomial exp_neg uses (float or any vector of
+// floats; the same operations on each).
+template <class V>
+DHR_ALWAYS_INLINE V exp2_poly(V f) {
+  V p = V{} + 9.6181291e-3f;  // the constant itself (0 + c = c)
+  p = p * f + 5.5504109e-2f;
+  p = p * f + 2.4022651e-1f;
+  p = p * f + 6.9314718e-1f;
+  return p * f + 1.0f;
+}
+
 // e^x for x <= 0 (larger x is clamped to 0), relative error below 5e-5 (plenty for filter
 // weights); exactly 0 below -60 (e^-60 < 1e-26: a weight that small changes nothing). Split
 // x log2(e) = i + f with i rounded to nearest, f in [-0.5, 0.5]; 2^f by its degree-4 Taylor
@@ -71,11 +82,7 @@ DHR_ALWAYS_INLINE float exp_neg(float x) {
   const float t = xc * 1.44269504f;
   const int32_t i = int32_t(t - 0.5f);  // t - 0.5 < 0: truncation rounds t to nearest
   const float f = t - float(i);
-  float p = 9.6181291e-3f;
-  p = p * f + 5.5504109e-2f;
-  p = p * f + 2.4022651e-1f;
-  p = p * f + 6.9314718e-1f;
-  p = p * f + 1.0f;
+  const float p = exp2_poly(f);
   const float r = std::bit_cast<float>(std::bit_cast<int32_t>(p) + int32_t(uint32_t(i) << 23));
   return x < -60.0f ? 0.0f : r;
 }
@@ -88,11 +95,7 @@ DHR_ALWAYS_INLINE V exp_neg_lanes(V x) {
   const V t = xc * 1.44269504f;
   const VI i = __builtin_convertvector(t - 0.5f, VI);
   const V f = t - __builtin_convertvector(i, V);
-  V p = V{} + 9.6181291e-3f;
-  p = p * f + 5.5504109e-2f;
-  p = p * f + 2.4022651e-1f;
-  p = p * f + 6.9314718e-1f;
-  p = p * f + 1.0f;
+  const V p = exp2_poly(f);
   const V r = (V)((VI)p + (VI)((VU)i << 23));
   return x < lo ? zero : r;
 }
