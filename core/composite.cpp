@@ -165,7 +165,7 @@ constexpr int kPlaneAo = 9, kPlaneVisibility = 10;
 
 // linear[c][x] = exposure * albedo * (ambient * AO + sum_l V_l * ...), for x < in.stride.
 DHR_VEC8_TARGETS void shade_row(const RowPlanes& in, const LightTerm* lights, int light_count,
-                                     glm::vec3 ambient, float exposure, float* linear) {
+                                glm::vec3 ambient, float exposure, float* linear) {
   constexpr float kMinDistance2 = 1e-6f;
   const size_t n = in.stride;
   for (size_t i = 0; i < n; i += 8) {

@@ -11,6 +11,8 @@
 //                        parameters;
 //   filters_kernels.cpp  the hot kernels: a-trous rows and spatial moments, 8 lanes (AVX2 or
 //                        baseline) and 16 lanes (AVX-512, chosen at run time);
+//   filters_accumulate.cpp  the temporal accumulation's rows in 16 (AVX-512) or 8 (AVX2)
+//                        lanes, chosen at run time;
 //   filters_simd.h       the lane types and the bit-exact vector maths both files share.
 // Everything works on float32 planes in [0, 1] (1 = unoccluded / fully visible), and every
 // result is bit-identical for any thread count and vector width (filters_simd.h says how).
@@ -103,6 +105,29 @@ struct MomentArgs {
 // acc: 3 * (xb - xa + 1) floats, zeroed by the caller: sum w, sum w m1, sum w m2. With the
 // widest vectors the CPU has (same bits either way).
 void moment_span(const MomentArgs& a, int y, int xa, int xb, float* acc, bool use_avx512 = true);
+
+// ---- The temporal accumulation's rows (filters_accumulate.cpp).
+// What FilterPipeline::accumulate's rows read and write (its locals of the same names; the
+// steps are its reproject and finish lambdas').
+struct AccumulateArgs {
+  const glm::vec2* mo;
+  const uint8_t* noisy;
+  const uint8_t* cvalid;
+  const uint32_t *cid, *pid;
+  const float *cz, *pz, *cnx, *cny, *cnz, *pnx, *pny, *pnz;
+  const float *pv, *pm1, *pm2, *ph, *pk;
+  float *nv, *nm1, *nm2, *nh, *nk, *var;
+  uint8_t *cls, *out;
+  int w, h, fs;
+  float inv_fs, tol, nthr, alpha, cap, min_h, light_h, wmax, hmax;
+  bool hist, spatial, lt;
+};
+
+// Pixels [0, n) of row y of the accumulation, n a multiple of the lanes, with the widest
+// vectors this CPU has (16 lanes on AVX-512, 8 on AVX2; the same bits as the caller's scalar
+// loop, which does [n, w)); widens [xa, xb] to the pixels that need the spatial variance.
+// Returns n: 0 without either (and in sanitizer or non-GCC builds).
+int accumulate_row_vector(const AccumulateArgs& a, int y, int& xa, int& xb);
 
 // Whether atrous_rows and moment_span take their 16-lane AVX-512 kernels on this CPU (GCC
 // builds without sanitizers on x86-64 only).

@@ -1,5 +1,5 @@
-// The lane types and the bit-exact vector maths shared by filters.cpp and filters_kernels.cpp
-// (the SVGF-family filter, see filters.h). Included by those two files only.
+// The lane types and the bit-exact vector maths shared by filters.cpp, filters_kernels.cpp and
+// filters_accumulate.cpp (the SVGF-family filter, see filters.h). Included by those files only.
 //
 // Every pass is a parallel loop over rows whose rows are computed independently (no
 // reductions across threads), so results are bit-identical for any thread count. The hot loops
@@ -24,7 +24,7 @@ namespace dhr::denoise {
 // target), so a pixel gets the same bits whether it falls in a vector block or in a scalar
 // tail, and whichever instruction set the kernel is cloned for (DHR_DENOISE_TARGETS: AVX2 where
 // the CPU has it, else the baseline; same results).
-// -Wpsabi off for the rest of the including file (only filters.cpp and filters_kernels.cpp):
+// -Wpsabi off for the rest of the including file (only the filters*.cpp files):
 // the 32-byte vectors only reach always-inlined helpers, so no call ever passes one, but GCC
 // reports it at the end of the translation unit, after any diagnostic pop.
 #pragma GCC diagnostic ignored "-Wpsabi"
