@@ -142,8 +142,9 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
 // operation in the same order; only exp_neg(-(wz + wl)) is reached differently, as in the
 // 16-lane kernel: wz, wl >= 0, so the clamp at 0 never acts; t = -(s) 1.44269504 is
 // s (-1.44269504); the clamp at -60 and the final "x < -60 ? 0" become one mask (s > 60) that
-// zeroes the weight ((h wn) r is +0 there too: h wn is finite and >= 0, r finite); the
-// split into i and f, the polynomial and the exponent add are exp_neg's own operations.
+// zeroes the weight (exp_neg's (h wn) 0 is +0 there, h wn being finite and >= 0; the mask gives
+// +0 whatever r holds in those lanes); the split into i and f, the polynomial and the exponent
+// add are exp_neg's own operations.
 template <int K, int R>
 DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 void atrous_block8_unrolled(const AtrousArgs& a, int y, int x,
                                                                      const float* ipl_row, const float (*hk)[5],
