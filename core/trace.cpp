@@ -9,7 +9,9 @@
 //   light constants, Embree packets (Batch), the row kernels' declarations.
 // - core/trace_rows.cpp: the row kernels of the visibility pass and the baseline AO pass, with
 //   core/trace_directions.h's scalar/SSE2 direction kernels.
-// - core/trace_avx512.cpp: the AO pass's AVX-512 kernel, chosen at run time.
+// - core/trace_avx512.cpp: the AVX-512 kernels (the AO pass's ray generator, the visibility
+//   pass's stages), and core/trace_avx2.cpp: the AO pass's ray generator on AVX2; chosen at run
+//   time (TraceSettings::wide_kernels).
 #include "core/trace.h"
 
 #include "core/error.h"
@@ -280,14 +282,14 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
   // Background pixels read as unoccluded.
   out.unoccluded.assign(npx, uint16_t(ao_rays));
   const bool wide = wide_packets(rt);
-#if DHR_TRACE_AVX512
+#if DHR_TRACE_X86_KERNELS
   const bool x16 = wide && settings.wide_kernels && cpu_has_avx512dq();
-#else
-  const bool x16 = false;
+  const bool x8 = !wide && settings.wide_kernels && cpu_has_avx2();
 #endif
   TraceStats st = trace_rows(rt, settings, w, h, [&](int y0, int y1, TraceStats& rs) {
-#if DHR_TRACE_AVX512
-    if (x16) return ao_rows_x16(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
+#if DHR_TRACE_X86_KERNELS
+    if (x16) return ao_rows_compacted<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs, ao_rays_x16);
+    if (x8) return ao_rows_compacted<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs, ao_rays_x8);
 #endif
     if (wide) ao_rows<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
     else ao_rows<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
@@ -299,8 +301,8 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
 }  // namespace
 
 bool wide_kernels_available(const RtScene& rt) {
-#if DHR_TRACE_AVX512
-  return wide_packets(rt) && cpu_has_avx512dq();
+#if DHR_TRACE_X86_KERNELS
+  return wide_packets(rt) ? cpu_has_avx512dq() : cpu_has_avx2();
 #else
   (void)rt;
   return false;

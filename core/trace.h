@@ -64,9 +64,10 @@ struct TraceSettings {
   // (SoftVisibility pass, full_scale = S, or 255 when S > 255).
   int samples_per_light = 1;
   int threads = 0;            // 0 = the RtScene's arena; else a dedicated arena of this size
-  // The AVX-512 kernels where the CPU has them: the AO pass's ray generator and the visibility
-  // pass's per-light stages. They give the same rays and results bit for bit; false forces the
-  // baseline kernels (tests compare the two: tests/test_trace.cpp, tests/test_trace_bits.cpp).
+  // The vector kernels where the CPU has them: with AVX-512, the AO pass's ray generator and the
+  // visibility pass's per-light stages; with AVX2 only, the AO pass's ray generator. They give
+  // the same rays and results bit for bit; false forces the baseline kernels (tests compare the
+  // two: tests/test_trace.cpp, tests/test_trace_bits.cpp).
   bool wide_kernels = true;
   // A run may switch a pass off (the paper's Table 2 adds the passes one at a time); it can
   // never switch on a pass the scene does not call for.
@@ -167,8 +168,9 @@ VisibilityCounts trace_visibility_counts(RtScene& rt, const GBuffer& gbuf, const
 AoCounts trace_ao_counts(RtScene& rt, const GBuffer& gbuf, int ao_rays, float ao_radius_m,
                          const TraceSettings& settings, TraceStats& stats);
 
-// Whether TraceSettings::wide_kernels takes effect here: Embree's native 16-wide packets and
-// a CPU with AVX-512F/DQ (and a compiler that builds the kernels).
+// Whether TraceSettings::wide_kernels takes effect here (with a compiler that builds the
+// kernels): Embree's native 16-wide packets and a CPU with AVX-512F/DQ (every vector kernel),
+// or Embree's 8-wide packets and a CPU with AVX2 (the AO pass's).
 bool wide_kernels_available(const RtScene& rt);
 
 // The exact rays (in row order) that trace_visibility_counts / trace_ao_counts would hand to

@@ -37,7 +37,7 @@
 #include <limits>
 #include <numbers>
 
-#if DHR_TRACE_AVX512
+#if DHR_TRACE_X86_KERNELS
 #if defined(__clang__)
 #define DHR_TRACE_TARGET_AVX512 __attribute__((target("avx512f,avx512dq")))
 #else
@@ -110,14 +110,17 @@ DHR_TRACE_TARGET_AVX512 inline __m512 cosine_dir_x16(const AoPixels& px, int com
   return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(t, rc), _mm512_mul_ps(b, rs)), _mm512_mul_ps(n, z));
 }
 
-// Stage 2 of ao_rows_x16: every ray of the row's compacted pixels, in pixel then sample order,
-// 16 rays per packet (a packet may hold the end of one pixel's rays and the start of the next
-// ones). Lane l of the packet starting at ray r0 = p0 rays + s0 is ray s0 + l of the window
-// starting at pixel p0: pixel p0 + (s0 + l) / rays, sample (s0 + l) % rays. Per lane the pixel's
-// values are picked from a 16-pixel window; hashes, uniforms and cosine directions are
-// uniforms_chunk's and cosine_dirs_chunk's operations in the same order (bit-identical rays),
-// computed 16 at a time and stored straight into the packet. Each pixel's unoccluded lanes are
-// added with one popcount.
+}  // namespace
+
+// Stage 2 of the AO rows on AVX-512 (ao_rows_compacted<16> gathers the row's pixels): every
+// ray of the row's compacted pixels, in pixel then sample order, 16 rays per packet (a packet
+// may hold the end of one pixel's rays and the start of the next ones). Lane l of the packet
+// starting at ray r0 = p0 rays + s0 is ray s0 + l of the window starting at pixel p0: pixel
+// p0 + (s0 + l) / rays, sample (s0 + l) % rays. Per lane the pixel's values are picked from a
+// 16-pixel window; hashes, uniforms and cosine directions are uniforms_chunk's and
+// cosine_dirs_chunk's operations in the same order (bit-identical rays), computed 16 at a time
+// and stored straight into the packet. Each pixel's unoccluded lanes are added with one
+// popcount.
 DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float radius_m, Batch<16>& batch) {
   const int total = px.n * rays;
   const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
@@ -179,6 +182,8 @@ DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float rad
     batch.traced += uint64_t(live);
   }
 }
+
+namespace {
 
 // The low 8 lanes of lo, then the low 8 of hi.
 DHR_TRACE_TARGET_AVX512 inline __m512 join(__m512 lo, __m512 hi) {
@@ -542,47 +547,5 @@ DHR_TRACE_TARGET_AVX512 void trace_pairs_x16(const VisibilityRow& r, int n, Batc
   }
 }
 
-// The AO rows with the AVX-512 ray generator: stage 1 gathers the row's tracing pixels
-// (scalar: surface, basis, validation, hash), stage 2 (ao_rays_x16) makes and traces the rays.
-void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
-                 AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st) {
-  const int w = g.width();
-  Batch<16> batch(rt.handle(), kMaskAll);
-  TriangleCache cache;
-  AoPixels px(w);
-  uint64_t invalid = 0, unres = 0, cov = 0;
-  for (int y = y0; y < y1; ++y) {
-    if (rows_out) batch.record = &(*rows_out)[size_t(y)];
-    px.n = 0;
-    for (int x = 0; x < w; ++x) {
-      Surface s;
-      bool valid = false;
-      if (!ao_surface(rt, g, x, y, radius_m, s, valid, unres, cache)) continue;
-      ++cov;
-      const size_t pixel = size_t(y) * size_t(w) + size_t(x);
-      uint16_t* count = &out.unoccluded[pixel];
-      if (!valid) {
-        invalid += uint64_t(ao_rays);
-        *count = uint16_t(ao_rays);
-        continue;
-      }
-      *count = 0;
-      const size_t i = size_t(px.n++);
-      const float v[AoPixels::kComponents] = {s.origin.x, s.origin.y, s.origin.z, s.t.x, s.t.y, s.t.z,
-                                              s.b.x,      s.b.y,      s.b.z,      s.n.x, s.n.y, s.n.z};
-      for (int k = 0; k < AoPixels::kComponents; ++k) px.c[size_t(k)][i] = v[k];
-      px.h[i] = PixelRng(settings.seed, uint32_t(pixel), settings.frame).h;
-      px.count[i] = count;
-    }
-    ao_rays_x16(px, ao_rays, radius_m, batch);
-  }
-  if (rows_out)
-    for (int y = y0; y < y1; ++y) batch.traced += (*rows_out)[size_t(y)].size();
-  st.ao_rays = batch.traced;
-  st.invalid_rays = invalid;
-  st.unresolved_pixels = unres;
-  st.covered_pixels = cov;
-}
-
 }  // namespace dhr::trace_detail
-#endif  // DHR_TRACE_AVX512
+#endif  // DHR_TRACE_X86_KERNELS

@@ -17,12 +17,12 @@
 #include <cstdint>
 #include <vector>
 
-// The AO pass's AVX-512 ray generator (core/trace_avx512.cpp) is compiled for AVX-512F/DQ by a
-// target attribute and chosen at run time; everything else keeps the baseline ISA.
+// The vector kernels (core/trace_avx512.cpp for AVX-512F/DQ, core/trace_avx2.cpp for AVX2) are
+// compiled by target attributes and chosen at run time; everything else keeps the baseline ISA.
 #if defined(__x86_64__) && defined(__GNUC__)
-#define DHR_TRACE_AVX512 1
+#define DHR_TRACE_X86_KERNELS 1
 #else
-#define DHR_TRACE_AVX512 0
+#define DHR_TRACE_X86_KERNELS 0
 #endif
 
 namespace dhr::trace_detail {
@@ -396,12 +396,49 @@ extern template void ao_rows<8>(RtScene&, const GBuffer&, int, float, const Trac
 extern template void ao_rows<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
                                  std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
 
-#if DHR_TRACE_AVX512
-// core/trace_avx512.cpp: whether the CPU has AVX-512F and DQ (checked once), and the AO rows
-// with the AVX-512 ray generator (only where that holds and Embree has 16-wide packets).
+// The AO rows with a vector ray generator (core/trace_rows.cpp): the row's tracing pixels
+// gathered into AoPixels by scalar code, then rays_fn makes, traces and counts their rays.
+template <int W>
+using AoRaysFn = void (*)(const AoPixels& px, int rays, float radius_m, Batch<W>& batch);
+template <int W>
+void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
+                       AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st,
+                       AoRaysFn<W> rays_fn);
+extern template void ao_rows_compacted<8>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
+                                          std::vector<std::vector<RTCRay>>*, int, int, TraceStats&, AoRaysFn<8>);
+extern template void ao_rows_compacted<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
+                                           std::vector<std::vector<RTCRay>>*, int, int, TraceStats&, AoRaysFn<16>);
+
+#if DHR_TRACE_X86_KERNELS
+// core/trace_avx2.cpp: whether the CPU has AVX2 (checked once), and the AO rays of a row's
+// compacted pixels 8 at a time into Embree's 8-wide packets (the AO pass's generator where the
+// CPU has AVX2 but not AVX-512): the baseline kernel's rays and counts, bit for bit.
+bool cpu_has_avx2();
+void ao_rays_x8(const AoPixels& px, int rays, float radius_m, Batch<8>& batch);
+// One (pixel, light) pair of a soft light with S > 1 samples: what the cone loop of
+// visibility_rows reads (the pixel's origin and hash, the light's stream, the cone's basis
+// and opening, the sphere's centre from the origin and radius squared) and the pair's counter.
+struct SoftPair {
+  glm::vec3 origin{0.0f};
+  bool origin_ok = false;
+  uint64_t h = 0;
+  uint32_t stream = 0;
+  int samples = 0;
+  glm::vec3 t{0.0f}, b{0.0f}, w{0.0f};
+  float omc_max = 0.0f;
+  bool sphere = false;
+  glm::vec3 oc{0.0f};
+  float r2 = 0.0f;
+  uint16_t* count = nullptr;
+};
+// The pair's S rays 8 at a time on AVX2 (core/trace_avx2.cpp): traced and counted (invalid
+// rays counted as unoccluded and added to invalid), or with batch.record kept; the cone
+// loop's rays and counts bit for bit.
+void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch, uint64_t& invalid);
+// core/trace_avx512.cpp: whether the CPU has AVX-512F and DQ (checked once), and the AO rays
+// 16 at a time (only where that holds and Embree has 16-wide packets).
 bool cpu_has_avx512dq();
-void ao_rows_x16(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
-                 AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st);
+void ao_rays_x16(const AoPixels& px, int rays, float radius_m, Batch<16>& batch);
 // Stage 2 of the visibility pass for a sphere light (sphere_light_row in core/trace_rows.cpp),
 // 16 pixels at a time: every pixel's code, the compacted indices (r.idx) of the covered pairs
 // that trace, whose count it returns, and, for a hard light or a soft one with one sample,

@@ -80,7 +80,7 @@ void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool o
   // covered pairs that trace (compacted: out-of-range and facing-away pairs cost nothing more).
   int* __restrict idx = r.idx.data();
   int m = 0;
-#if DHR_TRACE_AVX512
+#if DHR_TRACE_X86_KERNELS
   if (x16) {
     m = sphere_light_row_x16(r, li, base, one_sample);
     if (!li.soft || one_sample) return;
@@ -243,8 +243,10 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   if (!row_arrays || row_arrays->w != w || row_arrays->code.size() != size_t(w) * size_t(nl))
     row_arrays = std::make_unique<VisibilityRow>(w, nl);
   VisibilityRow& r = *row_arrays;
-#if DHR_TRACE_AVX512
+#if DHR_TRACE_X86_KERNELS
   const bool x16 = settings.wide_kernels && cpu_has_avx512dq();
+  // AVX2 without AVX-512: the cone loops of soft lights with S > 1 (soft_pair_rays_x8).
+  [[maybe_unused]] const bool x8 = W == 8 && settings.wide_kernels && !x16 && cpu_has_avx2();
 #else
   const bool x16 = false;
 #endif
@@ -264,7 +266,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     if (rows_out) batch.record = &(*rows_out)[size_t(y)];
     // Stage 1: surfaces.
     bool any = false;
-#if DHR_TRACE_AVX512
+#if DHR_TRACE_X86_KERNELS
     if (x16) {
       // Triangles and G-buffer values by pixel here, the points and origins in surfaces_x16;
       // what it cannot do (unresolved ids, triangles whose own error needs the per-pixel test,
@@ -377,13 +379,13 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
       const bool one_sample = li.samples == 1;
       if (li.soft && one_sample) uniforms_pixels(r.h.data(), w, 0, kStreamLightBase + uint32_t(l), r.u0.data(), r.u1.data());
       if (li.sphere) sphere_light_row(r, li, size_t(l) * size_t(w), one_sample, x16);
-#if DHR_TRACE_AVX512
+#if DHR_TRACE_X86_KERNELS
       else if (x16 && one_sample) distant_light_row_x16(r, li, size_t(l) * size_t(w));
 #endif
       else distant_light_row(r, li, size_t(l) * size_t(w), one_sample);
     }
     // Stage 3: answers and rays in pixel order (pixel, light, sample).
-#if DHR_TRACE_AVX512
+#if DHR_TRACE_X86_KERNELS
     if constexpr (W == 16) {
       if (x16 && all_single) {
         // The pairs that trace, listed; trace_pairs_x16 makes the packets.
@@ -447,6 +449,16 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
         const float omc_max = li.sphere ? r.omc[i] : li.one_minus_cos;
         const float ocx = r.ocx[i], ocy = r.ocy[i], ocz = r.ocz[i];
         const float r2 = li.radius * li.radius;
+#if DHR_TRACE_X86_KERNELS
+        if constexpr (W == 8) {
+          if (x8) {
+            const SoftPair pair{origin, origin_ok, r.h[size_t(x)], stream, li.samples, tb, bb, w_dir, omc_max,
+                                li.sphere, glm::vec3(ocx, ocy, ocz), r2, count};
+            soft_pair_rays_x8(pair, batch, invalid);
+            continue;
+          }
+        }
+#endif
         for (int k0 = 0; k0 < li.samples; k0 += kChunk) {
           const int n = std::min(kChunk, li.samples - k0);
           uniforms_chunk(r.h[size_t(x)], uint32_t(k0), stream, u0, u1);
@@ -530,6 +542,51 @@ void ao_rows(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const T
   st.covered_pixels = cov;
 }
 
+// The AO rows with a vector ray generator (ao_rays_x16 on AVX-512, ao_rays_x8 on AVX2): stage 1
+// gathers the row's tracing pixels (scalar: surface, basis, validation, hash), stage 2 (rays_fn)
+// makes and traces their rays.
+template <int W>
+void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
+                       AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st,
+                       AoRaysFn<W> rays_fn) {
+  const int w = g.width();
+  Batch<W> batch(rt.handle(), kMaskAll);
+  TriangleCache cache;
+  AoPixels px(w);
+  uint64_t invalid = 0, unres = 0, cov = 0;
+  for (int y = y0; y < y1; ++y) {
+    if (rows_out) batch.record = &(*rows_out)[size_t(y)];
+    px.n = 0;
+    for (int x = 0; x < w; ++x) {
+      Surface s;
+      bool valid = false;
+      if (!ao_surface(rt, g, x, y, radius_m, s, valid, unres, cache)) continue;
+      ++cov;
+      const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+      uint16_t* count = &out.unoccluded[pixel];
+      if (!valid) {
+        invalid += uint64_t(ao_rays);
+        *count = uint16_t(ao_rays);
+        continue;
+      }
+      *count = 0;
+      const size_t i = size_t(px.n++);
+      const float v[AoPixels::kComponents] = {s.origin.x, s.origin.y, s.origin.z, s.t.x, s.t.y, s.t.z,
+                                              s.b.x,      s.b.y,      s.b.z,      s.n.x, s.n.y, s.n.z};
+      for (int k = 0; k < AoPixels::kComponents; ++k) px.c[size_t(k)][i] = v[k];
+      px.h[i] = PixelRng(settings.seed, uint32_t(pixel), settings.frame).h;
+      px.count[i] = count;
+    }
+    rays_fn(px, ao_rays, radius_m, batch);
+  }
+  if (rows_out)
+    for (int y = y0; y < y1; ++y) batch.traced += (*rows_out)[size_t(y)].size();
+  st.ao_rays = batch.traced;
+  st.invalid_rays = invalid;
+  st.unresolved_pixels = unres;
+  st.covered_pixels = cov;
+}
+
 template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
                                  VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
 template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
@@ -538,5 +595,9 @@ template void ao_rows<8>(RtScene&, const GBuffer&, int, float, const TraceSettin
                          std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
 template void ao_rows<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
                           std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+template void ao_rows_compacted<8>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
+                                   std::vector<std::vector<RTCRay>>*, int, int, TraceStats&, AoRaysFn<8>);
+template void ao_rows_compacted<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
+                                    std::vector<std::vector<RTCRay>>*, int, int, TraceStats&, AoRaysFn<16>);
 
 }  // namespace dhr::trace_detail

@@ -1,0 +1,294 @@
+// The AO pass's ray generator on AVX2 (paper section 3.2, Eq. 1-3), used where the CPU has AVX2
+// but Embree has no native 16-wide packets (no AVX-512; core/trace.cpp chooses at run time):
+// ao_rays_x16's scheme (core/trace_avx512.cpp) in 8 lanes. ao_rows_compacted<8>
+// (core/trace_rows.cpp) gathers a row's tracing pixels; ao_rays_x8 makes 8 rays at a time
+// (hashes, uniforms, cosine directions: the scalar and SSE2 code's operations in the same
+// order, see core/trace_directions.h) straight into an rtcOccluded8 packet and adds each
+// pixel's unoccluded lanes by popcount. The rays and results are the baseline kernel's bit for
+// bit (tests/test_trace.cpp: TraceAo.WideKernelsGiveTheSameBits). docs/performance.md has the
+// measurements.
+//
+// AVX2 has no 64-bit vector multiply: SplitMix64's products are built from three 32x32->64-bit
+// ones (mul64_x4). The target is "avx2" without "fma", so no product and sum is fused: every
+// operation rounds as the SSE2 code's does. Only the functions marked DHR_TRACE_TARGET_AVX2 are
+// compiled for AVX2; no lambdas inside them (a lambda does not inherit the target attribute).
+#include "core/trace_kernels.h"
+
+#if DHR_TRACE_X86_KERNELS
+#include <immintrin.h>
+
+#include <algorithm>
+#include <limits>
+#include <numbers>
+
+#define DHR_TRACE_TARGET_AVX2 __attribute__((target("avx2")))
+
+namespace dhr::trace_detail {
+
+bool cpu_has_avx2() {
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+}
+
+namespace {
+
+// z * c modulo 2^64 on 4 lanes: zl cl + 2^32 (zh cl + zl ch), from 32x32->64-bit products.
+DHR_TRACE_TARGET_AVX2 inline __m256i mul64_x4(__m256i z, uint64_t c) {
+  const __m256i cl = _mm256_set1_epi64x(int64_t(c & 0xffffffffull)), ch = _mm256_set1_epi64x(int64_t(c >> 32));
+  const __m256i cross = _mm256_add_epi64(_mm256_mul_epu32(_mm256_srli_epi64(z, 32), cl), _mm256_mul_epu32(z, ch));
+  return _mm256_add_epi64(_mm256_mul_epu32(z, cl), _mm256_slli_epi64(cross, 32));
+}
+
+DHR_TRACE_TARGET_AVX2 inline __m256i mix64_x4(__m256i z) {  // core/rng.h's mix64, 4 lanes
+  z = _mm256_add_epi64(z, _mm256_set1_epi64x(int64_t(0x9E3779B97F4A7C15ull)));
+  z = mul64_x4(_mm256_xor_si256(z, _mm256_srli_epi64(z, 30)), 0xBF58476D1CE4E5B9ull);
+  z = mul64_x4(_mm256_xor_si256(z, _mm256_srli_epi64(z, 27)), 0x94D049BB133111EBull);
+  return _mm256_xor_si256(z, _mm256_srli_epi64(z, 31));
+}
+
+// float(bits >> 40) / 2^24 for 8 keys given as two halves of 4 (exact: the values fit 24 bits).
+DHR_TRACE_TARGET_AVX2 inline __m256 uniform_x8(__m256i lo, __m256i hi) {
+  // The low 32 bits of each 64-bit lane: lo0 lo1 hi0 hi1 | lo2 lo3 hi2 hi3, then in lane order.
+  const __m256 packed = _mm256_shuffle_ps(_mm256_castsi256_ps(_mm256_srli_epi64(lo, 40)),
+                                          _mm256_castsi256_ps(_mm256_srli_epi64(hi, 40)), _MM_SHUFFLE(2, 0, 2, 0));
+  const __m256i v = _mm256_permute4x64_epi64(_mm256_castps_si256(packed), _MM_SHUFFLE(3, 1, 2, 0));
+  return _mm256_mul_ps(_mm256_cvtepi32_ps(v), _mm256_set1_ps(1.0f / 16777216.0f));
+}
+
+// sincos_2pi_x4 on 8 lanes: the same IEEE operations in the same order.
+DHR_TRACE_TARGET_AVX2 inline void sincos_2pi_x8(__m256 u, __m256& c, __m256& s) {
+  const __m256 one = _mm256_set1_ps(1.0f);
+  const __m256 sign = _mm256_castsi256_ps(_mm256_set1_epi32(int32_t(0x80000000u)));
+  const __m256 x = _mm256_mul_ps(_mm256_set1_ps(4.0f), u);
+  const __m256i q = _mm256_min_epi32(_mm256_cvttps_epi32(x), _mm256_set1_epi32(3));
+  const __m256 a = _mm256_mul_ps(_mm256_sub_ps(x, _mm256_cvtepi32_ps(q)), _mm256_set1_ps(std::numbers::pi_v<float> / 2.0f));
+  const __m256 a2 = _mm256_mul_ps(a, a);
+  __m256 sa = _mm256_add_ps(_mm256_set1_ps(-1.0f / 5040), _mm256_mul_ps(a2, _mm256_set1_ps(1.0f / 362880)));
+  sa = _mm256_add_ps(_mm256_set1_ps(1.0f / 120), _mm256_mul_ps(a2, sa));
+  sa = _mm256_add_ps(_mm256_set1_ps(-1.0f / 6), _mm256_mul_ps(a2, sa));
+  sa = _mm256_add_ps(one, _mm256_mul_ps(a2, sa));
+  sa = _mm256_mul_ps(a, sa);
+  __m256 ca = _mm256_add_ps(_mm256_set1_ps(-1.0f / 720), _mm256_mul_ps(a2, _mm256_set1_ps(1.0f / 40320)));
+  ca = _mm256_add_ps(_mm256_set1_ps(1.0f / 24), _mm256_mul_ps(a2, ca));
+  ca = _mm256_add_ps(_mm256_set1_ps(-0.5f), _mm256_mul_ps(a2, ca));
+  ca = _mm256_add_ps(one, _mm256_mul_ps(a2, ca));
+  const __m256i one_i = _mm256_set1_epi32(1), two_i = _mm256_set1_epi32(2);
+  const __m256 odd = _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(q, one_i), one_i));
+  const __m256 c0 = _mm256_blendv_ps(ca, sa, odd);  // odd ? sa : ca
+  const __m256 s0 = _mm256_blendv_ps(sa, ca, odd);
+  const __m256 neg_c =
+      _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_add_epi32(q, one_i), two_i), two_i));
+  const __m256 neg_s = _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(q, two_i), two_i));
+  c = _mm256_xor_ps(c0, _mm256_and_ps(neg_c, sign));
+  s = _mm256_xor_ps(s0, _mm256_and_ps(neg_s, sign));
+}
+
+// Component comp of each lane's pixel: lane l reads pixel p0 + pick[l] (pick[l] < 8).
+DHR_TRACE_TARGET_AVX2 inline __m256 lane_values(const AoPixels& px, int comp, int p0, __m256i pick) {
+  return _mm256_permutevar8x32_ps(_mm256_loadu_ps(px.c[size_t(comp)].data() + p0), pick);
+}
+
+// One component of cosine_dirs_chunk's direction, t * (r c) + b * (r s) + n * z, for the
+// axis whose t component is comp_t (b's and n's follow at +3 and +6).
+DHR_TRACE_TARGET_AVX2 inline __m256 cosine_dir_x8(const AoPixels& px, int comp_t, int p0, __m256i pick, __m256 rc,
+                                                  __m256 rs, __m256 z) {
+  const __m256 t = lane_values(px, comp_t, p0, pick), b = lane_values(px, comp_t + 3, p0, pick);
+  const __m256 n = lane_values(px, comp_t + 6, p0, pick);
+  return _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(t, rc), _mm256_mul_ps(b, rs)), _mm256_mul_ps(n, z));
+}
+
+
+// cone_x4 (core/trace_directions.h) on 8 lanes, around one pair's basis (t, b, w):
+// normalize(t * (c sin) + b * (s sin) + w * cos), the same operations in the same order.
+DHR_TRACE_TARGET_AVX2 inline void cone_x8(const __m256 t[3], const __m256 b[3], const __m256 w[3], __m256 omc_max,
+                                          __m256 u0, __m256 u1, __m256 d[3]) {
+  const __m256 omc = _mm256_mul_ps(u0, omc_max);
+  const __m256 cos_t = _mm256_sub_ps(_mm256_set1_ps(1.0f), omc);
+  const __m256 sin_t = _mm256_sqrt_ps(
+      _mm256_max_ps(_mm256_mul_ps(omc, _mm256_sub_ps(_mm256_set1_ps(2.0f), omc)), _mm256_setzero_ps()));
+  __m256 c, s;
+  sincos_2pi_x8(u1, c, s);
+  const __m256 cs = _mm256_mul_ps(c, sin_t), ss = _mm256_mul_ps(s, sin_t);
+  __m256 v[3];
+  for (int k = 0; k < 3; ++k)
+    v[k] = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(t[k], cs), _mm256_mul_ps(b[k], ss)), _mm256_mul_ps(w[k], cos_t));
+  const __m256 dot =
+      _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(v[0], v[0]), _mm256_mul_ps(v[1], v[1])), _mm256_mul_ps(v[2], v[2]));
+  const __m256 inv = _mm256_div_ps(_mm256_set1_ps(1.0f), _mm256_sqrt_ps(dot));
+  for (int k = 0; k < 3; ++k) d[k] = _mm256_mul_ps(v[k], inv);
+}
+
+// sphere_tfar_x4 (core/trace_directions.h) on 8 lanes: the scalar cone loop's tfar.
+DHR_TRACE_TARGET_AVX2 inline __m256 sphere_tfar_x8(const __m256 d[3], const __m256 oc[3], __m256 r2) {
+  const __m256 b = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(d[0], oc[0]), _mm256_mul_ps(d[1], oc[1])),
+                                 _mm256_mul_ps(d[2], oc[2]));
+  const __m256 qx = _mm256_sub_ps(oc[0], _mm256_mul_ps(b, d[0]));
+  const __m256 qy = _mm256_sub_ps(oc[1], _mm256_mul_ps(b, d[1]));
+  const __m256 qz = _mm256_sub_ps(oc[2], _mm256_mul_ps(b, d[2]));
+  const __m256 disc = _mm256_sub_ps(
+      r2, _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(qx, qx), _mm256_mul_ps(qy, qy)), _mm256_mul_ps(qz, qz)));
+  const __m256 pos = _mm256_cmp_ps(disc, _mm256_setzero_ps(), _CMP_GT_OQ);
+  const __m256 t_hit = _mm256_blendv_ps(b, _mm256_sub_ps(b, _mm256_sqrt_ps(disc)), pos);  // pos ? b - sqrt : b
+  return _mm256_max_ps(_mm256_mul_ps(t_hit, _mm256_set1_ps(kShadowTfarScale)), _mm256_setzero_ps());
+}
+
+// direction_valid (core/trace_directions.h) on 8 lanes, as a lane mask.
+DHR_TRACE_TARGET_AVX2 inline uint32_t directions_valid_x8(const __m256 d[3], __m256 tfar) {
+  const __m256 zero = _mm256_setzero_ps(), fmax = _mm256_set1_ps(std::numeric_limits<float>::max());
+  const __m256 abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+  __m256 finite = _mm256_cmp_ps(_mm256_and_ps(d[0], abs_mask), fmax, _CMP_LE_OQ);
+  finite = _mm256_and_ps(finite, _mm256_cmp_ps(_mm256_and_ps(d[1], abs_mask), fmax, _CMP_LE_OQ));
+  finite = _mm256_and_ps(finite, _mm256_cmp_ps(_mm256_and_ps(d[2], abs_mask), fmax, _CMP_LE_OQ));
+  __m256 nonzero = _mm256_cmp_ps(d[0], zero, _CMP_NEQ_UQ);
+  nonzero = _mm256_or_ps(nonzero, _mm256_cmp_ps(d[1], zero, _CMP_NEQ_UQ));
+  nonzero = _mm256_or_ps(nonzero, _mm256_cmp_ps(d[2], zero, _CMP_NEQ_UQ));
+  const __m256 reach = _mm256_cmp_ps(tfar, zero, _CMP_GE_OQ);
+  return uint32_t(_mm256_movemask_ps(_mm256_and_ps(_mm256_and_ps(finite, nonzero), reach)));
+}
+
+}  // namespace
+
+// Every ray of the row's compacted pixels, in pixel then sample order, 8 rays per packet (a
+// packet may hold the end of one pixel's rays and the start of the next ones): lane l of the
+// packet starting at ray r0 = p0 rays + s0 is pixel p0 + (s0 + l) / rays, sample
+// (s0 + l) % rays, as in ao_rays_x16.
+DHR_TRACE_TARGET_AVX2 void ao_rays_x8(const AoPixels& px, int rays, float radius_m, Batch<8>& batch) {
+  const int total = px.n * rays;
+  const __m256i iota = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256i rays_i = _mm256_set1_epi32(rays);
+  const __m256 rays_f = _mm256_set1_ps(float(rays));
+  const __m256i stream = _mm256_set1_epi64x(kStreamAo);
+  const __m256i dim1 = _mm256_set1_epi64x(1);
+  const __m256 one = _mm256_set1_ps(1.0f);
+  auto& pk = batch.packet;
+  alignas(32) int valid[8];
+  for (int r0 = 0; r0 < total; r0 += 8) {
+    const int p0 = r0 / rays, s0 = r0 % rays;
+    const int live = std::min(8, total - r0);
+    // (s0 + l) / rays by float division: exact here (s0 + l < 2^17, quotient <= 8: the
+    // rounding error stays far below the 1 / rays that separates a quotient from the next).
+    const __m256i v = _mm256_add_epi32(_mm256_set1_epi32(s0), iota);
+    const __m256i pick = _mm256_cvttps_epi32(_mm256_div_ps(_mm256_cvtepi32_ps(v), rays_f));
+    const __m256i sample = _mm256_sub_epi32(v, _mm256_mullo_epi32(pick, rays_i));
+    const __m128i pick_lo = _mm256_castsi256_si128(pick), pick_hi = _mm256_extracti128_si256(pick, 1);
+    // key = (sample << 32) | stream, as PixelRng::uniform2
+    const __m256i key_lo =
+        _mm256_or_si256(_mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_castsi256_si128(sample)), 32), stream);
+    const __m256i key_hi =
+        _mm256_or_si256(_mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_extracti128_si256(sample, 1)), 32), stream);
+    const auto* h = reinterpret_cast<const long long*>(px.h.data() + p0);
+    const __m256i k_lo = mix64_x4(_mm256_xor_si256(_mm256_i32gather_epi64(h, pick_lo, 8), key_lo));
+    const __m256i k_hi = mix64_x4(_mm256_xor_si256(_mm256_i32gather_epi64(h, pick_hi, 8), key_hi));
+    const __m256 u0 = uniform_x8(mix64_x4(k_lo), mix64_x4(k_hi));
+    const __m256 u1 = uniform_x8(mix64_x4(_mm256_xor_si256(k_lo, dim1)), mix64_x4(_mm256_xor_si256(k_hi, dim1)));
+    const __m256 r = _mm256_sqrt_ps(u0);
+    const __m256 z = _mm256_sqrt_ps(_mm256_sub_ps(one, u0));
+    __m256 c, s;
+    sincos_2pi_x8(u1, c, s);
+    const __m256 rc = _mm256_mul_ps(r, c), rs = _mm256_mul_ps(r, s);
+    _mm256_store_ps(pk.org_x, lane_values(px, AoPixels::kOx, p0, pick));
+    _mm256_store_ps(pk.org_y, lane_values(px, AoPixels::kOy, p0, pick));
+    _mm256_store_ps(pk.org_z, lane_values(px, AoPixels::kOz, p0, pick));
+    _mm256_store_ps(pk.dir_x, cosine_dir_x8(px, AoPixels::kTx, p0, pick, rc, rs, z));
+    _mm256_store_ps(pk.dir_y, cosine_dir_x8(px, AoPixels::kTy, p0, pick, rc, rs, z));
+    _mm256_store_ps(pk.dir_z, cosine_dir_x8(px, AoPixels::kTz, p0, pick, rc, rs, z));
+    _mm256_store_ps(pk.tfar, _mm256_set1_ps(radius_m));  // tfar = r: never trace further
+    if (batch.record) {  // collect_ao_rays: push() keeps the rays, traces nothing
+      for (int l = 0; l < live; ++l)
+        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l], radius_m,
+                   nullptr);
+      continue;
+    }
+    for (int l = 0; l < 8; ++l) valid[l] = l < live ? -1 : 0;
+    rtcOccluded8(valid, batch.scene, &batch.ctx, &pk);
+    // Embree sets tfar = -inf on an occluded ray; anything else reached (as Batch::flush).
+    const uint32_t live_mask = (1u << live) - 1u;
+    const uint32_t reached =
+        uint32_t(_mm256_movemask_ps(_mm256_cmp_ps(_mm256_load_ps(pk.tfar), _mm256_setzero_ps(), _CMP_NLT_UQ))) &
+        live_mask;
+    const int last = (s0 + live - 1) / rays;  // the packet's last pixel, relative to p0
+    for (int g = 0; g <= last; ++g) {
+      const uint32_t lanes =
+          uint32_t(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(pick, _mm256_set1_epi32(g)))));
+      uint16_t* count = px.count[size_t(p0 + g)];
+      *count = uint16_t(*count + popcount16(reached & lanes));  // the target has no POPCNT either
+    }
+    batch.traced += uint64_t(live);
+  }
+}
+
+// The S rays of one (pixel, light) pair of a soft light with S > 1 samples (the cone loop of
+// visibility_rows), 8 samples at a time: uniforms_chunk's hashes, sample_cone_chunk's
+// directions and the loop's tfar and validity, the same operations in the same order. The
+// valid rays of 8 samples are traced as one packet of their own (not Batch's: it may hold
+// other pairs' rays), each unoccluded ray adding one to the pair's counter; an invalid ray
+// counts as unoccluded without a trace, as there. With batch.record, the valid rays are kept
+// in sample order instead (Batch::push).
+DHR_TRACE_TARGET_AVX2 void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch, uint64_t& invalid) {
+  const __m256i stream = _mm256_set1_epi64x(int64_t(p.stream));
+  const __m256i dim1 = _mm256_set1_epi64x(1);
+  const __m256i h = _mm256_set1_epi64x(int64_t(p.h));
+  const __m256i iota_lo = _mm256_setr_epi64x(0, 1, 2, 3), iota_hi = _mm256_setr_epi64x(4, 5, 6, 7);
+  const __m256 t[3] = {_mm256_set1_ps(p.t.x), _mm256_set1_ps(p.t.y), _mm256_set1_ps(p.t.z)};
+  const __m256 b[3] = {_mm256_set1_ps(p.b.x), _mm256_set1_ps(p.b.y), _mm256_set1_ps(p.b.z)};
+  const __m256 w[3] = {_mm256_set1_ps(p.w.x), _mm256_set1_ps(p.w.y), _mm256_set1_ps(p.w.z)};
+  const __m256 oc[3] = {_mm256_set1_ps(p.oc.x), _mm256_set1_ps(p.oc.y), _mm256_set1_ps(p.oc.z)};
+  const __m256 omc_max = _mm256_set1_ps(p.omc_max), r2 = _mm256_set1_ps(p.r2);
+  alignas(32) RTCRay8 pk;
+  alignas(32) int valid[8];
+  for (int l = 0; l < 8; ++l) {
+    pk.org_x[l] = p.origin.x, pk.org_y[l] = p.origin.y, pk.org_z[l] = p.origin.z;
+    pk.tnear[l] = 0.0f;
+    pk.time[l] = 0.0f;
+    pk.mask[l] = batch.mask;
+    pk.id[l] = unsigned(l);
+    pk.flags[l] = 0;
+  }
+  for (int k0 = 0; k0 < p.samples; k0 += 8) {
+    const int live = std::min(8, p.samples - k0);
+    // key = (sample << 32) | stream, as PixelRng::uniform2
+    const __m256i first = _mm256_set1_epi64x(int64_t(k0));
+    const __m256i key_lo = _mm256_or_si256(_mm256_slli_epi64(_mm256_add_epi64(first, iota_lo), 32), stream);
+    const __m256i key_hi = _mm256_or_si256(_mm256_slli_epi64(_mm256_add_epi64(first, iota_hi), 32), stream);
+    const __m256i k_lo = mix64_x4(_mm256_xor_si256(h, key_lo)), k_hi = mix64_x4(_mm256_xor_si256(h, key_hi));
+    const __m256 u0 = uniform_x8(mix64_x4(k_lo), mix64_x4(k_hi));
+    const __m256 u1 = uniform_x8(mix64_x4(_mm256_xor_si256(k_lo, dim1)), mix64_x4(_mm256_xor_si256(k_hi, dim1)));
+    __m256 d[3];
+    cone_x8(t, b, w, omc_max, u0, u1, d);
+    const __m256 tfar = p.sphere ? sphere_tfar_x8(d, oc, r2) : _mm256_set1_ps(std::numeric_limits<float>::infinity());
+    const uint32_t live_mask = (1u << live) - 1u;
+    const uint32_t ok = p.origin_ok ? directions_valid_x8(d, tfar) & live_mask : 0u;
+    const int n_invalid = live - popcount16(ok);
+    invalid += uint64_t(n_invalid);
+    *p.count = uint16_t(*p.count + n_invalid);
+    if (ok == 0) continue;
+    if (batch.record) {
+      alignas(32) float dx[8], dy[8], dz[8], tf[8];
+      _mm256_store_ps(dx, d[0]);
+      _mm256_store_ps(dy, d[1]);
+      _mm256_store_ps(dz, d[2]);
+      _mm256_store_ps(tf, tfar);
+      for (int l = 0; l < live; ++l)
+        if (ok >> l & 1u) batch.push(p.origin, dx[l], dy[l], dz[l], tf[l], nullptr);
+      continue;
+    }
+    // Lanes that do not trace get a harmless ray (Embree validates every lane's values).
+    const __m256i lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    const __m256i on = _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(int32_t(ok)), lane_bits), lane_bits);
+    const __m256 on_ps = _mm256_castsi256_ps(on);
+    _mm256_store_ps(pk.dir_x, _mm256_blendv_ps(_mm256_set1_ps(1.0f), d[0], on_ps));
+    _mm256_store_ps(pk.dir_y, _mm256_blendv_ps(_mm256_setzero_ps(), d[1], on_ps));
+    _mm256_store_ps(pk.dir_z, _mm256_blendv_ps(_mm256_setzero_ps(), d[2], on_ps));
+    _mm256_store_ps(pk.tfar, _mm256_blendv_ps(_mm256_setzero_ps(), tfar, on_ps));
+    _mm256_store_si256(reinterpret_cast<__m256i*>(valid), on);
+    rtcOccluded8(valid, batch.scene, &batch.ctx, &pk);
+    // Embree sets tfar = -inf on an occluded ray; anything else reached (as Batch::flush).
+    const uint32_t reached =
+        uint32_t(_mm256_movemask_ps(_mm256_cmp_ps(_mm256_load_ps(pk.tfar), _mm256_setzero_ps(), _CMP_NLT_UQ))) & ok;
+    *p.count = uint16_t(*p.count + popcount16(reached));
+    batch.traced += uint64_t(popcount16(ok));
+  }
+}
+
+}  // namespace dhr::trace_detail
+#endif  // DHR_TRACE_X86_KERNELS
