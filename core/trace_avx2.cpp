@@ -290,5 +290,46 @@ DHR_TRACE_TARGET_AVX2 void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch,
   }
 }
 
+// Stage 3 of the visibility pass where every light takes one ray per pixel (trace_pairs_x16 in
+// 8 lanes): the n pairs of r.pair (pixel then light order) 8 at a time into the packet, traced,
+// each unoccluded ray adding one to its counter; with batch.record, the rays are kept instead.
+DHR_TRACE_TARGET_AVX2 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8>& batch) {
+  auto& pk = batch.packet;
+  alignas(32) int valid[8];
+  const __m256 zero = _mm256_setzero_ps();
+  const __m256i iota = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  for (int k0 = 0; k0 < n; k0 += 8) {
+    const int live = std::min(8, n - k0);
+    const __m256i lm = _mm256_cmpgt_epi32(_mm256_set1_epi32(live), iota);
+    const __m256 lm_ps = _mm256_castsi256_ps(lm);
+    const __m256i pi = _mm256_maskload_epi32(r.pair.data() + k0, lm);
+    const __m256i xi = _mm256_maskload_epi32(r.pair_x.data() + k0, lm);
+    _mm256_store_ps(pk.org_x, _mm256_mask_i32gather_ps(zero, r.ox.data(), xi, lm_ps, 4));
+    _mm256_store_ps(pk.org_y, _mm256_mask_i32gather_ps(zero, r.oy.data(), xi, lm_ps, 4));
+    _mm256_store_ps(pk.org_z, _mm256_mask_i32gather_ps(zero, r.oz.data(), xi, lm_ps, 4));
+    _mm256_store_ps(pk.dir_x, _mm256_mask_i32gather_ps(zero, r.dx.data(), pi, lm_ps, 4));
+    _mm256_store_ps(pk.dir_y, _mm256_mask_i32gather_ps(zero, r.dy.data(), pi, lm_ps, 4));
+    _mm256_store_ps(pk.dir_z, _mm256_mask_i32gather_ps(zero, r.dz.data(), pi, lm_ps, 4));
+    _mm256_store_ps(pk.tfar, _mm256_mask_i32gather_ps(zero, r.tfar.data(), pi, lm_ps, 4));
+    if (batch.record) {  // collect_visibility_rays: push() keeps the rays, traces nothing
+      for (int l = 0; l < live; ++l)
+        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l],
+                   pk.tfar[l], nullptr);
+      continue;
+    }
+    _mm256_store_si256(reinterpret_cast<__m256i*>(valid), lm);
+    rtcOccluded8(valid, batch.scene, &batch.ctx, &pk);
+    // Embree sets tfar = -inf on an occluded ray; anything else reached (as Batch::flush).
+    uint32_t reached =
+        uint32_t(_mm256_movemask_ps(_mm256_cmp_ps(_mm256_load_ps(pk.tfar), zero, _CMP_NLT_UQ))) & ((1u << live) - 1u);
+    while (reached != 0) {
+      uint16_t* count = r.pair_count[size_t(k0 + __builtin_ctz(reached))];
+      *count = uint16_t(*count + 1);
+      reached &= reached - 1u;
+    }
+    batch.traced += uint64_t(live);
+  }
+}
+
 }  // namespace dhr::trace_detail
 #endif  // DHR_TRACE_X86_KERNELS

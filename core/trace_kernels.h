@@ -435,6 +435,9 @@ struct SoftPair {
 // rays counted as unoccluded and added to invalid), or with batch.record kept; the cone
 // loop's rays and counts bit for bit.
 void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch, uint64_t& invalid);
+// Stage 3 where every light takes one ray per pixel, 8 pairs per packet (trace_pairs_x16's
+// work on AVX2, below).
+void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8>& batch);
 // core/trace_avx512.cpp: whether the CPU has AVX-512F and DQ (checked once), and the AO rays
 // 16 at a time (only where that holds and Embree has 16-wide packets).
 bool cpu_has_avx512dq();

@@ -245,8 +245,9 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   VisibilityRow& r = *row_arrays;
 #if DHR_TRACE_X86_KERNELS
   const bool x16 = settings.wide_kernels && cpu_has_avx512dq();
-  // AVX2 without AVX-512: the cone loops of soft lights with S > 1 (soft_pair_rays_x8).
-  [[maybe_unused]] const bool x8 = W == 8 && settings.wide_kernels && !x16 && cpu_has_avx2();
+  // AVX2 without AVX-512: the cone loops of soft lights with S > 1 (soft_pair_rays_x8) and the
+  // packets where every light takes one ray per pixel (trace_pairs_x8).
+  const bool x8 = W == 8 && settings.wide_kernels && !x16 && cpu_has_avx2();
 #else
   const bool x16 = false;
 #endif
@@ -386,36 +387,35 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     }
     // Stage 3: answers and rays in pixel order (pixel, light, sample).
 #if DHR_TRACE_X86_KERNELS
-    if constexpr (W == 16) {
-      if (x16 && all_single) {
-        // The pairs that trace, listed; trace_pairs_x16 makes the packets.
-        int n = 0;
-        for (int x = 0; x < w; ++x) {
-          if (!r.covered[size_t(x)]) continue;
-          const size_t pixel = size_t(y) * size_t(w) + size_t(x);
-          for (int l = 0; l < nl; ++l) {
-            const size_t i = size_t(l) * size_t(w) + size_t(x);
-            uint16_t* count = &out.visible[size_t(l) * npx + pixel];
-            switch (r.code[i]) {
-              case kPairRange: ++range; continue;
-              case kPairInside: *count = 1, ++inside; continue;
-              case kPairFacing: ++facing; continue;
-              default: break;
-            }
-            if (r.ok[i]) {
-              r.pair[size_t(n)] = int(i);
-              r.pair_x[size_t(n)] = x;
-              r.pair_count[size_t(n)] = count;
-              ++n;
-            } else {
-              ++invalid;
-              ++*count;
-            }
+    if (all_single && (W == 16 ? x16 : x8)) {
+      // The pairs that trace, listed; trace_pairs_x16 or trace_pairs_x8 makes the packets.
+      int n = 0;
+      for (int x = 0; x < w; ++x) {
+        if (!r.covered[size_t(x)]) continue;
+        const size_t pixel = size_t(y) * size_t(w) + size_t(x);
+        for (int l = 0; l < nl; ++l) {
+          const size_t i = size_t(l) * size_t(w) + size_t(x);
+          uint16_t* count = &out.visible[size_t(l) * npx + pixel];
+          switch (r.code[i]) {
+            case kPairRange: ++range; continue;
+            case kPairInside: *count = 1, ++inside; continue;
+            case kPairFacing: ++facing; continue;
+            default: break;
+          }
+          if (r.ok[i]) {
+            r.pair[size_t(n)] = int(i);
+            r.pair_x[size_t(n)] = x;
+            r.pair_count[size_t(n)] = count;
+            ++n;
+          } else {
+            ++invalid;
+            ++*count;
           }
         }
-        trace_pairs_x16(r, n, batch);
-        continue;
       }
+      if constexpr (W == 16) trace_pairs_x16(r, n, batch);
+      else trace_pairs_x8(r, n, batch);
+      continue;
     }
 #endif
     for (int x = 0; x < w; ++x) {
