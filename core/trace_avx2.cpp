@@ -146,6 +146,55 @@ DHR_TRACE_TARGET_AVX2 inline uint32_t directions_valid_x8(const __m256 d[3], __m
   return uint32_t(_mm256_movemask_ps(_mm256_and_ps(_mm256_and_ps(finite, nonzero), reach)));
 }
 
+
+// Lane l of the result is all ones where bit l of bits is set (8 lanes of 32 bits).
+DHR_TRACE_TARGET_AVX2 inline __m256i lanes_of(uint32_t bits) {
+  const __m256i lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+  return _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(int32_t(bits)), lane_bits), lane_bits);
+}
+
+// The same for 4 lanes of 64 bits (bits 0-3).
+DHR_TRACE_TARGET_AVX2 inline __m256i lanes64_of(uint32_t bits) {
+  const __m256i lane_bits = _mm256_setr_epi64x(1, 2, 4, 8);
+  return _mm256_cmpeq_epi64(_mm256_and_si256(_mm256_set1_epi64x(int64_t(bits)), lane_bits), lane_bits);
+}
+
+DHR_TRACE_TARGET_AVX2 inline __m256 join(__m128 lo, __m128 hi) {
+  return _mm256_insertf128_ps(_mm256_castps128_ps256(lo), hi, 1);
+}
+
+
+// The 13 values (v0, v1, v2, n, error_m) of the row triangles of 4 pixels, value k of lane l in
+// c[k][l] (surfaces_x8). AVX2's gathers are slow on the CPUs at hand, so: one broadcast per
+// value where the 4 pixels share a triangle (most of a row), else the 4 triangles' values read
+// in blocks of 4 and transposed. A lane outside live reads the first live lane's triangle.
+DHR_TRACE_TARGET_AVX2 inline void row_triangles_x4(const double* tri, const int* tri_of, uint32_t live, __m256d c[13]) {
+  if (live == 0) {
+    for (int k = 0; k < 13; ++k) c[k] = _mm256_setzero_pd();
+    return;
+  }
+  const int first = tri_of[__builtin_ctz(live)];
+  int t[4];
+  for (int l = 0; l < 4; ++l) t[l] = (live >> l) & 1u ? tri_of[l] : first;
+  if (t[0] == t[1] && t[1] == t[2] && t[2] == t[3]) {
+    const double* q = tri + 14 * size_t(t[0]);
+    for (int k = 0; k < 13; ++k) c[k] = _mm256_broadcast_sd(q + k);
+    return;
+  }
+  const double* q[4] = {tri + 14 * size_t(t[0]), tri + 14 * size_t(t[1]), tri + 14 * size_t(t[2]),
+                        tri + 14 * size_t(t[3])};
+  for (int kb : {0, 4, 8, 10}) {  // the last block (values 10-13) overlaps the one before
+    const __m256d r0 = _mm256_loadu_pd(q[0] + kb), r1 = _mm256_loadu_pd(q[1] + kb);
+    const __m256d r2 = _mm256_loadu_pd(q[2] + kb), r3 = _mm256_loadu_pd(q[3] + kb);
+    const __m256d lo01 = _mm256_unpacklo_pd(r0, r1), hi01 = _mm256_unpackhi_pd(r0, r1);
+    const __m256d lo23 = _mm256_unpacklo_pd(r2, r3), hi23 = _mm256_unpackhi_pd(r2, r3);
+    c[kb] = _mm256_permute2f128_pd(lo01, lo23, 0x20);
+    c[kb + 1] = _mm256_permute2f128_pd(hi01, hi23, 0x20);
+    c[kb + 2] = _mm256_permute2f128_pd(lo01, lo23, 0x31);
+    if (kb + 3 < 13) c[kb + 3] = _mm256_permute2f128_pd(hi01, hi23, 0x31);
+  }
+}
+
 }  // namespace
 
 // Every ray of the row's compacted pixels, in pixel then sample order, 8 rays per packet (a
@@ -328,6 +377,141 @@ DHR_TRACE_TARGET_AVX2 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8
       reached &= reached - 1u;
     }
     batch.traced += uint64_t(live);
+  }
+}
+
+// Stage 1 of the visibility pass for the pixels of kind 1 (surfaces_x16 in 8 lanes, doubles 4
+// at a time): the point on the row triangle from the barycentrics, the normal oriented like the
+// G-buffer's, the Waechter-Binder origin and its validity; pixels whose orientation needs the
+// camera become kind 3. With hashes, every pixel's PixelRng hash. The same operations in the
+// same order as surface_at and surfaces_x16: the same bits.
+DHR_TRACE_TARGET_AVX2 void surfaces_x8(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes) {
+  const int w = r.w;
+  const double* tri = r.tris.data();
+  const __m256d zero_d = _mm256_setzero_pd(), one_d = _mm256_set1_pd(1.0);
+  const __m256 zero = _mm256_setzero_ps();
+  const __m256 abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+  const __m256d abs_mask_d = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffll));
+  const __m256i iota64 = _mm256_setr_epi64x(0, 1, 2, 3);
+  const __m256i seed = _mm256_set1_epi64x(int64_t(mix64(settings.seed)));
+  const __m256i frame = _mm256_set1_epi64x(int64_t(settings.frame));
+  const __m256d dsign = _mm256_castsi256_pd(_mm256_set1_epi64x(int64_t(0x8000000000000000ull)));
+  for (int x = 0; x < w; x += 8) {
+    const int n = std::min(8, w - x);
+    const uint32_t live = (1u << n) - 1u;
+    if (hashes) {  // PixelRng(seed, pixel, frame).h, pixel as uint32
+      for (int half = 0; half < 2; ++half) {
+        const __m256i pixel =
+            _mm256_and_si256(_mm256_add_epi64(_mm256_set1_epi64x(int64_t(row_start + size_t(x + 4 * half))), iota64),
+                             _mm256_set1_epi64x(0xffffffffll));
+        const __m256i key = _mm256_or_si256(_mm256_slli_epi64(pixel, 32), frame);
+        _mm256_maskstore_epi64(reinterpret_cast<long long*>(&r.h[size_t(x + 4 * half)]), lanes64_of(live >> (4 * half)),
+                               mix64_x4(_mm256_xor_si256(seed, key)));
+      }
+    }
+    const __m256i kind =
+        _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(&r.kind[size_t(x)])));
+    const uint32_t vec =
+        uint32_t(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(kind, _mm256_set1_epi32(1))))) & live;
+    if (vec == 0) continue;
+    __m128 ph[2][3], nh[2][3], qh[2][3];
+    __m256d error_m[2];
+    uint32_t degenerate = 0;
+    for (int half = 0; half < 2; ++half) {
+      const size_t xh = size_t(x + 4 * half);
+      __m256d c[13];
+      row_triangles_x4(tri, &r.tri_of[xh], (vec >> (4 * half)) & 0xfu, c);
+      // p = (1 - b1 - b2) v0 + b1 v1 + b2 v2
+      const __m256d b1 = _mm256_cvtps_pd(_mm_loadu_ps(&r.b1[xh])), b2 = _mm256_cvtps_pd(_mm_loadu_ps(&r.b2[xh]));
+      const __m256d a = _mm256_sub_pd(_mm256_sub_pd(one_d, b1), b2);
+      __m256d pd[3];
+      for (int k = 0; k < 3; ++k) {
+        pd[k] = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(a, c[k]), _mm256_mul_pd(b1, c[3 + k])),
+                              _mm256_mul_pd(b2, c[6 + k]));
+        ph[half][k] = _mm256_cvtpd_ps(pd[k]);
+      }
+      // Oriented like the G-buffer's geometric normal: side = n . gn.
+      const __m256d side = _mm256_add_pd(
+          _mm256_add_pd(_mm256_mul_pd(c[9], _mm256_cvtps_pd(_mm_loadu_ps(&r.gx[xh]))),
+                        _mm256_mul_pd(c[10], _mm256_cvtps_pd(_mm_loadu_ps(&r.gy[xh])))),
+          _mm256_mul_pd(c[11], _mm256_cvtps_pd(_mm_loadu_ps(&r.gz[xh]))));
+      const uint32_t not_positive =
+          uint32_t(_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(side, abs_mask_d), zero_d, _CMP_NGT_UQ)));
+      degenerate |= (not_positive & (vec >> (4 * half)) & 0xfu) << (4 * half);
+      const __m256d flip = _mm256_and_pd(_mm256_cmp_pd(side, zero_d, _CMP_LT_OQ), dsign);
+      for (int k = 0; k < 3; ++k) {
+        const __m256d nk = _mm256_xor_pd(c[9 + k], flip);
+        nh[half][k] = _mm256_cvtpd_ps(nk);
+        // The point moved error_m off the plane (used where the error exceeds the offset).
+        qh[half][k] = _mm256_cvtpd_ps(_mm256_add_pd(pd[k], _mm256_mul_pd(nk, c[12])));
+      }
+      error_m[half] = c[12];
+    }
+    __m256 pf[3], nf[3];
+    for (int k = 0; k < 3; ++k) {
+      pf[k] = join(ph[0][k], ph[1][k]);
+      nf[k] = join(nh[0][k], nh[1][k]);
+    }
+    // The triangle's own error against offset_lower_bound_m(p, n) (core/trace_kernels.h):
+    // where it is larger, surface_at moves the point off the plane first. error_m is -1 for
+    // triangles that never need it.
+    __m256 bound = zero;
+    for (int k = 0; k < 3; ++k) {
+      const __m256 a = _mm256_and_ps(pf[k], abs_mask), m = _mm256_and_ps(nf[k], abs_mask);
+      const __m256 near = _mm256_mul_ps(_mm256_mul_ps(m, m), _mm256_set1_ps(1.0f / 65536.0f));
+      const __m256 far = _mm256_mul_ps(
+          _mm256_mul_ps(_mm256_max_ps(_mm256_mul_ps(m, _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(256.0f), m),
+                                                                     _mm256_set1_ps(1.0f))),
+                                      zero),
+                        _mm256_set1_ps(0x1p-25f)),
+          a);
+      bound = _mm256_add_ps(bound, _mm256_blendv_ps(far, near, _mm256_cmp_ps(a, _mm256_set1_ps(1.0f / 32.0f), _CMP_LT_OQ)));
+    }
+    const uint32_t too_small_bits =
+        uint32_t(_mm256_movemask_pd(
+            _mm256_cmp_pd(error_m[0], _mm256_cvtps_pd(_mm256_castps256_ps128(bound)), _CMP_GT_OQ))) |
+        uint32_t(_mm256_movemask_pd(
+            _mm256_cmp_pd(error_m[1], _mm256_cvtps_pd(_mm256_extractf128_ps(bound, 1)), _CMP_GT_OQ)))
+            << 4;
+    const __m256 too_small = _mm256_castsi256_ps(lanes_of(too_small_bits));
+    // offset_ray_origin (core/trace.h): 256 ULPs per unit of n in integer space, or n / 65536
+    // within 1/32 of the origin; from the moved point where the triangle's error is larger.
+    __m256 of[3];
+    __m256 origin_ok = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+    for (int k = 0; k < 3; ++k) {
+      const __m256 qf = join(qh[0][k], qh[1][k]);
+      const __m256 p0 = _mm256_blendv_ps(pf[k], qf, too_small);
+      const __m256i step = _mm256_cvttps_epi32(_mm256_mul_ps(_mm256_set1_ps(256.0f), nf[k]));
+      const __m256 neg = _mm256_cmp_ps(p0, zero, _CMP_LT_OQ);
+      const __m256i signed_step = _mm256_castps_si256(_mm256_blendv_ps(
+          _mm256_castsi256_ps(step), _mm256_castsi256_ps(_mm256_sub_epi32(_mm256_setzero_si256(), step)), neg));
+      const __m256 moved = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(p0), signed_step));
+      const __m256 small = _mm256_cmp_ps(_mm256_and_ps(p0, abs_mask), _mm256_set1_ps(1.0f / 32.0f), _CMP_LT_OQ);
+      of[k] = _mm256_blendv_ps(moved, _mm256_add_ps(p0, _mm256_mul_ps(_mm256_set1_ps(1.0f / 65536.0f), nf[k])), small);
+      origin_ok = _mm256_and_ps(
+          origin_ok, _mm256_cmp_ps(_mm256_and_ps(of[k], abs_mask), _mm256_set1_ps(kMaxCoordinate), _CMP_LT_OQ));
+    }
+    const uint32_t done = vec & ~degenerate;
+    const uint32_t ok_bits = uint32_t(_mm256_movemask_ps(origin_ok));
+    const __m256i dm = lanes_of(done);
+    _mm256_maskstore_ps(&r.px[size_t(x)], dm, pf[0]);
+    _mm256_maskstore_ps(&r.py[size_t(x)], dm, pf[1]);
+    _mm256_maskstore_ps(&r.pz[size_t(x)], dm, pf[2]);
+    _mm256_maskstore_ps(&r.nx[size_t(x)], dm, nf[0]);
+    _mm256_maskstore_ps(&r.ny[size_t(x)], dm, nf[1]);
+    _mm256_maskstore_ps(&r.nz[size_t(x)], dm, nf[2]);
+    _mm256_maskstore_ps(&r.ox[size_t(x)], dm, of[0]);
+    _mm256_maskstore_ps(&r.oy[size_t(x)], dm, of[1]);
+    _mm256_maskstore_ps(&r.oz[size_t(x)], dm, of[2]);
+    for (int k = 0; k < n; ++k) {
+      const size_t i = size_t(x + k);
+      if ((done >> k) & 1u) {
+        r.covered[i] = 1;
+        r.origin_ok[i] = uint8_t((ok_bits >> k) & 1u);
+      } else if ((degenerate >> k) & 1u) {
+        r.kind[i] = 3;
+      }
+    }
   }
 }
 

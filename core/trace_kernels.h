@@ -438,6 +438,8 @@ void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch, uint64_t& invalid);
 // Stage 3 where every light takes one ray per pixel, 8 pairs per packet (trace_pairs_x16's
 // work on AVX2, below).
 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8>& batch);
+// Stage 1 for the pixels of kind 1, 8 at a time (surfaces_x16's work on AVX2, below).
+void surfaces_x8(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes);
 // core/trace_avx512.cpp: whether the CPU has AVX-512F and DQ (checked once), and the AO rays
 // 16 at a time (only where that holds and Embree has 16-wide packets).
 bool cpu_has_avx512dq();

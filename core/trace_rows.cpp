@@ -245,12 +245,14 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   VisibilityRow& r = *row_arrays;
 #if DHR_TRACE_X86_KERNELS
   const bool x16 = settings.wide_kernels && cpu_has_avx512dq();
-  // AVX2 without AVX-512: the cone loops of soft lights with S > 1 (soft_pair_rays_x8) and the
-  // packets where every light takes one ray per pixel (trace_pairs_x8).
+  // AVX2 without AVX-512: the surfaces (surfaces_x8), the cone loops of soft lights with S > 1
+  // (soft_pair_rays_x8) and the packets where every light takes one ray per pixel
+  // (trace_pairs_x8).
   const bool x8 = W == 8 && settings.wide_kernels && !x16 && cpu_has_avx2();
 #else
-  const bool x16 = false;
+  const bool x16 = false, x8 = false;
 #endif
+  const bool vector_surfaces = x16 || x8;
   bool any_soft = false;  // hard lights need no random numbers
   bool all_single = true;  // every light one ray per pixel (hard, or soft with S = 1)
   for (const LightInfo& li : lights) {
@@ -259,7 +261,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   }
   uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
   constexpr int kSeenBits = 8;
-  std::vector<TriangleCache> seen(x16 ? size_t(1) << kSeenBits : 0);
+  std::vector<TriangleCache> seen(vector_surfaces ? size_t(1) << kSeenBits : 0);
   alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk], tfar[kChunk];
   alignas(64) bool ok[kChunk];
   constexpr float kInf = std::numeric_limits<float>::infinity();
@@ -268,10 +270,10 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     // Stage 1: surfaces.
     bool any = false;
 #if DHR_TRACE_X86_KERNELS
-    if (x16) {
-      // Triangles and G-buffer values by pixel here, the points and origins in surfaces_x16;
-      // what it cannot do (unresolved ids, triangles whose own error needs the per-pixel test,
-      // normals oriented by the camera) surface_at does, with the same cache.
+    if (vector_surfaces) {
+      // Triangles and G-buffer values by pixel here, the points and origins in surfaces_x16 (or
+      // surfaces_x8); what it cannot do (unresolved ids, triangles whose own error needs the
+      // per-pixel test, normals oriented by the camera) surface_at does, with the same cache.
       int ntri = 0, cur = -1;  // cur: the row triangle of the cache's triangle (-1: none yet)
       const auto set = [&](size_t i, const Surface& s) {
         r.covered[i] = 1;
@@ -348,7 +350,8 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
           gx[i] = gnorm[i].x, gy[i] = gnorm[i].y, gz[i] = gnorm[i].z;
         }
       }
-      surfaces_x16(r, settings, size_t(y) * size_t(w), any_soft);
+      if (x16) surfaces_x16(r, settings, size_t(y) * size_t(w), any_soft);
+      else surfaces_x8(r, settings, size_t(y) * size_t(w), any_soft);
       for (int x = 0; x < w; ++x) {
         if (r.kind[size_t(x)] != 3) continue;
         Surface s;
@@ -357,7 +360,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
       }
     }
 #endif
-    for (int x = 0; x < w && !x16; ++x) {
+    for (int x = 0; x < w && !vector_surfaces; ++x) {
       Surface s;
       const size_t i = size_t(x);
       r.covered[i] = surface_at(rt, g, x, y, s, unres, cache) ? 1 : 0;
