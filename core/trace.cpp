@@ -291,8 +291,10 @@ AoCounts ao_impl(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, con
     if (x16) return ao_rows_compacted<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs, ao_rays_x16);
     if (x8) return ao_rows_compacted<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs, ao_rays_x8);
 #endif
-    if (wide) ao_rows<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
-    else ao_rows<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs);
+    if (wide)
+      ao_rows_compacted<16>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs, ao_rays_baseline<16>);
+    else
+      ao_rows_compacted<8>(rt, g, ao_rays, radius_m, settings, out, rows_out, y0, y1, rs, ao_rays_baseline<8>);
   });
   stats.add(st);
   return out;

@@ -384,20 +384,14 @@ template <int W>
 void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& settings, const std::vector<LightInfo>& lights,
                      VisibilityCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1,
                      TraceStats& st);
-template <int W>
-void ao_rows(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings, AoCounts& out,
-             std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st);
 extern template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
                                         VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
 extern template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
                                          VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
-extern template void ao_rows<8>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
-                                std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
-extern template void ao_rows<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
-                                 std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
 
-// The AO rows with a vector ray generator (core/trace_rows.cpp): the row's tracing pixels
-// gathered into AoPixels by scalar code, then rays_fn makes, traces and counts their rays.
+// The AO rows (core/trace_rows.cpp): the row's tracing pixels gathered into AoPixels by scalar
+// code, then rays_fn makes, traces and counts their rays: ao_rays_baseline (the baseline
+// kernel, in chunks through the Batch), ao_rays_x16 or ao_rays_x8 (below).
 template <int W>
 using AoRaysFn = void (*)(const AoPixels& px, int rays, float radius_m, Batch<W>& batch);
 template <int W>
@@ -408,6 +402,10 @@ extern template void ao_rows_compacted<8>(RtScene&, const GBuffer&, int, float, 
                                           std::vector<std::vector<RTCRay>>*, int, int, TraceStats&, AoRaysFn<8>);
 extern template void ao_rows_compacted<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
                                            std::vector<std::vector<RTCRay>>*, int, int, TraceStats&, AoRaysFn<16>);
+template <int W>
+void ao_rays_baseline(const AoPixels& px, int rays, float radius_m, Batch<W>& batch);
+extern template void ao_rays_baseline<8>(const AoPixels&, int, float, Batch<8>&);
+extern template void ao_rays_baseline<16>(const AoPixels&, int, float, Batch<16>&);
 
 #if DHR_TRACE_X86_KERNELS
 // core/trace_avx2.cpp: whether the CPU has AVX2 (checked once), and the AO rays of a row's

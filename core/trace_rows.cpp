@@ -1,7 +1,7 @@
 // The row kernels of the visibility pass (paper section 3.1) and the baseline AO pass (section
 // 3.2, Eq. 1-3): each turns rows of the G-buffer into rays in Embree packets (Batch,
 // core/trace_kernels.h) and counts the unoccluded ones. core/trace.cpp runs them over blocks of
-// rows; core/trace_avx512.cpp holds the AO pass's AVX-512 kernel.
+// rows; core/trace_avx512.cpp and core/trace_avx2.cpp hold the vector kernels.
 //
 // Speed (bench_trace compares every pass with a bare Embree loop over the same rays):
 // - rays go straight into SoA packets (Batch) traced with rtcOccluded16 where Embree has native
@@ -14,9 +14,10 @@
 // - where the CPU has AVX-512 (and TraceSettings::wide_kernels): the AO pass's ray generator
 //   and the visibility pass's stages (surfaces; light classification and the hard or single
 //   jittered ray; packets where every light takes one ray per pixel; S > 1 keeps the cone
-//   loops below), in
-//   core/trace_avx512.cpp; this file keeps the baseline kernels and the per-pixel work the
-//   vector kernels hand back (unresolved ids, normals oriented by the camera).
+//   loops below), in core/trace_avx512.cpp; where it has AVX2 only: the AO pass's ray
+//   generator, the surfaces, the packets and the cone loops of S > 1 (core/trace_avx2.cpp; the
+//   light classification stays here). This file keeps the baseline kernels and the per-pixel
+//   work the vector kernels hand back (unresolved ids, normals oriented by the camera).
 // - the visibility pass works a row at a time in stages (surfaces; each light over the row,
 //   compacted to the pairs that trace; rays in pixel order) so the square-root and division
 //   chains of neighbouring pixels overlap instead of running one after the other.
@@ -502,52 +503,30 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   st.covered_pixels = cov;
 }
 
+// The baseline AO kernel's stage 2 (ao_rows_compacted<W> with this as rays_fn): each compacted
+// pixel's rays in chunks (uniforms_chunk, cosine_dirs_chunk) pushed into the Batch's packets.
 template <int W>
-void ao_rows(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings, AoCounts& out,
-             std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st) {
-  const int w = g.width();
-  Batch<W> batch(rt.handle(), kMaskAll);
-  TriangleCache cache;
-  uint64_t invalid = 0, unres = 0, cov = 0;
+void ao_rays_baseline(const AoPixels& px, int rays, float radius_m, Batch<W>& batch) {
   alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk];
-  for (int y = y0; y < y1; ++y) {
-    if (rows_out) batch.record = &(*rows_out)[size_t(y)];
-    for (int x = 0; x < w; ++x) {
-      Surface s;
-      bool valid = false;
-      if (!ao_surface(rt, g, x, y, radius_m, s, valid, unres, cache)) continue;
-      ++cov;
-      const size_t pixel = size_t(y) * size_t(w) + size_t(x);
-      uint16_t* count = &out.unoccluded[pixel];
-      *count = 0;
-      if (!valid) {
-        invalid += uint64_t(ao_rays);
-        *count = uint16_t(ao_rays);
-        continue;
-      }
-      const PixelRng rng(settings.seed, uint32_t(pixel), settings.frame);
-      const glm::vec3 t = s.t, b = s.b, n = s.n;
-      for (int k0 = 0; k0 < ao_rays; k0 += kChunk) {
-        const int m = std::min(kChunk, ao_rays - k0);
-        uniforms_chunk(rng.h, uint32_t(k0), kStreamAo, u0, u1);
-        cosine_dirs_chunk(t, b, n, u0, u1, dx, dy, dz);
-        // tfar = r: "occluded if anything is hit within r", never trace further.
-        batch.push_chunk(s.origin, dx, dy, dz, radius_m, m, count);
-      }
+  for (int i = 0; i < px.n; ++i) {
+    const auto at = [&](int k) { return px.c[size_t(k)][size_t(i)]; };
+    const glm::vec3 origin(at(AoPixels::kOx), at(AoPixels::kOy), at(AoPixels::kOz));
+    const glm::vec3 t(at(AoPixels::kTx), at(AoPixels::kTy), at(AoPixels::kTz));
+    const glm::vec3 b(at(AoPixels::kBx), at(AoPixels::kBy), at(AoPixels::kBz));
+    const glm::vec3 n(at(AoPixels::kNx), at(AoPixels::kNy), at(AoPixels::kNz));
+    for (int k0 = 0; k0 < rays; k0 += kChunk) {
+      const int m = std::min(kChunk, rays - k0);
+      uniforms_chunk(px.h[size_t(i)], uint32_t(k0), kStreamAo, u0, u1);
+      cosine_dirs_chunk(t, b, n, u0, u1, dx, dy, dz);
+      // tfar = r: "occluded if anything is hit within r", never trace further.
+      batch.push_chunk(origin, dx, dy, dz, radius_m, m, px.count[size_t(i)]);
     }
   }
-  batch.flush();
-  if (rows_out)
-    for (int y = y0; y < y1; ++y) batch.traced += (*rows_out)[size_t(y)].size();
-  st.ao_rays = batch.traced;
-  st.invalid_rays = invalid;
-  st.unresolved_pixels = unres;
-  st.covered_pixels = cov;
 }
 
-// The AO rows with a vector ray generator (ao_rays_x16 on AVX-512, ao_rays_x8 on AVX2): stage 1
-// gathers the row's tracing pixels (scalar: surface, basis, validation, hash), stage 2 (rays_fn)
-// makes and traces their rays.
+// The AO rows: stage 1 gathers the row's tracing pixels (scalar: surface, basis, validation,
+// hash), stage 2 (rays_fn: ao_rays_baseline, ao_rays_x16 on AVX-512, ao_rays_x8 on AVX2) makes
+// and traces their rays.
 template <int W>
 void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_m, const TraceSettings& settings,
                        AoCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1, TraceStats& st,
@@ -582,6 +561,7 @@ void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_
     }
     rays_fn(px, ao_rays, radius_m, batch);
   }
+  batch.flush();  // the baseline kernel's last packet
   if (rows_out)
     for (int y = y0; y < y1; ++y) batch.traced += (*rows_out)[size_t(y)].size();
   st.ao_rays = batch.traced;
@@ -594,10 +574,8 @@ template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&,
                                  VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
 template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
                                   VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
-template void ao_rows<8>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
-                         std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
-template void ao_rows<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
-                          std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+template void ao_rays_baseline<8>(const AoPixels&, int, float, Batch<8>&);
+template void ao_rays_baseline<16>(const AoPixels&, int, float, Batch<16>&);
 template void ao_rows_compacted<8>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
                                    std::vector<std::vector<RTCRay>>*, int, int, TraceStats&, AoRaysFn<8>);
 template void ao_rows_compacted<16>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,
