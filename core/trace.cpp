@@ -10,8 +10,9 @@
 // - core/trace_rows.cpp: the row kernels of the visibility pass and the baseline AO pass, with
 //   core/trace_directions.h's scalar/SSE2 direction kernels.
 // - core/trace_avx512.cpp: the AVX-512 kernels (the AO pass's ray generator, the visibility
-//   pass's stages), and core/trace_avx2.cpp: the AO pass's ray generator on AVX2; chosen at run
-//   time (TraceSettings::wide_kernels).
+//   pass's stages), and core/trace_avx2.cpp: the AVX2 ones (the AO pass's ray generator, the
+//   visibility pass's surfaces, packets and cone loops); chosen at run time
+//   (TraceSettings::wide_kernels).
 #include "core/trace.h"
 
 #include "core/error.h"

@@ -65,8 +65,8 @@ struct TraceSettings {
   int samples_per_light = 1;
   int threads = 0;            // 0 = the RtScene's arena; else a dedicated arena of this size
   // The vector kernels where the CPU has them: with AVX-512, the AO pass's ray generator and the
-  // visibility pass's per-light stages; with AVX2 only, the AO pass's ray generator. They give
-  // the same rays and results bit for bit; false forces the baseline kernels (tests compare the
+  // visibility pass's stages; with AVX2 only, the AO pass's ray generator and the visibility
+  // pass's surfaces, packets and cone loops. They give the same rays and results bit for bit; false forces the baseline kernels (tests compare the
   // two: tests/test_trace.cpp, tests/test_trace_bits.cpp).
   bool wide_kernels = true;
   // A run may switch a pass off (the paper's Table 2 adds the passes one at a time); it can
@@ -169,8 +169,8 @@ AoCounts trace_ao_counts(RtScene& rt, const GBuffer& gbuf, int ao_rays, float ao
                          const TraceSettings& settings, TraceStats& stats);
 
 // Whether TraceSettings::wide_kernels takes effect here (with a compiler that builds the
-// kernels): Embree's native 16-wide packets and a CPU with AVX-512F/DQ (every vector kernel),
-// or Embree's 8-wide packets and a CPU with AVX2 (the AO pass's).
+// kernels): Embree's native 16-wide packets and a CPU with AVX-512F/DQ (the AVX-512 kernels),
+// or Embree's 8-wide packets and a CPU with AVX2 (the AVX2 ones).
 bool wide_kernels_available(const RtScene& rt);
 
 // The exact rays (in row order) that trace_visibility_counts / trace_ao_counts would hand to

@@ -1,12 +1,16 @@
-// The AO pass's ray generator on AVX2 (paper section 3.2, Eq. 1-3), used where the CPU has AVX2
-// but Embree has no native 16-wide packets (no AVX-512; core/trace.cpp chooses at run time):
-// ao_rays_x16's scheme (core/trace_avx512.cpp) in 8 lanes. ao_rows_compacted<8>
-// (core/trace_rows.cpp) gathers a row's tracing pixels; ao_rays_x8 makes 8 rays at a time
-// (hashes, uniforms, cosine directions: the scalar and SSE2 code's operations in the same
-// order, see core/trace_directions.h) straight into an rtcOccluded8 packet and adds each
-// pixel's unoccluded lanes by popcount. The rays and results are the baseline kernel's bit for
-// bit (tests/test_trace.cpp: TraceAo.WideKernelsGiveTheSameBits). docs/performance.md has the
-// measurements.
+// The tracer's AVX2 kernels, used where the CPU has AVX2 but Embree has no native 16-wide
+// packets (no AVX-512; core/trace.cpp and core/trace_rows.cpp choose at run time), each the
+// work of an AVX-512 kernel of core/trace_avx512.cpp in 8 lanes:
+// - ao_rays_x8 (paper section 3.2, Eq. 1-3): ao_rows_compacted<8> (core/trace_rows.cpp) gathers
+//   a row's tracing pixels; this makes 8 rays at a time (hashes, uniforms, cosine directions:
+//   the scalar and SSE2 code's operations in the same order, see core/trace_directions.h)
+//   straight into an rtcOccluded8 packet and adds each pixel's unoccluded lanes by popcount;
+// - the visibility pass (section 3.1): surfaces_x8 (stage 1), trace_pairs_x8 (stage 3 where
+//   every light takes one ray per pixel) and soft_pair_rays_x8 (the cone loop of S > 1 rays per
+//   light, which has no AVX-512 kernel); the light classification keeps the baseline kernels.
+// The rays and results are the baseline kernels' bit for bit (tests/test_trace.cpp:
+// TraceAo.WideKernelsGiveTheSameBits, TraceShadows.WideKernelsGiveTheSameBitsWithManySamples;
+// tests/test_trace_bits.cpp). docs/performance.md has the measurements.
 //
 // AVX2 has no 64-bit vector multiply: SplitMix64's products are built from three 32x32->64-bit
 // ones (mul64_x4). The target is "avx2" without "fma", so no product and sum is fused: every
