@@ -326,8 +326,7 @@ DHR_TRACE_TARGET_AVX2 void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch,
       continue;
     }
     // Lanes that do not trace get a harmless ray (Embree validates every lane's values).
-    const __m256i lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-    const __m256i on = _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(int32_t(ok)), lane_bits), lane_bits);
+    const __m256i on = lanes_of(ok);
     const __m256 on_ps = _mm256_castsi256_ps(on);
     _mm256_store_ps(pk.dir_x, _mm256_blendv_ps(_mm256_set1_ps(1.0f), d[0], on_ps));
     _mm256_store_ps(pk.dir_y, _mm256_blendv_ps(_mm256_setzero_ps(), d[1], on_ps));
