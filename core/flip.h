@@ -9,6 +9,8 @@
 
 #include "core/image.h"
 
+#include <cstddef>
+
 namespace dhr {
 
 // The paper's viewing setup: a 0.7 m wide 3840-pixel monitor seen from 0.7 m, 67 pixels per degree.
@@ -35,5 +37,12 @@ FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd = 
 // The error map on FLIP's own colour map (matplotlib's "magma", as the authors show their maps):
 // error e in [0, 1] -> entry round(255 e); values outside [0, 1] (or NaN) saturate.
 ImageRGB8 flip_colour_map(const ImageF& flip_map);
+
+// CIELAB's f(t) (cube root above (6/29)^3, linear below), one value and a row in place: the
+// row kernel must give lab_f_value's bits on every input (tests/test_flip.cpp checks it).
+namespace flip_detail {
+float lab_f_value(float t);
+void lab_f_values(float* v, size_t n);
+}  // namespace flip_detail
 
 }  // namespace dhr

@@ -11,11 +11,13 @@
 #include <tbb/global_control.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <limits>
 #include <vector>
 
 namespace dhr {
@@ -179,6 +181,43 @@ TEST(Flip, SameBitsAsTheOneTapAtATimeFilters) {
     std::memcpy(&mean_bits, &r.mean, sizeof mean_bits);
     EXPECT_EQ(map_hash, c.want_map) << c.w << "x" << c.h << " at " << c.ppd << " ppd";
     EXPECT_EQ(mean_bits, c.want_mean) << c.w << "x" << c.h << " at " << c.ppd << " ppd";
+  }
+}
+
+// CIELAB's f over a row (four values at a time in double, core/flip.cpp) against the scalar
+// function, bit for bit: every float of [0.5, 1] (FLIP's inputs are X/Xn, Y/Yn, Z/Zn of colours
+// in [0, 1]), every 997th float of [0, 4], 2,000 floats around the linear segment's edge
+// (6/29)^3, and the inputs that are not positive numbers; at every offset in a row of 4 and in
+// the scalar tail of rows 1 to 7 long.
+TEST(Flip, LabRowMatchesLabF) {
+  std::vector<float> in;
+  for (uint32_t b = std::bit_cast<uint32_t>(0.5f); b <= std::bit_cast<uint32_t>(1.0f); ++b)
+    in.push_back(std::bit_cast<float>(b));
+  for (uint32_t b = 0; b <= std::bit_cast<uint32_t>(4.0f); b += 997) in.push_back(std::bit_cast<float>(b));
+  const uint32_t edge = std::bit_cast<uint32_t>(float((6.0 / 29) * (6.0 / 29) * (6.0 / 29)));
+  for (uint32_t b = edge - 1000; b <= edge + 1000; ++b) in.push_back(std::bit_cast<float>(b));
+  for (float x : {0.0f, -0.0f, -1.0f, -1e-30f, 1e-45f, 1e30f, std::numeric_limits<float>::infinity(),
+                  -std::numeric_limits<float>::infinity(), std::numeric_limits<float>::quiet_NaN(),
+                  std::numeric_limits<float>::max(), std::numeric_limits<float>::min()})
+    in.push_back(x);
+  std::vector<float> row = in;
+  flip_detail::lab_f_values(row.data(), row.size());
+  size_t differ = 0;
+  for (size_t i = 0; i < in.size(); ++i) {
+    const float want = flip_detail::lab_f_value(in[i]);
+    if (std::bit_cast<uint32_t>(row[i]) != std::bit_cast<uint32_t>(want) && ++differ <= 5)
+      ADD_FAILURE() << "lab_f(" << in[i] << "): row kernel " << row[i] << ", scalar " << want;
+  }
+  EXPECT_EQ(differ, 0u) << "of " << in.size() << " values";
+  for (size_t n = 1; n <= 7; ++n) {  // every lane of a vector and of the tail
+    for (size_t at = 0; at < n; ++at) {
+      std::vector<float> r(n, 0.3f);
+      r[at] = 0.7f;
+      flip_detail::lab_f_values(r.data(), n);
+      for (size_t i = 0; i < n; ++i)
+        EXPECT_EQ(std::bit_cast<uint32_t>(r[i]), std::bit_cast<uint32_t>(flip_detail::lab_f_value(i == at ? 0.7f : 0.3f)))
+            << "row of " << n << ", value " << i;
+    }
   }
 }
 
