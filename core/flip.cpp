@@ -347,18 +347,25 @@ void horizontal_pass(const ImageRGB8& image, const Filters& fl, std::vector<floa
   });
 }
 
-// One row of one image after the vertical pass: Hunt-adjusted CIELAB of the filtered colour,
-// and the edge and point feature magnitudes.
+// The filters' scratch rows of one thread.
 struct RowScratch {
   std::vector<float> tmp[7];
-  std::vector<Lab> lab;
-  std::vector<float> edge, point;
-  explicit RowScratch(int w) : lab(size_t(w)), edge(size_t(w)), point(size_t(w)) {
+  explicit RowScratch(int w) {
     for (auto& t : tmp) t.resize(size_t(w));
   }
 };
 
-void vertical_row(const std::vector<float>* planes, const Filters& fl, int w, int h, int y, RowScratch& s) {
+// Where one row of one image's features goes (FlipFeatures: l, a, b interleaved).
+struct FeatureRow {
+  float* lab;
+  float* edge;
+  float* point;
+};
+
+// One row of one image after the vertical pass: Hunt-adjusted CIELAB of the filtered colour,
+// and the edge and point feature magnitudes.
+void vertical_row(const std::vector<float>* planes, const Filters& fl, int w, int h, int y, RowScratch& s,
+                  FeatureRow out) {
   const ColourSpace& cs = colour_space();
   filter_column(planes[kY].data(), w, h, y, fl.y.g1, s.tmp[0].data());
   filter_column(planes[kCx].data(), w, h, y, fl.cx.g1, s.tmp[1].data());
@@ -384,20 +391,22 @@ void vertical_row(const std::vector<float>* planes, const Filters& fl, int w, in
     s.tmp[0][i] = n[0] * r + n[1] * g + n[2] * b;
     s.tmp[1][i] = n[3] * r + n[4] * g + n[5] * b;
     s.tmp[2][i] = n[6] * r + n[7] * g + n[8] * b;
-    s.edge[i] = std::sqrt(s.tmp[4][i] * s.tmp[4][i] + s.tmp[5][i] * s.tmp[5][i]);
+    out.edge[i] = std::sqrt(s.tmp[4][i] * s.tmp[4][i] + s.tmp[5][i] * s.tmp[5][i]);
   }
   for (int c = 0; c < 3; ++c) lab_f_row(s.tmp[c].data(), size_t(w));
   for (int x = 0; x < w; ++x) {
     const size_t i = size_t(x);
     const float fx = s.tmp[0][i], fy = s.tmp[1][i], fz = s.tmp[2][i];
     const float l = 116.0f * fy - 16.0f;
-    s.lab[i] = {l, 0.01f * l * 500.0f * (fx - fy), 0.01f * l * 200.0f * (fy - fz)};
+    out.lab[3 * i] = l;
+    out.lab[3 * i + 1] = 0.01f * l * 500.0f * (fx - fy);
+    out.lab[3 * i + 2] = 0.01f * l * 200.0f * (fy - fz);
   }
   // The point detector's y term needs the Gaussian-row plane with d2 vertically.
   filter_column(planes[kFg].data(), w, h, y, fl.f.d2, s.tmp[5].data());
   for (int x = 0; x < w; ++x) {
     const size_t i = size_t(x);
-    s.point[i] = std::sqrt(s.tmp[6][i] * s.tmp[6][i] + s.tmp[5][i] * s.tmp[5][i]);
+    out.point[i] = std::sqrt(s.tmp[6][i] * s.tmp[6][i] + s.tmp[5][i] * s.tmp[5][i]);
   }
 }
 
@@ -417,15 +426,14 @@ double pixels_per_degree(const FlipViewing& v) {
   return v.distance_m * (v.display_width_px / v.display_width_m) * (kPi / 180.0);
 }
 
-FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd) {
-  if (reference.width() != test.width() || reference.height() != test.height())
-    fail("FLIP: images differ in size: {}x{} against {}x{}", reference.width(), reference.height(), test.width(),
-         test.height());
-  if (reference.empty()) fail("FLIP: cannot compare empty images");
+namespace {
+
+void check_ppd(double ppd) {
   if (!(std::isfinite(ppd) && ppd > 0 && ppd <= 1000))
     fail("FLIP: pixels per degree {} is not valid (must be in (0, 1000]; the paper's setup is 67)", ppd);
-  const int w = reference.width(), h = reference.height();
+}
 
+Filters make_filters(double ppd) {
   Filters fl;
   const int csf_radius = int(std::ceil(3 * std::sqrt(kCsfLargestB / (2 * kPi * kPi)) * ppd));
   fl.y = make_csf(kCsfAchromatic, csf_radius, ppd);
@@ -435,14 +443,63 @@ FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd) {
   fl.pad = std::max(csf_radius, fl.f.g.radius);
   if (2 * fl.pad + 1 > kMaxTaps)
     fail("FLIP: a kernel of radius {} at {} pixels per degree exceeds the filters' {} taps", fl.pad, ppd, kMaxTaps);
+  return fl;
+}
 
-  std::vector<float> ref_planes[kPlanes], test_planes[kPlanes];
-  for (int p = 0; p < kPlanes; ++p) {
-    ref_planes[p].resize(reference.size());
-    test_planes[p].resize(reference.size());
-  }
-  horizontal_pass(reference, fl, ref_planes);
-  horizontal_pass(test, fl, test_planes);
+// The horizontal pass of one image: its kPlanes planes.
+std::vector<std::vector<float>> horizontal_planes(const ImageRGB8& image, const Filters& fl) {
+  std::vector<std::vector<float>> planes(kPlanes);
+  for (auto& p : planes) p.resize(image.size());
+  horizontal_pass(image, fl, planes.data());
+  return planes;
+}
+
+}  // namespace
+
+FlipFeatures flip_features(const ImageRGB8& image, double ppd) {
+  if (image.empty()) fail("FLIP: cannot compute the features of an empty image");
+  check_ppd(ppd);
+  const Filters fl = make_filters(ppd);
+  const std::vector<std::vector<float>> planes = horizontal_planes(image, fl);
+  const int w = image.width(), h = image.height();
+  FlipFeatures f;
+  f.width = w;
+  f.height = h;
+  f.ppd = ppd;
+  f.lab.resize(3 * image.size());
+  f.edge.resize(image.size());
+  f.point.resize(image.size());
+  tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
+    RowScratch s(w);
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      const size_t off = size_t(y) * size_t(w);
+      vertical_row(planes.data(), fl, w, h, y, s, {&f.lab[3 * off], &f.edge[off], &f.point[off]});
+    }
+  });
+  return f;
+}
+
+FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd) {
+  if (reference.width() != test.width() || reference.height() != test.height())
+    fail("FLIP: images differ in size: {}x{} against {}x{}", reference.width(), reference.height(), test.width(),
+         test.height());
+  if (reference.empty()) fail("FLIP: cannot compare empty images");
+  check_ppd(ppd);
+  return flip(flip_features(reference, ppd), test);
+}
+
+FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
+  const int w = reference.width, h = reference.height;
+  if (w != test.width() || h != test.height())
+    fail("FLIP: images differ in size: {}x{} against {}x{}", w, h, test.width(), test.height());
+  if (test.empty()) fail("FLIP: cannot compare empty images");
+  if (reference.lab.size() != 3 * test.size() || reference.edge.size() != test.size() ||
+      reference.point.size() != test.size())
+    fail("FLIP: the reference's features hold {} values for {}x{} pixels (5 per pixel)",
+         reference.lab.size() + reference.edge.size() + reference.point.size(), w, h);
+  check_ppd(reference.ppd);
+  const Filters fl = make_filters(reference.ppd);
+  const std::vector<std::vector<float>> test_planes = horizontal_planes(test, fl);
 
   const float cmax = max_colour_error();
   const float knee = kPc * cmax;
@@ -450,19 +507,25 @@ FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd) {
   result.map.resize(w, h);
   std::vector<double> row_sums(size_t(h), 0.0);
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-    RowScratch rs(w), ts(w);
+    RowScratch s(w);
+    const size_t wn = size_t(w);
+    std::vector<float> lab(3 * wn), edge(wn), point(wn);
     for (int y = rows.begin(); y < rows.end(); ++y) {
-      vertical_row(ref_planes, fl, w, h, y, rs);
-      vertical_row(test_planes, fl, w, h, y, ts);
+      vertical_row(test_planes.data(), fl, w, h, y, s, {lab.data(), edge.data(), point.data()});
+      const size_t off = size_t(y) * size_t(w);
+      const float* rlab = &reference.lab[3 * off];
+      const float* redge = &reference.edge[off];
+      const float* rpoint = &reference.point[off];
       float* out = &result.map(0, y);
       double row = 0;
       for (int x = 0; x < w; ++x) {
         const size_t i = size_t(x);
         // Colour: HyAB on Hunt-adjusted CIELAB, compressed, then redistributed to [0, 1].
-        const float dc = std::pow(hyab(rs.lab[i], ts.lab[i]), kQc);
+        const Lab rl{rlab[3 * i], rlab[3 * i + 1], rlab[3 * i + 2]}, tl{lab[3 * i], lab[3 * i + 1], lab[3 * i + 2]};
+        const float dc = std::pow(hyab(rl, tl), kQc);
         const float ec = dc < knee ? (kPt / knee) * dc : kPt + (dc - knee) / (cmax - knee) * (1.0f - kPt);
         // Features: the larger of the edge and point differences, normalized to [0, 1].
-        const float fd = std::max(std::abs(rs.edge[i] - ts.edge[i]), std::abs(rs.point[i] - ts.point[i]));
+        const float fd = std::max(std::abs(redge[i] - edge[i]), std::abs(rpoint[i] - point[i]));
         const float ef = std::sqrt(fd * float(1.0 / std::sqrt(2.0)));  // to the power q_f = 1/2
         const float e = std::pow(ec, 1.0f - ef);
         out[x] = e;
@@ -473,7 +536,7 @@ FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd) {
   });
   double total = 0;
   for (double r : row_sums) total += r;  // fixed order: independent of thread count
-  result.mean = total / double(reference.size());
+  result.mean = total / double(test.size());
   return result;
 }
 

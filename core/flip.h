@@ -10,6 +10,7 @@
 #include "core/image.h"
 
 #include <cstddef>
+#include <vector>
 
 namespace dhr {
 
@@ -33,6 +34,25 @@ struct FlipResult {
 // FLIP of `test` against `reference` at `ppd` pixels per degree. Throws dhr::Error when sizes
 // differ, an image is empty, or ppd is not in (0, 1000].
 FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd = kFlipDefaultPpd);
+
+// The half of FLIP that depends on one image alone: per pixel, the Hunt-adjusted CIELAB of its
+// CSF-filtered colour and the magnitudes of its edge and point detectors (docs/metrics.md). A
+// reference scored against many images (the runs of a sweep share their local reference and
+// ground truth) computes it once: flip(flip_features(r, ppd), t) is flip(r, t, ppd), bit for bit.
+struct FlipFeatures {
+  int width = 0, height = 0;
+  double ppd = 0;
+  std::vector<float> lab;          // L, a, b per pixel, row-major
+  std::vector<float> edge, point;  // one per pixel, row-major
+  size_t bytes() const { return (lab.size() + edge.size() + point.size()) * sizeof(float); }
+};
+
+// Throws dhr::Error for an empty image or ppd not in (0, 1000].
+FlipFeatures flip_features(const ImageRGB8& image, double ppd = kFlipDefaultPpd);
+
+// FLIP of `test` against the reference whose features these are, at their ppd. Throws dhr::Error
+// when the sizes differ or the features are not whole.
+FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test);
 
 // The error map on FLIP's own colour map (matplotlib's "magma", as the authors show their maps):
 // error e in [0, 1] -> entry round(255 e); values outside [0, 1] (or NaN) saturate.

@@ -15,6 +15,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdint>
 #include <cstring>
 #include <cmath>
 #include <deque>
@@ -259,20 +260,56 @@ void TraceCache::insert_image(const std::string& key, std::shared_ptr<const Imag
   evict_locked();
 }
 
+std::shared_ptr<const FlipFeatures> TraceCache::find_flip(const std::string& key) {
+  std::lock_guard lock(mutex_);
+  auto it = flips_.find(key);
+  if (it == flips_.end()) return nullptr;
+  it->second.first = ++tick_;
+  return it->second.second;
+}
+
+void TraceCache::insert_flip(const std::string& key, std::shared_ptr<const FlipFeatures> features) {
+  std::lock_guard lock(mutex_);
+  if (flips_.count(key)) return;
+  bytes_ += features->bytes();
+  flips_[key] = {++tick_, std::move(features)};
+  evict_locked();
+}
+
+namespace {
+
+size_t bytes_of(const TraceCache::Entry& e) { return entry_bytes(e); }
+size_t bytes_of(const ImageRGB8& image) { return image.size() * sizeof(Rgb8); }
+size_t bytes_of(const FlipFeatures& f) { return f.bytes(); }
+
+// The least recently used entry of one of the cache's maps (end() when empty).
+template <class Map>
+typename Map::iterator oldest(Map& map) {
+  return std::min_element(map.begin(), map.end(),
+                          [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
+}
+
+}  // namespace
+
 void TraceCache::evict_locked() {
-  while (bytes_ > max_bytes_ && (!entries_.empty() || !images_.empty())) {
-    // Least recently used of both maps.
-    auto e = std::min_element(entries_.begin(), entries_.end(),
-                              [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
-    auto i = std::min_element(images_.begin(), images_.end(),
-                              [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
-    const bool take_entry = i == images_.end() || (e != entries_.end() && e->second.first < i->second.first);
-    if (take_entry) {
-      bytes_ -= entry_bytes(*e->second.second);
+  while (bytes_ > max_bytes_ && (!entries_.empty() || !images_.empty() || !flips_.empty())) {
+    // The least recently used of the three maps.
+    auto e = oldest(entries_);
+    auto i = oldest(images_);
+    auto f = oldest(flips_);
+    uint64_t tick = UINT64_MAX;
+    if (e != entries_.end()) tick = std::min(tick, e->second.first);
+    if (i != images_.end()) tick = std::min(tick, i->second.first);
+    if (f != flips_.end()) tick = std::min(tick, f->second.first);
+    if (e != entries_.end() && e->second.first == tick) {
+      bytes_ -= bytes_of(*e->second.second);
       entries_.erase(e);
-    } else {
-      bytes_ -= i->second.second->size() * sizeof(Rgb8);
+    } else if (i != images_.end() && i->second.first == tick) {
+      bytes_ -= bytes_of(*i->second.second);
       images_.erase(i);
+    } else {
+      bytes_ -= bytes_of(*f->second.second);
+      flips_.erase(f);
     }
   }
 }
@@ -444,6 +481,15 @@ class Simulation {
     auto img = std::make_shared<ImageRGB8>(dhr::ground_truth(rt(), gbuf, rs).image);
     cache_.insert_image(key, img);
     return img;
+  }
+
+  // FLIP's half of the work on the reference image under `key` (a local reference's or a ground
+  // truth's), kept for the other runs that score against it: computed once.
+  std::shared_ptr<const FlipFeatures> flip_features_of(const std::string& key, const ImageRGB8& reference) {
+    if (auto hit = cache_.find_flip(key)) return hit;
+    auto features = std::make_shared<const FlipFeatures>(flip_features(reference));
+    cache_.insert_flip(key, features);
+    return features;
   }
 
   // ---- server: the schedule (the stages are core/pipeline.h's ServerPipeline)
@@ -635,14 +681,16 @@ class Simulation {
 
     if (score_now) {
       rec.scored = true;
-      rec.local = score_frame(*local_image, image, prev_local_ ? &*prev_local_ : nullptr,
-                              prev_shown_ ? &*prev_shown_ : nullptr);
+      const auto local_flip = flip_features_of(local_key(a), *local_image);
+      rec.local = score_frame(ScoreReference{*local_image, local_flip.get()}, image,
+                              prev_local_ ? &*prev_local_ : nullptr, prev_shown_ ? &*prev_shown_ : nullptr);
       prev_local_ = *local_image;  // the step metrics' previous scored frame
       prev_shown_ = image;
       if (c_.ground_truth_every > 0 && rec.frame % c_.ground_truth_every == 0) {
         auto truth = ground_truth(a, gbuf);
         rec.scored_ground_truth = true;
-        rec.ground_truth = score_frame(*truth, image);
+        const auto truth_flip = flip_features_of(truth_key(scene_key_, c_, a), *truth);
+        rec.ground_truth = score_frame(ScoreReference{*truth, truth_flip.get()}, image);
         if (c_.keep_images) result_.ground_truth_images = {*truth};
       }
       // Keep the images of the last frame scored against the ground truth (or, without ground

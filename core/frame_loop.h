@@ -28,6 +28,7 @@
 #pragma once
 
 #include "core/backend.h"
+#include "core/flip.h"
 #include "core/gbuffer.h"
 #include "core/network.h"
 #include "core/pipeline.h"
@@ -66,6 +67,10 @@ class TraceCache {
   void insert(const std::string& key, std::shared_ptr<const Entry> entry);
   std::shared_ptr<const ImageRGB8> find_image(const std::string& key);
   void insert_image(const std::string& key, std::shared_ptr<const ImageRGB8> image);
+  // FLIP's half of the work on a reference image (flip_features), under the image's key: the
+  // runs that score against the same local reference or ground truth compute it once.
+  std::shared_ptr<const FlipFeatures> find_flip(const std::string& key);
+  void insert_flip(const std::string& key, std::shared_ptr<const FlipFeatures> features);
   size_t bytes() const { return bytes_; }
 
  private:
@@ -79,6 +84,7 @@ class TraceCache {
   uint64_t tick_ = 0;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const Entry>>> entries_;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const ImageRGB8>>> images_;
+  std::map<std::string, std::pair<uint64_t, std::shared_ptr<const FlipFeatures>>> flips_;
 };
 
 // Progress callback: (frame index among warm-up + scored, total).

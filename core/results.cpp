@@ -17,10 +17,14 @@ namespace {
 
 nlohmann::json finite_or_null(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
-double ssim_of(const ImageRGB8& reference, const ImageRGB8& shown) {
-  return ssim_u8(luma(reference), luma(shown), nullptr, SsimBorder::Valid);
+double ssim_of(const ScoreReference& reference, const ImageRGB8& shown) {
+  return ssim_u8(luma(reference.image), luma(shown), nullptr, SsimBorder::Valid);
 }
-double flip_of(const ImageRGB8& reference, const ImageRGB8& shown) { return flip(reference, shown, kFlipDefaultPpd).mean; }
+double psnr_of(const ScoreReference& reference, const ImageRGB8& shown) { return psnr_db(reference.image, shown); }
+double flip_of(const ScoreReference& reference, const ImageRGB8& shown) {
+  if (reference.flip && reference.flip->ppd == kFlipDefaultPpd) return flip(*reference.flip, shown).mean;
+  return flip(reference.image, shown, kFlipDefaultPpd).mean;
+}
 double temporal_error_of(const ImageRGB8& rp, const ImageRGB8& r, const ImageRGB8& tp, const ImageRGB8& t) {
   return temporal_scores(rp, r, tp, t).temporal_error;
 }
@@ -88,7 +92,7 @@ const std::vector<ImageMetric>& image_metrics() {
        "valid interior as Wang's code and scikit-image (docs/metrics.md)",
        true, ssim_of, nullptr},
       {"psnr", "db", "PSNR over R, G and B, 10 log10(255^2 / MSE); identical frames are +inf, counted as 100 dB in means",
-       true, psnr_db, psnr_for_mean},
+       true, psnr_of, psnr_for_mean},
       {"flip", "", "LDR-FLIP (Andersson et al. 2020) at 67 pixels per degree, mean of the error map, 0..1 (docs/metrics.md)",
        false, flip_of, nullptr},
       {"temporal_error", "levels",
@@ -105,13 +109,19 @@ const std::vector<ImageMetric>& image_metrics() {
 
 std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& shown, const ImageRGB8* reference_prev,
                                 const ImageRGB8* shown_prev) {
-  if (reference.width() != shown.width() || reference.height() != shown.height() || reference.empty())
-    fail("score_frame: images of {}x{} and {}x{} (they must be the same size, not empty)", reference.width(),
-         reference.height(), shown.width(), shown.height());
+  return score_frame(ScoreReference{reference}, shown, reference_prev, shown_prev);
+}
+
+std::vector<double> score_frame(const ScoreReference& reference, const ImageRGB8& shown,
+                                const ImageRGB8* reference_prev, const ImageRGB8* shown_prev) {
+  const ImageRGB8& ref = reference.image;
+  if (ref.width() != shown.width() || ref.height() != shown.height() || ref.empty())
+    fail("score_frame: images of {}x{} and {}x{} (they must be the same size, not empty)", ref.width(), ref.height(),
+         shown.width(), shown.height());
   std::vector<double> s;
   for (const ImageMetric& m : image_metrics()) {
     if (m.score) s.push_back(m.score(reference, shown));
-    else if (reference_prev && shown_prev) s.push_back(m.score_step(*reference_prev, reference, *shown_prev, shown));
+    else if (reference_prev && shown_prev) s.push_back(m.score_step(*reference_prev, ref, *shown_prev, shown));
     else s.push_back(std::nan(""));
   }
   return s;

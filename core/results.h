@@ -13,6 +13,7 @@
 // read these tables; a new metric is one function and one line in core/results.cpp.
 #pragma once
 
+#include "core/flip.h"
 #include "core/image.h"
 #include "core/passes.h"
 #include "core/trace.h"
@@ -30,13 +31,21 @@ namespace dhr {
 enum class Against { Local, GroundTruth };
 const char* against_name(Against a);  // "local", "ground_truth"
 
+// The image a frame is scored against, with what the metrics compute from it alone where the
+// caller computed that once for many frames (the runner keeps a reference's FLIP features for
+// the runs of a sweep that score against it); nullptr: computed here. The same values either way.
+struct ScoreReference {
+  const ImageRGB8& image;
+  const FlipFeatures* flip = nullptr;
+};
+
 // One image metric, scored per displayed frame.
 struct ImageMetric {
   std::string name;  // ssim, psnr
   std::string unit;  // "" or a suffix of every column and key: "db"
   std::string doc;   // how it is computed, one line
   bool higher_is_better = true;
-  double (*score)(const ImageRGB8& reference, const ImageRGB8& shown) = nullptr;
+  double (*score)(const ScoreReference& reference, const ImageRGB8& shown) = nullptr;
   // The value as averaged over frames (PSNR: identical frames count as 100 dB); nullptr: as is.
   double (*for_mean)(double) = nullptr;
   // Instead of `score`, a metric of the change since the previous scored frame (the reference and
@@ -53,6 +62,8 @@ const std::vector<ImageMetric>& image_metrics();
 // One value per image_metrics() entry, in its order; the step metrics need the previous scored
 // frame's reference and shown image (nullptr: NaN, no value).
 std::vector<double> score_frame(const ImageRGB8& reference, const ImageRGB8& shown,
+                                const ImageRGB8* reference_prev = nullptr, const ImageRGB8* shown_prev = nullptr);
+std::vector<double> score_frame(const ScoreReference& reference, const ImageRGB8& shown,
                                 const ImageRGB8* reference_prev = nullptr, const ImageRGB8* shown_prev = nullptr);
 
 // One pass of one displayed frame.

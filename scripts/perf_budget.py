@@ -19,13 +19,13 @@ import sys
 # (stage, regular expression on the symbol). First match wins.
 STAGES = [
     ("trace: Embree (traversal, BVH builds)", r"^libembree"),
-    ("trace: shadow pass (surfaces, lights, packets)", r"visibility_rows|sphere_light|distant_light|trace_pairs|surfaces_x16|update_triangle|triangle_world|light_infos|visibility_impl"),
-    ("trace: AO pass (ray generation)", r"ao_rays_x16|ao_rows|ao_impl|trace_ao"),
+    ("trace: shadow pass (surfaces, lights, packets)", r"visibility_rows|sphere_light|distant_light|trace_pairs|surfaces_x|soft_pair_rays|update_triangle|triangle_world|light_infos|visibility_impl|pack_visibility|visibility_to_planes|uniforms_pixels"),
+    ("trace: AO pass (ray generation)", r"ao_rays_|ao_rows|ao_impl|trace_ao"),
     ("denoise (svgf_ao: temporal, moments, a-trous)", r"denoise::|atrous|svgf|Svgf|moment|accumulate_row|guide_"),
-    ("metrics: FLIP", r"flip|Flip|filter_column|horizontal_pass|vertical_row|__powf|powf"),
+    ("metrics: FLIP", r"flip|Flip|filter_column|filter_row|weighted_rows|lab_f_row|horizontal_pass|vertical_row|RowScratch|__powf|powf"),
     ("metrics: SSIM, PSNR, temporal", r"ssim|Ssim|psnr|temporal_scores|dhr::luma"),
-    ("rasterize (client and server)", r"dhr::rasterize|resolve|cover|setup_triangles|sample_bilinear|Texture|raster"),
-    ("composite and tone mapping", r"composite|shade_lambert|tonemap|srgb8"),
+    ("rasterize (client and server)", r"dhr::rasterize|resolve|cover|setup_triangles|sample_bilinear|Texture|raster|pixel_bounds|alpha_cutout"),
+    ("composite and tone mapping", r"composite|shade_lambert|shade_row|tonemap|srgb8"),
     ("predict (reprojection)", r"Reprojection|reproject|Predictor|warp"),
     ("codecs", r"^liblz4|^libzstd|^libx26|^libav|^libsw|^libaom|^libdav1d|LZ4|ZSTD|Codec"),
     ("packets, network, assembler", r"packet|Packet|assembl|Assembl|crc32|Link::|network"),

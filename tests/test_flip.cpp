@@ -221,6 +221,30 @@ TEST(Flip, LabRowMatchesLabF) {
   }
 }
 
+// A reference's features, computed once, score every test image as flip() of the two images
+// does: the same map and mean, bit for bit (the runner keeps them for the runs of a sweep).
+TEST(Flip, ReferenceFeaturesScoreAsTheImage) {
+  for (double ppd : {67.0, 20.0}) {
+    const ImageRGB8 ref = scene_like(97, 61, 21);
+    const FlipFeatures f = flip_features(ref, ppd);
+    EXPECT_EQ(f.bytes(), 5 * ref.size() * sizeof(float));
+    for (uint64_t seed : {22u, 23u, 24u}) {
+      const ImageRGB8 test = with_noise(ref, float(seed - 15), seed);
+      const FlipResult once = flip(f, test), direct = flip(ref, test, ppd);
+      EXPECT_EQ(once.map, direct.map) << ppd << " ppd, seed " << seed;
+      EXPECT_EQ(std::bit_cast<uint64_t>(once.mean), std::bit_cast<uint64_t>(direct.mean)) << ppd << " ppd";
+    }
+    EXPECT_EQ(flip(f, ref).mean, 0.0);
+  }
+  const FlipFeatures f = flip_features(scene_like(40, 30, 25));
+  EXPECT_THROW(flip(f, scene_like(30, 40, 25)), Error);  // another size
+  FlipFeatures cut = f;
+  cut.point.pop_back();
+  EXPECT_THROW(flip(cut, scene_like(40, 30, 25)), Error);  // not whole
+  EXPECT_THROW(flip_features(ImageRGB8()), Error);
+  EXPECT_THROW(flip_features(scene_like(8, 8, 1), 0.0), Error);
+}
+
 TEST(Flip, TinyImagesWork) {
   // Kernels wider than the image clamp at its edges.
   const FlipResult r = flip(ImageRGB8(1, 1, {10, 20, 30}), ImageRGB8(1, 1, {200, 20, 30}));

@@ -193,6 +193,45 @@ TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
   EXPECT_EQ(planted(same, same.warmup_frames + same.score_every), own);
 }
 
+// FLIP's features of a reference (a local reference, a ground truth) are computed by the first run
+// that scores against it and kept in the cache for the others: a run sharing them scores every
+// frame as a run with a cache of its own does, both references, every metric; and it does take
+// them (features of a black image under its local reference's keys change its FLIP).
+TEST(FrameLoop, SharedFlipFeaturesScoreAsTheirOwn) {
+  auto scores = [](const SimConfig& c, TraceCache& cache) {
+    const RunResult r = run_simulation(c, scene("room"), "room", cache, registries());
+    nlohmann::json frames = nlohmann::json::array();
+    for (const auto& f : r.frames) {
+      nlohmann::json local = nlohmann::json::array(), truth = nlohmann::json::array();
+      for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);
+      for (double v : f.ground_truth) truth.push_back(std::isnan(v) ? -1.0 : v);
+      frames.push_back({f.frame, f.scored, local, f.scored_ground_truth, truth});
+    }
+    return frames.dump();
+  };
+  SimConfig a = small_config(12);
+  a.warmup_frames = 2;
+  a.score_every = 2;
+  a.ground_truth_every = 4;
+  a.ground_truth_ao_rays = 8;
+  a.ground_truth_samples_per_light = 2;
+  SimConfig late = a;  // another network: other images shown, the same references
+  late.uplink.latency_ms = 50;
+  TraceCache shared;
+  (void)scores(a, shared);
+  for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
+    EXPECT_NE(shared.find_flip(local_reference_key("room", a, f)), nullptr) << "frame " << f;
+  TraceCache fresh;
+  const std::string own = scores(late, fresh);
+  EXPECT_EQ(scores(late, shared), own);
+
+  TraceCache planted;
+  for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
+    planted.insert_flip(local_reference_key("room", late, f),
+                        std::make_shared<const FlipFeatures>(flip_features(ImageRGB8(late.width, late.height))));
+  EXPECT_NE(scores(late, planted), own);
+}
+
 // Every video codec (h264, hevc, av1) through bursty loss: lost frames, a keyframe request,
 // recovery (core/pass_receiver.cpp).
 TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
