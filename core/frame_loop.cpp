@@ -87,10 +87,39 @@ std::string truth_key(const std::string& scene_key, const SimConfig& c, int fram
 
 namespace {
 
-size_t entry_bytes(const TraceCache::Entry& e) {
+// What each kind of cached value holds, for the cache's bound.
+size_t bytes_of(const TraceCache::Entry& e) {
   size_t n = 0;
   for (const TracedPass& t : e.passes) n += t.buffer.bytes.size();
   return n;
+}
+size_t bytes_of(const ImageRGB8& image) { return image.size() * sizeof(Rgb8); }
+size_t bytes_of(const FlipFeatures& f) { return f.bytes(); }
+
+// One of the cache's maps (key -> last use, value), the caller holding the lock: the value under
+// `key`, marked as used now, or nullptr.
+template <class Map>
+typename Map::mapped_type::second_type lookup(Map& map, const std::string& key, uint64_t& tick) {
+  auto it = map.find(key);
+  if (it == map.end()) return nullptr;
+  it->second.first = ++tick;
+  return it->second.second;
+}
+
+// Adds `value` under `key` unless there is one; false when there was.
+template <class Map, class Value>
+bool add(Map& map, const std::string& key, Value value, uint64_t& tick, size_t& bytes) {
+  if (map.count(key)) return false;
+  bytes += bytes_of(*value);
+  map[key] = {++tick, std::move(value)};
+  return true;
+}
+
+// The least recently used entry of one of the cache's maps (end() when empty).
+template <class Map>
+typename Map::iterator oldest(Map& map) {
+  return std::min_element(map.begin(), map.end(),
+                          [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
 }
 
 }  // namespace
@@ -98,21 +127,13 @@ size_t entry_bytes(const TraceCache::Entry& e) {
 std::shared_ptr<const TraceCache::Entry> TraceCache::find(const std::string& key) {
   {
     std::lock_guard lock(mutex_);
-    auto it = entries_.find(key);
-    if (it != entries_.end()) {
-      it->second.first = ++tick_;
-      return it->second.second;
-    }
+    if (auto hit = lookup(entries_, key, tick_)) return hit;
   }
   if (disk_dir_.empty()) return nullptr;
   auto entry = read_disk(key);
   if (entry) {
     std::lock_guard lock(mutex_);
-    if (!entries_.count(key)) {
-      bytes_ += entry_bytes(*entry);
-      entries_[key] = {++tick_, entry};
-      evict_locked();
-    }
+    if (add(entries_, key, entry, tick_, bytes_)) evict_locked();
   }
   return entry;
 }
@@ -237,59 +258,29 @@ std::shared_ptr<const TraceCache::Entry> TraceCache::read_disk(const std::string
 
 std::shared_ptr<const ImageRGB8> TraceCache::find_image(const std::string& key) {
   std::lock_guard lock(mutex_);
-  auto it = images_.find(key);
-  if (it == images_.end()) return nullptr;
-  it->second.first = ++tick_;
-  return it->second.second;
+  return lookup(images_, key, tick_);
 }
 
 void TraceCache::insert(const std::string& key, std::shared_ptr<const Entry> entry) {
   if (!disk_dir_.empty()) write_disk(key, *entry);
   std::lock_guard lock(mutex_);
-  if (entries_.count(key)) return;
-  bytes_ += entry_bytes(*entry);
-  entries_[key] = {++tick_, std::move(entry)};
-  evict_locked();
+  if (add(entries_, key, std::move(entry), tick_, bytes_)) evict_locked();
 }
 
 void TraceCache::insert_image(const std::string& key, std::shared_ptr<const ImageRGB8> image) {
   std::lock_guard lock(mutex_);
-  if (images_.count(key)) return;
-  bytes_ += image->size() * sizeof(Rgb8);
-  images_[key] = {++tick_, std::move(image)};
-  evict_locked();
+  if (add(images_, key, std::move(image), tick_, bytes_)) evict_locked();
 }
 
 std::shared_ptr<const FlipFeatures> TraceCache::find_flip(const std::string& key) {
   std::lock_guard lock(mutex_);
-  auto it = flips_.find(key);
-  if (it == flips_.end()) return nullptr;
-  it->second.first = ++tick_;
-  return it->second.second;
+  return lookup(flips_, key, tick_);
 }
 
 void TraceCache::insert_flip(const std::string& key, std::shared_ptr<const FlipFeatures> features) {
   std::lock_guard lock(mutex_);
-  if (flips_.count(key)) return;
-  bytes_ += features->bytes();
-  flips_[key] = {++tick_, std::move(features)};
-  evict_locked();
+  if (add(flips_, key, std::move(features), tick_, bytes_)) evict_locked();
 }
-
-namespace {
-
-size_t bytes_of(const TraceCache::Entry& e) { return entry_bytes(e); }
-size_t bytes_of(const ImageRGB8& image) { return image.size() * sizeof(Rgb8); }
-size_t bytes_of(const FlipFeatures& f) { return f.bytes(); }
-
-// The least recently used entry of one of the cache's maps (end() when empty).
-template <class Map>
-typename Map::iterator oldest(Map& map) {
-  return std::min_element(map.begin(), map.end(),
-                          [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
-}
-
-}  // namespace
 
 void TraceCache::evict_locked() {
   while (bytes_ > max_bytes_ && (!entries_.empty() || !images_.empty() || !flips_.empty())) {

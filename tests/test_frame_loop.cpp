@@ -595,6 +595,38 @@ TEST(FrameLoop, EveryCodecUnderOneAndFivePercentLoss) {
 namespace dhr {
 namespace {
 
+// The cache's bound covers its three kinds of value alike (traced passes, images, FLIP features):
+// the least recently used goes first, whatever its kind, and bytes() counts what is kept.
+TEST(TraceCache, EvictsTheLeastRecentlyUsedOfEveryKind) {
+  auto entry = std::make_shared<TraceCache::Entry>();
+  PassBuffer ao;
+  ao.desc = {PassKind::Ao, 10, 10, 1, 8};
+  ao.bytes.assign(100, 7);
+  entry->passes.push_back({"ao", PassMeaning::Ao, ao, 1.0});
+  auto image = std::make_shared<const ImageRGB8>(10, 10);                          // 300 bytes
+  auto features = std::make_shared<const FlipFeatures>(flip_features(*image));  // 2,000 bytes
+  TraceCache cache(2500);
+  cache.insert_flip("f", features);
+  cache.insert_image("a", image);
+  cache.insert("t", entry);
+  EXPECT_EQ(cache.bytes(), 2400u);
+  EXPECT_NE(cache.find_flip("f"), nullptr);  // now the most recently used
+  cache.insert_image("b", image);            // 2,700: "a" goes
+  EXPECT_EQ(cache.bytes(), 2400u);
+  EXPECT_EQ(cache.find_image("a"), nullptr);
+  EXPECT_NE(cache.find("t"), nullptr);
+  EXPECT_NE(cache.find_image("b"), nullptr);
+  cache.insert_image("c", image);  // 2,700: the features, used before "t" and "b", go
+  EXPECT_EQ(cache.find_flip("f"), nullptr);
+  EXPECT_EQ(cache.bytes(), 700u);
+  cache.insert_flip("f", features);  // 2,700: "t" goes, then (2,600) "b"
+  EXPECT_EQ(cache.find("t"), nullptr);
+  EXPECT_EQ(cache.find_image("b"), nullptr);
+  EXPECT_NE(cache.find_image("c"), nullptr);
+  EXPECT_NE(cache.find_flip("f"), nullptr);
+  EXPECT_EQ(cache.bytes(), 2300u);
+}
+
 TEST(TraceCache, DiskCacheRoundTripsAndIgnoresBadFiles) {
   namespace fs = std::filesystem;
   const fs::path dir = fs::temp_directory_path() / "dhr_trace_cache_test";
