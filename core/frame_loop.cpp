@@ -58,6 +58,13 @@ std::string trace_key(const std::string& scene_key, const SimConfig& c, int fram
   return fmt::format("trace{}|{}|f{}|{}", kTraceCacheVersion, scene_key, frame, settings_key(c, kInTraceKey));
 }
 
+// The cache key of one traced pass of one frame: the settings of every pass and its own
+// (pass_settings_key), so runs that differ in another pass's settings share it.
+std::string pass_trace_key(const std::string& scene_key, const SimConfig& c, int frame, std::string_view pass) {
+  return fmt::format("trace{}|{}|f{}|pass={}|{}", kTraceCacheVersion, scene_key, frame, pass,
+                     pass_settings_key(c, pass));
+}
+
 }  // namespace
 
 // The local reference of client frame a depends on nothing but the traced passes of frames 0..a
@@ -450,14 +457,27 @@ class Simulation {
     }
   }
 
-  // The traced passes of client frame a (cached: they depend on nothing but the scene, the
-  // frame's camera and the settings).
+  // The traced passes of client frame a. Each pass is cached on its own: it depends on nothing
+  // but the scene, the frame's camera and its settings (pass_trace_key), so the runs of a sweep
+  // that differ in one pass's settings trace the other once (trace_passes with `only`, joined:
+  // the same bits as tracing them together).
   std::shared_ptr<const TraceCache::Entry> traced(int a, const GBuffer& gbuf) {
-    const std::string key = trace_key(scene_key_, c_, a);
-    if (auto hit = cache_.find(key)) return hit;
-    auto entry = direct_tracer(rt(), c_)(uint32_t(a), gbuf);
-    cache_.insert(key, entry);
-    return entry;
+    const TraceSettings settings = c_.trace_for_frame(uint32_t(a));
+    std::vector<std::shared_ptr<const TraceCache::Entry>> parts;
+    for (const PlannedPass& p : traced_passes(plan_passes(scene_, settings), gbuf.width(), gbuf.height())) {
+      const std::string key = pass_trace_key(scene_key_, c_, a, p.name);
+      std::shared_ptr<const TraceCache::Entry> part = cache_.find(key);
+      if (!part) {
+        part = std::make_shared<const TraceCache::Entry>(
+            static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, settings, p.name)));
+        cache_.insert(key, part);
+      }
+      parts.push_back(std::move(part));
+    }
+    if (parts.size() == 1) return parts.front();
+    std::vector<const TracedPasses*> list;
+    for (const auto& part : parts) list.push_back(part.get());
+    return std::make_shared<const TraceCache::Entry>(join_traced(list, gbuf));
   }
 
   // Ground truth: converged visibility and AO (no denoiser), composited (core/reference.h,

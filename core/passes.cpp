@@ -1,5 +1,6 @@
 #include "core/passes.h"
 
+#include "core/error.h"
 #include "core/upsample.h"
 
 #include <algorithm>
@@ -80,13 +81,39 @@ double TracedPasses::total_ms() const {
   return ms;
 }
 
-TraceResult trace_passes(RtScene& rt, const GBuffer& g, const TraceSettings& settings) {
+namespace {
+
+bool full_size(const PassBuffer& buffer, const GBuffer& g) {
+  return buffer.desc.width == g.width() && buffer.desc.height == g.height();
+}
+
+// Adds one pass's statistics to its frame's: pixels and covered pixels are per G-buffer, not per
+// pass (the largest covered count of the passes traced at full size), unresolved pixels the
+// first pass's.
+void add_pass_stats(TraceStats& frame, TraceStats pass, bool first, bool full) {
+  if (full) frame.covered_pixels = std::max(frame.covered_pixels, pass.covered_pixels);
+  if (!first) pass.unresolved_pixels = 0;
+  pass.pixels = pass.covered_pixels = 0;
+  frame.add(pass);
+}
+
+// A frame whose passes were all traced at reduced size counts its covered pixels on the
+// G-buffer, as a full-size trace would.
+void count_covered(TraceStats& frame, bool any_reduced, const GBuffer& g) {
+  if (any_reduced && frame.covered_pixels == 0)
+    for (uint32_t id : g.object_id.pixels()) frame.covered_pixels += id != kBackgroundId ? 1 : 0;
+}
+
+}  // namespace
+
+TraceResult trace_passes(RtScene& rt, const GBuffer& g, const TraceSettings& settings, std::string_view only) {
   TraceResult r;
   r.plan = plan_passes(rt.scene(), settings);
   r.stats.pixels = uint64_t(g.width()) * uint64_t(g.height());
   bool any_reduced = false;
   std::optional<GBuffer> reduced;  // the sampled G-buffer of a pass traced at reduced resolution
   for (const PassType& t : pass_types()) {
+    if (!only.empty() && only != t.name) continue;
     const std::optional<PassDesc> desc = t.desc(r.plan, g.width(), g.height());
     if (!desc) continue;
     TraceStats st;
@@ -96,17 +123,30 @@ TraceResult trace_passes(RtScene& rt, const GBuffer& g, const TraceSettings& set
       reduced = downsample_gbuffer(g, pass_scale(g.width(), g.height(), desc->width, desc->height));
     PassBuffer buffer = t.trace(rt, full ? g : *reduced, r.plan, settings, st);
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    // Pixels, covered and unresolved pixels are per G-buffer, not per pass: the first pass's
-    // unresolved count, the largest covered count.
-    if (full) r.stats.covered_pixels = std::max(r.stats.covered_pixels, st.covered_pixels);
-    else any_reduced = true;
-    if (!r.passes.empty()) st.unresolved_pixels = 0;
-    st.pixels = st.covered_pixels = 0;
-    r.stats.add(st);
+    any_reduced = any_reduced || !full;
+    add_pass_stats(r.stats, st, r.passes.empty(), full);
     r.passes.push_back({t.name, t.meaning, std::move(buffer), ms});
   }
-  if (any_reduced && r.stats.covered_pixels == 0)  // counted at full resolution, as in a full-res trace
-    for (uint32_t id : g.object_id.pixels()) r.stats.covered_pixels += id != kBackgroundId ? 1 : 0;
+  count_covered(r.stats, any_reduced, g);
+  return r;
+}
+
+TracedPasses join_traced(const std::vector<const TracedPasses*>& parts, const GBuffer& g) {
+  TracedPasses r;
+  r.stats.pixels = uint64_t(g.width()) * uint64_t(g.height());
+  bool any_reduced = false;
+  for (const TracedPasses* part : parts) {
+    if (part->passes.size() != 1)
+      fail("join_traced: a part holds {} passes (one each: trace_passes with `only`)", part->passes.size());
+    const TracedPass& p = part->passes.front();
+    const bool full = full_size(p.buffer, g);
+    any_reduced = any_reduced || !full;
+    // A one-pass trace's statistics are its pass's own (its covered count the pass's when at
+    // full size, unused otherwise; its unresolved count the pass's, as the first pass).
+    add_pass_stats(r.stats, part->stats, r.passes.empty(), full);
+    r.passes.push_back(p);
+  }
+  count_covered(r.stats, any_reduced, g);
   return r;
 }
 

@@ -105,10 +105,19 @@ struct TracedPasses {
 };
 
 // Everything the plan asks for: every planned pass's kernel, in order. Moves the scene to
-// gbuf.time_s.
+// gbuf.time_s. With `only`, the planned pass of that name alone (none when it is not planned):
+// each pass's kernel reads the plan and the settings and nothing another pass computes, so the
+// passes of a frame traced one at a time and joined by join_traced are the trace of them all,
+// bit for bit, statistics included (tests/test_trace_hard_cases.cpp). The runner caches each
+// pass on its own that way (docs/performance.md).
 struct TraceResult : TracedPasses {
   PassPlan plan;
 };
-TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const TraceSettings& settings);
+TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const TraceSettings& settings,
+                         std::string_view only = {});
+
+// The one-pass traces of one frame (trace_passes with `only`, in the order of pass_types()),
+// joined into the trace of all of them: their passes and the statistics trace_passes gives.
+TracedPasses join_traced(const std::vector<const TracedPasses*>& parts, const GBuffer& gbuf);
 
 }  // namespace dhr

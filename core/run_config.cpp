@@ -83,6 +83,12 @@ RunSetting with(RunSetting s, unsigned flags, std::string live_ignored = {}) {
   return s;
 }
 
+// A kInTraceKey setting that changes one traced pass only.
+RunSetting of_pass(RunSetting s, std::string pass) {
+  s.traced_pass = std::move(pass);
+  return s;
+}
+
 std::vector<RunSetting> make_settings() {
   constexpr unsigned kTraced = kInLiveOffer | kInTraceKey;
   std::vector<RunSetting> v;
@@ -108,30 +114,30 @@ std::vector<RunSetting> make_settings() {
   v.push_back(with(ranged("seed", SettingType::Integer, 0, 9.007e15, "seed of every random number (tracing, network)",
                           [](auto& c) -> auto& { return c.seed; }),
                    kTraced | kInTruthKey));
-  v.push_back(with(ranged("trace.ao_rays", SettingType::Integer, 0, 255, "AO rays per pixel; 0: the scene's ao.rays",
+  v.push_back(of_pass(with(ranged("trace.ao_rays", SettingType::Integer, 0, 255, "AO rays per pixel; 0: the scene's ao.rays",
                           [](auto& c) -> auto& { return c.trace.ao_rays; }),
-                   kTraced | kInTruthKey));
-  v.push_back(with(ranged("trace.ao_radius_m", SettingType::Number, 0, 1e6, "AO ray length in metres; 0: the scene's ao.radius_m",
+                   kTraced | kInTruthKey), "ao"));
+  v.push_back(of_pass(with(ranged("trace.ao_radius_m", SettingType::Number, 0, 1e6, "AO ray length in metres; 0: the scene's ao.radius_m",
                           [](auto& c) -> auto& { return c.trace.ao_radius_m; }),
-                   kTraced | kInTruthKey));
-  v.push_back(with(field("trace.soft_shadows", SettingType::Boolean, "area lights give soft shadows (else hard, one ray per light)",
+                   kTraced | kInTruthKey), "ao"));
+  v.push_back(of_pass(with(field("trace.soft_shadows", SettingType::Boolean, "area lights give soft shadows (else hard, one ray per light)",
                          [](auto& c) -> auto& { return c.trace.soft_shadows; }),
-                   kTraced));
-  v.push_back(with(ranged("trace.samples_per_light", SettingType::Integer, 1, 1024,
+                   kTraced), "visibility"));
+  v.push_back(of_pass(with(ranged("trace.samples_per_light", SettingType::Integer, 1, 1024,
                           "shadow rays per area light and pixel (1: a bitmask, more: 8-bit soft visibility)",
                           [](auto& c) -> auto& { return c.trace.samples_per_light; }),
-                   kTraced));
-  v.push_back(with(field("trace.visibility_pass", SettingType::Boolean, "trace the visibility pass (when the scene has lights)",
+                   kTraced), "visibility"));
+  v.push_back(of_pass(with(field("trace.visibility_pass", SettingType::Boolean, "trace the visibility pass (when the scene has lights)",
                          [](auto& c) -> auto& { return c.trace.visibility_pass; }),
-                   kTraced));
-  v.push_back(with(field("trace.ao_pass", SettingType::Boolean, "trace the AO pass (when the scene has an ao block)",
+                   kTraced), "visibility"));
+  v.push_back(of_pass(with(field("trace.ao_pass", SettingType::Boolean, "trace the AO pass (when the scene has an ao block)",
                          [](auto& c) -> auto& { return c.trace.ao_pass; }),
-                   kTraced));
-  v.push_back(with(ranged("trace.ao_scale", SettingType::Integer, 1, kMaxPassScale,
+                   kTraced), "ao"));
+  v.push_back(of_pass(with(ranged("trace.ao_scale", SettingType::Integer, 1, kMaxPassScale,
                           "the AO pass traced, denoised and sent at 1/ao_scale of the width and height, upsampled by "
                           "the client (ao_upsample)",
                           [](auto& c) -> auto& { return c.trace.ao_scale; }),
-                   kTraced));
+                   kTraced), "ao"));
   RunSetting upsample = field("ao_upsample", SettingType::Choice,
                               "trace.ao_scale > 1: the client's upsampling of the AO pass: joint_bilateral (guided by its "
                               "G-buffer's depth and normals), bilinear or nearest",
@@ -451,6 +457,14 @@ std::string settings_key(const SimConfig& c, SettingFlag flag) {
   std::string key;
   for (const RunSetting& s : run_settings())
     if (s.has(flag)) key += (key.empty() ? "" : "|") + s.key + "=" + s.get(c).dump();
+  return key;
+}
+
+std::string pass_settings_key(const SimConfig& c, std::string_view pass) {
+  std::string key;
+  for (const RunSetting& s : run_settings())
+    if (s.has(kInTraceKey) && (s.traced_pass.empty() || s.traced_pass == pass))
+      key += (key.empty() ? "" : "|") + s.key + "=" + s.get(c).dump();
   return key;
 }
 

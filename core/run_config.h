@@ -106,6 +106,9 @@ struct RunSetting {
   std::string kind;                  // Backend: the registry's kind
   std::string doc;                   // one line
   unsigned flags = 0;
+  // kInTraceKey: the one traced pass whose buffers it changes ("ao"); empty: every pass. The
+  // runner caches each pass under the settings of its own (pass_trace_key).
+  std::string traced_pass;
   std::string live_ignored;  // non-empty: live mode ignores it, and why
   // The version-1 key this setting was read from (empty: the same key). `predictor` set both
   // passes.visibility.predictor and passes.ao.predictor.
@@ -148,5 +151,8 @@ std::vector<std::string> setting_range_problems(const SimConfig& config);
 
 // The settings with `flag`, as "key=value|key=value|..." (the cache keys use it).
 std::string settings_key(const SimConfig& config, SettingFlag flag);
+// The kInTraceKey settings that change the traced pass `pass` ("visibility", "ao"): those of
+// every pass and its own, in the same form.
+std::string pass_settings_key(const SimConfig& config, std::string_view pass);
 
 }  // namespace dhr

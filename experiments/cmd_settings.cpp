@@ -23,6 +23,7 @@ Runner add_settings_command(CLI::App& app) {
                            {"default", s.default_value()}, {"doc", s.doc},
                            {"live_offer", s.has(kInLiveOffer)}, {"trace_key", s.has(kInTraceKey)},
                            {"truth_key", s.has(kInTruthKey)}};
+        if (!s.traced_pass.empty()) row["traced_pass"] = s.traced_pass;
         if (!s.v1_key.empty()) row["version_1_key"] = s.v1_key;
         if (!s.live_ignored.empty()) row["live_ignores"] = s.live_ignored;
         out.push_back(row);
@@ -31,13 +32,14 @@ Runner add_settings_command(CLI::App& app) {
       return 0;
     }
     fmt::print("Run settings ({}): keys of an experiment's \"run\" (dotted in sweeps and --set run.KEY=VALUE).\n"
-               "Flags: offer = client and server of a live session must agree; traced = changes the traced buffers;\n"
+               "Flags: offer = client and server of a live session must agree; traced = changes the traced buffers\n"
+               "(of every pass, or of the one named: the cache keeps each pass under its own settings);\n"
                "truth = changes the ground truth. Backends: `dhrbench list` shows their names and parameters.\n\n",
                run_settings().size());
     for (const RunSetting& s : run_settings()) {
       std::string flags;
       if (s.has(kInLiveOffer)) flags += " offer";
-      if (s.has(kInTraceKey)) flags += " traced";
+      if (s.has(kInTraceKey)) flags += s.traced_pass.empty() ? " traced" : " traced (" + s.traced_pass + " pass)";
       if (s.has(kInTruthKey)) flags += " truth";
       fmt::print("  {:<32} {:<8} default {}\n", s.key, setting_type_name(s.type), s.default_value().dump());
       fmt::print("      {}; {}\n", s.range_text(), s.doc);

@@ -13,6 +13,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <tuple>
 
 namespace dhr {
 namespace {
@@ -191,6 +192,82 @@ TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
   const std::string own = scores(same, fresh);
   EXPECT_NE(planted(same, -1), own);
   EXPECT_EQ(planted(same, same.warmup_frames + same.score_every), own);
+}
+
+// The runner caches each traced pass on its own (pass_trace_key) and joins them: a frame's passes
+// traced one at a time (trace_passes with `only`) and joined are the trace of them all, every
+// byte and every statistic, on room and on street (a distant light), hard and soft shadows, one
+// and several rays per light, AO at full and at reduced size, one pass or none.
+TEST(FrameLoop, PassesTracedAloneAndJoinedAreTheTraceOfAll) {
+  auto same = [](const TracedPasses& a, const TracedPasses& b, const std::string& what) {
+    ASSERT_EQ(a.passes.size(), b.passes.size()) << what;
+    for (size_t i = 0; i < a.passes.size(); ++i) {
+      EXPECT_EQ(a.passes[i].name, b.passes[i].name) << what;
+      EXPECT_EQ(a.passes[i].meaning, b.passes[i].meaning) << what;
+      EXPECT_EQ(a.passes[i].buffer.desc, b.passes[i].buffer.desc) << what;
+      EXPECT_EQ(a.passes[i].buffer.bytes, b.passes[i].buffer.bytes) << what << " " << a.passes[i].name;
+    }
+    const TraceStats &x = a.stats, &y = b.stats;
+    EXPECT_EQ(std::tie(x.pixels, x.covered_pixels, x.shadow_rays, x.ao_rays, x.invalid_rays, x.unresolved_pixels,
+                       x.shadow_skipped_facing, x.shadow_skipped_range, x.shadow_inside_light),
+              std::tie(y.pixels, y.covered_pixels, y.shadow_rays, y.ao_rays, y.invalid_rays, y.unresolved_pixels,
+                       y.shadow_skipped_facing, y.shadow_skipped_range, y.shadow_inside_light))
+        << what;
+  };
+  for (const char* name : {"room", "street"}) {
+    RtScene rt(scene(name));
+    const GBuffer g = rt.primary_gbuffer(scene(name).camera.at(1.5, 96, 54), 1.5);
+    struct Case {
+      bool soft;
+      int samples, ao_scale;
+      bool visibility, ao;
+    };
+    for (const Case& c : {Case{false, 1, 1, true, true}, Case{true, 1, 1, true, true}, Case{true, 5, 2, true, true},
+                          Case{false, 1, 3, true, true}, Case{true, 1, 2, false, true}, Case{true, 4, 1, true, false},
+                          Case{false, 1, 1, false, false}}) {
+      TraceSettings ts;
+      ts.seed = 7;
+      ts.frame = 3;
+      ts.soft_shadows = c.soft;
+      ts.samples_per_light = c.samples;
+      ts.ao_scale = c.ao_scale;
+      ts.visibility_pass = c.visibility;
+      ts.ao_pass = c.ao;
+      ts.ao_rays = 6;
+      const TraceResult all = trace_passes(rt, g, ts);
+      std::vector<TraceResult> alone;
+      for (const PassType& t : pass_types()) {
+        TraceResult one = trace_passes(rt, g, ts, t.name);
+        if (!one.passes.empty()) alone.push_back(std::move(one));
+      }
+      std::vector<const TracedPasses*> parts;
+      for (const TraceResult& one : alone) parts.push_back(&one);
+      same(join_traced(parts, g), all,
+           fmt::format("{} soft {} samples {} ao_scale {} passes {}{}", name, c.soft, c.samples, c.ao_scale,
+                       c.visibility, c.ao));
+    }
+  }
+  // The AO pass's key ignores the visibility pass's settings and the other way round; both hold
+  // the settings of every pass; every setting's pass is a pass.
+  SimConfig a, b = a;
+  b.trace.soft_shadows = !a.trace.soft_shadows;
+  b.trace.samples_per_light = 9;
+  EXPECT_EQ(pass_settings_key(a, "ao"), pass_settings_key(b, "ao"));
+  EXPECT_NE(pass_settings_key(a, "visibility"), pass_settings_key(b, "visibility"));
+  b = a;
+  b.trace.ao_rays = 17;
+  b.trace.ao_scale = 2;
+  EXPECT_EQ(pass_settings_key(a, "visibility"), pass_settings_key(b, "visibility"));
+  EXPECT_NE(pass_settings_key(a, "ao"), pass_settings_key(b, "ao"));
+  b = a;
+  b.seed = 2;
+  EXPECT_NE(pass_settings_key(a, "visibility"), pass_settings_key(b, "visibility"));
+  EXPECT_NE(pass_settings_key(a, "ao"), pass_settings_key(b, "ao"));
+  for (const RunSetting& s : run_settings())
+    if (!s.traced_pass.empty()) {
+      EXPECT_TRUE(s.has(kInTraceKey)) << s.key;
+      EXPECT_NE(find_pass_type(s.traced_pass), nullptr) << s.key << ": " << s.traced_pass;
+    }
 }
 
 // FLIP's features of a reference (a local reference, a ground truth) are computed by the first run
