@@ -391,6 +391,7 @@ class Simulation {
         server_(c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0,
                 [this](const RasterFrame& f) { return server_raster(f); }),
         client_(c, scene, registries), local_(c, scene, registries) {
+    traced_list_ = traced_passes(plan_passes(scene, c.trace), c.width, c.height);
     AssemblerConfig ac;
     ac.max_payload_bytes = c.max_payload_bytes;
     ac.timeout_ms = 500;
@@ -460,11 +461,13 @@ class Simulation {
   // The traced passes of client frame a. Each pass is cached on its own: it depends on nothing
   // but the scene, the frame's camera and its settings (pass_trace_key), so the runs of a sweep
   // that differ in one pass's settings trace the other once (trace_passes with `only`, joined:
-  // the same bits as tracing them together).
+  // the same bits as tracing them together). The server and the local reference both ask for a
+  // frame: the last join is kept, so a frame's buffers are copied into one entry once.
   std::shared_ptr<const TraceCache::Entry> traced(int a, const GBuffer& gbuf) {
+    if (joined_.first == a) return joined_.second;
     const TraceSettings settings = c_.trace_for_frame(uint32_t(a));
     std::vector<std::shared_ptr<const TraceCache::Entry>> parts;
-    for (const PlannedPass& p : traced_passes(plan_passes(scene_, settings), gbuf.width(), gbuf.height())) {
+    for (const PlannedPass& p : traced_list_) {
       const std::string key = pass_trace_key(scene_key_, c_, a, p.name);
       std::shared_ptr<const TraceCache::Entry> part = cache_.find(key);
       if (!part) {
@@ -477,7 +480,8 @@ class Simulation {
     if (parts.size() == 1) return parts.front();
     std::vector<const TracedPasses*> list;
     for (const auto& part : parts) list.push_back(part.get());
-    return std::make_shared<const TraceCache::Entry>(join_traced(list, gbuf));
+    joined_ = {a, std::make_shared<const TraceCache::Entry>(join_traced(list, gbuf))};
+    return joined_.second;
   }
 
   // Ground truth: converged visibility and AO (no denoiser), composited (core/reference.h,
@@ -724,6 +728,8 @@ class Simulation {
   bool remote_;
   Link uplink_, downlink_;
   std::unique_ptr<RtScene> rt_;
+  std::vector<PlannedPass> traced_list_;  // the passes the run's settings trace (traced())
+  std::pair<int, std::shared_ptr<const TraceCache::Entry>> joined_{-1, nullptr};  // traced()'s last join
   struct RasterMemo {
     RasterFrame frame;
     Rastered rastered;

@@ -108,7 +108,8 @@ struct TracedPasses {
 // gbuf.time_s. With `only`, the planned pass of that name alone (none when it is not planned):
 // each pass's kernel reads the plan and the settings and nothing another pass computes, so the
 // passes of a frame traced one at a time and joined by join_traced are the trace of them all,
-// bit for bit, statistics included (tests/test_trace_hard_cases.cpp). The runner caches each
+// bit for bit, statistics included (FrameLoop.PassesTracedAloneAndJoinedAreTheTraceOfAll in
+// tests/test_frame_loop.cpp). The runner caches each
 // pass on its own that way (docs/performance.md).
 struct TraceResult : TracedPasses {
   PassPlan plan;

@@ -115,29 +115,29 @@ std::vector<RunSetting> make_settings() {
                           [](auto& c) -> auto& { return c.seed; }),
                    kTraced | kInTruthKey));
   v.push_back(of_pass(with(ranged("trace.ao_rays", SettingType::Integer, 0, 255, "AO rays per pixel; 0: the scene's ao.rays",
-                          [](auto& c) -> auto& { return c.trace.ao_rays; }),
-                   kTraced | kInTruthKey), "ao"));
+                                  [](auto& c) -> auto& { return c.trace.ao_rays; }),
+                           kTraced | kInTruthKey), "ao"));
   v.push_back(of_pass(with(ranged("trace.ao_radius_m", SettingType::Number, 0, 1e6, "AO ray length in metres; 0: the scene's ao.radius_m",
-                          [](auto& c) -> auto& { return c.trace.ao_radius_m; }),
-                   kTraced | kInTruthKey), "ao"));
+                                  [](auto& c) -> auto& { return c.trace.ao_radius_m; }),
+                           kTraced | kInTruthKey), "ao"));
   v.push_back(of_pass(with(field("trace.soft_shadows", SettingType::Boolean, "area lights give soft shadows (else hard, one ray per light)",
-                         [](auto& c) -> auto& { return c.trace.soft_shadows; }),
-                   kTraced), "visibility"));
+                                 [](auto& c) -> auto& { return c.trace.soft_shadows; }),
+                           kTraced), "visibility"));
   v.push_back(of_pass(with(ranged("trace.samples_per_light", SettingType::Integer, 1, 1024,
-                          "shadow rays per area light and pixel (1: a bitmask, more: 8-bit soft visibility)",
-                          [](auto& c) -> auto& { return c.trace.samples_per_light; }),
-                   kTraced), "visibility"));
+                                  "shadow rays per area light and pixel (1: a bitmask, more: 8-bit soft visibility)",
+                                  [](auto& c) -> auto& { return c.trace.samples_per_light; }),
+                           kTraced), "visibility"));
   v.push_back(of_pass(with(field("trace.visibility_pass", SettingType::Boolean, "trace the visibility pass (when the scene has lights)",
-                         [](auto& c) -> auto& { return c.trace.visibility_pass; }),
-                   kTraced), "visibility"));
+                                 [](auto& c) -> auto& { return c.trace.visibility_pass; }),
+                           kTraced), "visibility"));
   v.push_back(of_pass(with(field("trace.ao_pass", SettingType::Boolean, "trace the AO pass (when the scene has an ao block)",
-                         [](auto& c) -> auto& { return c.trace.ao_pass; }),
-                   kTraced), "ao"));
+                                 [](auto& c) -> auto& { return c.trace.ao_pass; }),
+                           kTraced), "ao"));
   v.push_back(of_pass(with(ranged("trace.ao_scale", SettingType::Integer, 1, kMaxPassScale,
-                          "the AO pass traced, denoised and sent at 1/ao_scale of the width and height, upsampled by "
-                          "the client (ao_upsample)",
-                          [](auto& c) -> auto& { return c.trace.ao_scale; }),
-                   kTraced), "ao"));
+                                  "the AO pass traced, denoised and sent at 1/ao_scale of the width and height, upsampled by "
+                                  "the client (ao_upsample)",
+                                  [](auto& c) -> auto& { return c.trace.ao_scale; }),
+                           kTraced), "ao"));
   RunSetting upsample = field("ao_upsample", SettingType::Choice,
                               "trace.ao_scale > 1: the client's upsampling of the AO pass: joint_bilateral (guided by its "
                               "G-buffer's depth and normals), bilinear or nearest",
@@ -453,19 +453,27 @@ std::vector<std::string> setting_range_problems(const SimConfig& c) {
   return out;
 }
 
-std::string settings_key(const SimConfig& c, SettingFlag flag) {
+namespace {
+
+// "key=value|key=value|..." over the settings `take` accepts, in the table's order.
+template <class Take>
+std::string settings_key_of(const SimConfig& c, Take take) {
   std::string key;
   for (const RunSetting& s : run_settings())
-    if (s.has(flag)) key += (key.empty() ? "" : "|") + s.key + "=" + s.get(c).dump();
+    if (take(s)) key += (key.empty() ? "" : "|") + s.key + "=" + s.get(c).dump();
   return key;
 }
 
+}  // namespace
+
+std::string settings_key(const SimConfig& c, SettingFlag flag) {
+  return settings_key_of(c, [flag](const RunSetting& s) { return s.has(flag); });
+}
+
 std::string pass_settings_key(const SimConfig& c, std::string_view pass) {
-  std::string key;
-  for (const RunSetting& s : run_settings())
-    if (s.has(kInTraceKey) && (s.traced_pass.empty() || s.traced_pass == pass))
-      key += (key.empty() ? "" : "|") + s.key + "=" + s.get(c).dump();
-  return key;
+  return settings_key_of(c, [pass](const RunSetting& s) {
+    return s.has(kInTraceKey) && (s.traced_pass.empty() || s.traced_pass == pass);
+  });
 }
 
 }  // namespace dhr
