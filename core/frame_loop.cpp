@@ -84,6 +84,14 @@ std::string local_reference_key(const std::string& scene_key, const SimConfig& c
 
 namespace {
 
+// What a traced pass's denoised buffers depend on besides the frames fed (DenoiseSharing): the
+// pass's trace key without the frame, and its denoiser.
+std::string denoise_chain_key(const std::string& scene_key, const SimConfig& c, std::string_view pass) {
+  const BackendChoice& d = c.pass(pass).denoiser;
+  return fmt::format("denoise{}|{}|pass={}|{}|denoiser={}:{}", kTraceCacheVersion, scene_key, pass,
+                     pass_settings_key(c, pass), d.name, d.params.dump());
+}
+
 std::string truth_key(const std::string& scene_key, const SimConfig& c, int frame) {
   return fmt::format("truth|{}|f{}|{}", scene_key, frame, settings_key(c, kInTruthKey));
 }
@@ -102,6 +110,7 @@ size_t bytes_of(const TraceCache::Entry& e) {
 }
 size_t bytes_of(const ImageRGB8& image) { return image.size() * sizeof(Rgb8); }
 size_t bytes_of(const FlipFeatures& f) { return f.bytes(); }
+size_t bytes_of(const DenoisedPass& d) { return d.buffer.bytes.size(); }
 
 // One of the cache's maps (key -> last use, value), the caller holding the lock: the value under
 // `key`, marked as used now, or nullptr.
@@ -289,26 +298,42 @@ void TraceCache::insert_flip(const std::string& key, std::shared_ptr<const FlipF
   if (add(flips_, key, std::move(features), tick_, bytes_)) evict_locked();
 }
 
+std::shared_ptr<const DenoisedPass> TraceCache::find_denoised(const std::string& key) {
+  std::lock_guard lock(mutex_);
+  return lookup(denoised_, key, tick_);
+}
+
+void TraceCache::insert_denoised(const std::string& key, std::shared_ptr<const DenoisedPass> pass) {
+  std::lock_guard lock(mutex_);
+  if (add(denoised_, key, std::move(pass), tick_, bytes_)) evict_locked();
+}
+
+namespace {
+
+// Evicts `map`'s least recently used entry when its last use is `tick`; true when it did.
+template <class Map>
+bool evict_if_oldest(Map& map, uint64_t tick, size_t& bytes) {
+  auto it = oldest(map);
+  if (it == map.end() || it->second.first != tick) return false;
+  bytes -= bytes_of(*it->second.second);
+  map.erase(it);
+  return true;
+}
+
+template <class Map>
+uint64_t oldest_tick(Map& map) {
+  auto it = oldest(map);
+  return it == map.end() ? UINT64_MAX : it->second.first;
+}
+
+}  // namespace
+
 void TraceCache::evict_locked() {
-  while (bytes_ > max_bytes_ && (!entries_.empty() || !images_.empty() || !flips_.empty())) {
-    // The least recently used of the three maps.
-    auto e = oldest(entries_);
-    auto i = oldest(images_);
-    auto f = oldest(flips_);
-    uint64_t tick = UINT64_MAX;
-    if (e != entries_.end()) tick = std::min(tick, e->second.first);
-    if (i != images_.end()) tick = std::min(tick, i->second.first);
-    if (f != flips_.end()) tick = std::min(tick, f->second.first);
-    if (e != entries_.end() && e->second.first == tick) {
-      bytes_ -= bytes_of(*e->second.second);
-      entries_.erase(e);
-    } else if (i != images_.end() && i->second.first == tick) {
-      bytes_ -= bytes_of(*i->second.second);
-      images_.erase(i);
-    } else {
-      bytes_ -= bytes_of(*f->second.second);
-      flips_.erase(f);
-    }
+  while (bytes_ > max_bytes_ && (!entries_.empty() || !images_.empty() || !flips_.empty() || !denoised_.empty())) {
+    // The least recently used of the four maps.
+    const uint64_t tick = std::min({oldest_tick(entries_), oldest_tick(images_), oldest_tick(flips_), oldest_tick(denoised_)});
+    evict_if_oldest(entries_, tick, bytes_) || evict_if_oldest(images_, tick, bytes_) ||
+        evict_if_oldest(flips_, tick, bytes_) || evict_if_oldest(denoised_, tick, bytes_);
   }
 }
 
@@ -392,6 +417,13 @@ class Simulation {
                 [this](const RasterFrame& f) { return server_raster(f); }),
         client_(c, scene, registries), local_(c, scene, registries) {
     traced_list_ = traced_passes(plan_passes(scene, c.trace), c.width, c.height);
+    // The server and the local reference share their temporal denoisers' outputs with the
+    // other runs of the sweep (DenoiseStage::share).
+    std::vector<std::string> denoise_keys;
+    for (const PlannedPass& p : traced_list_) denoise_keys.push_back(denoise_chain_key(scene_key_, c_, p.name));
+    server_.share_denoised(&memo_, denoise_keys);
+    local_.share_denoised({&memo_, denoise_keys, [this](const RasterFrame& f) { return server_raster(f); },
+                           [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }});
     AssemblerConfig ac;
     ac.max_payload_bytes = c.max_payload_bytes;
     ac.timeout_ms = 500;
@@ -665,7 +697,7 @@ class Simulation {
     if (!local_cached_.empty()) {
       if (score_now) local_image = *local_cached_.at(a);
     } else if (local_.needs_every_frame() || score_now) {
-      local_image = local_.frame(uint32_t(a), gbuf, *traced(a, gbuf), score_now);
+      local_image = local_.frame(uint32_t(a), raster_frame, gbuf, *traced(a, gbuf), score_now);
       if (score_now) cache_.insert_image(local_key(a), std::make_shared<const ImageRGB8>(*local_image));
     }
 
@@ -725,6 +757,15 @@ class Simulation {
   std::optional<ImageRGB8> prev_local_, prev_shown_;  // the last scored frame's reference and image
   std::map<int, std::shared_ptr<const ImageRGB8>> local_cached_;  // the local references taken from the cache
   TraceCache& cache_;
+  // The cache as the denoisers' memo.
+  struct Memo final : DenoiseMemo {
+    explicit Memo(TraceCache& c) : cache(c) {}
+    std::shared_ptr<const DenoisedPass> find(const std::string& key) override { return cache.find_denoised(key); }
+    void insert(const std::string& key, std::shared_ptr<const DenoisedPass> value) override {
+      cache.insert_denoised(key, std::move(value));
+    }
+    TraceCache& cache;
+  } memo_{cache_};
   bool remote_;
   Link uplink_, downlink_;
   std::unique_ptr<RtScene> rt_;

@@ -71,6 +71,11 @@ class TraceCache {
   // runs that score against the same local reference or ground truth compute it once.
   std::shared_ptr<const FlipFeatures> find_flip(const std::string& key);
   void insert_flip(const std::string& key, std::shared_ptr<const FlipFeatures> features);
+  // A temporal denoiser's output for one pass and frame, under the key of the sequence that fed
+  // it (DenoiseStage::share): the runs whose servers or local references feed the same frames
+  // denoise them once.
+  std::shared_ptr<const DenoisedPass> find_denoised(const std::string& key);
+  void insert_denoised(const std::string& key, std::shared_ptr<const DenoisedPass> pass);
   size_t bytes() const { return bytes_; }
 
  private:
@@ -85,6 +90,7 @@ class TraceCache {
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const Entry>>> entries_;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const ImageRGB8>>> images_;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const FlipFeatures>>> flips_;
+  std::map<std::string, std::pair<uint64_t, std::shared_ptr<const DenoisedPass>>> denoised_;
 };
 
 // Progress callback: (frame index among warm-up + scored, total).

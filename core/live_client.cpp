@@ -383,8 +383,9 @@ class LiveClient {
       if (it == scored.end() && !local.needs_every_frame()) continue;
       const Camera cam = camera(a), prev = a > 0 ? camera(a - 1) : cam;
       GBuffer g;
-      rasterize({scene_.scene, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)}, g);
-      const std::optional<ImageRGB8> ref = local.frame(uint32_t(a), g, *trace(uint32_t(a), g), it != scored.end());
+      const RasterFrame rf{scene_.scene, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)};
+      rasterize(rf, g);
+      const std::optional<ImageRGB8> ref = local.frame(uint32_t(a), rf, g, *trace(uint32_t(a), g), it != scored.end());
       if (!ref) continue;
       it->second->local = score_frame(*ref, kept_.at(a), prev_ref ? &*prev_ref : nullptr, prev_shown);
       prev_ref = *ref;  // the step metrics' previous scored frame

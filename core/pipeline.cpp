@@ -70,15 +70,56 @@ PassBuffer upsampled(const PassBuffer& buffer, const GBuffer& gbuf, UpsampleFilt
 DenoiseStage::DenoiseStage(const SimConfig& c, const std::vector<PlannedPass>& traced, const Registries& r) {
   for (const PlannedPass& p : traced) {
     planes_.emplace_back();
+    names_.push_back(p.name);
     if (p.layout() != PassLayout::Planes8) continue;
     const BackendChoice denoiser = c.pass(p.name).denoiser;
     for (int plane = 0; plane < p.desc.channels; ++plane) planes_.back().push_back(r.denoisers.create(denoiser.name, denoiser.params));
   }
+  chains_.resize(planes_.size());
 }
 
-void DenoiseStage::run(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buf) {
+void DenoiseStage::share(DenoiseSharing sharing) {
+  if (!sharing.memo || !sharing.raster || !sharing.trace || sharing.pass_keys.size() != planes_.size())
+    fail("internal: DenoiseStage::share needs a memo, a raster and a trace function and a key per traced pass");
+  sharing_ = std::move(sharing);
+  for (size_t i = 0; i < planes_.size(); ++i) {
+    // Only temporal denoisers are shared: a per-frame filter costs what a copy from the memo does.
+    const bool temporal = std::any_of(planes_[i].begin(), planes_[i].end(), [](const auto& d) { return d->keeps_history(); });
+    chains_[i].reset();
+    if (temporal && !sharing_.pass_keys[i].empty()) {
+      chains_[i].emplace();
+      chains_[i]->base = sharing_.pass_keys[i];
+    }
+  }
+}
+
+// The frames fed so far, as ranges ("0-11,13-33"): with the base, all a shared pass's next output
+// depends on. A frame's G-buffer takes its motion from the frame fed before it (the first frame's:
+// from itself); one that takes it from another time is written with that time ("12@0x1.2p+0").
+std::string DenoiseStage::Chain::key() const {
+  std::string k = base + "|fed=" + closed;
+  if (first >= 0) k += first == last ? std::to_string(first) : std::to_string(first) + "-" + std::to_string(last);
+  return k;
+}
+
+void DenoiseStage::Chain::append(uint32_t frame, const RasterFrame& raster) {
+  const bool usual = raster.prev_time_s == (fed ? last_time_s : raster.time_s);
+  fed = true;
+  last_time_s = raster.time_s;
+  if (usual && first >= 0 && int64_t(frame) == last + 1) {
+    last = frame;
+    return;
+  }
+  if (first >= 0) closed += (first == last ? std::to_string(first) : std::to_string(first) + "-" + std::to_string(last)) + ",";
+  first = last = -1;
+  if (usual)
+    first = last = frame;
+  else
+    closed += fmt::format("{}@{:a},", frame, raster.prev_time_s);
+}
+
+void DenoiseStage::feed(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buf) {
   const auto& denoisers = planes_.at(pass);
-  if (denoisers.empty()) return;
   if (buf.desc.layout() != PassLayout::Planes8 || size_t(buf.desc.channels) != denoisers.size())
     fail("denoise: a {} pass of {} planes, planned for {}", pass_kind_name(buf.desc.kind), buf.desc.channels, denoisers.size());
   const size_t n = size_t(buf.desc.width) * size_t(buf.desc.height);
@@ -96,6 +137,44 @@ void DenoiseStage::run(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuf
   buf.desc.full_scale = scale;
 }
 
+// Feeds a shared pass's denoisers the frames it took from the memo, in order: their state is
+// then what computing every frame would have left (their outputs, the memo's, are dropped).
+void DenoiseStage::catch_up(size_t pass) {
+  Chain& chain = *chains_[pass];
+  for (const Skipped& s : chain.skipped) {
+    const Rastered r = sharing_.raster(s.raster);
+    const std::shared_ptr<const TracedPasses> traced = sharing_.trace(s.frame, *r.gbuf);
+    const PassBuffer* b = traced->find(names_[pass]);
+    if (!b) fail("internal: frame {} has no traced {} pass to feed its denoiser again", s.frame, names_[pass]);
+    PassBuffer copy = *b;
+    feed(*r.gbuf, s.frame, pass, copy);
+  }
+  chain.skipped.clear();
+}
+
+double DenoiseStage::run(const RasterFrame& raster, const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buf) {
+  if (planes_.at(pass).empty()) return 0.0;
+  std::optional<Chain>& chain = chains_[pass];
+  if (!chain) {
+    const auto t0 = Clock::now();
+    feed(gbuf, frame, pass, buf);
+    return ms_since(t0);
+  }
+  chain->append(frame, raster);
+  const std::string key = chain->key();
+  if (const std::shared_ptr<const DenoisedPass> hit = sharing_.memo->find(key)) {
+    buf = hit->buffer;
+    chain->skipped.push_back({frame, raster});
+    return hit->ms;
+  }
+  catch_up(pass);
+  const auto t0 = Clock::now();
+  feed(gbuf, frame, pass, buf);
+  const double ms = ms_since(t0);
+  sharing_.memo->insert(key, std::make_shared<const DenoisedPass>(DenoisedPass{buf, ms}));
+  return ms;
+}
+
 bool DenoiseStage::keeps_history() const {
   for (const auto& pass : planes_)
     for (const auto& d : pass)
@@ -106,14 +185,16 @@ bool DenoiseStage::keeps_history() const {
 namespace {
 
 // Frame `frame`'s traced passes in the order of `traced` (null where one was not traced),
-// denoised by `denoise`.
+// denoised by `denoise`; `ms`: the denoisers' wall time (DenoiseStage::run).
 std::vector<std::optional<PassBuffer>> denoised(DenoiseStage& denoise, const std::vector<PlannedPass>& traced,
-                                                const TracedPasses& passes, const GBuffer& gbuf, uint32_t frame) {
+                                                const TracedPasses& passes, const RasterFrame& raster,
+                                                const GBuffer& gbuf, uint32_t frame, double& ms) {
   std::vector<std::optional<PassBuffer>> buffers;
+  ms = 0.0;
   for (size_t i = 0; i < traced.size(); ++i) {
     const PassBuffer* b = passes.find(traced[i].name);
     buffers.push_back(b ? std::optional<PassBuffer>(*b) : std::nullopt);
-    if (buffers.back()) denoise.run(gbuf, frame, i, *buffers.back());
+    if (buffers.back()) ms += denoise.run(raster, gbuf, frame, i, *buffers.back());
   }
   return buffers;
 }
@@ -205,8 +286,8 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     out.compute_ms += ms;
   };
 
-  Rastered rastered =
-      raster_({&scene_, camera, time_s, has_prev_ ? prev_camera_ : camera, has_prev_ ? prev_time_s_ : time_s});
+  const RasterFrame raster{&scene_, camera, time_s, has_prev_ ? prev_camera_ : camera, has_prev_ ? prev_time_s_ : time_s};
+  Rastered rastered = raster_(raster);
   std::shared_ptr<const GBuffer> kept = std::move(rastered.gbuf);
   const GBuffer& gbuf = *kept;
   stage("server_rasterize", rastered.ms);
@@ -218,12 +299,12 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
   out.trace = traced->stats;
   for (const TracedPass& p : traced->passes) stage(find_pass_type(p.name)->stage, p.ms);
 
-  auto t0 = Clock::now();
-  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, *traced, gbuf, frame);
-  if (!traced_.empty()) stage("denoise", ms_since(t0));
+  double denoise_ms = 0.0;
+  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, *traced, raster, gbuf, frame, denoise_ms);
+  if (!traced_.empty()) stage("denoise", denoise_ms);
 
+  auto t0 = Clock::now();
   if (c_.mode == "remote") {
-    t0 = Clock::now();
     const ImageRGB8 img = composite_traced(gbuf, scene_, traced_, std::move(buffers), upsample_filter_of(c_.ao_upsample));
     PassBuffer colour;
     colour.desc = sent_[0].desc;
@@ -410,9 +491,10 @@ LocalReference::LocalReference(const SimConfig& c, const Scene& scene, const Reg
     : scene_(scene), traced_(traced_passes(plan_passes(scene, c.trace), c.width, c.height)), denoise_(c, traced_, r),
       filter_(upsample_filter_of(c.ao_upsample)) {}
 
-std::optional<ImageRGB8> LocalReference::frame(uint32_t frame, const GBuffer& gbuf, const TracedPasses& traced,
-                                               bool want_image) {
-  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, traced, gbuf, frame);
+std::optional<ImageRGB8> LocalReference::frame(uint32_t frame, const RasterFrame& raster, const GBuffer& gbuf,
+                                               const TracedPasses& traced, bool want_image) {
+  double ms = 0.0;
+  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, traced, raster, gbuf, frame, ms);
   if (!want_image) return std::nullopt;
   return composite_traced(gbuf, scene_, traced_, std::move(buffers), filter_);
 }

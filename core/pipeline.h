@@ -70,20 +70,74 @@ struct StageTime {
   double ms;
 };
 
+// One traced pass of one frame after its denoisers, and the wall time they took then.
+struct DenoisedPass {
+  PassBuffer buffer;
+  double ms = 0.0;
+};
+
+// Where denoised passes are kept for other runs (the simulator's TraceCache): a temporal
+// denoiser's output depends on nothing but its settings, the pass's trace settings and the
+// sequence of frames it was fed, so the runs of a sweep whose servers (or local references)
+// feed the same sequence compute it once (docs/performance.md, item 2).
+class DenoiseMemo {
+ public:
+  virtual ~DenoiseMemo() = default;
+  virtual std::shared_ptr<const DenoisedPass> find(const std::string& key) = 0;
+  virtual void insert(const std::string& key, std::shared_ptr<const DenoisedPass> value) = 0;
+};
+
+// How a DenoiseStage shares its outputs through a memo.
+struct DenoiseSharing {
+  DenoiseMemo* memo = nullptr;
+  // Per traced pass: all its denoised buffers depend on besides the frame sequence (the scene,
+  // camera path, the pass's trace settings and its denoiser); empty: not shared.
+  std::vector<std::string> pass_keys;
+  // A frame's G-buffer and traced passes again: a run that took outputs from the memo and then
+  // feeds a frame the memo lacks first feeds its denoisers the frames it skipped (same bits).
+  RasterFn raster;
+  TraceFn trace;
+};
+
 // The denoisers of one side: each 8-bit plane of a traced pass through its pass's denoiser
 // (AO: one; soft visibility: one per light, each with its own history). Bitmasks are never
 // denoised.
 class DenoiseStage {
  public:
   DenoiseStage(const SimConfig& config, const std::vector<PlannedPass>& traced, const Registries& registries);
-  // Denoises `buffer` (traced pass `pass` of the list given to the constructor) in place; its
-  // full scale becomes the denoiser's output scale.
-  void run(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buffer);
+  // Shares the temporal denoisers' outputs through `sharing.memo` from now on (before the first
+  // frame).
+  void share(DenoiseSharing sharing);
+  // Denoises `buffer` (traced pass `pass` of the list given to the constructor; frame `frame`,
+  // whose G-buffer `gbuf` was rasterized for `raster`) in place; its full scale becomes the
+  // denoiser's output scale. Returns the denoisers' wall time (taken from the memo: the time
+  // they took when computed).
+  double run(const RasterFrame& raster, const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buffer);
   // True when a denoiser keeps history: then every frame must go through it, in order.
   bool keeps_history() const;
 
  private:
+  // A frame a shared pass took from the memo, not yet fed to its denoisers.
+  struct Skipped {
+    uint32_t frame;
+    RasterFrame raster;
+  };
+  // A shared pass's sequence so far: its memo key is base + the frames fed, as ranges (key()).
+  struct Chain {
+    std::string base, closed;       // closed: the ranges before the open one
+    int64_t first = -1, last = -1;  // the open range (first = -1: none)
+    bool fed = false;
+    double last_time_s = 0.0;       // the scene time of the last frame fed
+    std::vector<Skipped> skipped;
+    std::string key() const;
+    void append(uint32_t frame, const RasterFrame& raster);
+  };
+  void feed(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buffer);
+  void catch_up(size_t pass);
   std::vector<std::vector<std::unique_ptr<Denoiser>>> planes_;  // per traced pass: per 8-bit plane
+  std::vector<std::string> names_;                              // per traced pass
+  DenoiseSharing sharing_;
+  std::vector<std::optional<Chain>> chains_;  // per traced pass: when shared
 };
 
 // ---- server
@@ -120,6 +174,11 @@ class ServerPipeline {
   // still holds when that pass reported the loss (-1: not reported; empty: none).
   ServerFrame run(uint32_t frame, const Camera& camera, double time_s, bool keyframe,
                   std::span<const int> client_holds = {});
+  // Shares its denoisers' outputs through `memo` (DenoiseStage::share; `pass_keys` per traced
+  // pass), feeding skipped frames again through its own raster and trace functions.
+  void share_denoised(DenoiseMemo* memo, std::vector<std::string> pass_keys) {
+    denoise_.share({memo, std::move(pass_keys), raster_, trace_});
+  }
 
  private:
   void dump(size_t pass, const PassDesc& desc, uint32_t frame, std::span<const uint8_t> encoded);
@@ -210,8 +269,12 @@ class LocalReference {
   LocalReference(const SimConfig& config, const Scene& scene, const Registries& registries);
   // Whether frame `frame` must be fed although its image is not wanted (a temporal denoiser).
   bool needs_every_frame() const { return denoise_.keeps_history(); }
-  // Denoises frame `frame`'s traced passes in sequence; returns the composite when `want_image`.
-  std::optional<ImageRGB8> frame(uint32_t frame, const GBuffer& gbuf, const TracedPasses& traced, bool want_image);
+  // Denoises frame `frame`'s traced passes in sequence (`gbuf` rasterized for `raster`); returns
+  // the composite when `want_image`.
+  std::optional<ImageRGB8> frame(uint32_t frame, const RasterFrame& raster, const GBuffer& gbuf,
+                                 const TracedPasses& traced, bool want_image);
+  // Shares its denoisers' outputs (DenoiseStage::share).
+  void share_denoised(DenoiseSharing sharing) { denoise_.share(std::move(sharing)); }
 
  private:
   const Scene& scene_;

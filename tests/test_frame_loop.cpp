@@ -3,6 +3,7 @@
 // thread counts, and survival under loss.
 #include "core/frame_loop.h"
 #include "backends/register_all.h"
+#include "core/rt_scene.h"
 #include "core/scene_load.h"
 #include "support.h"
 
@@ -307,6 +308,133 @@ TEST(FrameLoop, SharedFlipFeaturesScoreAsTheirOwn) {
     planted.insert_flip(local_reference_key("room", late, f),
                         std::make_shared<const FlipFeatures>(flip_features(ImageRGB8(late.width, late.height))));
   EXPECT_NE(scores(late, planted), own);
+}
+
+// A temporal denoiser's outputs shared through a memo (DenoiseStage::share): a sequence the memo
+// holds is taken from it; one that diverges from it first feeds its denoisers the frames it took
+// (raster and trace again), so every output is the one a stage of its own computes.
+TEST(DenoiseSharing, SkippedFramesAreFedAgainWhenTheSequenceDiverges) {
+  struct CountingMemo final : DenoiseMemo {
+    std::map<std::string, std::shared_ptr<const DenoisedPass>> map;
+    int hits = 0, misses = 0;
+    std::shared_ptr<const DenoisedPass> find(const std::string& key) override {
+      auto it = map.find(key);
+      ++(it == map.end() ? misses : hits);
+      return it == map.end() ? nullptr : it->second;
+    }
+    void insert(const std::string& key, std::shared_ptr<const DenoisedPass> value) override { map[key] = value; }
+  };
+  SimConfig c = small_config(1);
+  c.pass("ao").denoiser = {"svgf_ao"};
+  c.trace.samples_per_light = 4;  // soft visibility: one 8-bit plane per light, each denoised
+  c.pass("visibility").denoiser = {"svgf_ao"};
+  const Scene& room = scene("room");
+  RtScene rt(room);
+  const TraceFn trace = direct_tracer(rt, c);
+  const std::vector<PlannedPass> traced = traced_passes(plan_passes(room, c.trace), c.width, c.height);
+  ASSERT_EQ(traced.size(), 2u);
+  int rasters = 0;
+  auto raster_of = [&](int f, int prev) {
+    const double t = 1.0 + f / 60.0, tp = 1.0 + prev / 60.0;
+    return RasterFrame{&room, room.camera.at(t, c.width, c.height), t, room.camera.at(tp, c.width, c.height), tp};
+  };
+  // Each pass's denoised bytes, frame after frame.
+  // `odd`: the step whose G-buffer takes its motion from two frames back, not the one before.
+  auto run = [&](const std::vector<int>& frames, CountingMemo* memo, size_t odd = 0) {
+    DenoiseStage stage(c, traced, registries());
+    if (memo)
+      stage.share({memo, {"ao-key", "visibility-key"}, [&](const RasterFrame& f) {
+                     ++rasters;
+                     return rasterize_now(f);
+                   },
+                   trace});
+    std::vector<std::vector<uint8_t>> out;
+    for (size_t i = 0; i < frames.size(); ++i) {
+      const RasterFrame rf = raster_of(frames[i], i == 0 ? frames[i] : frames[i - (i == odd && i > 1 ? 2 : 1)]);
+      const Rastered r = rasterize_now(rf);
+      const auto passes = trace(uint32_t(frames[i]), *r.gbuf);
+      for (size_t p = 0; p < traced.size(); ++p) {
+        PassBuffer b = *passes->find(traced[p].name);
+        stage.run(rf, *r.gbuf, uint32_t(frames[i]), p, b);
+        out.push_back(b.bytes);
+      }
+    }
+    return out;
+  };
+  const std::vector<int> all{0, 1, 2, 3, 4, 5, 6, 7, 8, 9}, skips{0, 1, 2, 3, 4, 6, 7, 9};
+  CountingMemo memo;
+  EXPECT_EQ(run(all, &memo), run(all, nullptr));
+  EXPECT_EQ(memo.hits, 0);
+  EXPECT_EQ(memo.misses, 20);
+  EXPECT_EQ(rasters, 0);
+  // The same sequence again: every output from the memo, nothing fed again.
+  memo.hits = memo.misses = 0;
+  EXPECT_EQ(run(all, &memo), run(all, nullptr));
+  EXPECT_EQ(memo.hits, 20);
+  EXPECT_EQ(rasters, 0);
+  // A sequence that skips frame 5: frames 0-4 from the memo, fed again (5 rasterizations per
+  // pass) when frame 6 follows 4; then its own.
+  memo.hits = memo.misses = 0;
+  const auto own = run(skips, nullptr);
+  EXPECT_EQ(run(skips, &memo), own);
+  EXPECT_EQ(memo.hits, 10);
+  EXPECT_EQ(memo.misses, 6);
+  EXPECT_EQ(rasters, 10);
+  // The same frames, but frame 3's motion from frame 1: frames 0-2 from the memo, then its own.
+  memo.hits = memo.misses = 0;
+  EXPECT_EQ(run(all, &memo, 3), run(all, nullptr, 3));
+  EXPECT_EQ(memo.hits, 6);
+  EXPECT_EQ(memo.misses, 14);
+  // And a stage does take the memo's outputs: planted ones change what it returns.
+  CountingMemo planted;
+  PassBuffer black = *trace(0, *rasterize_now(raster_of(0, 0)).gbuf)->find("ao");
+  std::fill(black.bytes.begin(), black.bytes.end(), uint8_t(0));
+  planted.map["ao-key|fed=0"] = std::make_shared<const DenoisedPass>(DenoisedPass{black, 1.0});
+  const auto with_planted = run(skips, &planted);
+  EXPECT_EQ(with_planted[0], black.bytes);
+  EXPECT_NE(with_planted, own);
+}
+
+// The runs of a sweep share their servers' and local references' denoised passes: a run whose
+// server skips frames another run's served (camera messages lost), or one in remote mode, scores
+// exactly as it does alone.
+TEST(FrameLoop, SharedDenoisedPassesScoreAsTheirOwn) {
+  auto outcome = [](const SimConfig& c, TraceCache& cache) {
+    const RunResult r = run_simulation(c, scene("room"), "room", cache, registries());
+    nlohmann::json frames = nlohmann::json::array();
+    for (const auto& f : r.frames) {
+      nlohmann::json local = nlohmann::json::array(), sources = nlohmann::json::array();
+      for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);
+      for (const auto& p : f.passes) sources.push_back(p.source_frame);
+      frames.push_back({f.frame, local, sources});
+    }
+    nlohmann::json bytes = nlohmann::json::array();
+    for (const auto& t : r.traffic) bytes.push_back({t.pass, t.encoded_bytes, t.frames_completed});
+    return nlohmann::json{{"frames", frames}, {"bytes", bytes}, {"cameras_lost", r.cameras_lost}}.dump();
+  };
+  SimConfig a = small_config(24);
+  a.warmup_frames = 2;
+  a.pass("ao").denoiser = {"svgf_ao"};
+  a.uplink.latency_ms = a.downlink.latency_ms = 20;
+  SimConfig lossy = a;
+  lossy.uplink.loss_model = LinkConfig::Loss::Independent;
+  lossy.uplink.loss_rate = 0.05;
+  lossy.pass("ao").codec = {"zstd"};
+  SimConfig remote = a;
+  remote.mode = "remote";
+  TraceCache shared;
+  (void)outcome(a, shared);
+  for (const SimConfig* c : {&lossy, &remote}) {
+    TraceCache nothing(0);  // keeps nothing: the run's server and local reference share nothing either
+    const std::string own = outcome(*c, nothing);
+    TraceCache fresh;  // the run's local reference feeds every frame first, its server follows
+    EXPECT_EQ(outcome(*c, fresh), own) << c->mode;
+    EXPECT_EQ(outcome(*c, shared), own) << c->mode;
+  }
+  // The lossy run's server skips frame 12 (its first lost camera): it takes frames 0-11 from the
+  // memo, then feeds them to its denoiser.
+  TraceCache nothing(0);
+  EXPECT_GT(nlohmann::json::parse(outcome(lossy, nothing))["cameras_lost"].get<int>(), 0) << "the server skips frames";
 }
 
 // Every video codec (h264, hevc, av1) through bursty loss: lost frames, a keyframe request,
