@@ -143,6 +143,20 @@ class Predictor {
   virtual ~Predictor() = default;
   virtual PredictStats predict(const PredictInput& in, PassBuffer& out) = 0;
   virtual void reset() {}
+  // True when the per-pixel work does not depend on the pass and the predictor keeps no state
+  // (reprojection: the source taps): then predict_passes on one instance gives several passes
+  // received for the same frame what their own instances, of the same settings, would give, and
+  // does the shared work once. The client groups its passes that way (core/pipeline.cpp).
+  virtual bool predicts_passes_together() const { return false; }
+  // Predicts `received[i]` into `out[i]` (every buffer of src's size, each as predict would)
+  // and returns each one's stats; by default one predict call per pass.
+  virtual std::vector<PredictStats> predict_passes(const GBuffer& src, const GBuffer& dst,
+                                                   std::span<const PassBuffer* const> received,
+                                                   std::span<PassBuffer* const> out) {
+    std::vector<PredictStats> stats;
+    for (size_t i = 0; i < received.size(); ++i) stats.push_back(predict({*received[i], src, dst}, *out[i]));
+    return stats;
+  }
   // A remote client's colour predictor that reprojects with the server's depth: the bits of
   // inverse depth it asks for (8..16); remote mode then sends a depth pass of that precision
   // beside the colour (its bytes counted; core/depth_pass.h). 0: it reads no depth.

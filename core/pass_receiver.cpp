@@ -36,13 +36,4 @@ PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f, const FrameConte
   return o;
 }
 
-PassBuffer predict_pass(Predictor& predictor, const PassBuffer& buffer, const GBuffer& src, const GBuffer& dst,
-                        bool same_frame, uint64_t& disoccluded) {
-  disoccluded = 0;
-  if (same_frame) return buffer;
-  PassBuffer out;
-  disoccluded = predictor.predict({buffer, src, dst}, out).disoccluded;
-  return out;
-}
-
 }  // namespace dhr

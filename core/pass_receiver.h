@@ -39,11 +39,4 @@ struct PassReceiver {
   Outcome on_frame(AssembledFrame& f, const FrameContext& context = {});
 };
 
-// The buffer to composite for the frame whose G-buffer is `dst`, from `buffer` (a receiver's
-// newest, at full resolution), made for the frame whose G-buffer is `src`: as is when it is this very frame
-// (`same_frame`; reprojection onto the same camera is the identity only up to rounding), else
-// the predictor's output. `disoccluded` receives the predictor's count.
-PassBuffer predict_pass(Predictor& predictor, const PassBuffer& buffer, const GBuffer& src, const GBuffer& dst,
-                        bool same_frame, uint64_t& disoccluded);
-
 }  // namespace dhr

@@ -453,6 +453,7 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
     return out;
   }
   std::vector<std::optional<PassBuffer>> predicted(passes_.size());
+  std::vector<const PassBuffer*> to_predict(passes_.size(), nullptr);
   for (size_t i = 0; i < passes_.size(); ++i) {
     const PassReceiver& r = receivers_[i];
     const GBuffer* src = r.frame >= 0 ? gbuffer(r.frame) : nullptr;
@@ -475,7 +476,35 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
       }
       buffer = &full;
     }
-    predicted[i] = predict_pass(*predictors_[i], *buffer, *src, gbuf, r.frame == frame, out.disoccluded[i]);
+    // This very frame's buffer is shown as it is (reprojection onto the same camera is the
+    // identity only up to rounding); the others are predicted below.
+    if (r.frame == frame)
+      predicted[i] = *buffer;
+    else
+      to_predict[i] = buffer;
+  }
+  // Passes received for the same frame whose predictors have the same settings and predict
+  // together (Predictor::predicts_passes_together) go through one call: the shared work once.
+  for (size_t i = 0; i < passes_.size(); ++i) {
+    if (!to_predict[i]) continue;
+    const BackendChoice& choice = c_.pass(passes_[i].name).predictor;
+    std::vector<size_t> group{i};
+    for (size_t k = i + 1; k < passes_.size() && predictors_[i]->predicts_passes_together(); ++k) {
+      const BackendChoice& other = c_.pass(passes_[k].name).predictor;
+      if (to_predict[k] && receivers_[k].frame == receivers_[i].frame && other.name == choice.name &&
+          other.params == choice.params)
+        group.push_back(k);
+    }
+    std::vector<const PassBuffer*> received;
+    std::vector<PassBuffer*> outputs;
+    for (size_t k : group) {
+      received.push_back(to_predict[k]);
+      outputs.push_back(&predicted[k].emplace());
+      to_predict[k] = nullptr;
+    }
+    const std::vector<PredictStats> stats =
+        predictors_[i]->predict_passes(*gbuffer(receivers_[i].frame), gbuf, received, outputs);
+    for (size_t g = 0; g < group.size(); ++g) out.disoccluded[group[g]] = stats[g].disoccluded;
   }
   out.predict_ms = ms_since(t0) - out.upsample_ms;
   t0 = Clock::now();

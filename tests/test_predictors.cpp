@@ -12,6 +12,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <bit>
 #include <cctype>
 #include <cmath>
 #include <cstdio>
@@ -478,6 +479,52 @@ TEST(Reprojection, SameResultAtOneAndTwoThreadsAndWhenOutputAliasesInput) {
     p->predict({alias, src, dst}, alias);
     EXPECT_TRUE(alias.bytes == out1.bytes) << pass_kind_name(kind);
   }
+}
+
+// The client predicts the passes received for one frame in one call (Predictor::predict_passes):
+// the taps are found once per pixel. Every pass must come out as when it is predicted alone, by
+// an instance of its own: bitmasks of one and two bytes, soft visibility and AO of other full
+// scales, each filter and fill, with disocclusions, and an output that is its own input.
+TEST(Reprojection, PassesPredictedTogetherAreEachPredictedAlone) {
+  const Scene scene;
+  const GBuffer src = render(scene, oblique()), dst = render(scene, translated(oblique(), {1.2f, -0.2f, 0.4f}));
+  const std::vector<PassBuffer> passes{
+      make_random(src, PassKind::Visibility, 5, 1, 31), make_random(src, PassKind::Visibility, 12, 1, 32),
+      make_random(src, PassKind::SoftVisibility, 3, 64, 33), make_random(src, PassKind::Ao, 1, 255, 34)};
+  for (const nlohmann::json& params : {nlohmann::json::object(), nlohmann::json{{"filter", "nearest"}},
+                                       nlohmann::json{{"fill", "local"}}, nlohmann::json{{"fill_radius_px", 6}}}) {
+    EXPECT_TRUE(make("reprojection", params)->predicts_passes_together());
+    std::vector<PassBuffer> alone(passes.size());
+    std::vector<PredictStats> alone_stats;
+    for (size_t k = 0; k < passes.size(); ++k) alone_stats.push_back(make("reprojection", params)->predict({passes[k], src, dst}, alone[k]));
+    // Each subset of two or more passes, the last one predicted in place.
+    for (unsigned subset = 3; subset < (1u << passes.size()); ++subset) {
+      if (std::popcount(subset) < 2) continue;
+      std::vector<PassBuffer> together(passes.size());
+      std::vector<const PassBuffer*> received;
+      std::vector<PassBuffer*> out;
+      std::vector<size_t> which;
+      for (size_t k = 0; k < passes.size(); ++k)
+        if (subset & (1u << k)) which.push_back(k);
+      for (size_t k : which) {
+        if (k == which.back()) together[k] = passes[k];
+        received.push_back(k == which.back() ? &together[k] : &passes[k]);
+        out.push_back(&together[k]);
+      }
+      const std::vector<PredictStats> stats = make("reprojection", params)->predict_passes(src, dst, received, out);
+      ASSERT_EQ(stats.size(), which.size());
+      for (size_t g = 0; g < which.size(); ++g) {
+        const size_t k = which[g];
+        EXPECT_EQ(together[k].desc, alone[k].desc) << params.dump() << " subset " << subset << " pass " << k;
+        EXPECT_TRUE(together[k].bytes == alone[k].bytes) << params.dump() << " subset " << subset << " pass " << k;
+        EXPECT_EQ(stats[g].pixels, alone_stats[k].pixels);
+        EXPECT_EQ(stats[g].disoccluded, alone_stats[k].disoccluded);
+      }
+    }
+    EXPECT_GT(alone_stats[0].disoccluded, 0u);
+  }
+  for (const char* other : {"none", "rotation_warp", "depth_warp"})
+    EXPECT_FALSE(make(other)->predicts_passes_together()) << other;
 }
 
 // ---------------------------------------------------------------- rotation_warp

@@ -44,6 +44,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <span>
 #include <vector>
 
 namespace dhr {
@@ -73,12 +74,24 @@ void check_gbuffer(const char* which, const GBuffer& g) {
          g.camera.width, g.camera.height);
 }
 
-// The source side of one dst pixel: the valid taps with their renormalised weights (nearest:
-// the one valid tap of largest weight; bilinear: every valid tap, in tap order).
+// The source side of one dst pixel for the passes that blend (8-bit, filter bilinear): the valid
+// taps with their renormalised weights, in tap order.
 struct Taps {
   uint32_t index[4] = {0, 0, 0, 0};
   float weight[4] = {0, 0, 0, 0};
   int count = 0;
+};
+
+// One pass of those predicted together: where it reads and writes, and how.
+struct PassIo {
+  const uint8_t* in = nullptr;
+  uint8_t* out = nullptr;
+  bool bitmask = false;
+  bool nearest = false;  // takes the valid tap of largest weight (bitmasks always; 8-bit with filter nearest)
+  int bpp = 1;           // bitmask: bytes per pixel
+  uint8_t lit[8] = {};   // bitmask: every light's bit
+  predict::Layout8 lay;  // 8-bit
+  uint8_t full = 255;    // 8-bit: full_scale
 };
 
 class Reprojection final : public Predictor {
@@ -86,46 +99,70 @@ class Reprojection final : public Predictor {
   explicit Reprojection(const ReprojectionSettings& s) : s_(s) {}
 
   PredictStats predict(const PredictInput& in, PassBuffer& out) override {
-    const PassBuffer& rb = in.received;
-    predict::check_buffer(kName, rb);
-    if (rb.desc.layout() == PassLayout::Rgb8)
-      fail("predictor '{}' refuses a colour buffer: it reprojects the hybrid client's lighting passes "
-           "(visibility, soft_visibility, ao) through G-buffers; the remote-rendering baseline's colour "
-           "frame is warped by 'rotation_warp'",
-           kName);
-    check_gbuffer("src", in.src);
-    check_gbuffer("dst", in.dst);
-    const int w = in.dst.width(), h = in.dst.height();
-    if (rb.desc.width != in.src.width() || rb.desc.height != in.src.height() || in.src.width() != w ||
-        in.src.height() != h)
-      fail("predictor '{}': sizes differ: received buffer {}x{}, src G-buffer {}x{}, dst G-buffer {}x{} (all "
-           "three must agree)",
-           kName, rb.desc.width, rb.desc.height, in.src.width(), in.src.height(), w, h);
+    const PassBuffer* received[1] = {&in.received};
+    PassBuffer* outs[1] = {&out};
+    return predict_passes(in.src, in.dst, received, outs)[0];
+  }
 
-    PassBuffer temp;
-    PassBuffer& result = predict::output_buffer(rb, out, temp, w, h);
+  // The taps, their tests and the fill depend on the G-buffers only: found once per pixel for
+  // every pass, each pass then reads them its own way.
+  bool predicts_passes_together() const override { return true; }
+
+  std::vector<PredictStats> predict_passes(const GBuffer& src, const GBuffer& dst,
+                                           std::span<const PassBuffer* const> received,
+                                           std::span<PassBuffer* const> out) override {
+    check_gbuffer("src", src);
+    check_gbuffer("dst", dst);
+    const int w = dst.width(), h = dst.height();
+    std::vector<PassBuffer> temps(received.size());
+    std::vector<PassBuffer*> results;
+    std::vector<PassIo> io;
+    for (size_t k = 0; k < received.size(); ++k) {
+      const PassBuffer& rb = *received[k];
+      predict::check_buffer(kName, rb);
+      if (rb.desc.layout() == PassLayout::Rgb8)
+        fail("predictor '{}' refuses a colour buffer: it reprojects the hybrid client's lighting passes "
+             "(visibility, soft_visibility, ao) through G-buffers; the remote-rendering baseline's colour "
+             "frame is warped by 'rotation_warp'",
+             kName);
+      if (rb.desc.width != src.width() || rb.desc.height != src.height() || src.width() != w || src.height() != h)
+        fail("predictor '{}': sizes differ: received buffer {}x{}, src G-buffer {}x{}, dst G-buffer {}x{} (all "
+             "three must agree)",
+             kName, rb.desc.width, rb.desc.height, src.width(), src.height(), w, h);
+      PassBuffer& result = predict::output_buffer(rb, *out[k], temps[k], w, h);
+      results.push_back(&result);
+      PassIo p;
+      p.in = rb.bytes.data();
+      p.out = result.bytes.data();
+      p.bitmask = rb.desc.layout() == PassLayout::Bitmask;
+      p.nearest = p.bitmask || !s_.bilinear;
+      if (p.bitmask) {
+        p.bpp = (rb.desc.channels + 7) / 8;
+        const uint64_t lit_bits = predict::fully_lit_bits(rb.desc.channels);
+        for (int b = 0; b < 8; ++b) p.lit[b] = uint8_t(lit_bits >> (8 * b));
+      } else {
+        p.lay = predict::layout8(rb.desc);
+        p.full = uint8_t(rb.desc.full_scale);
+      }
+      io.push_back(p);
+    }
 
     std::vector<uint32_t> covered(size_t(h), 0), disoccluded(size_t(h), 0);
-    if (rb.desc.layout() == PassLayout::Bitmask)
-      run<true>(in, rb, result, covered, disoccluded);
-    else
-      run<false>(in, rb, result, covered, disoccluded);
+    run(src, dst, io, covered, disoccluded);
 
-    if (&result == &temp) out = std::move(temp);
     PredictStats stats;
     for (int y = 0; y < h; ++y) {
       stats.pixels += covered[size_t(y)];
       stats.disoccluded += disoccluded[size_t(y)];
     }
-    return stats;
+    for (size_t k = 0; k < received.size(); ++k)
+      if (results[k] == &temps[k]) *out[k] = std::move(temps[k]);
+    return std::vector<PredictStats>(received.size(), stats);
   }
 
  private:
-  template <bool kBitmask>
-  void run(const PredictInput& in, const PassBuffer& rb, PassBuffer& result, std::vector<uint32_t>& covered,
+  void run(const GBuffer& src, const GBuffer& dst, const std::vector<PassIo>& io, std::vector<uint32_t>& covered,
            std::vector<uint32_t>& disoccluded) const {
-    const GBuffer& src = in.src;
-    const GBuffer& dst = in.dst;
     const int w = dst.width(), h = dst.height();
     const predict::Projector proj(src.camera);
     const ReprojectionSettings s = s_;
@@ -158,37 +195,33 @@ class Reprojection final : public Predictor {
       return std::fabs(sdep[j] - z) <= tol * z;
     };
 
-    const int bpp = kBitmask ? (rb.desc.channels + 7) / 8 : 1;
-    const predict::Layout8 lay = predict::layout8(rb.desc);
-    const uint64_t lit_bits = predict::fully_lit_bits(rb.desc.channels);
-    uint8_t lit_bytes[8];
-    for (int b = 0; b < 8; ++b) lit_bytes[b] = uint8_t(lit_bits >> (8 * b));
-    const uint8_t full = uint8_t(rb.desc.full_scale);
-    const uint8_t* rin = rb.bytes.data();
-    uint8_t* rout = result.bytes.data();
+    // Whether any pass takes the nearest tap, any the bilinear mean (then all four taps are tested).
+    bool any_nearest = false, any_bilinear = false;
+    for (const PassIo& p : io) (p.nearest ? any_nearest : any_bilinear) = true;
 
     auto write_lit = [&](size_t i) {
-      if constexpr (kBitmask) {
-        if (bpp == 1)  // up to 8 lights: one byte, no call
-          rout[i] = lit_bytes[0];
-        else
-          std::memcpy(rout + i * size_t(bpp), lit_bytes, size_t(bpp));
-      } else {
-        for (int c = 0; c < lay.planes; ++c) rout[i + size_t(c) * lay.plane_stride] = full;
+      for (const PassIo& p : io) {
+        if (p.bitmask) {
+          if (p.bpp == 1)  // up to 8 lights: one byte, no call
+            p.out[i] = p.lit[0];
+          else
+            std::memcpy(p.out + i * size_t(p.bpp), p.lit, size_t(p.bpp));
+        } else {
+          for (int c = 0; c < p.lay.planes; ++c) p.out[i + size_t(c) * p.lay.plane_stride] = p.full;
+        }
       }
     };
-    auto write_tap = [&](size_t i, size_t j) {
-      if constexpr (kBitmask) {
-        if (bpp == 1)
-          rout[i] = rin[j];
+    auto write_tap = [](const PassIo& p, size_t i, size_t j) {
+      if (p.bitmask) {
+        if (p.bpp == 1)
+          p.out[i] = p.in[j];
         else
-          std::memcpy(rout + i * size_t(bpp), rin + j * size_t(bpp), size_t(bpp));
+          std::memcpy(p.out + i * size_t(p.bpp), p.in + j * size_t(p.bpp), size_t(p.bpp));
       } else {
-        for (int c = 0; c < lay.planes; ++c) rout[i + size_t(c) * lay.plane_stride] = rin[j + size_t(c) * lay.plane_stride];
+        for (int c = 0; c < p.lay.planes; ++c) p.out[i + size_t(c) * p.lay.plane_stride] = p.in[j + size_t(c) * p.lay.plane_stride];
       }
     };
 
-    const bool nearest_only = kBitmask || !s.bilinear;
     const float fw = float(w), fh = float(h);
     const int radius = s.fill_radius_px;
     predict::parallel_rows(h, [&](int y) {
@@ -204,7 +237,8 @@ class Reprojection final : public Predictor {
         const glm::vec3 p = dst.position[i];
         const glm::vec3 nd = dst.normal[i];
         const float ln = glm::dot(nd, nd);
-        Taps t;
+        Taps t;                // the bilinear passes' taps
+        int64_t nearest = -1;  // the nearest passes' tap
         float qx = 0.0f, qy = 0.0f, z = 0.0f;
         bool projected = false;
         if (predict::finite3(p) && ln >= 0.25f && ln <= 4.0f) {
@@ -227,13 +261,12 @@ class Reprojection final : public Predictor {
               const size_t j = size_t(ty) * size_t(w) + size_t(tx);
               return valid_tap(j, p, nd, ln, z, id) ? int64_t(j) : -1;
             };
-            float sum = 0.0f;
-            if (nearest_only) {
-              // The valid tap of largest weight, ties in tap order. The nearest tap (largest
-              // weight) is tried alone first: it passes almost always, and the common path
-              // then has no data-dependent branch.
-              const int kn = int(ax > 0.5f) | (int(ay > 0.5f) << 1);
-              int64_t j = tap(kn);
+            // The nearest: the valid tap of largest weight, ties in tap order. The nearest tap
+            // (largest weight) is tried first: it passes almost always, and the common path
+            // then has no data-dependent branch. `valid(k)`: tap k's index or -1.
+            const int kn = int(ax > 0.5f) | (int(ay > 0.5f) << 1);
+            auto nearest_of = [&](auto&& valid) {
+              int64_t j = valid(kn);
               if (j < 0) {
                 int order[4] = {0, 1, 2, 3};  // stable insertion sort by decreasing weight
                 for (int a = 1; a < 4; ++a) {
@@ -243,27 +276,29 @@ class Reprojection final : public Predictor {
                   order[b] = k;
                 }
                 for (int r = 0; r < 4 && j < 0; ++r)
-                  if (order[r] != kn) j = tap(order[r]);
+                  if (order[r] != kn) j = valid(order[r]);
               }
-              if (j >= 0) {
-                t.index[0] = uint32_t(j);
-                t.weight[0] = sum = 1.0f;
-                t.count = 1;
-              }
+              return j;
+            };
+            if (!any_bilinear) {
+              nearest = nearest_of(tap);
             } else {
+              int64_t taps[4];
+              float sum = 0.0f;
               for (int k = 0; k < 4; ++k) {
-                const int64_t j = tap(k);
-                if (j < 0) continue;
-                t.index[t.count] = uint32_t(j);
+                taps[k] = tap(k);
+                if (taps[k] < 0) continue;
+                t.index[t.count] = uint32_t(taps[k]);
                 t.weight[t.count] = bw[k];
                 ++t.count;
                 sum += bw[k];
               }
+              for (int k = 0; k < t.count; ++k) t.weight[k] /= sum;
+              if (any_nearest) nearest = nearest_of([&](int k) { return taps[k]; });
             }
-            for (int k = 0; k < t.count; ++k) t.weight[k] /= sum;
           }
         }
-        if (t.count == 0) {
+        if (any_bilinear ? t.count == 0 : nearest < 0) {  // no valid tap (the same for every pass)
           ++row_disoccluded;
           bool filled = false;
           if (s.fill_nearest_valid && projected && qx > -float(radius + 1) && qx < fw + float(radius + 1) &&
@@ -284,24 +319,24 @@ class Reprojection final : public Predictor {
                 best = j;
               }
             if (best_d2 < INFINITY) {
-              write_tap(i, best);
+              for (const PassIo& io_pass : io) write_tap(io_pass, i, best);
               filled = true;
             }
           }
           if (!filled) write_lit(i);
           continue;
         }
-        if constexpr (kBitmask) {
-          write_tap(i, t.index[0]);
-        } else {
-          if (!s.bilinear || t.count == 1) {
-            write_tap(i, t.index[0]);
+        for (const PassIo& pass : io) {
+          if (pass.nearest) {
+            write_tap(pass, i, size_t(nearest));
+          } else if (t.count == 1) {
+            write_tap(pass, i, t.index[0]);
           } else {
-            for (int c = 0; c < lay.planes; ++c) {
-              const uint8_t* plane = rin + size_t(c) * lay.plane_stride;
+            for (int c = 0; c < pass.lay.planes; ++c) {
+              const uint8_t* plane = pass.in + size_t(c) * pass.lay.plane_stride;
               float v = 0.0f;
               for (int k = 0; k < t.count; ++k) v += t.weight[k] * float(plane[t.index[k]]);
-              rout[i + size_t(c) * lay.plane_stride] = predict::round_u8(v);
+              pass.out[i + size_t(c) * pass.lay.plane_stride] = predict::round_u8(v);
             }
           }
         }
