@@ -310,30 +310,34 @@ void TraceCache::insert_denoised(const std::string& key, std::shared_ptr<const D
 
 namespace {
 
-// Evicts `map`'s least recently used entry when its last use is `tick`; true when it did.
+// The last use of `map`'s entry `it` (UINT64_MAX: none).
 template <class Map>
-bool evict_if_oldest(Map& map, uint64_t tick, size_t& bytes) {
-  auto it = oldest(map);
+uint64_t tick_of(const Map& map, typename Map::iterator it) {
+  return it == map.end() ? UINT64_MAX : it->second.first;
+}
+
+// Erases `map`'s entry `it` when its last use is `tick`; true when it did.
+template <class Map>
+bool erase_at(Map& map, typename Map::iterator it, uint64_t tick, size_t& bytes) {
   if (it == map.end() || it->second.first != tick) return false;
   bytes -= bytes_of(*it->second.second);
   map.erase(it);
   return true;
 }
 
-template <class Map>
-uint64_t oldest_tick(Map& map) {
-  auto it = oldest(map);
-  return it == map.end() ? UINT64_MAX : it->second.first;
-}
-
 }  // namespace
 
 void TraceCache::evict_locked() {
   while (bytes_ > max_bytes_ && (!entries_.empty() || !images_.empty() || !flips_.empty() || !denoised_.empty())) {
-    // The least recently used of the four maps.
-    const uint64_t tick = std::min({oldest_tick(entries_), oldest_tick(images_), oldest_tick(flips_), oldest_tick(denoised_)});
-    evict_if_oldest(entries_, tick, bytes_) || evict_if_oldest(images_, tick, bytes_) ||
-        evict_if_oldest(flips_, tick, bytes_) || evict_if_oldest(denoised_, tick, bytes_);
+    // The least recently used of the four maps (each scanned once).
+    const auto e = oldest(entries_);
+    const auto i = oldest(images_);
+    const auto f = oldest(flips_);
+    const auto d = oldest(denoised_);
+    const uint64_t tick =
+        std::min({tick_of(entries_, e), tick_of(images_, i), tick_of(flips_, f), tick_of(denoised_, d)});
+    erase_at(entries_, e, tick, bytes_) || erase_at(images_, i, tick, bytes_) || erase_at(flips_, f, tick, bytes_) ||
+        erase_at(denoised_, d, tick, bytes_);
   }
 }
 

@@ -96,21 +96,21 @@ void DenoiseStage::share(DenoiseSharing sharing) {
 // The frames fed so far, as ranges ("0-11,13-33"): with the base, all a shared pass's next output
 // depends on. A frame's G-buffer takes its motion from the frame fed before it (the first frame's:
 // from itself); one that takes it from another time is written with that time ("12@0x1.2p+0").
-std::string DenoiseStage::Chain::key() const {
-  std::string k = base + "|fed=" + closed;
-  if (first >= 0) k += first == last ? std::to_string(first) : std::to_string(first) + "-" + std::to_string(last);
-  return k;
+std::string DenoiseStage::Chain::open_range() const {
+  return first == last ? std::to_string(first) : std::to_string(first) + "-" + std::to_string(last);
 }
 
+std::string DenoiseStage::Chain::key() const { return base + "|fed=" + closed + (first >= 0 ? open_range() : ""); }
+
 void DenoiseStage::Chain::append(uint32_t frame, const RasterFrame& raster) {
+  const bool fed = first >= 0 || !closed.empty();
   const bool usual = raster.prev_time_s == (fed ? last_time_s : raster.time_s);
-  fed = true;
   last_time_s = raster.time_s;
   if (usual && first >= 0 && int64_t(frame) == last + 1) {
     last = frame;
     return;
   }
-  if (first >= 0) closed += (first == last ? std::to_string(first) : std::to_string(first) + "-" + std::to_string(last)) + ",";
+  if (first >= 0) closed += open_range() + ",";
   first = last = -1;
   if (usual)
     first = last = frame;
@@ -152,26 +152,29 @@ void DenoiseStage::catch_up(size_t pass) {
   chain.skipped.clear();
 }
 
-double DenoiseStage::run(const RasterFrame& raster, const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buf) {
-  if (planes_.at(pass).empty()) return 0.0;
+double DenoiseStage::run(const RasterFrame& raster, const GBuffer& gbuf, uint32_t frame, size_t pass,
+                         const PassBuffer& traced, PassBuffer& out) {
+  if (planes_.at(pass).empty()) {
+    out = traced;
+    return 0.0;
+  }
   std::optional<Chain>& chain = chains_[pass];
-  if (!chain) {
-    const auto t0 = Clock::now();
-    feed(gbuf, frame, pass, buf);
-    return ms_since(t0);
+  std::string key;
+  if (chain) {
+    chain->append(frame, raster);
+    key = chain->key();
+    if (const std::shared_ptr<const DenoisedPass> hit = sharing_.memo->find(key)) {
+      out = hit->buffer;
+      chain->skipped.push_back({frame, raster});
+      return hit->ms;
+    }
+    catch_up(pass);
   }
-  chain->append(frame, raster);
-  const std::string key = chain->key();
-  if (const std::shared_ptr<const DenoisedPass> hit = sharing_.memo->find(key)) {
-    buf = hit->buffer;
-    chain->skipped.push_back({frame, raster});
-    return hit->ms;
-  }
-  catch_up(pass);
+  out = traced;
   const auto t0 = Clock::now();
-  feed(gbuf, frame, pass, buf);
+  feed(gbuf, frame, pass, out);
   const double ms = ms_since(t0);
-  sharing_.memo->insert(key, std::make_shared<const DenoisedPass>(DenoisedPass{buf, ms}));
+  if (chain) sharing_.memo->insert(key, std::make_shared<const DenoisedPass>(DenoisedPass{out, ms}));
   return ms;
 }
 
@@ -193,8 +196,8 @@ std::vector<std::optional<PassBuffer>> denoised(DenoiseStage& denoise, const std
   ms = 0.0;
   for (size_t i = 0; i < traced.size(); ++i) {
     const PassBuffer* b = passes.find(traced[i].name);
-    buffers.push_back(b ? std::optional<PassBuffer>(*b) : std::nullopt);
-    if (buffers.back()) ms += denoise.run(raster, gbuf, frame, i, *buffers.back());
+    buffers.emplace_back();
+    if (b) ms += denoise.run(raster, gbuf, frame, i, *b, buffers.back().emplace());
   }
   return buffers;
 }
@@ -453,7 +456,8 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
     return out;
   }
   std::vector<std::optional<PassBuffer>> predicted(passes_.size());
-  std::vector<const PassBuffer*> to_predict(passes_.size(), nullptr);
+  std::vector<const PassBuffer*> to_predict(passes_.size(), nullptr);  // and the G-buffer it was made for:
+  std::vector<const GBuffer*> sources(passes_.size(), nullptr);
   for (size_t i = 0; i < passes_.size(); ++i) {
     const PassReceiver& r = receivers_[i];
     const GBuffer* src = r.frame >= 0 ? gbuffer(r.frame) : nullptr;
@@ -478,18 +482,21 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
     }
     // This very frame's buffer is shown as it is (reprojection onto the same camera is the
     // identity only up to rounding); the others are predicted below.
-    if (r.frame == frame)
+    if (r.frame == frame) {
       predicted[i] = *buffer;
-    else
+    } else {
       to_predict[i] = buffer;
+      sources[i] = src;
+    }
   }
   // Passes received for the same frame whose predictors have the same settings and predict
   // together (Predictor::predicts_passes_together) go through one call: the shared work once.
   for (size_t i = 0; i < passes_.size(); ++i) {
     if (!to_predict[i]) continue;
     const BackendChoice& choice = c_.pass(passes_[i].name).predictor;
+    const bool together = predictors_[i]->predicts_passes_together();
     std::vector<size_t> group{i};
-    for (size_t k = i + 1; k < passes_.size() && predictors_[i]->predicts_passes_together(); ++k) {
+    for (size_t k = i + 1; k < passes_.size() && together; ++k) {
       const BackendChoice& other = c_.pass(passes_[k].name).predictor;
       if (to_predict[k] && receivers_[k].frame == receivers_[i].frame && other.name == choice.name &&
           other.params == choice.params)
@@ -503,7 +510,7 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
       to_predict[k] = nullptr;
     }
     const std::vector<PredictStats> stats =
-        predictors_[i]->predict_passes(*gbuffer(receivers_[i].frame), gbuf, received, outputs);
+        predictors_[i]->predict_passes(*sources[i], gbuf, received, outputs);
     for (size_t g = 0; g < group.size(); ++g) out.disoccluded[group[g]] = stats[g].disoccluded;
   }
   out.predict_ms = ms_since(t0) - out.upsample_ms;

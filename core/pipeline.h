@@ -108,11 +108,12 @@ class DenoiseStage {
   // Shares the temporal denoisers' outputs through `sharing.memo` from now on (before the first
   // frame).
   void share(DenoiseSharing sharing);
-  // Denoises `buffer` (traced pass `pass` of the list given to the constructor; frame `frame`,
-  // whose G-buffer `gbuf` was rasterized for `raster`) in place; its full scale becomes the
-  // denoiser's output scale. Returns the denoisers' wall time (taken from the memo: the time
-  // they took when computed).
-  double run(const RasterFrame& raster, const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buffer);
+  // Denoises `traced` (traced pass `pass` of the list given to the constructor; frame `frame`,
+  // whose G-buffer `gbuf` was rasterized for `raster`) into `out`, whose full scale becomes the
+  // denoiser's output scale (a pass without denoisers: a copy). Returns the denoisers' wall time
+  // (taken from the memo: the time they took when computed).
+  double run(const RasterFrame& raster, const GBuffer& gbuf, uint32_t frame, size_t pass, const PassBuffer& traced,
+             PassBuffer& out);
   // True when a denoiser keeps history: then every frame must go through it, in order.
   bool keeps_history() const;
 
@@ -126,9 +127,9 @@ class DenoiseStage {
   struct Chain {
     std::string base, closed;       // closed: the ranges before the open one
     int64_t first = -1, last = -1;  // the open range (first = -1: none)
-    bool fed = false;
     double last_time_s = 0.0;       // the scene time of the last frame fed
     std::vector<Skipped> skipped;
+    std::string open_range() const;
     std::string key() const;
     void append(uint32_t frame, const RasterFrame& raster);
   };

@@ -354,8 +354,8 @@ TEST(DenoiseSharing, SkippedFramesAreFedAgainWhenTheSequenceDiverges) {
       const Rastered r = rasterize_now(rf);
       const auto passes = trace(uint32_t(frames[i]), *r.gbuf);
       for (size_t p = 0; p < traced.size(); ++p) {
-        PassBuffer b = *passes->find(traced[p].name);
-        stage.run(rf, *r.gbuf, uint32_t(frames[i]), p, b);
+        PassBuffer b;
+        stage.run(rf, *r.gbuf, uint32_t(frames[i]), p, *passes->find(traced[p].name), b);
         out.push_back(b.bytes);
       }
     }
