@@ -17,6 +17,7 @@
 #include "core/raster.h"
 
 #include "core/error.h"
+#include "core/workspace.h"
 
 #include <glm/gtc/matrix_inverse.hpp>
 #include <tbb/blocked_range.h>
@@ -666,29 +667,10 @@ void raster_tile(const Context& ctx, std::span<const TriangleJobOut> jobs, int t
 }
 
 // Per-call buffers, kept by the calling thread between calls (capacity reused frame after
-// frame). A call made while this thread's workspace is busy -- a nested call from a task
-// this thread picked up while waiting in its own parallel loop -- uses a fresh one.
+// frame; core/workspace.h).
 struct Workspace {
-  bool busy = false;
   std::vector<View3> view;
   std::vector<TriangleJobOut> binned;
-};
-
-class WorkspaceLease {
- public:
-  WorkspaceLease() {
-    static thread_local Workspace cached;
-    ws_ = cached.busy ? &fresh_ : &cached;
-    ws_->busy = true;
-  }
-  ~WorkspaceLease() { ws_->busy = false; }
-  WorkspaceLease(const WorkspaceLease&) = delete;
-  WorkspaceLease& operator=(const WorkspaceLease&) = delete;
-  Workspace& operator*() { return *ws_; }
-
- private:
-  Workspace fresh_;
-  Workspace* ws_;
 };
 
 bool has_size(const GBuffer& g, int w, int h) {
@@ -719,7 +701,7 @@ RasterStats rasterize(const RasterFrame& frame, GBuffer& out) {
               (cam.width + kTile - 1) / kTile, (cam.height + kTile - 1) / kTile, {}, nullptr};
   size_t total_vertices = 0;
   prepare_objects(ctx, frame, total_vertices);
-  WorkspaceLease lease;
+  WorkspaceLease<Workspace> lease;
   Workspace& ws = *lease;
   ws.view.resize(total_vertices);
   ctx.view = ws.view.data();
