@@ -9,6 +9,7 @@
 #include "core/error.h"
 #include "core/flip_magma.h"
 #include "core/vec8.h"
+#include "core/workspace.h"
 
 #include <tbb/parallel_for.h>
 
@@ -247,34 +248,32 @@ FeatureKernels make_feature_kernels(double ppd) {
 }
 
 // ---- separable filtering ----------------------------------------------------------------
-// Both filters keep 32 outputs in registers across all taps (8-float vectors, GCC's vector
-// extension) instead of reading and writing the output row once per tap. Every output is still w0 * s0, then + w1 * s1, ... in tap
-// order, each product and sum rounded on its own (neither target has FMA instructions, so
-// nothing is contracted): the same bits on every target and as the one-tap-at-a-time loop
-// (Flip.SameBitsAsTheOneTapAtATimeFilters in tests/test_flip.cpp).
+// Both filters keep 64 outputs in registers across all taps (eight 8-float vectors, GCC's vector
+// extension) instead of reading and writing the output row once per tap: eight independent sums
+// hide the adds' latency (with four, each tap waited on the previous one's adds). Every output is
+// still w0 * s0, then + w1 * s1, ... in tap order, each product and sum rounded on its own
+// (neither target has FMA instructions, so nothing is contracted): the same bits on every target
+// and as the one-tap-at-a-time loop (Flip.SameBitsAsTheOneTapAtATimeFilters in tests/test_flip.cpp).
 
-constexpr int kBlock = 32;  // outputs kept in registers: four vectors (core/vec8.h)
+// out[x, x + 8 kVecs) of weighted_rows, the sums in registers.
+template <int kVecs>
+inline void weighted_block(const float* const* src, const float* w, int taps, int x, float* out) {
+  Vec8 a[kVecs];
+  const Vec8 w0 = splat8(w[0]);
+  for (int v = 0; v < kVecs; ++v) a[v] = w0 * load8(src[0] + x + 8 * v);
+  for (int t = 1; t < taps; ++t) {
+    const Vec8 wt = splat8(w[t]);
+    const float* r = src[t] + x;
+    for (int v = 0; v < kVecs; ++v) a[v] = a[v] + wt * load8(r + 8 * v);
+  }
+  for (int v = 0; v < kVecs; ++v) store8(out + x + 8 * v, a[v]);
+}
 
 // out[x] = sum_t w[t] * src[t][x] for x < width, summed in tap order.
 DHR_VEC8_TARGETS void weighted_rows(const float* const* src, const float* w, int taps, int width, float* out) {
   int x = 0;
-  for (; x + kBlock <= width; x += kBlock) {
-    const Vec8 w0 = Vec8{} + w[0];
-    Vec8 a0 = w0 * load8(src[0] + x), a1 = w0 * load8(src[0] + x + 8);
-    Vec8 a2 = w0 * load8(src[0] + x + 16), a3 = w0 * load8(src[0] + x + 24);
-    for (int t = 1; t < taps; ++t) {
-      const Vec8 wt = Vec8{} + w[t];
-      const float* r = src[t] + x;
-      a0 = a0 + wt * load8(r);
-      a1 = a1 + wt * load8(r + 8);
-      a2 = a2 + wt * load8(r + 16);
-      a3 = a3 + wt * load8(r + 24);
-    }
-    store8(out + x, a0);
-    store8(out + x + 8, a1);
-    store8(out + x + 16, a2);
-    store8(out + x + 24, a3);
-  }
+  for (; x + 64 <= width; x += 64) weighted_block<8>(src, w, taps, x, out);
+  for (; x + 8 <= width; x += 8) weighted_block<1>(src, w, taps, x, out);
   for (; x < width; ++x) {
     float a = w[0] * src[0][x];
     for (int t = 1; t < taps; ++t) a += w[t] * src[t][x];
@@ -314,7 +313,7 @@ struct Filters {
   int pad = 0;  // the largest radius
 };
 
-void horizontal_pass(const ImageRGB8& image, const Filters& fl, std::vector<float>* planes) {
+void horizontal_pass(const ImageRGB8& image, const Filters& fl, float* const* planes) {
   const ColourSpace& cs = colour_space();
   const int w = image.width(), h = image.height(), pad = fl.pad;
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
@@ -336,13 +335,13 @@ void horizontal_pass(const ImageRGB8& image, const Filters& fl, std::vector<floa
         lum[size_t(i)] = (yy_v + 16.0f) / 116.0f;  // normalized achromatic channel
       }
       const size_t off = size_t(y) * size_t(w);
-      filter_row(yy.data(), pad, fl.y.g1, w, planes[kY].data() + off);
-      filter_row(cx.data(), pad, fl.cx.g1, w, planes[kCx].data() + off);
-      filter_row(cz.data(), pad, fl.cz.g1, w, planes[kCz1].data() + off);
-      filter_row(cz.data(), pad, fl.cz.g2, w, planes[kCz2].data() + off);
-      filter_row(lum.data(), pad, fl.f.g, w, planes[kFg].data() + off);
-      filter_row(lum.data(), pad, fl.f.d1, w, planes[kFd1].data() + off);
-      filter_row(lum.data(), pad, fl.f.d2, w, planes[kFd2].data() + off);
+      filter_row(yy.data(), pad, fl.y.g1, w, planes[kY] + off);
+      filter_row(cx.data(), pad, fl.cx.g1, w, planes[kCx] + off);
+      filter_row(cz.data(), pad, fl.cz.g1, w, planes[kCz1] + off);
+      filter_row(cz.data(), pad, fl.cz.g2, w, planes[kCz2] + off);
+      filter_row(lum.data(), pad, fl.f.g, w, planes[kFg] + off);
+      filter_row(lum.data(), pad, fl.f.d1, w, planes[kFd1] + off);
+      filter_row(lum.data(), pad, fl.f.d2, w, planes[kFd2] + off);
     }
   });
 }
@@ -362,52 +361,106 @@ struct FeatureRow {
   float* point;
 };
 
+// The per-pixel steps of vertical_row, written once for a float and for eight lanes (Vec8), so
+// that both run the same operations in the same order (the same bits).
+inline float clamp01(float v) { return std::clamp(v, 0.0f, 1.0f); }
+inline Vec8 clamp01(Vec8 v) { return clamp8(v, 0.0f, 1.0f); }
+inline float root(float v) { return std::sqrt(v); }
+inline Vec8 root(Vec8 v) { return sqrt8(v); }
+
+// Filtered YyCxCz (yy, cx; cz as the weighted sum of its two Gaussians) -> (X/Xn, Y/Yn, Z/Zn)
+// -> linear RGB clamped to [0, 1] -> (X/Xn, Y/Yn, Z/Zn) again, into t0, t1, t2.
+template <class T>
+inline void filtered_to_xyz(T& t0, T& t1, T& t2, T t3, float a1, float a2, const float* m, const float* n) {
+  const T yl = (t0 + 16.0f) / 116.0f;
+  const T xl = t1 / 500.0f + yl;
+  const T zl = yl - (a1 * t2 + a2 * t3) / 200.0f;
+  const T r = clamp01(m[0] * xl + m[1] * yl + m[2] * zl);
+  const T g = clamp01(m[3] * xl + m[4] * yl + m[5] * zl);
+  const T b = clamp01(m[6] * xl + m[7] * yl + m[8] * zl);
+  t0 = n[0] * r + n[1] * g + n[2] * b;
+  t1 = n[3] * r + n[4] * g + n[5] * b;
+  t2 = n[6] * r + n[7] * g + n[8] * b;
+}
+
+// CIELAB's f of X/Xn, Y/Yn, Z/Zn -> Hunt-adjusted CIELAB (hunt_lab's last step).
+template <class T>
+inline void hunt_from_f(T fx, T fy, T fz, T& l, T& a, T& b) {
+  l = 116.0f * fy - 16.0f;
+  a = 0.01f * l * 500.0f * (fx - fy);
+  b = 0.01f * l * 200.0f * (fy - fz);
+}
+
+// The colour step of a row: t[0..3] as filtered (t[2], t[3]: Cz by its two Gaussians) become
+// X/Xn, Y/Yn, Z/Zn in t[0..2]; the edge magnitude from the derivative planes t[4], t[5].
+DHR_VEC8_TARGETS void colour_and_edge_row(float* const* t, float a1, float a2, const float* m, const float* n, int w,
+                                          float* edge) {
+  int x = 0;
+  for (; x + 8 <= w; x += 8) {
+    Vec8 t0 = load8(t[0] + x), t1 = load8(t[1] + x), t2 = load8(t[2] + x);
+    filtered_to_xyz(t0, t1, t2, load8(t[3] + x), a1, a2, m, n);
+    store8(t[0] + x, t0);
+    store8(t[1] + x, t1);
+    store8(t[2] + x, t2);
+    const Vec8 d1 = load8(t[4] + x), d2 = load8(t[5] + x);
+    store8(edge + x, root(d1 * d1 + d2 * d2));
+  }
+  for (; x < w; ++x) {
+    filtered_to_xyz(t[0][x], t[1][x], t[2][x], t[3][x], a1, a2, m, n);
+    edge[x] = root(t[4][x] * t[4][x] + t[5][x] * t[5][x]);
+  }
+}
+
+// CIELAB's f values of a row (f[0..2]) -> Hunt-adjusted CIELAB, interleaved into lab.
+DHR_VEC8_TARGETS void lab_row(float* const* f, int w, float* lab) {
+  int x = 0;
+  for (; x + 8 <= w; x += 8) {
+    Vec8 l, a, b;
+    hunt_from_f(load8(f[0] + x), load8(f[1] + x), load8(f[2] + x), l, a, b);
+    for (int k = 0; k < 8; ++k) {
+      float* o = lab + 3 * size_t(x + k);
+      o[0] = l[k];
+      o[1] = a[k];
+      o[2] = b[k];
+    }
+  }
+  for (; x < w; ++x) {
+    float* o = lab + 3 * size_t(x);
+    hunt_from_f(f[0][x], f[1][x], f[2][x], o[0], o[1], o[2]);
+  }
+}
+
+// out[x] = sqrt(p[x]^2 + q[x]^2).
+DHR_VEC8_TARGETS void magnitude_row(const float* p, const float* q, int w, float* out) {
+  int x = 0;
+  for (; x + 8 <= w; x += 8) {
+    const Vec8 a = load8(p + x), b = load8(q + x);
+    store8(out + x, root(a * a + b * b));
+  }
+  for (; x < w; ++x) out[x] = root(p[x] * p[x] + q[x] * q[x]);
+}
+
 // One row of one image after the vertical pass: Hunt-adjusted CIELAB of the filtered colour,
 // and the edge and point feature magnitudes.
-void vertical_row(const std::vector<float>* planes, const Filters& fl, int w, int h, int y, RowScratch& s,
+void vertical_row(const float* const* planes, const Filters& fl, int w, int h, int y, RowScratch& s,
                   FeatureRow out) {
   const ColourSpace& cs = colour_space();
-  filter_column(planes[kY].data(), w, h, y, fl.y.g1, s.tmp[0].data());
-  filter_column(planes[kCx].data(), w, h, y, fl.cx.g1, s.tmp[1].data());
-  filter_column(planes[kCz1].data(), w, h, y, fl.cz.g1, s.tmp[2].data());
-  filter_column(planes[kCz2].data(), w, h, y, fl.cz.g2, s.tmp[3].data());
+  float* t[7];
+  for (int k = 0; k < 7; ++k) t[k] = s.tmp[k].data();
+  filter_column(planes[kY], w, h, y, fl.y.g1, t[0]);
+  filter_column(planes[kCx], w, h, y, fl.cx.g1, t[1]);
+  filter_column(planes[kCz1], w, h, y, fl.cz.g1, t[2]);
+  filter_column(planes[kCz2], w, h, y, fl.cz.g2, t[3]);
   // Features: d/dx = d1(x) g(y), d/dy = g(x) d1(y), and the same with d2.
-  filter_column(planes[kFd1].data(), w, h, y, fl.f.g, s.tmp[4].data());
-  filter_column(planes[kFg].data(), w, h, y, fl.f.d1, s.tmp[5].data());
-  filter_column(planes[kFd2].data(), w, h, y, fl.f.g, s.tmp[6].data());
-  const float a1 = fl.cz.alpha1, a2 = fl.cz.alpha2;
-  const float* m = cs.from_xyz;
-  for (int x = 0; x < w; ++x) {
-    const size_t i = size_t(x);
-    // Filtered YyCxCz -> (X/Xn, Y/Yn, Z/Zn) -> linear RGB, clamped to [0, 1].
-    const float yl = (s.tmp[0][i] + 16.0f) / 116.0f;
-    const float xl = s.tmp[1][i] / 500.0f + yl;
-    const float zl = yl - (a1 * s.tmp[2][i] + a2 * s.tmp[3][i]) / 200.0f;
-    const float r = std::clamp(m[0] * xl + m[1] * yl + m[2] * zl, 0.0f, 1.0f);
-    const float g = std::clamp(m[3] * xl + m[4] * yl + m[5] * zl, 0.0f, 1.0f);
-    const float b = std::clamp(m[6] * xl + m[7] * yl + m[8] * zl, 0.0f, 1.0f);
-    // -> (X/Xn, Y/Yn, Z/Zn) again, into rows that lab_f_row then maps (hunt_lab, unrolled).
-    const float* n = cs.to_xyz;
-    s.tmp[0][i] = n[0] * r + n[1] * g + n[2] * b;
-    s.tmp[1][i] = n[3] * r + n[4] * g + n[5] * b;
-    s.tmp[2][i] = n[6] * r + n[7] * g + n[8] * b;
-    out.edge[i] = std::sqrt(s.tmp[4][i] * s.tmp[4][i] + s.tmp[5][i] * s.tmp[5][i]);
-  }
-  for (int c = 0; c < 3; ++c) lab_f_row(s.tmp[c].data(), size_t(w));
-  for (int x = 0; x < w; ++x) {
-    const size_t i = size_t(x);
-    const float fx = s.tmp[0][i], fy = s.tmp[1][i], fz = s.tmp[2][i];
-    const float l = 116.0f * fy - 16.0f;
-    out.lab[3 * i] = l;
-    out.lab[3 * i + 1] = 0.01f * l * 500.0f * (fx - fy);
-    out.lab[3 * i + 2] = 0.01f * l * 200.0f * (fy - fz);
-  }
+  filter_column(planes[kFd1], w, h, y, fl.f.g, t[4]);
+  filter_column(planes[kFg], w, h, y, fl.f.d1, t[5]);
+  filter_column(planes[kFd2], w, h, y, fl.f.g, t[6]);
+  colour_and_edge_row(t, fl.cz.alpha1, fl.cz.alpha2, cs.from_xyz, cs.to_xyz, w, out.edge);
+  for (int c = 0; c < 3; ++c) lab_f_row(t[c], size_t(w));
+  lab_row(t, w, out.lab);
   // The point detector's y term needs the Gaussian-row plane with d2 vertically.
-  filter_column(planes[kFg].data(), w, h, y, fl.f.d2, s.tmp[5].data());
-  for (int x = 0; x < w; ++x) {
-    const size_t i = size_t(x);
-    out.point[i] = std::sqrt(s.tmp[6][i] * s.tmp[6][i] + s.tmp[5][i] * s.tmp[5][i]);
-  }
+  filter_column(planes[kFg], w, h, y, fl.f.d2, t[5]);
+  magnitude_row(t[6], t[5], w, out.point);
 }
 
 // The largest colour error: Hunt-adjusted HyAB between pure green and pure blue, to the q_c.
@@ -446,12 +499,25 @@ Filters make_filters(double ppd) {
   return fl;
 }
 
-// The horizontal pass of one image: its kPlanes planes.
-std::vector<std::vector<float>> horizontal_planes(const ImageRGB8& image, const Filters& fl) {
-  std::vector<std::vector<float>> planes(kPlanes);
-  for (auto& p : planes) p.resize(image.size());
+// FLIP's scratch planes of one call (kPlanes floats per pixel: 58 MB at 1920x1080), kept by the
+// calling thread between calls (core/workspace.h) instead of taking fresh pages every call.
+struct FlipWorkspace {
+  std::vector<float> planes[kPlanes];
+};
+
+// The horizontal pass of one image into the workspace's planes, each grown to the image's size
+// when smaller; the pass overwrites every value it reads back.
+std::array<const float*, kPlanes> horizontal_planes(const ImageRGB8& image, const Filters& fl, FlipWorkspace& ws) {
+  std::array<float*, kPlanes> planes;
+  for (int k = 0; k < kPlanes; ++k) {
+    std::vector<float>& p = ws.planes[k];
+    if (p.size() < image.size()) p = std::vector<float>(image.size());
+    planes[size_t(k)] = p.data();
+  }
   horizontal_pass(image, fl, planes.data());
-  return planes;
+  std::array<const float*, kPlanes> out;
+  std::copy(planes.begin(), planes.end(), out.begin());
+  return out;
 }
 
 }  // namespace
@@ -460,7 +526,8 @@ FlipFeatures flip_features(const ImageRGB8& image, double ppd) {
   if (image.empty()) fail("FLIP: cannot compute the features of an empty image");
   check_ppd(ppd);
   const Filters fl = make_filters(ppd);
-  const std::vector<std::vector<float>> planes = horizontal_planes(image, fl);
+  WorkspaceLease<FlipWorkspace> ws;
+  const std::array<const float*, kPlanes> planes = horizontal_planes(image, fl, *ws);
   const int w = image.width(), h = image.height();
   FlipFeatures f;
   f.width = w;
@@ -499,7 +566,8 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
          reference.lab.size() + reference.edge.size() + reference.point.size(), w, h);
   check_ppd(reference.ppd);
   const Filters fl = make_filters(reference.ppd);
-  const std::vector<std::vector<float>> test_planes = horizontal_planes(test, fl);
+  WorkspaceLease<FlipWorkspace> ws;
+  const std::array<const float*, kPlanes> test_planes = horizontal_planes(test, fl, *ws);
 
   const float cmax = max_colour_error();
   const float knee = kPc * cmax;

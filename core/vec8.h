@@ -6,6 +6,8 @@
 // backends/denoise/filters_simd.h.)
 #pragma once
 
+#include <xmmintrin.h>
+
 #include <cstdint>
 #include <cstring>
 
@@ -33,5 +35,24 @@ inline Vec8 load8(const float* p) {
 }
 inline void store8(float* p, Vec8 v) { std::memcpy(p, &v, sizeof v); }
 inline Vec8 splat8(float x) { return Vec8{} + x; }
+
+// std::sqrt lane by lane (correctly rounded, as sqrtss): SSE's sqrtps on each half, which both
+// targets have (std::sqrt's errno path keeps the compiler from vectorizing it).
+inline Vec8 sqrt8(Vec8 v) {
+  __m128 lo, hi;
+  std::memcpy(&lo, &v, sizeof lo);
+  std::memcpy(&hi, reinterpret_cast<const char*>(&v) + sizeof lo, sizeof hi);
+  lo = _mm_sqrt_ps(lo);
+  hi = _mm_sqrt_ps(hi);
+  std::memcpy(&v, &lo, sizeof lo);
+  std::memcpy(reinterpret_cast<char*>(&v) + sizeof lo, &hi, sizeof hi);
+  return v;
+}
+
+// std::clamp(v, lo, hi) lane by lane: v < lo ? lo : hi < v ? hi : v (a NaN stays NaN).
+inline Vec8 clamp8(Vec8 v, float lo, float hi) {
+  const Vec8 l = splat8(lo), h = splat8(hi);
+  return v < l ? l : (h < v ? h : v);
+}
 
 }  // namespace dhr

@@ -6,9 +6,11 @@
 #include "core/flip_magma.h"
 #include "core/image_io.h"
 #include "core/rng.h"
+#include "core/workspace.h"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <bit>
@@ -18,6 +20,7 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <thread>
 #include <vector>
 
 namespace dhr {
@@ -148,6 +151,61 @@ TEST(Flip, IndependentOfThreadCount) {
   }
   EXPECT_EQ(one.map, two.map);
   EXPECT_EQ(one.mean, two.mean);
+}
+
+// flip() keeps its scratch planes per thread between calls (core/workspace.h); a call nested in
+// another on the same thread (a task picked up while waiting in its own parallel loop) takes
+// fresh ones, which the lease's own test below checks directly. Calls made concurrently from
+// many tasks, and a small image after a larger one, score as each does alone.
+TEST(Workspace, ALeaseNestedOnOneThreadIsFreshAndTheThreadsOwnKeepsItsContents) {
+  struct Scratch {
+    std::vector<int> v;
+  };
+  const Scratch* outer_at = nullptr;
+  {
+    WorkspaceLease<Scratch> outer;
+    outer->v.assign(3, 7);
+    outer_at = &*outer;
+    {
+      WorkspaceLease<Scratch> nested;
+      EXPECT_NE(&*nested, outer_at);
+      EXPECT_TRUE(nested->v.empty());
+      nested->v.assign(5, 1);
+    }
+    EXPECT_EQ(outer->v, std::vector<int>(3, 7));
+  }
+  WorkspaceLease<Scratch> again;
+  EXPECT_EQ(&*again, outer_at);
+  EXPECT_EQ(again->v, std::vector<int>(3, 7));
+  std::thread([&] {
+    WorkspaceLease<Scratch> other;  // another thread: its own
+    EXPECT_NE(&*other, outer_at);
+    EXPECT_TRUE(other->v.empty());
+  }).join();
+}
+
+TEST(Flip, ConcurrentCallsScoreAsAlone) {
+  struct Pair {
+    ImageRGB8 a, b;
+  };
+  std::vector<Pair> pairs;
+  for (int i = 0; i < 8; ++i) {
+    const ImageRGB8 a = scene_like(40 + 37 * i, 30 + 11 * i, 40 + uint64_t(i));
+    pairs.push_back({a, with_noise(a, 10.0f + float(i), 60 + uint64_t(i))});
+  }
+  std::vector<FlipResult> alone;
+  for (const Pair& p : pairs) alone.push_back(flip(p.a, p.b));
+  std::vector<FlipResult> together(pairs.size());
+  tbb::parallel_for(size_t(0), pairs.size(), [&](size_t i) {
+    const FlipFeatures f = flip_features(pairs[i].a);
+    together[i] = flip(f, pairs[i].b);
+  });
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    EXPECT_EQ(together[i].map, alone[i].map) << "pair " << i;
+    EXPECT_EQ(std::bit_cast<uint64_t>(together[i].mean), std::bit_cast<uint64_t>(alone[i].mean)) << "pair " << i;
+  }
+  const FlipResult again = flip(pairs[0].a, pairs[0].b);  // after the largest
+  EXPECT_EQ(again.map, alone[0].map);
 }
 
 // The bits of the map and the mean, pinned: FLIP's filters were rewritten for speed (outputs kept
