@@ -107,8 +107,6 @@ struct Lab {
 // the operations of lab_f (the guess's integer division, the float -> double conversions, both
 // Halley steps, the rounding back to float), each rounded on its own, so the same bits as lab_f
 // (Flip.LabRowMatchesLabF). The compiler left the scalar loop unvectorized (one divsd at a time).
-typedef double Vec4d __attribute__((vector_size(32)));
-typedef float Vec4f __attribute__((vector_size(16)));
 typedef uint32_t Vec4u __attribute__((vector_size(16)));
 
 DHR_VEC8_TARGETS void lab_f_row(float* v, size_t n) {

@@ -1,6 +1,8 @@
 #include "core/metrics.h"
 
 #include "core/error.h"
+#include "core/vec8.h"
+#include "core/workspace.h"
 
 #include <emmintrin.h>
 #include <tbb/parallel_for.h>
@@ -39,28 +41,68 @@ inline int reflect101(int i, int n) {
 }
 
 // The horizontal taps of columns [i0, i1) of one row (no reflection needed there) into the
-// five moment planes: per column the taps in window order, as the border loop does them.
-void horizontal_taps(const float* __restrict ra, const float* __restrict rb, const float* __restrict g, int i0,
-                     int i1, float* __restrict p0, float* __restrict p1, float* __restrict p2, float* __restrict p3,
-                     float* __restrict p4) {
-  for (int x = i0; x < i1; ++x) p0[x] = p1[x] = p2[x] = p3[x] = p4[x] = 0.0f;
-  for (int k = -kRadius; k <= kRadius; ++k) {
-    const float gk = g[k + kRadius];
-    for (int x = i0; x < i1; ++x) {
-      const float wa = ra[x + k], wb = rb[x + k];
-      p0[x] += gk * wa;
-      p1[x] += gk * wb;
-      p2[x] += gk * wa * wa;
-      p3[x] += gk * wb * wb;
-      p4[x] += gk * wa * wb;
+// five moment planes: per column the taps in window order, as the border loop does them, the
+// five sums of eight columns in registers.
+inline void horizontal_taps(const float* __restrict ra, const float* __restrict rb, const float* __restrict g, int i0,
+                            int i1, float* __restrict p0, float* __restrict p1, float* __restrict p2,
+                            float* __restrict p3, float* __restrict p4) {
+  int x = i0;
+  for (; x + 8 <= i1; x += 8) {
+    const Vec8 zero{};
+    Vec8 s0 = zero, s1 = zero, s2 = zero, s3 = zero, s4 = zero;
+    for (int k = -kRadius; k <= kRadius; ++k) {
+      const Vec8 gk = splat8(g[k + kRadius]);
+      const Vec8 wa = load8(ra + x + k), wb = load8(rb + x + k);
+      s0 = s0 + gk * wa;
+      s1 = s1 + gk * wb;
+      s2 = s2 + gk * wa * wa;
+      s3 = s3 + gk * wb * wb;
+      s4 = s4 + gk * wa * wb;
     }
+    store8(p0 + x, s0), store8(p1 + x, s1), store8(p2 + x, s2), store8(p3 + x, s3), store8(p4 + x, s4);
+  }
+  for (; x < i1; ++x) {
+    float s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0;
+    for (int k = -kRadius; k <= kRadius; ++k) {
+      const float gk = g[k + kRadius], wa = ra[x + k], wb = rb[x + k];
+      s0 += gk * wa;
+      s1 += gk * wb;
+      s2 += gk * wa * wa;
+      s3 += gk * wb * wb;
+      s4 += gk * wa * wb;
+    }
+    p0[x] = s0, p1[x] = s1, p2[x] = s2, p3[x] = s3, p4[x] = s4;
+  }
+}
+
+// The vertical taps of one moment plane: out[i] = sum over the window's rows k of g[k] * rows[k][i]
+// in double, in window order from 0, sixteen columns' sums in registers.
+inline void vertical_taps(const float* const* rows, const float* g, int n, double* __restrict out) {
+  int i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const Vec4d zero{};
+    Vec4d s0 = zero, s1 = zero, s2 = zero, s3 = zero;
+    for (int k = 0; k < 2 * kRadius + 1; ++k) {
+      const Vec4d gk = zero + double(g[k]);
+      const float* p = rows[k] + i;
+      s0 = s0 + gk * load4f_as_double(p);
+      s1 = s1 + gk * load4f_as_double(p + 4);
+      s2 = s2 + gk * load4f_as_double(p + 8);
+      s3 = s3 + gk * load4f_as_double(p + 12);
+    }
+    store4d(out + i, s0), store4d(out + i + 4, s1), store4d(out + i + 8, s2), store4d(out + i + 12, s3);
+  }
+  for (; i < n; ++i) {
+    double sum = 0.0;
+    for (int k = 0; k < 2 * kRadius + 1; ++k) sum += double(g[k]) * rows[k][i];
+    out[i] = sum;
   }
 }
 
 // SSIM of n <= kBlock pixels from their blurred moments, in three loops that run on vectors
 // (the square roots through SSE2: std::sqrt's errno path keeps the compiler from it), each
 // pixel's operations as in one scalar expression.
-void ssim_from_moments(const double* __restrict m_a, const double* __restrict m_b, const double* __restrict m_aa,
+inline void ssim_from_moments(const double* __restrict m_a, const double* __restrict m_b, const double* __restrict m_aa,
                        const double* __restrict m_bb, const double* __restrict m_ab, double* __restrict v, int n) {
   double var_a[kBlock], var_b[kBlock], bound[kBlock];
   for (int i = 0; i < n; ++i) {
@@ -84,6 +126,87 @@ void ssim_from_moments(const double* __restrict m_a, const double* __restrict m_
   }
 }
 
+// What one band of rows of ssim_plane reads and writes.
+struct SsimBand {
+  const float* a;
+  const float* b;
+  int w, h;
+  int x0, x1;  // the columns computed
+  bool valid;
+  ImageF* map;
+  const float* g;     // the window's weights
+  double* row_sums;   // per image row
+};
+
+// The rows one output row reads lie within 11 consecutive image rows (reflect101 maps the
+// window into [y - 5, y + 5] clipped to the image), so 16 ring slots never collide.
+constexpr int kRing = 16;
+constexpr int kBandRows = 32;
+
+// Rows [ya, yb) of ssim_plane; `ring`: 16 rows x 5 planes of w floats.
+DHR_VEC8_TARGETS void ssim_band(const SsimBand& p, int ya, int yb, float* ring) {
+  const int w = p.w, x0 = p.x0, x1 = p.x1;
+  const size_t ws = size_t(w);
+  int tag[kRing];
+  std::fill(tag, tag + kRing, -1);
+  auto horizontal = [&](int y) -> const float* {
+    const int slot = y % kRing;
+    float* out = &ring[size_t(slot) * 5 * ws];
+    if (tag[slot] == y) return out;
+    tag[slot] = y;
+    const float* ra = p.a + size_t(y) * ws;
+    const float* rb = p.b + size_t(y) * ws;
+    float* p0 = out;
+    float* p1 = out + ws;
+    float* p2 = out + 2 * ws;
+    float* p3 = out + 3 * ws;
+    float* p4 = out + 4 * ws;
+    // Columns whose window needs no reflection.
+    const int i0 = std::max(x0, kRadius), i1 = std::min(x1, w - kRadius);
+    if (i0 < i1) horizontal_taps(ra, rb, p.g, i0, i1, p0, p1, p2, p3, p4);
+    // The border columns (and every column of an image narrower than one window).
+    for (int x = x0; x < x1; ++x) {
+      if (x >= i0 && x < i1) {
+        x = i1 - 1;
+        continue;
+      }
+      float s[5] = {0, 0, 0, 0, 0};
+      for (int k = -kRadius; k <= kRadius; ++k) {
+        const int xx = reflect101(x + k, w);
+        const float wa = ra[xx], wb = rb[xx], gk = p.g[k + kRadius];
+        s[0] += gk * wa;
+        s[1] += gk * wb;
+        s[2] += gk * wa * wa;
+        s[3] += gk * wb * wb;
+        s[4] += gk * wa * wb;
+      }
+      p0[x] = s[0], p1[x] = s[1], p2[x] = s[2], p3[x] = s[3], p4[x] = s[4];
+    }
+    return out;
+  };
+  const float* rows[2 * kRadius + 1];
+  const float* plane_rows[2 * kRadius + 1];
+  double s[5][kBlock];
+  double v[kBlock];
+  for (int y = ya; y < yb; ++y) {
+    for (int k = -kRadius; k <= kRadius; ++k) rows[k + kRadius] = horizontal(reflect101(y + k, p.h));
+    double row = 0;
+    for (int bx = x0; bx < x1; bx += kBlock) {
+      const int n = std::min(kBlock, x1 - bx);
+      for (int c = 0; c < 5; ++c) {
+        for (int k = 0; k < 2 * kRadius + 1; ++k) plane_rows[k] = rows[k] + size_t(c) * ws + size_t(bx);
+        vertical_taps(plane_rows, p.g, n, s[c]);
+      }
+      ssim_from_moments(s[0], s[1], s[2], s[3], s[4], v, n);
+      if (p.map)
+        for (int i = 0; i < n; ++i) (*p.map)(bx + i, y) = float(v[i]);
+      for (int i = 0; i < n; ++i)  // in column order, as one sum per row
+        if (!p.valid || (bx + i >= kRadius && bx + i < w - kRadius)) row += v[i];
+    }
+    p.row_sums[size_t(y)] = row;
+  }
+}
+
 // SSIM map of two float planes (values in 0..255), returns the mean over all pixels (Mirrored)
 // or over the valid interior (Valid). The five local moments (a, b, a^2, b^2, ab) are blurred
 // separably, fused per band of rows: each row's horizontal pass goes into a ring of row planes
@@ -91,7 +214,8 @@ void ssim_from_moments(const double* __restrict m_a, const double* __restrict m_
 // ring (double, in window order) -- the same operations in the same order per pixel as one
 // horizontal pass over the whole image followed by one vertical pass, so the same bits, without
 // the image-sized intermediate. Without a map, Valid skips the pixels it does not average
-// (their windows would only be needed for the map).
+// (their windows would only be needed for the map). The taps of both passes run on vectors
+// (core/vec8.h: AVX2 or the baseline, no FMA), their sums kept in registers.
 double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map, SsimBorder border) {
   const bool valid = border == SsimBorder::Valid;
   // Columns and rows whose SSIM is computed: all, or the interior when nothing else needs them.
@@ -100,79 +224,14 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map, Ssi
   static const auto g = gaussian_weights();
   std::vector<double> row_sums(size_t(h), 0.0);
   if (map) map->resize(w, h);
-  const size_t ws = size_t(w);
-  // The rows one output row reads lie within 11 consecutive image rows (reflect101 maps the
-  // window into [y - 5, y + 5] clipped to the image), so 16 ring slots never collide.
-  constexpr int kRing = 16;
-  constexpr int kBandRows = 32;
+  const SsimBand band_args{a, b, w, h, x0, x1, valid, map, g.data(), row_sums.data()};
   const int bands = (y1 - y0 + kBandRows - 1) / kBandRows;
   tbb::parallel_for(0, bands, [&](int band) {
     // Per thread, reused across calls: 16 rows x 5 planes of w floats.
     static thread_local std::vector<float> ring;
-    ring.resize(size_t(kRing) * 5 * ws);
-    int tag[kRing];
-    std::fill(tag, tag + kRing, -1);
-    auto horizontal = [&](int y) -> const float* {
-      const int slot = y % kRing;
-      float* out = &ring[size_t(slot) * 5 * ws];
-      if (tag[slot] == y) return out;
-      tag[slot] = y;
-      const float* ra = a + size_t(y) * ws;
-      const float* rb = b + size_t(y) * ws;
-      float* p0 = out;
-      float* p1 = out + ws;
-      float* p2 = out + 2 * ws;
-      float* p3 = out + 3 * ws;
-      float* p4 = out + 4 * ws;
-      // Columns whose window needs no reflection: the taps run as 11 vector passes.
-      const int i0 = std::max(x0, kRadius), i1 = std::min(x1, w - kRadius);
-      if (i0 < i1) horizontal_taps(ra, rb, g.data(), i0, i1, p0, p1, p2, p3, p4);
-      // The border columns (and every column of an image narrower than one window).
-      for (int x = x0; x < x1; ++x) {
-        if (x >= i0 && x < i1) {
-          x = i1 - 1;
-          continue;
-        }
-        float s[5] = {0, 0, 0, 0, 0};
-        for (int k = -kRadius; k <= kRadius; ++k) {
-          const int xx = reflect101(x + k, w);
-          const float wa = ra[xx], wb = rb[xx], gk = g[k + kRadius];
-          s[0] += gk * wa;
-          s[1] += gk * wb;
-          s[2] += gk * wa * wa;
-          s[3] += gk * wb * wb;
-          s[4] += gk * wa * wb;
-        }
-        p0[x] = s[0], p1[x] = s[1], p2[x] = s[2], p3[x] = s[3], p4[x] = s[4];
-      }
-      return out;
-    };
+    ring.resize(size_t(kRing) * 5 * size_t(w));
     const int ya = y0 + band * kBandRows, yb = std::min(y1, ya + kBandRows);
-    const float* rows[2 * kRadius + 1];
-    double s[5][kBlock];
-    double v[kBlock];
-    for (int y = ya; y < yb; ++y) {
-      for (int k = -kRadius; k <= kRadius; ++k) rows[k + kRadius] = horizontal(reflect101(y + k, h));
-      double row = 0;
-      for (int bx = x0; bx < x1; bx += kBlock) {
-        const int n = std::min(kBlock, x1 - bx);
-        for (int c = 0; c < 5; ++c) {
-          double* __restrict sc = s[c];
-          for (int i = 0; i < n; ++i) sc[i] = 0.0;
-          for (int k = 0; k < 2 * kRadius + 1; ++k) {
-            const double gk = g[size_t(k)];
-            const float* __restrict p = rows[k] + size_t(c) * ws + size_t(bx);
-            for (int i = 0; i < n; ++i) sc[i] += gk * p[i];
-          }
-        }
-        ssim_from_moments(s[0], s[1], s[2], s[3], s[4], v, n);
-        if (map)
-          for (int i = 0; i < n; ++i) (*map)(bx + i, y) = float(v[i]);
-        for (int i = 0; i < n; ++i)  // in column order, as one sum per row
-          if (!valid || (bx + i >= kRadius && bx + i < w - kRadius)) row += v[i];
-      }
-      row_sums[size_t(y)] = row;
-    }
+    ssim_band(band_args, ya, yb, ring.data());
   });
   double total = 0;
   if (!valid) {
@@ -197,34 +256,73 @@ void check_pair(int wa, int ha, int wb, int hb) {
 
 }  // namespace
 
+namespace {
+
+// luma's rounding of n pixels, four at a time in double (the same operations per pixel).
+DHR_VEC8_TARGETS void luma_pixels(const Rgb8* in, uint8_t* out, size_t n) {
+  typedef int32_t Vec4i __attribute__((vector_size(16)));
+  size_t i = 0;
+  for (; i + 4 <= n; i += 4) {
+    const Rgb8* p = in + i;
+    const Vec4d r = {double(p[0].r), double(p[1].r), double(p[2].r), double(p[3].r)};
+    const Vec4d g = {double(p[0].g), double(p[1].g), double(p[2].g), double(p[3].g)};
+    const Vec4d b = {double(p[0].b), double(p[1].b), double(p[2].b), double(p[3].b)};
+    const Vec4i y = __builtin_convertvector(0.299 * r + 0.587 * g + 0.114 * b + 0.5, Vec4i);
+    for (int k = 0; k < 4; ++k) out[i + size_t(k)] = uint8_t(y[k]);
+  }
+  for (; i < n; ++i) out[i] = uint8_t(int(0.299 * in[i].r + 0.587 * in[i].g + 0.114 * in[i].b + 0.5));
+}
+
+// The sums of squared and of absolute differences of all channels. Integers, summed exactly
+// in 64 bits: the same values as summing them in double, whose partial sums stay integers
+// below 2^53 (at most 3 x 255^2 per pixel).
+struct DifferenceSums {
+  int64_t squared = 0, absolute = 0;
+};
+DHR_VEC8_TARGETS DifferenceSums difference_sums(const Rgb8* a, const Rgb8* b, size_t n) {
+  DifferenceSums s;
+  for (size_t i = 0; i < n; ++i) {
+    const int dr = a[i].r - b[i].r, dg = a[i].g - b[i].g, db = a[i].b - b[i].b;
+    s.squared += dr * dr + dg * dg + db * db;
+    s.absolute += std::abs(dr) + std::abs(dg) + std::abs(db);
+  }
+  return s;
+}
+
+double psnr_from(int64_t squared_sum, size_t pixels) {
+  const double se = double(squared_sum);
+  if (se == 0) return std::numeric_limits<double>::infinity();
+  const double mse = se / (3.0 * double(pixels));
+  return 10.0 * std::log10(255.0 * 255.0 / mse);
+}
+
+// ssim_u8's planes as floats, kept per thread between calls (core/workspace.h).
+struct SsimInputs {
+  std::vector<float> a, b;
+};
+
+}  // namespace
+
 ImageU8 luma(const ImageRGB8& image) {
   ImageU8 out(image.width(), image.height());
-  for (size_t i = 0; i < image.size(); ++i) {
-    const Rgb8 p = image[i];
-    // Truncating x + 0.5 gives std::lround(x) for every (r, g, b) (all 2^24 checked by
-    // tests/test_metrics.cpp), without the library call.
-    out[i] = uint8_t(int(0.299 * p.r + 0.587 * p.g + 0.114 * p.b + 0.5));
-  }
+  // Truncating x + 0.5 gives std::lround(x) for every (r, g, b) (all 2^24 checked by
+  // tests/test_metrics.cpp), without the library call.
+  luma_pixels(image.data(), out.data(), image.size());
   return out;
 }
 
 double ssim_u8(const ImageU8& a, const ImageU8& b, ImageF* ssim_map, SsimBorder border) {
   check_pair(a.width(), a.height(), b.width(), b.height());
   check_border(a.width(), a.height(), border);
-  std::vector<float> fa(a.pixels().begin(), a.pixels().end()), fb(b.pixels().begin(), b.pixels().end());
-  return ssim_plane(fa.data(), fb.data(), a.width(), a.height(), ssim_map, border);
+  WorkspaceLease<SsimInputs> ws;
+  ws->a.assign(a.pixels().begin(), a.pixels().end());
+  ws->b.assign(b.pixels().begin(), b.pixels().end());
+  return ssim_plane(ws->a.data(), ws->b.data(), a.width(), a.height(), ssim_map, border);
 }
 
 double psnr_db(const ImageRGB8& a, const ImageRGB8& b) {
   check_pair(a.width(), a.height(), b.width(), b.height());
-  double se = 0;
-  for (size_t i = 0; i < a.size(); ++i) {
-    const int dr = a[i].r - b[i].r, dg = a[i].g - b[i].g, db = a[i].b - b[i].b;
-    se += dr * dr + dg * dg + db * db;
-  }
-  if (se == 0) return std::numeric_limits<double>::infinity();
-  const double mse = se / (3.0 * double(a.size()));
-  return 10.0 * std::log10(255.0 * 255.0 / mse);
+  return psnr_from(difference_sums(a.data(), b.data(), a.size()).squared, a.size());
 }
 
 QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel channel, ImageF* ssim_map,
@@ -251,11 +349,9 @@ QualityScores compare_images(const ImageRGB8& a, const ImageRGB8& b, SsimChannel
     }
     q.ssim = sum / 3.0;
   }
-  q.psnr_db = psnr_db(a, b);
-  double abs_sum = 0;
-  for (size_t i = 0; i < a.size(); ++i)
-    abs_sum += std::abs(a[i].r - b[i].r) + std::abs(a[i].g - b[i].g) + std::abs(a[i].b - b[i].b);
-  q.mean_abs_error = abs_sum / (3.0 * double(a.size()));
+  const DifferenceSums d = difference_sums(a.data(), b.data(), a.size());
+  q.psnr_db = psnr_from(d.squared, a.size());
+  q.mean_abs_error = double(d.absolute) / (3.0 * double(a.size()));
   return q;
 }
 

@@ -1,5 +1,5 @@
 // Eight floats as one value (GCC's and clang's vector extension) for the core's bit-exact row
-// kernels (core/flip.cpp, core/composite.cpp): lane for lane the same operations as the scalar
+// kernels (core/flip.cpp, core/composite.cpp, core/metrics.cpp): lane for lane the same operations as the scalar
 // code, every product and sum rounded on its own. DHR_VEC8_TARGETS clones a kernel for AVX2
 // and the baseline and picks one at run time; neither target has FMA instructions, so nothing is
 // contracted and both give the same bits. (The denoisers have their own lane types:
@@ -27,6 +27,8 @@ namespace dhr {
 
 typedef float Vec8 __attribute__((vector_size(32)));
 typedef int32_t Mask8 __attribute__((vector_size(32)));  // a comparison's lanes: -1 true, 0 false
+typedef double Vec4d __attribute__((vector_size(32)));  // four doubles
+typedef float Vec4f __attribute__((vector_size(16)));   // four floats, to convert to Vec4d
 
 inline Vec8 load8(const float* p) {
   Vec8 v;
@@ -35,6 +37,13 @@ inline Vec8 load8(const float* p) {
 }
 inline void store8(float* p, Vec8 v) { std::memcpy(p, &v, sizeof v); }
 inline Vec8 splat8(float x) { return Vec8{} + x; }
+// Four floats at p as doubles (exact).
+inline Vec4d load4f_as_double(const float* p) {
+  Vec4f v;
+  std::memcpy(&v, p, sizeof v);
+  return __builtin_convertvector(v, Vec4d);
+}
+inline void store4d(double* p, Vec4d v) { std::memcpy(p, &v, sizeof v); }
 
 // std::sqrt lane by lane (correctly rounded, as sqrtss): SSE's sqrtps on each half, which both
 // targets have (std::sqrt's errno path keeps the compiler from vectorizing it).
