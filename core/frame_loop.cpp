@@ -298,6 +298,37 @@ void TraceCache::insert_flip(const std::string& key, std::shared_ptr<const FlipF
   if (add(flips_, key, std::move(features), tick_, bytes_)) evict_locked();
 }
 
+Rastered TraceCache::find_raster(const std::string& scene_key, const RasterFrame& frame) {
+  std::lock_guard lock(mutex_);
+  if (scene_key != raster_scene_) return {};
+  for (const KeptRaster& k : rasters_)
+    if (same_raster_frame(k.frame, frame)) {
+      ++raster_hits_;
+      return k.rastered;
+    }
+  return {};
+}
+
+void TraceCache::keep_raster(const std::string& scene_key, const RasterFrame& frame, const Rastered& rastered,
+                             size_t capacity) {
+  std::lock_guard lock(mutex_);
+  if (max_bytes_ == 0 || !rastered.gbuf) return;
+  if (!rasters_.empty() && (scene_key != raster_scene_ || rasters_.front().frame.scene != frame.scene ||
+                            rasters_.front().frame.camera.width != frame.camera.width ||
+                            rasters_.front().frame.camera.height != frame.camera.height))
+    rasters_.clear();  // another scene or size: start over
+  raster_scene_ = scene_key;
+  if (rasters_.size() >= capacity) return;
+  for (const KeptRaster& k : rasters_)
+    if (same_raster_frame(k.frame, frame)) return;
+  rasters_.push_back({frame, rastered});
+}
+
+uint64_t TraceCache::raster_hits() const {
+  std::lock_guard lock(mutex_);
+  return raster_hits_;
+}
+
 std::shared_ptr<const DenoisedPass> TraceCache::find_denoised(const std::string& key) {
   std::lock_guard lock(mutex_);
   return lookup(denoised_, key, tick_);
@@ -552,7 +583,17 @@ class Simulation {
   Rastered server_raster(const RasterFrame& f) {
     for (const RasterMemo& m : rasters_)
       if (same_raster_frame(m.frame, f)) return m.rastered;
+    if (Rastered kept = cache_.find_raster(scene_key_, f); kept.gbuf) return kept;
     return rasterize_now(f);
+  }
+  // The client's G-buffer of `f`: an earlier run's of the same frame (the cache keeps the
+  // first history_frames a run rasterized: TraceCache::find_raster), else rasterized now and
+  // offered to the cache. A kept one's time is the time its rasterization took.
+  Rastered client_raster(const RasterFrame& f) {
+    if (Rastered kept = cache_.find_raster(scene_key_, f); kept.gbuf) return kept;
+    Rastered r = rasterize_now(f);
+    cache_.keep_raster(scene_key_, f, r, size_t(c_.history_frames));
+    return r;
   }
   // Keeps the client's last G-buffers for server_raster: as many as the hybrid client keeps for
   // prediction (shared with those: no more memory), a few in remote mode (which keeps none).
@@ -669,7 +710,7 @@ class Simulation {
     double client_ms = 0;
 
     const RasterFrame raster_frame{&scene_, cam, frame_time_s(a), prev, a > 0 ? frame_time_s(a - 1) : frame_time_s(a)};
-    const Rastered rastered = rasterize_now(raster_frame);
+    const Rastered rastered = client_raster(raster_frame);
     const double raster_ms = rastered.ms;
     remember_raster(raster_frame, rastered);
     // The hybrid client keeps its G-buffers for predicting later frames (this one included:

@@ -78,12 +78,24 @@ class TraceCache {
   void insert_denoised(const std::string& key, std::shared_ptr<const DenoisedPass> pass);
   size_t bytes() const { return bytes_; }
 
+  // The client's G-buffers of one scene and camera path, for the runs after the one that
+  // rasterized them (docs/performance.md, item 2): the runs of a sweep display the same frames.
+  // Kept apart from the byte bound above (one run's client already holds `history_frames` of
+  // them): the first `capacity` frames offered for one scene and size are kept -- a run visits
+  // its frames in order, so the first ones, not the most recent, are what the next run finds --
+  // and a frame of another scene or size starts over. Exact: the rasterizer is deterministic,
+  // and a frame is found only for the same scene (key and object) and RasterFrame
+  // (same_raster_frame). A cache built with max_bytes 0 keeps none.
+  Rastered find_raster(const std::string& scene_key, const RasterFrame& frame);
+  void keep_raster(const std::string& scene_key, const RasterFrame& frame, const Rastered& rastered, size_t capacity);
+  uint64_t raster_hits() const;
+
  private:
   void evict_locked();
   std::shared_ptr<const Entry> read_disk(const std::string& key) const;
   void write_disk(const std::string& key, const Entry& entry) const;
   std::string disk_dir_;
-  std::mutex mutex_;
+  mutable std::mutex mutex_;
   size_t max_bytes_;
   size_t bytes_ = 0;
   uint64_t tick_ = 0;
@@ -91,6 +103,13 @@ class TraceCache {
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const ImageRGB8>>> images_;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const FlipFeatures>>> flips_;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const DenoisedPass>>> denoised_;
+  struct KeptRaster {
+    RasterFrame frame;
+    Rastered rastered;
+  };
+  std::string raster_scene_;  // the scene key of every kept G-buffer
+  std::vector<KeptRaster> rasters_;
+  uint64_t raster_hits_ = 0;
 };
 
 // Progress callback: (frame index among warm-up + scored, total).

@@ -437,6 +437,62 @@ TEST(FrameLoop, SharedDenoisedPassesScoreAsTheirOwn) {
   EXPECT_GT(nlohmann::json::parse(outcome(lossy, nothing))["cameras_lost"].get<int>(), 0) << "the server skips frames";
 }
 
+// The runs of a sweep share their clients' G-buffers (TraceCache::find_raster): the first
+// history_frames frames one run rasterized serve the runs after it that display the same frames
+// of the same scene, which score exactly as they do alone; another camera path, display rate,
+// size or scene finds none.
+TEST(FrameLoop, SharedClientGBuffersScoreAsTheirOwn) {
+  auto outcome = [](const SimConfig& c, TraceCache& cache, const char* name = "room") {
+    const RunResult r = run_simulation(c, scene(name), name, cache, registries());
+    nlohmann::json frames = nlohmann::json::array();
+    for (const auto& f : r.frames) {
+      nlohmann::json local = nlohmann::json::array(), sources = nlohmann::json::array();
+      for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);
+      for (const auto& p : f.passes) sources.push_back({p.source_frame, p.disoccluded});
+      frames.push_back({f.frame, local, sources});
+    }
+    nlohmann::json bytes = nlohmann::json::array();
+    for (const auto& t : r.traffic) bytes.push_back({t.pass, t.encoded_bytes, t.frames_completed});
+    return nlohmann::json{{"frames", frames}, {"bytes", bytes}, {"cameras_lost", r.cameras_lost}}.dump();
+  };
+  SimConfig a = small_config(20);
+  a.warmup_frames = 2;
+  a.history_frames = 16;  // fewer than the 22 frames: the cache keeps frames 0-15
+  a.uplink.latency_ms = a.downlink.latency_ms = 20;
+  SimConfig lossy = a;  // another run of the sweep: its server skips frames, its client predicts
+  lossy.uplink.loss_model = LinkConfig::Loss::Independent;
+  lossy.uplink.loss_rate = 0.05;
+  lossy.pass("ao").codec = {"zstd"};
+  SimConfig remote = a;
+  remote.mode = "remote";
+  SimConfig later = a;  // the same scene from another start: other frames
+  later.start_time_s += 0.25;
+  SimConfig faster = a;  // the same start, other times after it
+  faster.display_hz = 90;
+  SimConfig bigger = a;
+  bigger.width = 80;
+  bigger.height = 45;
+  for (const SimConfig* c : {&lossy, &remote, &later, &faster, &bigger}) {
+    TraceCache nothing(0);  // keeps nothing
+    const std::string own = outcome(*c, nothing);
+    EXPECT_EQ(nothing.raster_hits(), 0u);
+    TraceCache shared;
+    (void)outcome(a, shared);
+    EXPECT_EQ(shared.raster_hits(), 0u) << "the first run finds nothing";
+    EXPECT_EQ(outcome(*c, shared), own) << c->mode << " " << c->start_time_s << " " << c->display_hz << " " << c->width;
+    // The same frames: the first 16; at 90 Hz only the first frame (same time, no motion yet).
+    const uint64_t want = c == &lossy || c == &remote ? 16u : c == &faster ? 1u : 0u;
+    EXPECT_EQ(shared.raster_hits(), want)
+        << c->mode << " " << c->start_time_s << " " << c->display_hz << " " << c->width;
+  }
+  // Another scene of the same size finds none of room's.
+  TraceCache shared;
+  (void)outcome(a, shared);
+  TraceCache nothing(0);
+  EXPECT_EQ(outcome(a, shared, "street"), outcome(a, nothing, "street"));
+  EXPECT_EQ(shared.raster_hits(), 0u);
+}
+
 // Every video codec (h264, hevc, av1) through bursty loss: lost frames, a keyframe request,
 // recovery (core/pass_receiver.cpp).
 TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
