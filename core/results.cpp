@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 namespace dhr {
 
@@ -25,13 +26,8 @@ double flip_of(const ScoreReference& reference, const ImageRGB8& shown) {
   if (reference.flip && reference.flip->ppd == kFlipDefaultPpd) return flip(*reference.flip, shown).mean;
   return flip(reference.image, shown, kFlipDefaultPpd).mean;
 }
-double temporal_error_of(const ImageRGB8& rp, const ImageRGB8& r, const ImageRGB8& tp, const ImageRGB8& t) {
-  return temporal_scores(rp, r, tp, t).temporal_error;
-}
-double static_flicker_of(const ImageRGB8& rp, const ImageRGB8& r, const ImageRGB8& tp, const ImageRGB8& t) {
-  const TemporalScores s = temporal_scores(rp, r, tp, t);
-  return s.static_pixels > 0 ? s.static_flicker : std::nan("");
-}
+double temporal_error_of(const TemporalScores& s) { return s.temporal_error; }
+double static_flicker_of(const TemporalScores& s) { return s.static_pixels > 0 ? s.static_flicker : std::nan(""); }
 
 // Metric i of the frames scored against `against`, in frame order, for_mean applied.
 std::vector<double> scores_of(const RunResult& r, size_t i, Against against) {
@@ -119,10 +115,16 @@ std::vector<double> score_frame(const ScoreReference& reference, const ImageRGB8
     fail("score_frame: images of {}x{} and {}x{} (they must be the same size, not empty)", ref.width(), ref.height(),
          shown.width(), shown.height());
   std::vector<double> s;
+  std::optional<TemporalScores> step;  // computed once for every metric of the step
   for (const ImageMetric& m : image_metrics()) {
-    if (m.score) s.push_back(m.score(reference, shown));
-    else if (reference_prev && shown_prev) s.push_back(m.score_step(*reference_prev, ref, *shown_prev, shown));
-    else s.push_back(std::nan(""));
+    if (m.score) {
+      s.push_back(m.score(reference, shown));
+    } else if (reference_prev && shown_prev) {
+      if (!step) step = temporal_scores(*reference_prev, ref, *shown_prev, shown);
+      s.push_back(m.score_step(*step));
+    } else {
+      s.push_back(std::nan(""));
+    }
   }
   return s;
 }

@@ -16,6 +16,7 @@
 #include "core/flip.h"
 #include "core/image.h"
 #include "core/passes.h"
+#include "core/temporal.h"
 #include "core/trace.h"
 
 #include <nlohmann/json.hpp>
@@ -49,10 +50,10 @@ struct ImageMetric {
   // The value as averaged over frames (PSNR: identical frames count as 100 dB); nullptr: as is.
   double (*for_mean)(double) = nullptr;
   // Instead of `score`, a metric of the change since the previous scored frame (the reference and
-  // the shown frame at both): scored against the local reference only, NaN (no value) on a run's
-  // first scored frame and against the ground truth.
-  double (*score_step)(const ImageRGB8& reference_prev, const ImageRGB8& reference, const ImageRGB8& shown_prev,
-                       const ImageRGB8& shown) = nullptr;
+  // the shown frame at both), read from that frame step's temporal_scores (core/temporal.h,
+  // computed once per step for every such metric): scored against the local reference only, NaN
+  // (no value) on a run's first scored frame and against the ground truth.
+  double (*score_step)(const TemporalScores& step) = nullptr;
 
   std::string column(Against a) const;                            // ssim_local, psnr_ground_truth_db
   std::string aggregate(Against a, const std::string& statistic) const;  // ssim_local_mean, psnr_local_mean_db

@@ -5,7 +5,8 @@
 //  - FLIP against a memory-bandwidth floor of the same image size: one pass that reads both
 //    8-bit RGB inputs and writes a float per pixel, the least any full-image error map costs;
 //    whole (both images) and its test half (the reference's features computed once, as the
-//    runner scores every frame of a run against one reference).
+//    runner scores every frame of a run against one reference);
+//  - the temporal stability scores of one frame step against their previous sequential loop.
 // After the runs a table prints the fastest repetition of each and the ratios, twice: wall ms
 // (the metrics use all cores through TBB) and process CPU ms per iteration summed over all
 // threads (on a shared, loaded machine the wall time mostly measures the neighbours; the CPU
@@ -13,6 +14,7 @@
 #include "core/flip.h"
 #include "core/metrics.h"
 #include "core/rng.h"
+#include "core/temporal.h"
 
 #include <benchmark/benchmark.h>
 #include <opencv2/quality/qualityssim.hpp>
@@ -125,6 +127,41 @@ void BM_Flip_floor(benchmark::State& state) {
 }
 BENCHMARK(BM_Flip_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+// Temporal stability of one frame step (core/temporal.h) against the sequential loop it was
+// until its per-pixel terms ran four at a time (the same bits: Temporal.SameBitsAsOneSequentialLoop).
+dhr::TemporalScores temporal_one_loop(const dhr::ImageRGB8& rp, const dhr::ImageRGB8& r, const dhr::ImageRGB8& tp,
+                                      const dhr::ImageRGB8& t) {
+  auto y = [](const dhr::Rgb8& p) { return 0.299 * p.r + 0.587 * p.g + 0.114 * p.b; };
+  double err = 0, flicker = 0;
+  int64_t still = 0;
+  for (size_t i = 0; i < r.size(); ++i) {
+    const double dr = y(r[i]) - y(rp[i]), dt = y(t[i]) - y(tp[i]);
+    err += std::abs(dt - dr);
+    if (std::abs(dr) <= 0.0) {
+      flicker += std::abs(dt);
+      ++still;
+    }
+  }
+  dhr::TemporalScores s;
+  s.temporal_error = err / double(r.size());
+  s.static_flicker = still ? flicker / double(still) : 0.0;
+  return s;
+}
+
+void BM_Temporal(benchmark::State& state) {
+  const auto &a = frame_a(), &b = frame_b();
+  CpuCounter cpu{state};
+  for (auto _ : state) benchmark::DoNotOptimize(dhr::temporal_scores(a, b, b, a).temporal_error);
+}
+BENCHMARK(BM_Temporal)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_Temporal_one_loop(benchmark::State& state) {
+  const auto &a = frame_a(), &b = frame_b();
+  CpuCounter cpu{state};
+  for (auto _ : state) benchmark::DoNotOptimize(temporal_one_loop(a, b, b, a).temporal_error);
+}
+BENCHMARK(BM_Temporal_one_loop)->Unit(benchmark::kMillisecond)->UseRealTime();
+
 // Keeps the fastest repetition of every benchmark (wall ms per iteration) and prints the table.
 class Summary : public benchmark::ConsoleReporter {
  public:
@@ -153,6 +190,7 @@ class Summary : public benchmark::ConsoleReporter {
       row("SSIM valid / OpenCV QualitySSIM", "BM_SsimLuma_valid", "BM_SsimLuma_OpenCvQuality");
       row("FLIP / memory floor (read 2 RGB8, write float)", "BM_Flip", "BM_Flip_floor");
       row("FLIP test half / memory floor", "BM_Flip_test_half", "BM_Flip_floor");
+      row("temporal scores / the sequential loop before", "BM_Temporal", "BM_Temporal_one_loop");
     }
   }
 

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <vector>
 
@@ -131,6 +132,64 @@ TEST(Temporal, BadInputIsAnError) {
   EXPECT_THROW(temporal_scores(a, a, a, a, -1.0), Error);
   EXPECT_THROW(temporal_scores(a, a, a, a, std::nan("")), Error);
   EXPECT_EQ(TemporalRun().temporal_error(), 0.0);
+}
+
+// The measures as one sequential loop over the pixels (how core/temporal.cpp computed them
+// before its per-pixel terms ran four at a time): the definition of the bits it must keep.
+TemporalScores one_loop(const ImageRGB8& rp, const ImageRGB8& r, const ImageRGB8& tp, const ImageRGB8& t,
+                        double threshold) {
+  auto y = [](const Rgb8& p) { return 0.299 * p.r + 0.587 * p.g + 0.114 * p.b; };
+  double err = 0, flicker = 0;
+  int64_t still = 0;
+  for (size_t i = 0; i < r.size(); ++i) {
+    const double dr = y(r[i]) - y(rp[i]), dt = y(t[i]) - y(tp[i]);
+    err += std::abs(dt - dr);
+    if (std::abs(dr) <= threshold) {
+      flicker += std::abs(dt);
+      ++still;
+    }
+  }
+  TemporalScores s;
+  s.pixels = int64_t(r.size());
+  s.temporal_error = err / double(r.size());
+  s.static_pixels = still;
+  s.static_flicker = still ? flicker / double(still) : 0.0;
+  return s;
+}
+
+TEST(Temporal, SameBitsAsOneSequentialLoop) {
+  // Sizes around the vectors of 4 and the chunks of 512 pixels; images that share regions
+  // (static pixels) and differ by noise elsewhere.
+  const int sizes[][2] = {{1, 1}, {3, 1}, {5, 3}, {513, 1}, {37, 29}, {1280, 720}};
+  uint64_t seed = 7;
+  for (const auto& sz : sizes) {
+    const int w = sz[0], h = sz[1];
+    auto image = [&](uint64_t s, int keep_from) {
+      ImageRGB8 im(w, h);
+      for (int i = 0; i < w * h; ++i) {
+        const bool shared = i >= keep_from;
+        const uint64_t k = shared ? 1 : s;
+        im[size_t(i)] = {uint8_t(rng_uniform({k, uint32_t(i), 0, 0, 9}) * 256),
+                         uint8_t(rng_uniform({k, uint32_t(i), 1, 0, 9}) * 256),
+                         uint8_t(rng_uniform({k, uint32_t(i), 2, 0, 9}) * 256)};
+      }
+      return im;
+    };
+    const int half = w * h / 2;
+    const ImageRGB8 rp = image(seed++, half), r = image(seed++, half), tp = image(seed++, w * h / 3),
+                    t = image(seed++, w * h);
+    for (double threshold : {0.0, 0.5, 20.0}) {
+      const TemporalScores got = temporal_scores(rp, r, tp, t, threshold), want = one_loop(rp, r, tp, t, threshold);
+      EXPECT_EQ(std::bit_cast<uint64_t>(got.temporal_error), std::bit_cast<uint64_t>(want.temporal_error))
+          << w << "x" << h << " threshold " << threshold;
+      EXPECT_EQ(std::bit_cast<uint64_t>(got.static_flicker), std::bit_cast<uint64_t>(want.static_flicker))
+          << w << "x" << h << " threshold " << threshold;
+      EXPECT_EQ(got.static_pixels, want.static_pixels) << w << "x" << h;
+      if (w * h > 1 && threshold == 0.0) {
+        EXPECT_GT(got.static_pixels, 0) << "the test has static pixels";
+      }
+    }
+  }
 }
 
 }  // namespace
