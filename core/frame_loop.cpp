@@ -586,21 +586,22 @@ class Simulation {
     if (Rastered kept = cache_.find_raster(scene_key_, f); kept.gbuf) return kept;
     return rasterize_now(f);
   }
-  // The client's G-buffer of `f`: an earlier run's of the same frame (the cache keeps the
-  // first history_frames a run rasterized: TraceCache::find_raster), else rasterized now and
-  // offered to the cache. A kept one's time is the time its rasterization took.
+  // The client's G-buffer of `f`: an earlier run's of the same frame (TraceCache::find_raster),
+  // else rasterized now and offered to the cache, which keeps the first frames up to as many as
+  // this run's client holds itself (remember_raster). A kept one's time is the time its
+  // rasterization took.
   Rastered client_raster(const RasterFrame& f) {
     if (Rastered kept = cache_.find_raster(scene_key_, f); kept.gbuf) return kept;
     Rastered r = rasterize_now(f);
-    cache_.keep_raster(scene_key_, f, r, size_t(c_.history_frames));
+    cache_.keep_raster(scene_key_, f, r, raster_history());
     return r;
   }
+  size_t raster_history() const { return remote_ ? 8 : size_t(c_.history_frames); }
   // Keeps the client's last G-buffers for server_raster: as many as the hybrid client keeps for
   // prediction (shared with those: no more memory), a few in remote mode (which keeps none).
   void remember_raster(const RasterFrame& f, const Rastered& r) {
     rasters_.push_back({f, r});
-    const size_t keep = remote_ ? 8 : size_t(c_.history_frames);
-    while (rasters_.size() > keep) rasters_.pop_front();
+    while (rasters_.size() > raster_history()) rasters_.pop_front();
   }
 
   void server_advance(double until_ms) {

@@ -80,8 +80,9 @@ class TraceCache {
 
   // The client's G-buffers of one scene and camera path, for the runs after the one that
   // rasterized them (docs/performance.md, item 2): the runs of a sweep display the same frames.
-  // Kept apart from the byte bound above (one run's client already holds `history_frames` of
-  // them): the first `capacity` frames offered for one scene and size are kept -- a run visits
+  // Kept apart from the byte bound above (one run's client already holds as many: its
+  // `history_frames`, 8 in remote mode): the first `capacity` frames offered for one scene and
+  // size are kept -- a run visits
   // its frames in order, so the first ones, not the most recent, are what the next run finds --
   // and a frame of another scene or size starts over. Exact: the rasterizer is deterministic,
   // and a frame is found only for the same scene (key and object) and RasterFrame
