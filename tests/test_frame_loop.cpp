@@ -395,23 +395,27 @@ TEST(DenoiseSharing, SkippedFramesAreFedAgainWhenTheSequenceDiverges) {
   EXPECT_NE(with_planted, own);
 }
 
+// What a run's results say, for the tests of what the runs of a sweep share: every scored
+// frame's scores against the local reference and each pass's source frame and disocclusions,
+// each pass's bytes and frames, the cameras lost.
+std::string run_outcome(const SimConfig& c, TraceCache& cache, const char* scene_name = "room") {
+  const RunResult r = run_simulation(c, scene(scene_name), scene_name, cache, registries());
+  nlohmann::json frames = nlohmann::json::array();
+  for (const auto& f : r.frames) {
+    nlohmann::json local = nlohmann::json::array(), sources = nlohmann::json::array();
+    for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);
+    for (const auto& p : f.passes) sources.push_back({p.source_frame, p.disoccluded});
+    frames.push_back({f.frame, local, sources});
+  }
+  nlohmann::json bytes = nlohmann::json::array();
+  for (const auto& t : r.traffic) bytes.push_back({t.pass, t.encoded_bytes, t.frames_completed});
+  return nlohmann::json{{"frames", frames}, {"bytes", bytes}, {"cameras_lost", r.cameras_lost}}.dump();
+}
+
 // The runs of a sweep share their servers' and local references' denoised passes: a run whose
 // server skips frames another run's served (camera messages lost), or one in remote mode, scores
 // exactly as it does alone.
 TEST(FrameLoop, SharedDenoisedPassesScoreAsTheirOwn) {
-  auto outcome = [](const SimConfig& c, TraceCache& cache) {
-    const RunResult r = run_simulation(c, scene("room"), "room", cache, registries());
-    nlohmann::json frames = nlohmann::json::array();
-    for (const auto& f : r.frames) {
-      nlohmann::json local = nlohmann::json::array(), sources = nlohmann::json::array();
-      for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);
-      for (const auto& p : f.passes) sources.push_back(p.source_frame);
-      frames.push_back({f.frame, local, sources});
-    }
-    nlohmann::json bytes = nlohmann::json::array();
-    for (const auto& t : r.traffic) bytes.push_back({t.pass, t.encoded_bytes, t.frames_completed});
-    return nlohmann::json{{"frames", frames}, {"bytes", bytes}, {"cameras_lost", r.cameras_lost}}.dump();
-  };
   SimConfig a = small_config(24);
   a.warmup_frames = 2;
   a.pass("ao").denoiser = {"svgf_ao"};
@@ -423,18 +427,18 @@ TEST(FrameLoop, SharedDenoisedPassesScoreAsTheirOwn) {
   SimConfig remote = a;
   remote.mode = "remote";
   TraceCache shared;
-  (void)outcome(a, shared);
+  (void)run_outcome(a, shared);
   for (const SimConfig* c : {&lossy, &remote}) {
     TraceCache nothing(0);  // keeps nothing: the run's server and local reference share nothing either
-    const std::string own = outcome(*c, nothing);
+    const std::string own = run_outcome(*c, nothing);
     TraceCache fresh;  // the run's local reference feeds every frame first, its server follows
-    EXPECT_EQ(outcome(*c, fresh), own) << c->mode;
-    EXPECT_EQ(outcome(*c, shared), own) << c->mode;
+    EXPECT_EQ(run_outcome(*c, fresh), own) << c->mode;
+    EXPECT_EQ(run_outcome(*c, shared), own) << c->mode;
   }
   // The lossy run's server skips frame 12 (its first lost camera): it takes frames 0-11 from the
   // memo, then feeds them to its denoiser.
   TraceCache nothing(0);
-  EXPECT_GT(nlohmann::json::parse(outcome(lossy, nothing))["cameras_lost"].get<int>(), 0) << "the server skips frames";
+  EXPECT_GT(nlohmann::json::parse(run_outcome(lossy, nothing))["cameras_lost"].get<int>(), 0) << "the server skips frames";
 }
 
 // The runs of a sweep share their clients' G-buffers (TraceCache::find_raster): the first
@@ -442,19 +446,6 @@ TEST(FrameLoop, SharedDenoisedPassesScoreAsTheirOwn) {
 // of the same scene, which score exactly as they do alone; another camera path, display rate,
 // size or scene finds none.
 TEST(FrameLoop, SharedClientGBuffersScoreAsTheirOwn) {
-  auto outcome = [](const SimConfig& c, TraceCache& cache, const char* name = "room") {
-    const RunResult r = run_simulation(c, scene(name), name, cache, registries());
-    nlohmann::json frames = nlohmann::json::array();
-    for (const auto& f : r.frames) {
-      nlohmann::json local = nlohmann::json::array(), sources = nlohmann::json::array();
-      for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);
-      for (const auto& p : f.passes) sources.push_back({p.source_frame, p.disoccluded});
-      frames.push_back({f.frame, local, sources});
-    }
-    nlohmann::json bytes = nlohmann::json::array();
-    for (const auto& t : r.traffic) bytes.push_back({t.pass, t.encoded_bytes, t.frames_completed});
-    return nlohmann::json{{"frames", frames}, {"bytes", bytes}, {"cameras_lost", r.cameras_lost}}.dump();
-  };
   SimConfig a = small_config(20);
   a.warmup_frames = 2;
   a.history_frames = 16;  // fewer than the 22 frames: the cache keeps frames 0-15
@@ -474,12 +465,12 @@ TEST(FrameLoop, SharedClientGBuffersScoreAsTheirOwn) {
   bigger.height = 45;
   for (const SimConfig* c : {&lossy, &remote, &later, &faster, &bigger}) {
     TraceCache nothing(0);  // keeps nothing
-    const std::string own = outcome(*c, nothing);
+    const std::string own = run_outcome(*c, nothing);
     EXPECT_EQ(nothing.raster_hits(), 0u);
     TraceCache shared;
-    (void)outcome(a, shared);
+    (void)run_outcome(a, shared);
     EXPECT_EQ(shared.raster_hits(), 0u) << "the first run finds nothing";
-    EXPECT_EQ(outcome(*c, shared), own) << c->mode << " " << c->start_time_s << " " << c->display_hz << " " << c->width;
+    EXPECT_EQ(run_outcome(*c, shared), own) << c->mode << " " << c->start_time_s << " " << c->display_hz << " " << c->width;
     // The same frames: the first 16; at 90 Hz only the first frame (same time, no motion yet).
     const uint64_t want = c == &lossy || c == &remote ? 16u : c == &faster ? 1u : 0u;
     EXPECT_EQ(shared.raster_hits(), want)
@@ -487,9 +478,9 @@ TEST(FrameLoop, SharedClientGBuffersScoreAsTheirOwn) {
   }
   // Another scene of the same size finds none of room's.
   TraceCache shared;
-  (void)outcome(a, shared);
+  (void)run_outcome(a, shared);
   TraceCache nothing(0);
-  EXPECT_EQ(outcome(a, shared, "street"), outcome(a, nothing, "street"));
+  EXPECT_EQ(run_outcome(a, shared, "street"), run_outcome(a, nothing, "street"));
   EXPECT_EQ(shared.raster_hits(), 0u);
 }
 
