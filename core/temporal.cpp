@@ -13,19 +13,11 @@ namespace dhr {
 namespace {
 
 inline double luma_f(const Rgb8& p) { return 0.299 * p.r + 0.587 * p.g + 0.114 * p.b; }
-inline Vec4d luma4(const Rgb8* p) {
-  const Vec4d r = {double(p[0].r), double(p[1].r), double(p[2].r), double(p[3].r)};
-  const Vec4d g = {double(p[0].g), double(p[1].g), double(p[2].g), double(p[3].g)};
-  const Vec4d b = {double(p[0].b), double(p[1].b), double(p[2].b), double(p[3].b)};
-  return 0.299 * r + 0.587 * g + 0.114 * b;
-}
-// std::abs lane by lane, but for -0, which stays -0 (std::abs gives +0): adding either to a sum
-// leaves it unchanged, and no -0 arises here (a difference of equal values is +0).
-inline Vec4d abs4(Vec4d v) { return v < 0.0 ? -v : v; }
 
 // Each pixel's terms of the two sums: |dT - dR|, and |dT| where the reference is static (0
 // elsewhere, which leaves a sum of non-negative terms unchanged); returns the static count.
-// Four pixels at a time in double, the same operations per pixel as luma_f's expression.
+// Built for AVX2 and the baseline (core/vec8.h) so that the compiler can vectorize it; apart
+// from the sums, which stay sequential in temporal_scores.
 DHR_VEC8_TARGETS int64_t step_terms(const Rgb8* rp, const Rgb8* r, const Rgb8* tp, const Rgb8* t, size_t n,
                                     double threshold, double* err, double* flicker) {
   int64_t still = 0;
