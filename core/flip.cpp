@@ -138,14 +138,22 @@ DHR_VEC8_TARGETS void lab_f_row(float* v, size_t n) {
   for (; i < n; ++i) v[i] = lab_f(v[i]);
 }
 
-// Linear RGB -> CIELAB with the Hunt adjustment (a and b scaled by 0.01 L).
+// CIELAB's f of X/Xn, Y/Yn, Z/Zn -> CIELAB with the Hunt adjustment (a and b scaled by 0.01 L);
+// for a float and for eight lanes (vertical_row's rows).
+template <class T>
+inline void hunt_from_f(T fx, T fy, T fz, T& l, T& a, T& b) {
+  l = 116.0f * fy - 16.0f;
+  a = 0.01f * l * 500.0f * (fx - fy);
+  b = 0.01f * l * 200.0f * (fy - fz);
+}
+
+// Linear RGB -> Hunt-adjusted CIELAB.
 inline Lab hunt_lab(const ColourSpace& cs, float r, float g, float b) {
   const float* m = cs.to_xyz;
-  const float fx = lab_f(m[0] * r + m[1] * g + m[2] * b);
-  const float fy = lab_f(m[3] * r + m[4] * g + m[5] * b);
-  const float fz = lab_f(m[6] * r + m[7] * g + m[8] * b);
-  const float l = 116.0f * fy - 16.0f;
-  return {l, 0.01f * l * 500.0f * (fx - fy), 0.01f * l * 200.0f * (fy - fz)};
+  Lab out;
+  hunt_from_f(lab_f(m[0] * r + m[1] * g + m[2] * b), lab_f(m[3] * r + m[4] * g + m[5] * b),
+              lab_f(m[6] * r + m[7] * g + m[8] * b), out.l, out.a, out.b);
+  return out;
 }
 
 inline float hyab(const Lab& p, const Lab& q) {
@@ -381,18 +389,9 @@ inline void filtered_to_xyz(T& t0, T& t1, T& t2, T t3, float a1, float a2, const
   t2 = n[6] * r + n[7] * g + n[8] * b;
 }
 
-// CIELAB's f of X/Xn, Y/Yn, Z/Zn -> Hunt-adjusted CIELAB (hunt_lab's last step).
-template <class T>
-inline void hunt_from_f(T fx, T fy, T fz, T& l, T& a, T& b) {
-  l = 116.0f * fy - 16.0f;
-  a = 0.01f * l * 500.0f * (fx - fy);
-  b = 0.01f * l * 200.0f * (fy - fz);
-}
-
 // The colour step of a row: t[0..3] as filtered (t[2], t[3]: Cz by its two Gaussians) become
-// X/Xn, Y/Yn, Z/Zn in t[0..2]; the edge magnitude from the derivative planes t[4], t[5].
-DHR_VEC8_TARGETS void colour_and_edge_row(float* const* t, float a1, float a2, const float* m, const float* n, int w,
-                                          float* edge) {
+// X/Xn, Y/Yn, Z/Zn in t[0..2].
+DHR_VEC8_TARGETS void colour_row(float* const* t, float a1, float a2, const float* m, const float* n, int w) {
   int x = 0;
   for (; x + 8 <= w; x += 8) {
     Vec8 t0 = load8(t[0] + x), t1 = load8(t[1] + x), t2 = load8(t[2] + x);
@@ -400,13 +399,8 @@ DHR_VEC8_TARGETS void colour_and_edge_row(float* const* t, float a1, float a2, c
     store8(t[0] + x, t0);
     store8(t[1] + x, t1);
     store8(t[2] + x, t2);
-    const Vec8 d1 = load8(t[4] + x), d2 = load8(t[5] + x);
-    store8(edge + x, root(d1 * d1 + d2 * d2));
   }
-  for (; x < w; ++x) {
-    filtered_to_xyz(t[0][x], t[1][x], t[2][x], t[3][x], a1, a2, m, n);
-    edge[x] = root(t[4][x] * t[4][x] + t[5][x] * t[5][x]);
-  }
+  for (; x < w; ++x) filtered_to_xyz(t[0][x], t[1][x], t[2][x], t[3][x], a1, a2, m, n);
 }
 
 // CIELAB's f values of a row (f[0..2]) -> Hunt-adjusted CIELAB, interleaved into lab.
@@ -453,7 +447,8 @@ void vertical_row(const float* const* planes, const Filters& fl, int w, int h, i
   filter_column(planes[kFd1], w, h, y, fl.f.g, t[4]);
   filter_column(planes[kFg], w, h, y, fl.f.d1, t[5]);
   filter_column(planes[kFd2], w, h, y, fl.f.g, t[6]);
-  colour_and_edge_row(t, fl.cz.alpha1, fl.cz.alpha2, cs.from_xyz, cs.to_xyz, w, out.edge);
+  colour_row(t, fl.cz.alpha1, fl.cz.alpha2, cs.from_xyz, cs.to_xyz, w);
+  magnitude_row(t[4], t[5], w, out.edge);
   for (int c = 0; c < 3; ++c) lab_f_row(t[c], size_t(w));
   lab_row(t, w, out.lab);
   // The point detector's y term needs the Gaussian-row plane with d2 vertically.
@@ -505,7 +500,7 @@ struct FlipWorkspace {
 
 // The horizontal pass of one image into the workspace's planes, each grown to the image's size
 // when smaller; the pass overwrites every value it reads back.
-std::array<const float*, kPlanes> horizontal_planes(const ImageRGB8& image, const Filters& fl, FlipWorkspace& ws) {
+std::array<float*, kPlanes> horizontal_planes(const ImageRGB8& image, const Filters& fl, FlipWorkspace& ws) {
   std::array<float*, kPlanes> planes;
   for (int k = 0; k < kPlanes; ++k) {
     std::vector<float>& p = ws.planes[k];
@@ -513,9 +508,7 @@ std::array<const float*, kPlanes> horizontal_planes(const ImageRGB8& image, cons
     planes[size_t(k)] = p.data();
   }
   horizontal_pass(image, fl, planes.data());
-  std::array<const float*, kPlanes> out;
-  std::copy(planes.begin(), planes.end(), out.begin());
-  return out;
+  return planes;
 }
 
 }  // namespace
@@ -525,7 +518,7 @@ FlipFeatures flip_features(const ImageRGB8& image, double ppd) {
   check_ppd(ppd);
   const Filters fl = make_filters(ppd);
   WorkspaceLease<FlipWorkspace> ws;
-  const std::array<const float*, kPlanes> planes = horizontal_planes(image, fl, *ws);
+  const std::array<float*, kPlanes> planes = horizontal_planes(image, fl, *ws);
   const int w = image.width(), h = image.height();
   FlipFeatures f;
   f.width = w;
@@ -565,7 +558,7 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
   check_ppd(reference.ppd);
   const Filters fl = make_filters(reference.ppd);
   WorkspaceLease<FlipWorkspace> ws;
-  const std::array<const float*, kPlanes> test_planes = horizontal_planes(test, fl, *ws);
+  const std::array<float*, kPlanes> test_planes = horizontal_planes(test, fl, *ws);
 
   const float cmax = max_colour_error();
   const float knee = kPc * cmax;

@@ -82,11 +82,10 @@ class TraceCache {
   // rasterized them (docs/performance.md, item 2): the runs of a sweep display the same frames.
   // Kept apart from the byte bound above (one run's client already holds as many: its
   // `history_frames`, 8 in remote mode): the first `capacity` frames offered for one scene and
-  // size are kept -- a run visits
-  // its frames in order, so the first ones, not the most recent, are what the next run finds --
-  // and a frame of another scene or size starts over. Exact: the rasterizer is deterministic,
-  // and a frame is found only for the same scene (key and object) and RasterFrame
-  // (same_raster_frame). A cache built with max_bytes 0 keeps none.
+  // size are kept -- a run visits its frames in order, so the first ones, not the most recent,
+  // are what the next run finds -- and a frame of another scene or size starts over. Exact: the
+  // rasterizer is deterministic, and a frame is found only for the same scene (key and object)
+  // and RasterFrame (same_raster_frame). A cache built with max_bytes 0 keeps none.
   Rastered find_raster(const std::string& scene_key, const RasterFrame& frame);
   void keep_raster(const std::string& scene_key, const RasterFrame& frame, const Rastered& rastered, size_t capacity);
   uint64_t raster_hits() const;

@@ -1,9 +1,9 @@
 // Eight floats as one value (GCC's and clang's vector extension) for the core's bit-exact row
-// kernels (core/flip.cpp, core/composite.cpp, core/metrics.cpp): lane for lane the same operations as the scalar
-// code, every product and sum rounded on its own. DHR_VEC8_TARGETS clones a kernel for AVX2
-// and the baseline and picks one at run time; neither target has FMA instructions, so nothing is
-// contracted and both give the same bits. (The denoisers have their own lane types:
-// backends/denoise/filters_simd.h.)
+// kernels (core/flip.cpp, core/composite.cpp, core/metrics.cpp, core/temporal.cpp): lane for lane
+// the same operations as the scalar code, every product and sum rounded on its own.
+// DHR_VEC8_TARGETS clones a kernel for AVX2 and the baseline and picks one at run time; neither
+// target has FMA instructions, so nothing is contracted and both give the same bits. (The
+// denoisers have their own lane types: backends/denoise/filters_simd.h.)
 #pragma once
 
 #include <xmmintrin.h>
