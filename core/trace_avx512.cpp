@@ -10,9 +10,11 @@
 // The visibility pass's AVX-512 kernels (same choice at run time, TraceSettings::wide_kernels):
 // stage 1 (surfaces_x16: surface points, orientation and origins of a row, 16 pixels at a time
 // from a per-row triangle table), stage 2 (sphere_light_row_x16: classification, compaction and
-// the hard or single jittered ray; distant_light_row_x16) and stage 3 (trace_pairs_x16: the
-// traced pairs gathered into packets). Same rays and counts as core/trace_rows.cpp's kernels,
-// bit for bit (tests/test_trace_bits.cpp pins them by hash on every scene with lights).
+// the hard or single jittered ray; distant_light_row_x16), stage 3 (trace_pairs_x16: the
+// traced pairs gathered into packets) and soft_pair_rays_x16 (the cone loop of a soft light
+// with S > 1 samples per pixel, as the ground truth traces). Same rays and counts as
+// core/trace_rows.cpp's kernels, bit for bit (tests/test_trace_bits.cpp pins them by hash on
+// every scene with lights).
 // docs/performance.md has the measurements.
 //
 // Only the functions marked DHR_TRACE_TARGET_AVX512 are compiled for AVX-512; the rest of the
@@ -238,16 +240,21 @@ DHR_TRACE_TARGET_AVX512 inline __m512 sphere_tfar_x16(const __m512 d[3], const _
   return _mm512_max_ps(_mm512_mul_ps(t_hit, _mm512_set1_ps(kShadowTfarScale)), _mm512_setzero_ps());
 }
 
-// direction_valid (core/trace_directions.h) and the origin's validity (bytes 0/1), 16 lanes.
-DHR_TRACE_TARGET_AVX512 inline __mmask16 rays_valid_x16(const __m512 d[3], __m512 tfar, const uint8_t* origin_ok) {
+// direction_valid (core/trace_directions.h), 16 lanes.
+DHR_TRACE_TARGET_AVX512 inline __mmask16 directions_valid_x16(const __m512 d[3], __m512 tfar) {
   const __m512 zero = _mm512_setzero_ps(), fmax = _mm512_set1_ps(std::numeric_limits<float>::max());
   const __mmask16 finite = _mm512_cmp_ps_mask(_mm512_abs_ps(d[0]), fmax, _CMP_LE_OQ) &
                            _mm512_cmp_ps_mask(_mm512_abs_ps(d[1]), fmax, _CMP_LE_OQ) &
                            _mm512_cmp_ps_mask(_mm512_abs_ps(d[2]), fmax, _CMP_LE_OQ);
   const __mmask16 nonzero = _mm512_cmp_ps_mask(d[0], zero, _CMP_NEQ_UQ) | _mm512_cmp_ps_mask(d[1], zero, _CMP_NEQ_UQ) |
                             _mm512_cmp_ps_mask(d[2], zero, _CMP_NEQ_UQ);
+  return finite & nonzero & _mm512_cmp_ps_mask(tfar, zero, _CMP_GE_OQ);
+}
+
+// directions_valid_x16 and the origin's validity (bytes 0/1).
+DHR_TRACE_TARGET_AVX512 inline __mmask16 rays_valid_x16(const __m512 d[3], __m512 tfar, const uint8_t* origin_ok) {
   const __m512i ook = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(origin_ok)));
-  return finite & nonzero & _mm512_cmp_ps_mask(tfar, zero, _CMP_GE_OQ) & _mm512_test_epi32_mask(ook, ook);
+  return directions_valid_x16(d, tfar) & _mm512_test_epi32_mask(ook, ook);
 }
 
 }  // namespace
@@ -502,6 +509,77 @@ DHR_TRACE_TARGET_AVX512 void distant_light_row_x16(VisibilityRow& r, const Light
     _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
                     _mm512_cvtepi32_epi8(_mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(1))));
     std::copy(bytes, bytes + n, &r.ok[i]);
+  }
+}
+
+// soft_pair_rays_x8 (core/trace_avx2.cpp) in 16 lanes: the S rays of one (pixel, light) pair of
+// a soft light with S > 1, 16 samples per packet of their own (a pixel's samples share the
+// origin and point the same way: coherent packets). The hashes, uniforms, directions, tfar and
+// validity are the cone loop's operations in the same order (same rays); an invalid ray counts
+// as unoccluded without a trace; with batch.record the valid rays are kept in sample order.
+DHR_TRACE_TARGET_AVX512 void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, uint64_t& invalid) {
+  const __m512i stream = _mm512_set1_epi64(int64_t(p.stream));
+  const __m512i dim1 = _mm512_set1_epi64(1);
+  const __m512i h = _mm512_set1_epi64(int64_t(p.h));
+  const __m512i iota_lo = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m512i iota_hi = _mm512_setr_epi64(8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512 t[3] = {_mm512_set1_ps(p.t.x), _mm512_set1_ps(p.t.y), _mm512_set1_ps(p.t.z)};
+  const __m512 b[3] = {_mm512_set1_ps(p.b.x), _mm512_set1_ps(p.b.y), _mm512_set1_ps(p.b.z)};
+  const __m512 w[3] = {_mm512_set1_ps(p.w.x), _mm512_set1_ps(p.w.y), _mm512_set1_ps(p.w.z)};
+  const __m512 oc[3] = {_mm512_set1_ps(p.oc.x), _mm512_set1_ps(p.oc.y), _mm512_set1_ps(p.oc.z)};
+  const __m512 omc_max = _mm512_set1_ps(p.omc_max), r2 = _mm512_set1_ps(p.r2);
+  const __m512 inf = _mm512_set1_ps(std::numeric_limits<float>::infinity());
+  alignas(64) RTCRay16 pk;
+  alignas(64) int valid[16];
+  _mm512_store_ps(pk.org_x, _mm512_set1_ps(p.origin.x));
+  _mm512_store_ps(pk.org_y, _mm512_set1_ps(p.origin.y));
+  _mm512_store_ps(pk.org_z, _mm512_set1_ps(p.origin.z));
+  _mm512_store_ps(pk.tnear, _mm512_setzero_ps());
+  _mm512_store_ps(pk.time, _mm512_setzero_ps());
+  for (int l = 0; l < 16; ++l) {
+    pk.mask[l] = batch.mask;
+    pk.id[l] = unsigned(l);
+    pk.flags[l] = 0;
+  }
+  for (int k0 = 0; k0 < p.samples; k0 += 16) {
+    const int live = std::min(16, p.samples - k0);
+    // key = (sample << 32) | stream, as PixelRng::uniform2
+    const __m512i first = _mm512_set1_epi64(int64_t(k0));
+    const __m512i key_lo = _mm512_or_si512(_mm512_slli_epi64(_mm512_add_epi64(first, iota_lo), 32), stream);
+    const __m512i key_hi = _mm512_or_si512(_mm512_slli_epi64(_mm512_add_epi64(first, iota_hi), 32), stream);
+    const __m512i k_lo = mix64_x8(_mm512_xor_si512(h, key_lo)), k_hi = mix64_x8(_mm512_xor_si512(h, key_hi));
+    const __m512 u0 = uniform_x16(mix64_x8(k_lo), mix64_x8(k_hi));
+    const __m512 u1 = uniform_x16(mix64_x8(_mm512_xor_si512(k_lo, dim1)), mix64_x8(_mm512_xor_si512(k_hi, dim1)));
+    __m512 d[3];
+    cone_x16(t, b, w, omc_max, u0, u1, d);
+    const __m512 tfar = p.sphere ? sphere_tfar_x16(d, oc, r2) : inf;
+    const __mmask16 live_mask = __mmask16((1u << live) - 1u);
+    const __mmask16 ok = p.origin_ok ? __mmask16(directions_valid_x16(d, tfar) & live_mask) : __mmask16(0);
+    const int n_invalid = live - popcount16(ok);
+    invalid += uint64_t(n_invalid);
+    *p.count = uint16_t(*p.count + n_invalid);
+    if (ok == 0) continue;
+    if (batch.record) {
+      alignas(64) float dx[16], dy[16], dz[16], tf[16];
+      _mm512_store_ps(dx, d[0]);
+      _mm512_store_ps(dy, d[1]);
+      _mm512_store_ps(dz, d[2]);
+      _mm512_store_ps(tf, tfar);
+      for (int l = 0; l < live; ++l)
+        if (ok >> l & 1u) batch.push(p.origin, dx[l], dy[l], dz[l], tf[l], nullptr);
+      continue;
+    }
+    // Lanes that do not trace get a harmless ray (Embree validates every lane's values).
+    _mm512_store_ps(pk.dir_x, _mm512_mask_blend_ps(ok, _mm512_set1_ps(1.0f), d[0]));
+    _mm512_store_ps(pk.dir_y, _mm512_maskz_mov_ps(ok, d[1]));
+    _mm512_store_ps(pk.dir_z, _mm512_maskz_mov_ps(ok, d[2]));
+    _mm512_store_ps(pk.tfar, _mm512_maskz_mov_ps(ok, tfar));
+    _mm512_store_si512(valid, _mm512_maskz_mov_epi32(ok, _mm512_set1_epi32(-1)));
+    rtcOccluded16(valid, batch.scene, &batch.ctx, &pk);
+    // Embree sets tfar = -inf on an occluded ray; anything else reached (as Batch::flush).
+    const uint32_t reached = _mm512_cmp_ps_mask(_mm512_load_ps(pk.tfar), _mm512_setzero_ps(), _CMP_NLT_UQ) & ok;
+    *p.count = uint16_t(*p.count + popcount16(reached));
+    batch.traced += uint64_t(popcount16(ok));
   }
 }
 

@@ -460,6 +460,9 @@ void surfaces_x16(VisibilityRow& r, const TraceSettings& settings, size_t row_st
 // pixel, 16 pixels at a time: codes, rays (the jittered cone for a soft light, the light's
 // direction for a hard one) and validity. Same bits.
 void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base);
+// The S rays of a soft pair 16 at a time on AVX-512 (soft_pair_rays_x8's work, below): the
+// cone loop's rays and counts bit for bit.
+void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, uint64_t& invalid);
 // Stage 3 of the visibility pass where every light takes one ray per pixel: the n pairs of
 // r.pair (pixel then light order) 16 at a time into the packet (a row's last packet may be
 // partial), traced, each unoccluded ray adding one to its counter; with batch.record, the rays

@@ -13,8 +13,8 @@
 //   operations in the same order, 4 lanes at a time, so results are bit-identical to it.
 // - where the CPU has AVX-512 (and TraceSettings::wide_kernels): the AO pass's ray generator
 //   and the visibility pass's stages (surfaces; light classification and the hard or single
-//   jittered ray; packets where every light takes one ray per pixel; S > 1 keeps the cone
-//   loops below), in core/trace_avx512.cpp; where it has AVX2 only: the AO pass's ray
+//   jittered ray; packets where every light takes one ray per pixel; the cone loops of S > 1),
+//   in core/trace_avx512.cpp; where it has AVX2 only: the AO pass's ray
 //   generator, the surfaces, the packets and the cone loops of S > 1 (core/trace_avx2.cpp; the
 //   light classification stays here). This file keeps the baseline kernels and the per-pixel
 //   work the vector kernels hand back (unresolved ids, normals oriented by the camera).
@@ -245,6 +245,8 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     row_arrays = std::make_unique<VisibilityRow>(w, nl);
   VisibilityRow& r = *row_arrays;
 #if DHR_TRACE_X86_KERNELS
+  // AVX-512: every stage, and the cone loops of soft lights with S > 1 (soft_pair_rays_x16)
+  // where Embree has 16-wide packets.
   const bool x16 = settings.wide_kernels && cpu_has_avx512dq();
   // AVX2 without AVX-512: the surfaces (surfaces_x8), the cone loops of soft lights with S > 1
   // (soft_pair_rays_x8) and the packets where every light takes one ray per pixel
@@ -454,13 +456,12 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
         const float ocx = r.ocx[i], ocy = r.ocy[i], ocz = r.ocz[i];
         const float r2 = li.radius * li.radius;
 #if DHR_TRACE_X86_KERNELS
-        if constexpr (W == 8) {
-          if (x8) {
-            const SoftPair pair{origin, origin_ok, r.h[size_t(x)], stream, li.samples, tb, bb, w_dir, omc_max,
-                                li.sphere, glm::vec3(ocx, ocy, ocz), r2, count};
-            soft_pair_rays_x8(pair, batch, invalid);
-            continue;
-          }
+        if (W == 16 ? x16 : x8) {
+          const SoftPair pair{origin, origin_ok, r.h[size_t(x)], stream, li.samples, tb, bb, w_dir, omc_max,
+                              li.sphere, glm::vec3(ocx, ocy, ocz), r2, count};
+          if constexpr (W == 16) soft_pair_rays_x16(pair, batch, invalid);
+          else soft_pair_rays_x8(pair, batch, invalid);
+          continue;
         }
 #endif
         for (int k0 = 0; k0 < li.samples; k0 += kChunk) {
