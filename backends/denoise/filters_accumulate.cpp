@@ -76,12 +76,20 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const A
                        _mm512_cmp_ps_mask(bw[k], zero, _CMP_NLE_UQ);
         if (!mk) continue;
         const VI j = _mm512_add_epi32(_mm512_mullo_epi32(yy, _mm512_set1_epi32(w)), xx);
+        // Where the lanes' taps lie side by side (lane 0's tap j0, lane l's j0 + l: the motion's
+        // integer part the same across the 16 pixels, as it mostly is), one masked load reads
+        // what the gather would (the same values; masked-off lanes read nothing, zero as there).
+        const int j0 = _mm512_cvtsi512_si32(j);
+        const bool side_by_side =
+            (mk & 1u) && (_mm512_cmpeq_epi32_mask(j, _mm512_add_epi32(_mm512_set1_epi32(j0), lane)) & mk) == mk;
         auto gather = [&](const float* base, __mmask16 mm) {
-          return _mm512_mask_i32gather_ps(zero, mm, j, base, 4);
+          return side_by_side ? _mm512_maskz_loadu_ps(mm, base + j0) : _mm512_mask_i32gather_ps(zero, mm, j, base, 4);
         };
         // "pvalid and pid == idc" is "pid == idc" alone: an invalid pixel has id kBackgroundId
         // (0) and a valid one another id (guide_row), and this pixel is valid.
-        mk &= _mm512_cmpeq_epi32_mask(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, j, a.pid, 4), idc);
+        const VI pid = side_by_side ? _mm512_maskz_loadu_epi32(mk, a.pid + j0)
+                                    : _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, j, a.pid, 4);
+        mk &= _mm512_cmpeq_epi32_mask(pid, idc);
         const V phj = gather(a.ph, mk);
         mk &= _mm512_cmp_ps_mask(phj, zero, _CMP_NLE_UQ);
         const V pzj = gather(a.pz, mk);
@@ -174,6 +182,11 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 __m256 blend(__m256 if_clear, __m256 i
 DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 __m256 gather8(const float* base, __m256i j, __m256 m) {
   return _mm256_mask_i32gather_ps(_mm256_setzero_ps(), base, j, m, 4);
 }
+// gather8, or one masked load where the lanes' taps lie side by side (see accumulate_row16).
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 __m256 taps8(const float* base, __m256i j, int j0, bool side_by_side,
+                                                       __m256 m) {
+  return side_by_side ? _mm256_maskload_ps(base + j0, _mm256_castps_si256(m)) : gather8(base, j, m);
+}
 
 // The same rows 8 pixels at a time with AVX2, for CPUs without AVX-512 (accumulate_row16's
 // twin, step for step): the masks are vectors of all-ones lanes, a masked add is a blend of
@@ -235,25 +248,33 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 int accumulate_row8(const Accu
         V mk = _mm256_and_ps(_mm256_and_ps(inr, _mm256_castsi256_ps(in_image)), _mm256_cmp_ps(bw[k], zero, _CMP_NLE_UQ));
         if (!_mm256_movemask_ps(mk)) continue;
         const VI j = _mm256_add_epi32(_mm256_mullo_epi32(yy, _mm256_set1_epi32(w)), xx);
+        // Taps side by side: masked loads instead of gathers (accumulate_row16).
+        const int j0 = _mm256_cvtsi256_si32(j);
+        const int mk_bits = _mm256_movemask_ps(mk);
+        const bool side = (mk_bits & 1) &&
+                          (_mm256_movemask_ps(_mm256_and_ps(
+                               mk, _mm256_castsi256_ps(_mm256_cmpeq_epi32(j, _mm256_add_epi32(_mm256_set1_epi32(j0), lane))))) ==
+                           mk_bits);
         // "pvalid and pid == idc" is "pid == idc" alone (accumulate_row16).
-        const VI pidj = _mm256_mask_i32gather_epi32(izero, reinterpret_cast<const int*>(a.pid), j,
-                                                    _mm256_castps_si256(mk), 4);
+        const VI pidj = side ? _mm256_maskload_epi32(reinterpret_cast<const int*>(a.pid) + j0, _mm256_castps_si256(mk))
+                             : _mm256_mask_i32gather_epi32(izero, reinterpret_cast<const int*>(a.pid), j,
+                                                           _mm256_castps_si256(mk), 4);
         mk = _mm256_and_ps(mk, _mm256_castsi256_ps(_mm256_cmpeq_epi32(pidj, idc)));
-        const V phj = gather8(a.ph, j, mk);
+        const V phj = taps8(a.ph, j, j0, side, mk);
         mk = _mm256_and_ps(mk, _mm256_cmp_ps(phj, zero, _CMP_NLE_UQ));
-        const V pzj = gather8(a.pz, j, mk);
+        const V pzj = taps8(a.pz, j, j0, side, mk);
         mk = _mm256_and_ps(mk, _mm256_cmp_ps(_mm256_and_ps(_mm256_sub_ps(pzj, zc), abs_mask), ztol, _CMP_NGT_UQ));
-        const V d = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(gather8(a.pnx, j, mk), ncx), _mm256_mul_ps(gather8(a.pny, j, mk), ncy)),
-                                  _mm256_mul_ps(gather8(a.pnz, j, mk), ncz));
+        const V d = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(taps8(a.pnx, j, j0, side, mk), ncx), _mm256_mul_ps(taps8(a.pny, j, j0, side, mk), ncy)),
+                                  _mm256_mul_ps(taps8(a.pnz, j, j0, side, mk), ncz));
         mk = _mm256_and_ps(mk, _mm256_cmp_ps(d, nthr, _CMP_NLT_UQ));
         if (!_mm256_movemask_ps(mk)) continue;
         const V b = bw[k];
         sw = blend(sw, _mm256_add_ps(sw, b), mk);
-        pval = blend(pval, _mm256_add_ps(pval, _mm256_mul_ps(b, gather8(a.pv, j, mk))), mk);
-        p1 = blend(p1, _mm256_add_ps(p1, _mm256_mul_ps(b, gather8(a.pm1, j, mk))), mk);
-        p2 = blend(p2, _mm256_add_ps(p2, _mm256_mul_ps(b, gather8(a.pm2, j, mk))), mk);
+        pval = blend(pval, _mm256_add_ps(pval, _mm256_mul_ps(b, taps8(a.pv, j, j0, side, mk))), mk);
+        p1 = blend(p1, _mm256_add_ps(p1, _mm256_mul_ps(b, taps8(a.pm1, j, j0, side, mk))), mk);
+        p2 = blend(p2, _mm256_add_ps(p2, _mm256_mul_ps(b, taps8(a.pm2, j, j0, side, mk))), mk);
         len = blend(len, _mm256_add_ps(len, _mm256_mul_ps(b, phj)), mk);
-        pkk = blend(pkk, _mm256_add_ps(pkk, _mm256_mul_ps(b, gather8(a.pk, j, mk))), mk);
+        pkk = blend(pkk, _mm256_add_ps(pkk, _mm256_mul_ps(b, taps8(a.pk, j, j0, side, mk))), mk);
       }
       // sw >= 0.01: renormalise; else (and where the pixel was out of range) no history.
       const V ok = _mm256_and_ps(inr, _mm256_cmp_ps(sw, _mm256_set1_ps(0.01f), _CMP_GE_OQ));
