@@ -69,9 +69,9 @@ inline uint8_t srgb8_code(const SrgbCodes& t, float linear) {
 }
 
 // The inputs of the shading, one slot per composited meaning. A new composite term is a slot
-// here (and its case in place()), the values it reads in composite() and composite_fractions()
-// below, its member of PixelTerms and its plane in RowPlanes, and its use in shade_row and in
-// shade_lambert (core/composite.h).
+// here (and its case in place()), the row of values it reads in composite() and
+// composite_fractions() below, its member of PixelTerms and its plane in RowPlanes, and its use
+// in shade_row and in shade_lambert (core/composite.h).
 template <class T>
 struct CompositeInputs {
   T visibility{};  // V_l per light
@@ -209,10 +209,13 @@ DHR_VEC8_TARGETS void shade_row(const RowPlanes& in, const LightTerm* lights, in
   }
 }
 
-// vis_at(l, pixel) gives V_l, terms_at(pixel) the pixel's PixelTerms.
-template <class VisAt, class TermsAt>
-ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSettings& settings, VisAt&& vis_at,
-                         TermsAt&& terms_at) {
+// vis_row(l, first, n, out) writes V_l of the n pixels from pixel `first` on, ao_row(first, n,
+// out) their AO (PixelTerms::ao): a row's pass values are read plane by plane, in loops the
+// compiler vectorizes. Uncovered pixels are shaded with whatever their inputs hold, and never
+// shown (the background is).
+template <class VisRow, class AoRow>
+ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSettings& settings, VisRow&& vis_row,
+                         AoRow&& ao_row) {
   if (!(settings.exposure > 0.0f) || !std::isfinite(settings.exposure))
     fail("composite: exposure {} must be finite and > 0", settings.exposure);
   const int w = g.width(), h = g.height();
@@ -227,30 +230,31 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
     in.stride = stride;
     in.data.assign(stride * size_t(kPlaneVisibility + nl), 0.0f);
     std::vector<float> linear(3 * stride);
+    float* __restrict planes[9];
+    for (int k = 0; k < 9; ++k) planes[k] = in.plane(k);
     for (int y = rows.begin(); y < rows.end(); ++y) {
+      const size_t first = size_t(y) * size_t(w);
+      const glm::vec3* __restrict pos = &g.position(0, y);
+      const glm::vec3* __restrict nrm = &g.normal(0, y);
+      const glm::vec3* __restrict geo = &g.geo_normal(0, y);
+      const glm::vec3* __restrict alb = &g.albedo(0, y);
       for (int x = 0; x < w; ++x) {
-        const size_t pixel = size_t(y) * size_t(w) + size_t(x);
         const size_t i = size_t(x);
-        if (!g.covered(x, y)) {  // shaded with zeros, never shown
-          for (int p = 0; p < kPlaneVisibility + nl; ++p) in.plane(p)[i] = 0.0f;
-          continue;
-        }
-        glm::vec3 nrm = g.normal(x, y);
-        if (!(glm::dot(nrm, nrm) > 0.0f)) nrm = g.geo_normal(x, y);
-        const glm::vec3& p = g.position(x, y);
-        const glm::vec3& a = g.albedo(x, y);
-        const float values[9] = {p.x, p.y, p.z, nrm.x, nrm.y, nrm.z, a.x, a.y, a.z};
-        for (int k = 0; k < 9; ++k) in.plane(k)[i] = values[k];
-        const PixelTerms terms = terms_at(pixel);
-        in.plane(kPlaneAo)[i] = terms.ao;
-        for (int l = 0; l < nl; ++l) in.plane(kPlaneVisibility + l)[i] = vis_at(size_t(l), pixel);
+        glm::vec3 n = nrm[i];
+        if (!(glm::dot(n, n) > 0.0f)) n = geo[i];
+        planes[0][i] = pos[i].x, planes[1][i] = pos[i].y, planes[2][i] = pos[i].z;
+        planes[3][i] = n.x, planes[4][i] = n.y, planes[5][i] = n.z;
+        planes[6][i] = alb[i].x, planes[7][i] = alb[i].y, planes[8][i] = alb[i].z;
       }
+      ao_row(first, size_t(w), in.plane(kPlaneAo));
+      for (int l = 0; l < nl; ++l) vis_row(size_t(l), first, size_t(w), in.plane(kPlaneVisibility + l));
       shade_row(in, lights.data(), nl, scene.ambient, settings.exposure, linear.data());
+      const uint32_t* id = &g.object_id(0, y);
       for (int x = 0; x < w; ++x) {
         const size_t i = size_t(x);
-        out(x, y) = g.covered(x, y) ? Rgb8{srgb8_code(b, linear[i]), srgb8_code(b, linear[stride + i]),
-                                           srgb8_code(b, linear[2 * stride + i])}
-                                    : background;
+        out(x, y) = id[i] != kBackgroundId ? Rgb8{srgb8_code(b, linear[i]), srgb8_code(b, linear[stride + i]),
+                                                  srgb8_code(b, linear[2 * stride + i])}
+                                           : background;
       }
     }
   });
@@ -277,21 +281,33 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const Compos
   const PassBuffer* ao = in.ao;
   const size_t npx = size_t(g.width()) * size_t(g.height());
   const float ao_scale = ao ? 1.0f / float(ao->desc.full_scale) : 0.0f;
-  auto terms_at = [&](size_t pixel) {
-    return PixelTerms{ao ? std::min(1.0f, float(ao->bytes[pixel]) * ao_scale) : 1.0f};
+  const uint8_t* ao_bytes = ao ? ao->bytes.data() : nullptr;
+  auto ao_row = [&](size_t first, size_t n, float* __restrict out) {
+    if (!ao_bytes) return std::fill(out, out + n, 1.0f);
+    for (size_t i = 0; i < n; ++i) out[i] = std::min(1.0f, float(ao_bytes[first + i]) * ao_scale);
   };
-  if (!visibility) return composite_impl(g, scene, settings, [](size_t, size_t) { return 1.0f; }, terms_at);
+  if (!visibility)
+    return composite_impl(
+        g, scene, settings, [](size_t, size_t, size_t n, float* out) { std::fill(out, out + n, 1.0f); }, ao_row);
   const uint8_t* bytes = visibility->bytes.data();
   if (visibility->desc.layout() == PassLayout::Bitmask) {
     const size_t bpp = size_t((visibility->desc.channels + 7) / 8);
     return composite_impl(
         g, scene, settings,
-        [&](size_t l, size_t pixel) { return float((bytes[pixel * bpp + (l >> 3)] >> (l & 7)) & 1u); }, terms_at);
+        [&](size_t l, size_t first, size_t n, float* __restrict out) {
+          const uint8_t* __restrict in = bytes + first * bpp + (l >> 3);
+          for (size_t i = 0; i < n; ++i) out[i] = float((in[i * bpp] >> (l & 7)) & 1u);
+        },
+        ao_row);
   }
   const float vis_scale = 1.0f / float(visibility->desc.full_scale);
   return composite_impl(
       g, scene, settings,
-      [&](size_t l, size_t pixel) { return std::min(1.0f, float(bytes[l * npx + pixel]) * vis_scale); }, terms_at);
+      [&](size_t l, size_t first, size_t n, float* __restrict out) {
+        const uint8_t* __restrict in = bytes + l * npx + first;
+        for (size_t i = 0; i < n; ++i) out[i] = std::min(1.0f, float(in[i]) * vis_scale);
+      },
+      ao_row);
 }
 
 ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
@@ -318,8 +334,14 @@ ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<co
   if (!ao.empty() && ao.size() != npx) fail("composite: {} AO values for {} pixels", ao.size(), npx);
   return composite_impl(
       g, scene, settings,
-      [&](size_t l, size_t pixel) { return visibility.empty() ? 1.0f : visibility[l * npx + pixel]; },
-      [&](size_t pixel) { return PixelTerms{ao.empty() ? 1.0f : ao[pixel]}; });
+      [&](size_t l, size_t first, size_t n, float* out) {
+        if (visibility.empty()) return std::fill(out, out + n, 1.0f);
+        std::copy_n(visibility.begin() + std::ptrdiff_t(l * npx + first), n, out);
+      },
+      [&](size_t first, size_t n, float* out) {
+        if (ao.empty()) return std::fill(out, out + n, 1.0f);
+        std::copy_n(ao.begin() + std::ptrdiff_t(first), n, out);
+      });
 }
 
 }  // namespace dhr
