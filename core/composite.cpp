@@ -209,13 +209,28 @@ DHR_VEC8_TARGETS void shade_row(const RowPlanes& in, const LightTerm* lights, in
   }
 }
 
-// vis_row(l, first, n, out) writes V_l of the n pixels from pixel `first` on, ao_row(first, n,
-// out) their AO (PixelTerms::ao): a row's pass values are read plane by plane, in loops the
-// compiler vectorizes. Uncovered pixels are shaded with whatever their inputs hold, and never
-// shown (the background is).
-template <class VisRow, class AoRow>
+// Row [first, first + n) of an 8-bit one-channel pass as fractions, min(1, byte / full_scale),
+// or `absent` everywhere without the pass.
+void fraction_row(const PassBuffer* pass, size_t first, size_t n, float absent, float* __restrict out) {
+  if (!pass) return std::fill(out, out + n, absent);
+  const float scale = 1.0f / float(pass->desc.full_scale);
+  const uint8_t* __restrict in = pass->bytes.data() + first;
+  for (size_t i = 0; i < n; ++i) out[i] = std::min(1.0f, float(in[i]) * scale);
+}
+
+// The same from per-pixel fractions (empty: absent).
+void fraction_row(std::span<const float> values, size_t first, size_t n, float absent, float* out) {
+  if (values.empty()) return std::fill(out, out + n, absent);
+  std::copy_n(values.begin() + std::ptrdiff_t(first), n, out);
+}
+
+// vis_row(l, first, n, out) writes V_l of the n pixels from pixel `first` on; terms_row(first,
+// n, in) the planes of their PixelTerms (kPlaneAo, ...). A row's pass values are read plane by
+// plane, in loops the compiler vectorizes. Uncovered pixels are shaded with whatever their
+// inputs hold, and never shown (the background is).
+template <class VisRow, class TermsRow>
 ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSettings& settings, VisRow&& vis_row,
-                         AoRow&& ao_row) {
+                         TermsRow&& terms_row) {
   if (!(settings.exposure > 0.0f) || !std::isfinite(settings.exposure))
     fail("composite: exposure {} must be finite and > 0", settings.exposure);
   const int w = g.width(), h = g.height();
@@ -246,7 +261,7 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
         planes[3][i] = n.x, planes[4][i] = n.y, planes[5][i] = n.z;
         planes[6][i] = alb[i].x, planes[7][i] = alb[i].y, planes[8][i] = alb[i].z;
       }
-      ao_row(first, size_t(w), in.plane(kPlaneAo));
+      terms_row(first, size_t(w), in);
       for (int l = 0; l < nl; ++l) vis_row(size_t(l), first, size_t(w), in.plane(kPlaneVisibility + l));
       shade_row(in, lights.data(), nl, scene.ambient, settings.exposure, linear.data());
       const uint32_t* id = &g.object_id(0, y);
@@ -280,15 +295,12 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const Compos
   const PassBuffer* visibility = in.visibility;
   const PassBuffer* ao = in.ao;
   const size_t npx = size_t(g.width()) * size_t(g.height());
-  const float ao_scale = ao ? 1.0f / float(ao->desc.full_scale) : 0.0f;
-  const uint8_t* ao_bytes = ao ? ao->bytes.data() : nullptr;
-  auto ao_row = [&](size_t first, size_t n, float* __restrict out) {
-    if (!ao_bytes) return std::fill(out, out + n, 1.0f);
-    for (size_t i = 0; i < n; ++i) out[i] = std::min(1.0f, float(ao_bytes[first + i]) * ao_scale);
+  auto terms_row = [&](size_t first, size_t n, RowPlanes& rp) {
+    fraction_row(ao, first, n, 1.0f, rp.plane(kPlaneAo));
   };
   if (!visibility)
     return composite_impl(
-        g, scene, settings, [](size_t, size_t, size_t n, float* out) { std::fill(out, out + n, 1.0f); }, ao_row);
+        g, scene, settings, [](size_t, size_t, size_t n, float* out) { std::fill(out, out + n, 1.0f); }, terms_row);
   const uint8_t* bytes = visibility->bytes.data();
   if (visibility->desc.layout() == PassLayout::Bitmask) {
     const size_t bpp = size_t((visibility->desc.channels + 7) / 8);
@@ -298,16 +310,12 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const Compos
           const uint8_t* __restrict in = bytes + first * bpp + (l >> 3);
           for (size_t i = 0; i < n; ++i) out[i] = float((in[i * bpp] >> (l & 7)) & 1u);
         },
-        ao_row);
+        terms_row);
   }
-  const float vis_scale = 1.0f / float(visibility->desc.full_scale);
   return composite_impl(
       g, scene, settings,
-      [&](size_t l, size_t first, size_t n, float* __restrict out) {
-        const uint8_t* __restrict in = bytes + l * npx + first;
-        for (size_t i = 0; i < n; ++i) out[i] = std::min(1.0f, float(in[i]) * vis_scale);
-      },
-      ao_row);
+      [&](size_t l, size_t first, size_t n, float* out) { fraction_row(visibility, l * npx + first, n, 1.0f, out); },
+      terms_row);
 }
 
 ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
@@ -334,14 +342,8 @@ ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<co
   if (!ao.empty() && ao.size() != npx) fail("composite: {} AO values for {} pixels", ao.size(), npx);
   return composite_impl(
       g, scene, settings,
-      [&](size_t l, size_t first, size_t n, float* out) {
-        if (visibility.empty()) return std::fill(out, out + n, 1.0f);
-        std::copy_n(visibility.begin() + std::ptrdiff_t(l * npx + first), n, out);
-      },
-      [&](size_t first, size_t n, float* out) {
-        if (ao.empty()) return std::fill(out, out + n, 1.0f);
-        std::copy_n(ao.begin() + std::ptrdiff_t(first), n, out);
-      });
+      [&](size_t l, size_t first, size_t n, float* out) { fraction_row(visibility, l * npx + first, n, 1.0f, out); },
+      [&](size_t first, size_t n, RowPlanes& rp) { fraction_row(ao, first, n, 1.0f, rp.plane(kPlaneAo)); });
 }
 
 }  // namespace dhr
