@@ -313,20 +313,18 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const Compos
   auto terms_row = [&](size_t first, size_t n, RowPlanes& rp) {
     fraction_row(ao, first, n, 1.0f, rp.plane(kPlaneAo));
   };
-  if (!visibility)
-    return composite_impl(
-        g, scene, settings, [](size_t, size_t, size_t n, float* out) { std::fill(out, out + n, 1.0f); }, terms_row);
-  const uint8_t* bytes = visibility->bytes.data();
-  if (visibility->desc.layout() == PassLayout::Bitmask) {
+  if (visibility && visibility->desc.layout() == PassLayout::Bitmask) {
+    const uint8_t* bytes = visibility->bytes.data();
     const size_t bpp = size_t((visibility->desc.channels + 7) / 8);
     return composite_impl(
         g, scene, settings,
         [&](size_t l, size_t first, size_t n, float* __restrict out) {
-          const uint8_t* __restrict in = bytes + first * bpp + (l >> 3);
-          for (size_t i = 0; i < n; ++i) out[i] = float((in[i * bpp] >> (l & 7)) & 1u);
+          const uint8_t* __restrict src = bytes + first * bpp + (l >> 3);
+          for (size_t i = 0; i < n; ++i) out[i] = float((src[i * bpp] >> (l & 7)) & 1u);
         },
         terms_row);
   }
+  // 8-bit planes, one per light, or no pass (fully lit).
   return composite_impl(
       g, scene, settings,
       [&](size_t l, size_t first, size_t n, float* out) { fraction_row(visibility, l * npx + first, n, 1.0f, out); },

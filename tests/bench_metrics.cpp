@@ -15,6 +15,7 @@
 #include "core/metrics.h"
 #include "core/rng.h"
 #include "core/temporal.h"
+#include "tests/support.h"
 
 #include <benchmark/benchmark.h>
 #include <opencv2/quality/qualityssim.hpp>
@@ -128,26 +129,8 @@ void BM_Flip_floor(benchmark::State& state) {
 BENCHMARK(BM_Flip_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // Temporal stability of one frame step (core/temporal.h) against the sequential loop it was
-// until its per-pixel terms ran four at a time (the same bits: Temporal.SameBitsAsOneSequentialLoop).
-dhr::TemporalScores temporal_one_loop(const dhr::ImageRGB8& rp, const dhr::ImageRGB8& r, const dhr::ImageRGB8& tp,
-                                      const dhr::ImageRGB8& t) {
-  auto y = [](const dhr::Rgb8& p) { return 0.299 * p.r + 0.587 * p.g + 0.114 * p.b; };
-  double err = 0, flicker = 0;
-  int64_t still = 0;
-  for (size_t i = 0; i < r.size(); ++i) {
-    const double dr = y(r[i]) - y(rp[i]), dt = y(t[i]) - y(tp[i]);
-    err += std::abs(dt - dr);
-    if (std::abs(dr) <= 0.0) {
-      flicker += std::abs(dt);
-      ++still;
-    }
-  }
-  dhr::TemporalScores s;
-  s.temporal_error = err / double(r.size());
-  s.static_flicker = still ? flicker / double(still) : 0.0;
-  return s;
-}
-
+// until its per-pixel terms ran in vectorized chunks (tests/support.h; the same bits:
+// Temporal.SameBitsAsOneSequentialLoop).
 void BM_Temporal(benchmark::State& state) {
   const auto &a = frame_a(), &b = frame_b();
   CpuCounter cpu{state};
@@ -158,7 +141,7 @@ BENCHMARK(BM_Temporal)->Unit(benchmark::kMillisecond)->UseRealTime();
 void BM_Temporal_one_loop(benchmark::State& state) {
   const auto &a = frame_a(), &b = frame_b();
   CpuCounter cpu{state};
-  for (auto _ : state) benchmark::DoNotOptimize(temporal_one_loop(a, b, b, a).temporal_error);
+  for (auto _ : state) benchmark::DoNotOptimize(dhr::test::temporal_scores_one_loop(a, b, b, a, 0.0).temporal_error);
 }
 BENCHMARK(BM_Temporal_one_loop)->Unit(benchmark::kMillisecond)->UseRealTime();
 

@@ -2,6 +2,7 @@
 #pragma once
 
 #include "core/scene.h"
+#include "core/temporal.h"
 
 #include <cstddef>
 #include <cstdint>
@@ -45,6 +46,12 @@ struct Fnv1a {
     bytes(image.data(), image.size() * sizeof(image[0]));
   }
 };
+
+// temporal_scores (core/temporal.h) as one sequential loop over the pixels, the way
+// core/temporal.cpp computed them before its per-pixel terms ran in vectorized chunks: the
+// definition of the bits it keeps (tests/test_temporal.cpp) and the "before" of bench_metrics.
+TemporalScores temporal_scores_one_loop(const ImageRGB8& reference_prev, const ImageRGB8& reference,
+                                        const ImageRGB8& test_prev, const ImageRGB8& test, double static_threshold);
 
 // The message of the dhr::Error that `f` throws; "" when it throws none.
 std::string error_of(const std::function<void()>& f);

@@ -4,6 +4,7 @@
 #include "core/metrics.h"
 #include "core/rng.h"
 #include "core/temporal.h"
+#include "tests/support.h"
 
 #include <gtest/gtest.h>
 
@@ -134,29 +135,6 @@ TEST(Temporal, BadInputIsAnError) {
   EXPECT_EQ(TemporalRun().temporal_error(), 0.0);
 }
 
-// The measures as one sequential loop over the pixels (how core/temporal.cpp computed them
-// before its per-pixel terms ran four at a time): the definition of the bits it must keep.
-TemporalScores one_loop(const ImageRGB8& rp, const ImageRGB8& r, const ImageRGB8& tp, const ImageRGB8& t,
-                        double threshold) {
-  auto y = [](const Rgb8& p) { return 0.299 * p.r + 0.587 * p.g + 0.114 * p.b; };
-  double err = 0, flicker = 0;
-  int64_t still = 0;
-  for (size_t i = 0; i < r.size(); ++i) {
-    const double dr = y(r[i]) - y(rp[i]), dt = y(t[i]) - y(tp[i]);
-    err += std::abs(dt - dr);
-    if (std::abs(dr) <= threshold) {
-      flicker += std::abs(dt);
-      ++still;
-    }
-  }
-  TemporalScores s;
-  s.pixels = int64_t(r.size());
-  s.temporal_error = err / double(r.size());
-  s.static_pixels = still;
-  s.static_flicker = still ? flicker / double(still) : 0.0;
-  return s;
-}
-
 TEST(Temporal, SameBitsAsOneSequentialLoop) {
   // Sizes around the vectors of 4 and the chunks of 512 pixels; images that share regions
   // (static pixels) and differ by noise elsewhere.
@@ -179,7 +157,8 @@ TEST(Temporal, SameBitsAsOneSequentialLoop) {
     const ImageRGB8 rp = image(seed++, half), r = image(seed++, half), tp = image(seed++, w * h / 3),
                     t = image(seed++, w * h);
     for (double threshold : {0.0, 0.5, 20.0}) {
-      const TemporalScores got = temporal_scores(rp, r, tp, t, threshold), want = one_loop(rp, r, tp, t, threshold);
+      const TemporalScores got = temporal_scores(rp, r, tp, t, threshold);
+      const TemporalScores want = test::temporal_scores_one_loop(rp, r, tp, t, threshold);
       EXPECT_EQ(std::bit_cast<uint64_t>(got.temporal_error), std::bit_cast<uint64_t>(want.temporal_error))
           << w << "x" << h << " threshold " << threshold;
       EXPECT_EQ(std::bit_cast<uint64_t>(got.static_flicker), std::bit_cast<uint64_t>(want.static_flicker))
