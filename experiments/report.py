@@ -425,6 +425,20 @@ def crossover_section(rq, cm, runs, sweep_keys, im, out):
     out.append("")
 
 
+def size_line(runs):
+    """The image size and frames every figure below comes from, from the runs' effective settings
+    (each distinct combination with its number of runs when they differ)."""
+    shapes = {}
+    for r in runs:
+        c = r.get("config", {})
+        key = (c.get("width"), c.get("height"), c.get("frames"), c.get("warmup_frames"), c.get("display_hz"))
+        shapes[key] = shapes.get(key, 0) + 1
+    parts = [f"{w}x{h}, {f} displayed frames after {wu} warm-up at {hz:g} Hz" + ("" if len(shapes) == 1 else f" ({n} runs)")
+             for (w, h, f, wu, hz), n in sorted(shapes.items(), key=lambda kv: -kv[1])
+             if None not in (w, h, f, wu, hz)]
+    return ("Size: " + "; ".join(parts) + " per run.\n") if parts else ""
+
+
 def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
     """The BD-rate table (equal quality) or, with `equal_bandwidth`, the BD-quality table of every
     family against `anchor` on image metric `im`."""
@@ -512,6 +526,7 @@ def main(d):
         out.append(exp["description"] + "\n")
     out.append(f"Regenerate: `{ctx.get('command', 'dhrbench run ' + res.get('experiment_path', ''))}` "
                f"(wall time of this run: {res.get('wall_s', float('nan')):.0f} s).\n")
+    out.append(size_line(runs))
     out.append("Virtual time (ms) drives the display, the network and the server schedule; wall time measures "
                "what each stage costs on this machine. Bandwidth counts every packet on the wire: payload, the "
                "44-byte dhrbench header and 28 bytes of IP/UDP. SSIM follows Wang et al. 2004 (Gaussian 11x11, "
@@ -633,6 +648,12 @@ def main(d):
     grids = []
     for scene in sorted({r["scene"] for r in ok}):
         rs = [r for r in ok if r["scene"] == scene and os.path.exists(os.path.join(img_dir, r["id"] + "_shown.png"))]
+        stem = f"grid_{scene.replace('/', '_').replace('.json', '')}_"
+        if not rs:
+            # A published report keeps its grids but not the per-run images they were drawn from
+            # (reports/README.md): rebuilding its report.md lists the grids it has.
+            grids += sorted((g for g in os.listdir(os.path.join(d, "grids")) if g.startswith(stem) and g.endswith(".png")
+                             and g[len(stem):-4].isdigit()), key=lambda g: int(g[len(stem):-4]))
         for part in range(0, len(rs), MAX_RUNS_PER_GRID):
             chunk = rs[part:part + MAX_RUNS_PER_GRID]
             refs = []
@@ -665,7 +686,7 @@ def main(d):
                 fig.colorbar(im, ax=list(axes[2, :]), orientation="vertical", fraction=0.02, pad=0.01,
                              label="|luma difference|\n(8-bit levels)")
             fig.suptitle(f"{scene}: last scored frame", fontsize=10)
-            name = f"grid_{scene.replace('/', '_').replace('.json', '')}_{part // MAX_RUNS_PER_GRID}.png"
+            name = f"{stem}{part // MAX_RUNS_PER_GRID}.png"
             fig.savefig(os.path.join(d, "grids", name), dpi=100)
             plt.close(fig)
             grids.append(name)
