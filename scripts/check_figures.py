@@ -3,6 +3,9 @@
 
 For each experiment NAME (default: every reports/NAME/ that has an experiments/NAME.json), runs
   dhrbench run experiments/NAME.json --out OUT/NAME
+A report of a committed experiment at other settings (reports/paper_1080p: no experiment file of
+its own) is rerun only when named, with the experiment and --set overrides its results.json
+records (context.command).
 then compares OUT/NAME against reports/NAME (or against --baseline DIR/NAME):
   - results.json: per run (matched by id), every value under "metrics" and "backends", except
     wall-clock figures (keys listed in TIMING_KEYS: measured on this machine, they vary run to run)
@@ -26,6 +29,7 @@ Usage:
                buffer or ground truth of an older build hides a change).
   --compare NEW OLD: compare two results folders (e.g. a merged sharded run against an unsharded
                one, tests/test_shard.cpp) and nothing else.
+  --print-run-args NAME: print the arguments of `dhrbench run` that rerun report NAME and nothing else.
 """
 import argparse
 import csv
@@ -237,6 +241,28 @@ def compare_folders(new, old):
     return 0
 
 
+def experiment_args(name, baseline):
+    """What `dhrbench run` reruns for report NAME: experiments/NAME.json, or the experiment file and
+    --set overrides recorded in BASELINE/NAME/results.json (context.command) for a report without
+    an experiment file of its own."""
+    own = os.path.join(ROOT, "experiments", name + ".json")
+    if os.path.exists(own):
+        return [own]
+    path = os.path.join(baseline, name, "results.json")
+    try:
+        command = json.load(open(path))["context"]["command"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise SystemExit(f"{name}: no experiments/{name}.json, and no context.command in {path} ({e})")
+    head, *sets = command.split(" --set ")
+    if not head.startswith("dhrbench run ") or not all("=" in s for s in sets):
+        raise SystemExit(f"{name}: {path}: context.command '{command}' is not "
+                         "'dhrbench run EXPERIMENT [--set key=value ...]'")
+    args = [os.path.join(ROOT, head[len("dhrbench run "):].strip())]
+    for s in sets:
+        args += ["--set", s.strip()]
+    return args
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("names", nargs="*", help="experiments to check (default: every committed report with an experiment file)")
@@ -246,7 +272,14 @@ def main():
     ap.add_argument("--compare-only", action="store_true")
     ap.add_argument("--cache", help="disk cache folder, kept as it is (default: OUT/cache, emptied first)")
     ap.add_argument("--compare", nargs=2, metavar=("NEW", "OLD"), help="compare two results folders, run nothing")
+    ap.add_argument("--print-run-args", metavar="NAME",
+                    help="print what `dhrbench run` takes to rerun report NAME, one argument a line, run nothing "
+                         "(scripts/regenerate_reports.sh)")
     args = ap.parse_args()
+    if args.print_run_args:
+        print("\n".join(os.path.relpath(a, ROOT) if a.startswith(ROOT) else a
+                        for a in experiment_args(args.print_run_args, args.baseline)))
+        return 0
     if args.compare:
         return compare_folders(*args.compare)
     env = dict(os.environ)
@@ -264,7 +297,7 @@ def main():
         out = os.path.join(args.out, name)
         if not args.compare_only:
             t0 = time.time()
-            cmd = [args.dhrbench, "run", os.path.join(ROOT, "experiments", name + ".json"), "--out", out]
+            cmd = [args.dhrbench, "run", *experiment_args(name, args.baseline), "--out", out]
             r = subprocess.run(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
             if r.returncode != 0:
                 print(f"{name}: FAILED to run ({' '.join(cmd)}):\n{r.stderr[-2000:]}")

@@ -4,6 +4,9 @@
 # (a report records the commit it came from, and "dirty" would make it unreproducible).
 #   bash scripts/regenerate_reports.sh [NAME ...]     default: every experiments/NAME.json with a
 #                                                     reports/NAME/, then the live report
+# A report of a committed experiment at other settings (reports/paper_1080p, about an hour) has no
+# experiment file of its own: it is regenerated only when named, with the experiment and --set
+# overrides its results.json records (scripts/check_figures.py --print-run-args NAME).
 # Needs a Release build of this commit in ./build (bash scripts/build.sh build).
 # Environment: DHR_CACHE_DIR (default: a fresh folder under /tmp, removed first).
 set -euo pipefail
@@ -35,7 +38,9 @@ for n in "${names[@]}"; do
   if [ "$n" = live ]; then
     DHR_LIVE_CLIENT_ARGS="--save-every 300" DHR_LIVE_FRAMES=600 bash scripts/live_loopback.sh "$tmp" >/dev/null
   else
-    "$exe" run "experiments/$n.json" --out "$tmp" >/dev/null
+    mapfile -t run_args < <(python3 scripts/check_figures.py --print-run-args "$n")
+    [ ${#run_args[@]} -gt 0 ] || { echo "regenerate_reports: no run arguments for $n" >&2; exit 1; }
+    "$exe" run "${run_args[@]}" --out "$tmp" >/dev/null
   fi
   echo "regenerate_reports: $n took $(( $(date +%s) - start )) s"
 done
