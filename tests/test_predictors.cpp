@@ -4,10 +4,13 @@
 // Camera::primary_ray, so no rasterizer is needed and every pixel's world point is known exactly.
 #include "backends/register_all.h"
 #include "core/backend.h"
+#include "core/checksum.h"
 #include "core/depth_pass.h"
 #include "core/rng.h"
 
+#include <fmt/format.h>
 #include <glm/gtc/matrix_transform.hpp>
+#include <glm/gtx/rotate_vector.hpp>
 #include <gtest/gtest.h>
 #include <tbb/task_arena.h>
 
@@ -479,6 +482,75 @@ TEST(Reprojection, SameResultAtOneAndTwoThreadsAndWhenOutputAliasesInput) {
     p->predict({alias, src, dst}, alias);
     EXPECT_TRUE(alias.bytes == out1.bytes) << pass_kind_name(kind);
   }
+}
+
+// The tap tests on hard inputs, pinned: src and dst G-buffers perturbed so that many taps sit
+// at the edges of the tests (normals near the threshold angle and the length limits, zero and
+// NaN normals, geometric normals missing so that the depth fallback decides, points near the
+// tolerance from the tap's plane, mixed ids, NaN dst points), predicted with thresholds of
+// either sign and two tolerances, bilinear and nearest, an AO pass and a bitmask together.
+// The CRC-32C of every output byte and statistic is pinned (recorded at commit 5950420): a
+// faster tap test must decide every tap the same way. (Checked: the test fails when the plane
+// test loses a factor z, the length range its equality, or the depth fallback or either
+// threshold branch moves by a few per cent.)
+TEST(Reprojection, HardTapTestsKeepTheirBits) {
+  const Scene scene;
+  auto u = [](uint64_t seed, size_t i, uint32_t dim) { return rng_uniform(RngKey{seed, uint32_t(i), 0, 0, 9}, dim); };
+  auto roughen = [&](GBuffer& g, uint64_t seed, bool is_src) {
+    for (size_t i = 0; i < g.object_id.size(); ++i) {
+      if (g.object_id[i] == kBackgroundId) continue;
+      const float pick = u(seed, i, 0);
+      glm::vec3 n = g.normal[i];
+      // Tilt about a random axis by up to 40 degrees (the threshold 0.9 is 25.8 degrees), or for
+      // a quarter of the pixels by 90-125 degrees (-0.3 is 107.5), and scale the length across
+      // the accepted [0.5, 2] (squared [0.25, 4]).
+      const glm::vec3 axis = glm::normalize(glm::vec3(u(seed, i, 1) - 0.5f, u(seed, i, 2) - 0.5f, u(seed, i, 3) - 0.5f) +
+                                            glm::vec3(1e-3f));
+      const float tilt = u(seed, i, 12) < 0.25f ? 90.0f + 35.0f * u(seed, i, 4) : 40.0f * u(seed, i, 4);
+      n = glm::rotate(n, glm::radians(tilt), axis) * (0.45f + 1.65f * u(seed, i, 5));
+      if (pick < 0.03f) n = glm::vec3(0.0f);
+      if (pick > 0.97f) n.y = NAN;
+      g.normal[i] = n;
+      if (!is_src) {
+        if (u(seed, i, 6) < 0.02f) g.position[i].x = NAN;
+        continue;
+      }
+      glm::vec3 geo = g.geo_normal[i] * (0.45f + 1.65f * u(seed, i, 7));
+      if (u(seed, i, 8) < 0.2f) geo = glm::vec3(0.0f);  // the depth fallback decides
+      g.geo_normal[i] = geo;
+      // Off the plane by up to 1.5x a 0.02 tolerance of the view depth, either side.
+      g.position[i] += g.geo_normal[i] * (0.06f * g.depth[i] * (u(seed, i, 9) - 0.5f));
+      g.depth[i] *= 1.0f + 0.06f * (u(seed, i, 10) - 0.5f);
+      if (u(seed, i, 11) < 0.05f) g.object_id[i] = g.object_id[i] == kBoxId ? kGroundId : kBoxId;
+    }
+  };
+  std::vector<std::string> hashes;
+  for (uint64_t seed : {1u, 2u}) {
+    GBuffer src = render(scene, oblique());
+    GBuffer dst = render(scene, translated(oblique(), {0.15f * float(seed), -0.05f, 0.1f}));
+    roughen(src, seed, true);
+    roughen(dst, seed + 10, false);
+    const PassBuffer ao = make_random(src, PassKind::Ao, 1, 255, 40 + seed);
+    const PassBuffer vis = make_random(src, PassKind::Visibility, 5, 1, 50 + seed);
+    for (const nlohmann::json& params :
+         {nlohmann::json::object(), nlohmann::json{{"normal_threshold", -0.3}},
+          nlohmann::json{{"normal_threshold", 0.0}, {"depth_tolerance", 0.005}},
+          nlohmann::json{{"filter", "nearest"}, {"fill", "local"}}}) {
+      PassBuffer out_ao, out_vis;
+      const PassBuffer* received[2] = {&ao, &vis};
+      PassBuffer* out[2] = {&out_ao, &out_vis};
+      const std::vector<PredictStats> st = make("reprojection", params)->predict_passes(src, dst, received, out);
+      uint32_t crc = crc32c(out_ao.bytes);
+      crc = crc32c(out_vis.bytes, crc);
+      const uint64_t counts[2] = {st[0].pixels, st[0].disoccluded};
+      crc = crc32c({reinterpret_cast<const uint8_t*>(counts), sizeof counts}, crc);
+      EXPECT_GT(st[0].disoccluded, 20u) << "the perturbations must reject taps";
+      hashes.push_back(fmt::format("{:08x}", crc));
+    }
+  }
+  const std::vector<std::string> pinned = {"44182ed8", "b34a8075", "469f8242", "a885e2b0",
+                                           "e4578a9e", "b958178f", "e9fac855", "0c9a0ab4"};
+  EXPECT_EQ(hashes, pinned);
 }
 
 // The client predicts the passes received for one frame in one call (Predictor::predict_passes):
