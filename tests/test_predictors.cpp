@@ -2,6 +2,7 @@
 // tests over every registered predictor (one test per predictor, by name). The G-buffers come
 // from a tiny analytic scene (a finite ground plane and boxes) intersected with
 // Camera::primary_ray, so no rasterizer is needed and every pixel's world point is known exactly.
+#include "backends/predict/warp.h"
 #include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/checksum.h"
@@ -524,6 +525,9 @@ TEST(Reprojection, HardTapTestsKeepTheirBits) {
       if (u(seed, i, 11) < 0.05f) g.object_id[i] = g.object_id[i] == kBoxId ? kGroundId : kBoxId;
     }
   };
+  for (bool scalar : {false, true}) {
+  SCOPED_TRACE(scalar ? "scalar path" : "the CPU's path");
+  predict::force_scalar_reprojection(scalar);
   std::vector<std::string> hashes;
   for (uint64_t seed : {1u, 2u}) {
     GBuffer src = render(scene, oblique());
@@ -551,6 +555,8 @@ TEST(Reprojection, HardTapTestsKeepTheirBits) {
   const std::vector<std::string> pinned = {"44182ed8", "b34a8075", "469f8242", "a885e2b0",
                                            "e4578a9e", "b958178f", "e9fac855", "0c9a0ab4"};
   EXPECT_EQ(hashes, pinned);
+  }
+  predict::force_scalar_reprojection(false);
 }
 
 // The client predicts the passes received for one frame in one call (Predictor::predict_passes):

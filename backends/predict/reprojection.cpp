@@ -35,14 +35,43 @@
 // Colour buffers are refused (the hybrid client never receives colour; the remote baseline
 // uses rotation_warp). Sizes of received, src and dst must agree. Rows run in parallel with
 // TBB; every pixel is computed on its own, so the result is bit-identical at any thread count.
+// Where the CPU has AVX-512, 16 pixels at a time find their taps and write the passes
+// (plan_x16, write_x16: the scalar code's operations in the same order, lane by lane, and
+// contiguous loads where the taps lie side by side); the pixels they do not resolve take the
+// scalar path. Same bytes (tests/test_predictors.cpp: Reprojection.HardTapTestsKeepTheirBits,
+// both paths); docs/performance.md has the measurements.
 //
 // Parameters: filter (nearest|bilinear, default bilinear), fill (nearest_valid|local, default
 // nearest_valid), fill_radius_px (1..16, default 3), depth_tolerance (0.0001..1, default
 // 0.02), normal_threshold (-1..1, default 0.9).
 // Example: {"name": "reprojection", "params": {"filter": "nearest", "fill": "local"}}
+#if defined(__x86_64__) && defined(__GNUC__)
+// GCC 12's AVX-512 intrinsics warn, once inlined, that _mm512_undefined_*() is "used
+// uninitialized" (a false positive at the header's lines): off for the header only.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#if !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
+#include <immintrin.h>
+#pragma GCC diagnostic pop
+#define DHR_REPROJECT_X16 1
+#if defined(__clang__)
+#define DHR_REPROJECT_TARGET __attribute__((target("avx512f,avx512dq")))
+#else
+// GCC's default -ffp-contract=fast would fuse a * b + c into AVX-512's FMA instructions; off
+// keeps every product and sum rounded on its own, as in the scalar code.
+#define DHR_REPROJECT_TARGET __attribute__((target("avx512f,avx512dq"), optimize("fp-contract=off")))
+#endif
+#else
+#define DHR_REPROJECT_X16 0
+#endif
+
 #include "backends/predict/warp.h"
 
 #include <algorithm>
+#include <atomic>
+#include <bit>
 #include <cstring>
 #include <span>
 #include <vector>
@@ -82,9 +111,201 @@ struct Taps {
   int count = 0;
 };
 
+// What the 16-lane kernel reads and how it tests (Reprojection::run's values).
+struct PlanInputs {
+  const uint32_t* sid;
+  const glm::vec3 *snrm, *sgeo, *spos;
+  const float* sdep;
+  const uint32_t* did;
+  const glm::vec3 *dpos, *dnrm;
+  int w, h;
+  predict::Projector proj;
+  float thr2, tol, tol2;
+  bool thr_nonneg, any_bilinear, any_nearest;
+};
+
+// The taps of 16 dst pixels that the kernel resolved, lane by lane: the source index of tap 0
+// (tap k = j0 + (k & 1) + (k >> 1) w), bit k of `valid` when tap k has weight and passes the
+// tests, the nearest passes' tap and the bilinear passes' renormalised weights (valid taps).
+struct Plan16 {
+  int32_t j0[16], valid[16], nearest[16];
+  float weight[4][16];
+};
+
+std::atomic<bool> g_scalar_only{false};
+
+#if DHR_REPROJECT_X16
+bool cpu_has_avx512dq() {
+  static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
+  return has;
+}
+
+// glm::dot's sum in its order, (x x' + y y') + z z', and the scalar code's comparisons (false
+// on NaN, as there).
+DHR_REPROJECT_TARGET inline __m512 dot16(__m512 ax, __m512 ay, __m512 az, __m512 bx, __m512 by, __m512 bz) {
+  return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(ax, bx), _mm512_mul_ps(ay, by)), _mm512_mul_ps(az, bz));
+}
+DHR_REPROJECT_TARGET inline __mmask16 ge16(__m512 a, float b) { return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_GE_OQ); }
+DHR_REPROJECT_TARGET inline __mmask16 le16(__m512 a, float b) { return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_LE_OQ); }
+DHR_REPROJECT_TARGET inline __mmask16 finite16(__m512 a) { return __mmask16(~_mm512_fpclass_ps_mask(a, 0x99)); }  // not NaN or +-inf
+DHR_REPROJECT_TARGET inline __m512 gather16(__mmask16 m, __m512i index, const float* base) {
+  return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, index, base, 4);
+}
+
+// x, y and z of 16 consecutive vec3 (48 floats a b c): component k of element i is float
+// 3i + k, taken from a:b by a first permute and from c by a second.
+struct Deinterleave3 {
+  alignas(64) int32_t first[3][16];
+  alignas(64) int32_t second[3][16];
+  constexpr Deinterleave3() : first{}, second{} {
+    for (int k = 0; k < 3; ++k)
+      for (int i = 0; i < 16; ++i) {
+        const int f = 3 * i + k;
+        first[k][i] = f < 32 ? f : 0;
+        second[k][i] = f < 32 ? i : 16 + f - 32;
+      }
+  }
+};
+constexpr Deinterleave3 kDeinterleave3{};
+struct Xyz16 {
+  __m512 x, y, z;
+};
+DHR_REPROJECT_TARGET inline Xyz16 load_xyz16(const glm::vec3* v) {
+  static_assert(sizeof(glm::vec3) == 3 * sizeof(float));
+  const float* f = &v->x;
+  const __m512 a = _mm512_loadu_ps(f), b = _mm512_loadu_ps(f + 16), c = _mm512_loadu_ps(f + 32);
+  __m512 out[3];
+  for (int k = 0; k < 3; ++k) {
+    const __m512 ab = _mm512_permutex2var_ps(a, _mm512_load_si512(kDeinterleave3.first[k]), b);
+    out[k] = _mm512_permutex2var_ps(ab, _mm512_load_si512(kDeinterleave3.second[k]), c);
+  }
+  return {out[0], out[1], out[2]};
+}
+// The same for lanes at any indices j (gathered; lanes outside m read nothing and hold 0).
+DHR_REPROJECT_TARGET inline Xyz16 gather_xyz16(__mmask16 m, __m512i j, const glm::vec3* v) {
+  const __m512i j3 = _mm512_mullo_epi32(j, _mm512_set1_epi32(3));
+  const float* f = &v->x;
+  return {gather16(m, j3, f), gather16(m, _mm512_add_epi32(j3, _mm512_set1_epi32(1)), f),
+          gather16(m, _mm512_add_epi32(j3, _mm512_set1_epi32(2)), f)};
+}
+
+// Reprojection::run's per-pixel work for dst pixels x .. x + 15 of row y, up to the taps: the
+// same operations in the same order, lane by lane (so the same taps, tests and weights). A lane
+// is resolved (bit set in the result) where the pixel is covered, its point and normal usable,
+// it projects inside the src image with all four taps inside too, and it has what the passes
+// take: a valid tap for the bilinear ones, a valid nearest (largest-weight) tap for the nearest
+// ones. Every other lane (background, off-screen, image border, disocclusion, a nearest tap
+// that fails) is left to the scalar code.
+DHR_REPROJECT_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& out) {
+  const size_t i0 = size_t(y) * size_t(a.w) + size_t(x);
+  const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512i one = _mm512_set1_epi32(1), two = _mm512_set1_epi32(2);
+  const __m512i id = _mm512_loadu_si512(a.did + i0);
+  __mmask16 m = _mm512_cmpneq_epi32_mask(id, _mm512_set1_epi32(int(kBackgroundId)));
+  const Xyz16 dp = load_xyz16(a.dpos + i0), dn = load_xyz16(a.dnrm + i0);
+  const __m512 px = dp.x, py = dp.y, pz = dp.z, nx = dn.x, ny = dn.y, nz = dn.z;
+  const __m512 ln = dot16(nx, ny, nz, nx, ny, nz);
+  m &= finite16(px) & finite16(py) & finite16(pz) & ge16(ln, 0.25f) & le16(ln, 4.0f);
+  if (!m) return 0;
+
+  // predict::Projector::project
+  const predict::Projector& c = a.proj;
+  const __m512 dx = _mm512_sub_ps(px, _mm512_set1_ps(c.position.x)), dy = _mm512_sub_ps(py, _mm512_set1_ps(c.position.y)),
+               dz = _mm512_sub_ps(pz, _mm512_set1_ps(c.position.z));
+  const __m512 z = dot16(dx, dy, dz, _mm512_set1_ps(c.forward.x), _mm512_set1_ps(c.forward.y), _mm512_set1_ps(c.forward.z));
+  const __m512 inv_z = _mm512_div_ps(_mm512_set1_ps(1.0f), z);
+  const __m512 dr = dot16(dx, dy, dz, _mm512_set1_ps(c.right.x), _mm512_set1_ps(c.right.y), _mm512_set1_ps(c.right.z));
+  const __m512 du = dot16(dx, dy, dz, _mm512_set1_ps(c.up.x), _mm512_set1_ps(c.up.y), _mm512_set1_ps(c.up.z));
+  const __m512 qx = _mm512_add_ps(_mm512_set1_ps(c.cx), _mm512_mul_ps(_mm512_mul_ps(dr, _mm512_set1_ps(c.fx)), inv_z));
+  const __m512 qy = _mm512_sub_ps(_mm512_set1_ps(c.cy), _mm512_mul_ps(_mm512_mul_ps(du, _mm512_set1_ps(c.fy)), inv_z));
+  m &= _mm512_cmp_ps_mask(z, _mm512_setzero_ps(), _CMP_GT_OQ) & finite16(z) & finite16(qx) & finite16(qy);
+  m &= ge16(qx, 0.0f) & _mm512_cmp_ps_mask(qx, _mm512_set1_ps(float(a.w)), _CMP_LT_OQ) & ge16(qy, 0.0f) &
+       _mm512_cmp_ps_mask(qy, _mm512_set1_ps(float(a.h)), _CMP_LT_OQ);
+  const __m512 u = _mm512_sub_ps(qx, _mm512_set1_ps(0.5f)), v = _mm512_sub_ps(qy, _mm512_set1_ps(0.5f));
+  const __m512 x0f = _mm512_roundscale_ps(u, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+  const __m512 y0f = _mm512_roundscale_ps(v, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+  const __m512 ax = _mm512_sub_ps(u, x0f), ay = _mm512_sub_ps(v, y0f);
+  const __m512i x0 = _mm512_cvttps_epi32(x0f), y0 = _mm512_cvttps_epi32(y0f);
+  m &= _mm512_cmpge_epi32_mask(x0, _mm512_setzero_si512()) & _mm512_cmpge_epi32_mask(y0, _mm512_setzero_si512()) &
+       _mm512_cmplt_epi32_mask(_mm512_add_epi32(x0, one), _mm512_set1_epi32(a.w)) &
+       _mm512_cmplt_epi32_mask(_mm512_add_epi32(y0, one), _mm512_set1_epi32(a.h));
+  if (!m) return 0;
+  const __m512 one_f = _mm512_set1_ps(1.0f);
+  const __m512 bx = _mm512_sub_ps(one_f, ax), by = _mm512_sub_ps(one_f, ay);
+  const __m512 bw[4] = {_mm512_mul_ps(bx, by), _mm512_mul_ps(ax, by), _mm512_mul_ps(bx, ay), _mm512_mul_ps(ax, ay)};
+  const __m512i j0 = _mm512_add_epi32(_mm512_mullo_epi32(y0, _mm512_set1_epi32(a.w)), x0);
+
+  // valid_tap for each tap k, in 16 lanes. Where every lane is in play and the taps lie side
+  // by side (tap 0 of lane l at j0 of lane 0 plus l, as under smooth motion), each tap's source
+  // values are 16 consecutive pixels, loaded as such; else they are gathered.
+  const __m512i vid = id;
+  const __m512 ndx = nx, ndy = ny, ndz = nz, vz = z;
+  const bool side_by_side =
+      m == 0xFFFF &&
+      _mm512_cmpeq_epi32_mask(j0, _mm512_add_epi32(_mm512_set1_epi32(_mm_cvtsi128_si32(_mm512_castsi512_si128(j0))), lane)) == 0xFFFF;
+  const size_t first = side_by_side ? size_t(uint32_t(_mm_cvtsi128_si32(_mm512_castsi512_si128(j0)))) : 0;
+  __mmask16 ok[4];
+  for (int k = 0; k < 4; ++k) {
+    const int offset = (k & 1) + (k >> 1) * a.w;
+    const __m512i jk = _mm512_add_epi32(j0, _mm512_set1_epi32(offset));
+    const size_t fk = first + size_t(offset);
+    __mmask16 t = m & _mm512_cmp_ps_mask(bw[k], _mm512_setzero_ps(), _CMP_GT_OQ);
+    const __m512i sid = side_by_side ? _mm512_loadu_si512(a.sid + fk)
+                                     : _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), t, jk, a.sid, 4);
+    t &= _mm512_cmpeq_epi32_mask(sid, vid);
+    const Xyz16 sn = side_by_side ? load_xyz16(a.snrm + fk) : gather_xyz16(t, jk, a.snrm);
+    const __m512 sx = sn.x, sy = sn.y, sz = sn.z;
+    const __m512 ls = dot16(sx, sy, sz, sx, sy, sz);
+    t &= ge16(ls, 0.25f) & le16(ls, 4.0f);
+    const __m512 d = dot16(sx, sy, sz, ndx, ndy, ndz);
+    const __m512 bound = _mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.thr2), ls), ln);
+    const __m512 d2 = _mm512_mul_ps(d, d);
+    const __mmask16 d_nonneg = ge16(d, 0.0f);
+    t &= a.thr_nonneg ? __mmask16(d_nonneg & _mm512_cmp_ps_mask(d2, bound, _CMP_GE_OQ))
+                      : __mmask16(d_nonneg | _mm512_cmp_ps_mask(d2, bound, _CMP_LE_OQ));
+    const Xyz16 sg = side_by_side ? load_xyz16(a.sgeo + fk) : gather_xyz16(t, jk, a.sgeo);
+    const __m512 gx = sg.x, gy = sg.y, gz = sg.z;
+    const __m512 lg = dot16(gx, gy, gz, gx, gy, gz);
+    const __mmask16 has_plane = ge16(lg, 0.25f) & le16(lg, 4.0f);
+    const Xyz16 sp = side_by_side ? load_xyz16(a.spos + fk) : gather_xyz16(t & has_plane, jk, a.spos);
+    const __m512 ex = _mm512_sub_ps(px, sp.x), ey = _mm512_sub_ps(py, sp.y), ez = _mm512_sub_ps(pz, sp.z);
+    const __m512 e = dot16(ex, ey, ez, gx, gy, gz);
+    const __mmask16 plane = _mm512_cmp_ps_mask(
+        _mm512_mul_ps(e, e), _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.tol2), vz), vz), lg), _CMP_LE_OQ);
+    const __m512 sd = side_by_side ? _mm512_loadu_ps(a.sdep + fk)
+                                   : _mm512_mask_i32gather_ps(_mm512_setzero_ps(), t & ~has_plane, jk, a.sdep, 4);
+    const __m512 adz = _mm512_abs_ps(_mm512_sub_ps(sd, vz));
+    const __mmask16 depth = _mm512_cmp_ps_mask(adz, _mm512_mul_ps(_mm512_set1_ps(a.tol), vz), _CMP_LE_OQ);
+    t &= (has_plane & plane) | (~has_plane & depth);
+    ok[k] = t;
+  }
+
+  const __mmask16 any = ok[0] | ok[1] | ok[2] | ok[3];
+  const __m512i kn = _mm512_or_epi32(
+      _mm512_maskz_mov_epi32(_mm512_cmp_ps_mask(ax, _mm512_set1_ps(0.5f), _CMP_GT_OQ), one),
+      _mm512_maskz_mov_epi32(_mm512_cmp_ps_mask(ay, _mm512_set1_ps(0.5f), _CMP_GT_OQ), two));
+  __mmask16 near_ok = 0;
+  for (int k = 0; k < 4; ++k) near_ok |= ok[k] & _mm512_cmpeq_epi32_mask(kn, _mm512_set1_epi32(k));
+  const __mmask16 resolved = m & (a.any_bilinear ? any : m) & (a.any_nearest ? near_ok : m);
+  if (!resolved) return 0;
+
+  __m512i valid = _mm512_setzero_si512();
+  for (int k = 0; k < 4; ++k) valid = _mm512_mask_or_epi32(valid, ok[k], valid, _mm512_set1_epi32(1 << k));
+  _mm512_storeu_si512(out.j0, j0);
+  _mm512_storeu_si512(out.valid, valid);
+  _mm512_storeu_si512(out.nearest, kn);
+  // The scalar code's sum of the valid taps' weights, in tap order from 0, then each divided.
+  __m512 sum = _mm512_setzero_ps();
+  for (int k = 0; k < 4; ++k) sum = _mm512_mask_add_ps(sum, ok[k], sum, bw[k]);
+  for (int k = 0; k < 4; ++k) _mm512_storeu_ps(out.weight[k], _mm512_maskz_div_ps(ok[k] & resolved, bw[k], sum));
+  return resolved;
+}
+#endif
+
 // One pass of those predicted together: where it reads and writes, and how.
 struct PassIo {
   const uint8_t* in = nullptr;
+  size_t in_bytes = 0;
   uint8_t* out = nullptr;
   bool bitmask = false;
   bool nearest = false;  // takes the valid tap of largest weight (bitmasks always; 8-bit with filter nearest)
@@ -93,6 +314,54 @@ struct PassIo {
   predict::Layout8 lay;  // 8-bit
   uint8_t full = 255;    // 8-bit: full_scale
 };
+
+#if DHR_REPROJECT_X16
+// Pass p's values of the resolved lanes of a plan (dst pixels i0 .. i0 + 15), as the scalar
+// write_pass makes them: the nearest tap's byte, or the valid taps' weighted sum in tap order,
+// from 0, rounded by round_u8 (one valid tap has weight 1 exactly: its byte). Bitmasks of more
+// than one byte per pixel, and blocks whose 4-byte gathers could reach past the buffer's end,
+// are left to the caller (false).
+DHR_REPROJECT_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan16& plan, size_t i0, int w) {
+  if (p.bitmask && p.bpp != 1) return false;
+  const __m512i j0 = _mm512_loadu_si512(plan.j0);
+  const __m512i byte = _mm512_set1_epi32(0xFF);
+  const int planes = p.bitmask ? 1 : p.lay.planes;
+  const size_t stride = p.bitmask ? 0 : p.lay.plane_stride;
+  // The largest index read: tap 3 of any lane, in the last plane; a gather reads 4 bytes there.
+  const size_t last = size_t(_mm512_mask_reduce_max_epi32(__mmask16(resolved), j0)) + 1 + size_t(w) + size_t(planes - 1) * stride;
+  if (last + 4 > p.in_bytes) return false;
+  const __mmask16 m = __mmask16(resolved);
+  auto tap_index = [&](__m512i k) {  // j0 + (k & 1) + (k >> 1) w
+    return _mm512_add_epi32(_mm512_add_epi32(j0, _mm512_and_si512(k, _mm512_set1_epi32(1))),
+                            _mm512_mullo_epi32(_mm512_srli_epi32(k, 1), _mm512_set1_epi32(w)));
+  };
+  const __m512i valid = _mm512_loadu_si512(plan.valid);
+  for (int c = 0; c < planes; ++c) {
+    const uint8_t* in = p.in + size_t(c) * stride;
+    uint8_t* out = p.out + i0 + size_t(c) * stride;
+    __m512i result;
+    if (p.nearest) {
+      const __m512i jn = tap_index(_mm512_loadu_si512(plan.nearest));
+      result = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, jn, in, 1), byte);
+    } else {
+      __m512 v = _mm512_setzero_ps();
+      for (int k = 0; k < 4; ++k) {
+        const __mmask16 mk = m & _mm512_test_epi32_mask(valid, _mm512_set1_epi32(1 << k));
+        const __m512i jk = tap_index(_mm512_set1_epi32(k));
+        const __m512i b = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, jk, in, 1), byte);
+        v = _mm512_mask_add_ps(v, mk, v, _mm512_mul_ps(_mm512_loadu_ps(plan.weight[k]), _mm512_cvtepi32_ps(b)));
+      }
+      // round_u8: r = v + 0.5, 0 below 0 and for NaN, 255 from 255 on, then truncated.
+      __m512 r = _mm512_add_ps(v, _mm512_set1_ps(0.5f));
+      r = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(r, _mm512_set1_ps(255.0f), _CMP_LT_OQ), _mm512_set1_ps(255.0f), r);
+      r = _mm512_maskz_mov_ps(_mm512_cmp_ps_mask(r, _mm512_setzero_ps(), _CMP_GE_OQ), r);
+      result = _mm512_cvttps_epi32(r);
+    }
+    _mm512_mask_cvtepi32_storeu_epi8(out, m, result);
+  }
+  return true;
+}
+#endif
 
 class Reprojection final : public Predictor {
  public:
@@ -133,6 +402,7 @@ class Reprojection final : public Predictor {
       results.push_back(&result);
       PassIo p;
       p.in = rb.bytes.data();
+      p.in_bytes = rb.bytes.size();
       p.out = result.bytes.data();
       p.bitmask = rb.desc.layout() == PassLayout::Bitmask;
       p.nearest = p.bitmask || !s_.bilinear;
@@ -222,16 +492,31 @@ class Reprojection final : public Predictor {
       }
     };
 
+    // The passes' values of covered dst pixel i from its valid taps t (bilinear passes) and
+    // source pixel `nearest` (nearest passes).
+    auto write_pass = [&](const PassIo& pass, size_t i, const Taps& t, int64_t nearest) {
+      if (pass.nearest) {
+        write_tap(pass, i, size_t(nearest));
+      } else if (t.count == 1) {
+        write_tap(pass, i, t.index[0]);
+      } else {
+        for (int c = 0; c < pass.lay.planes; ++c) {
+          const uint8_t* plane = pass.in + size_t(c) * pass.lay.plane_stride;
+          float v = 0.0f;
+          for (int k = 0; k < t.count; ++k) v += t.weight[k] * float(plane[t.index[k]]);
+          pass.out[i + size_t(c) * pass.lay.plane_stride] = predict::round_u8(v);
+        }
+      }
+    };
+
     const float fw = float(w), fh = float(h);
     const int radius = s.fill_radius_px;
-    predict::parallel_rows(h, [&](int y) {
-      uint32_t row_covered = 0, row_disoccluded = 0;
-      for (int x = 0; x < w; ++x) {
+    auto pixel = [&](int y, int x, uint32_t& row_covered, uint32_t& row_disoccluded) {
         const size_t i = size_t(y) * size_t(w) + size_t(x);
         const uint32_t id = dst.object_id[i];
         if (id == kBackgroundId) {
           write_lit(i);
-          continue;
+          return;
         }
         ++row_covered;
         const glm::vec3 p = dst.position[i];
@@ -328,23 +613,50 @@ class Reprojection final : public Predictor {
             }
           }
           if (!filled) write_lit(i);
-          continue;
+          return;
         }
-        for (const PassIo& pass : io) {
-          if (pass.nearest) {
-            write_tap(pass, i, size_t(nearest));
-          } else if (t.count == 1) {
-            write_tap(pass, i, t.index[0]);
-          } else {
-            for (int c = 0; c < pass.lay.planes; ++c) {
-              const uint8_t* plane = pass.in + size_t(c) * pass.lay.plane_stride;
-              float v = 0.0f;
-              for (int k = 0; k < t.count; ++k) v += t.weight[k] * float(plane[t.index[k]]);
-              pass.out[i + size_t(c) * pass.lay.plane_stride] = predict::round_u8(v);
+        for (const PassIo& pass : io) write_pass(pass, i, t, nearest);
+    };
+
+#if DHR_REPROJECT_X16
+    // Where the CPU has AVX-512, 16 pixels at a time find their taps (plan_x16), and the pixels
+    // it does not resolve take the scalar path above: the same taps, weights and bytes.
+    const bool x16 = cpu_has_avx512dq() && !g_scalar_only.load(std::memory_order_relaxed);
+    const PlanInputs plan_in{sid, snrm, sgeo, spos, sdep, dst.object_id.data(), dst.position.data(),
+                             dst.normal.data(), w, h, proj, thr2_, tol, tol2, thr_nonneg, any_bilinear, any_nearest};
+#endif
+    predict::parallel_rows(h, [&](int y) {
+      uint32_t row_covered = 0, row_disoccluded = 0;
+      int x = 0;
+#if DHR_REPROJECT_X16
+      if (x16) {
+        Plan16 plan;
+        for (; x + 16 <= w; x += 16) {
+          const uint32_t resolved = plan_x16(plan_in, y, x, plan);
+          const size_t i0 = size_t(y) * size_t(w) + size_t(x);
+          row_covered += uint32_t(std::popcount(resolved));
+          for (const PassIo& pass : io) {
+            if (!resolved || write_x16(pass, resolved, plan, i0, w)) continue;
+            for (int l = 0; l < 16; ++l) {  // the pass's resolved lanes one at a time
+              if (!((resolved >> l) & 1u)) continue;
+              const size_t j0 = size_t(plan.j0[l]);
+              auto tap_index = [&](int k) { return j0 + size_t(k & 1) + size_t(k >> 1) * size_t(w); };
+              Taps t;
+              for (int k = 0; k < 4; ++k) {
+                if (!((plan.valid[l] >> k) & 1)) continue;
+                t.index[t.count] = uint32_t(tap_index(k));
+                t.weight[t.count] = plan.weight[k][l];
+                ++t.count;
+              }
+              write_pass(pass, i0 + size_t(l), t, int64_t(tap_index(plan.nearest[l])));
             }
           }
+          for (int l = 0; l < 16; ++l)
+            if (!((resolved >> l) & 1u)) pixel(y, x + l, row_covered, row_disoccluded);
         }
       }
+#endif
+      for (; x < w; ++x) pixel(y, x, row_covered, row_disoccluded);
       covered[size_t(y)] = row_covered;
       disoccluded[size_t(y)] = row_disoccluded;
     });
@@ -354,6 +666,8 @@ class Reprojection final : public Predictor {
 };
 
 }  // namespace
+
+void predict::force_scalar_reprojection(bool on) { g_scalar_only.store(on, std::memory_order_relaxed); }
 
 PredictorEntry make_reprojection_predictor() {
   return {kName,

@@ -30,6 +30,10 @@ void parallel_rows(int height, Body&& body) {
   });
 }
 
+// Tests only: on, reprojection takes its scalar path on every pixel, also where the CPU has
+// AVX-512 (its 16-lane kernel must give the same bytes: tests/test_predictors.cpp).
+void force_scalar_reprojection(bool on);
+
 inline bool finite3(const glm::vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 
 // A camera usable for projection: finite pose, unit-ish orthogonal axes, fov in (0, 180),
