@@ -17,22 +17,8 @@
 // every scene with lights).
 // docs/performance.md has the measurements.
 //
-// Only the functions marked DHR_TRACE_TARGET_AVX512 are compiled for AVX-512; the rest of the
-// file keeps the baseline ISA. No lambdas inside them: a lambda does not inherit its enclosing
-// function's target attribute, and clang then refuses the AVX-512 intrinsics in it.
-#if defined(__x86_64__) && defined(__GNUC__)
-// GCC 12's AVX-512 intrinsics start from _mm512_undefined_*() and then warn, once inlined into
-// a caller, that the undefined value is "used uninitialized" (a false positive, reported at
-// the header's lines). The header is included first, with those two warnings off for its
-// lines only; this file's own code keeps them.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#if !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#endif
-#include <immintrin.h>
-#pragma GCC diagnostic pop
-#endif
+// Only the functions marked DHR_TRACE_TARGET_AVX512 are compiled for AVX-512 (core/avx512.h).
+#include "core/avx512.h"
 #include "core/trace_kernels.h"
 
 #include <algorithm>
@@ -40,13 +26,7 @@
 #include <numbers>
 
 #if DHR_TRACE_X86_KERNELS
-#if defined(__clang__)
-#define DHR_TRACE_TARGET_AVX512 __attribute__((target("avx512f,avx512dq")))
-#else
-// GCC's default -ffp-contract=fast would fuse a * b + c into the FMA instructions AVX-512
-// brings; off keeps every product and sum rounded separately, as in the SSE2 and scalar code.
-#define DHR_TRACE_TARGET_AVX512 __attribute__((target("avx512f,avx512dq"), optimize("fp-contract=off")))
-#endif
+#define DHR_TRACE_TARGET_AVX512 DHR_AVX512_TARGET
 
 namespace dhr::trace_detail {
 

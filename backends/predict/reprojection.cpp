@@ -45,28 +45,7 @@
 // nearest_valid), fill_radius_px (1..16, default 3), depth_tolerance (0.0001..1, default
 // 0.02), normal_threshold (-1..1, default 0.9).
 // Example: {"name": "reprojection", "params": {"filter": "nearest", "fill": "local"}}
-#if defined(__x86_64__) && defined(__GNUC__)
-// GCC 12's AVX-512 intrinsics warn, once inlined, that _mm512_undefined_*() is "used
-// uninitialized" (a false positive at the header's lines): off for the header only.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#if !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#endif
-#include <immintrin.h>
-#pragma GCC diagnostic pop
-#define DHR_REPROJECT_X16 1
-#if defined(__clang__)
-#define DHR_REPROJECT_TARGET __attribute__((target("avx512f,avx512dq")))
-#else
-// GCC's default -ffp-contract=fast would fuse a * b + c into AVX-512's FMA instructions; off
-// keeps every product and sum rounded on its own, as in the scalar code.
-#define DHR_REPROJECT_TARGET __attribute__((target("avx512f,avx512dq"), optimize("fp-contract=off")))
-#endif
-#else
-#define DHR_REPROJECT_X16 0
-#endif
-
+#include "core/avx512.h"
 #include "backends/predict/warp.h"
 
 #include <algorithm>
@@ -134,7 +113,7 @@ struct Plan16 {
 
 std::atomic<bool> g_scalar_only{false};
 
-#if DHR_REPROJECT_X16
+#if DHR_AVX512_KERNELS
 bool cpu_has_avx512dq() {
   static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
   return has;
@@ -142,13 +121,13 @@ bool cpu_has_avx512dq() {
 
 // glm::dot's sum in its order, (x x' + y y') + z z', and the scalar code's comparisons (false
 // on NaN, as there).
-DHR_REPROJECT_TARGET inline __m512 dot16(__m512 ax, __m512 ay, __m512 az, __m512 bx, __m512 by, __m512 bz) {
+DHR_AVX512_TARGET inline __m512 dot16(__m512 ax, __m512 ay, __m512 az, __m512 bx, __m512 by, __m512 bz) {
   return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(ax, bx), _mm512_mul_ps(ay, by)), _mm512_mul_ps(az, bz));
 }
-DHR_REPROJECT_TARGET inline __mmask16 ge16(__m512 a, float b) { return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_GE_OQ); }
-DHR_REPROJECT_TARGET inline __mmask16 le16(__m512 a, float b) { return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_LE_OQ); }
-DHR_REPROJECT_TARGET inline __mmask16 finite16(__m512 a) { return __mmask16(~_mm512_fpclass_ps_mask(a, 0x99)); }  // not NaN or +-inf
-DHR_REPROJECT_TARGET inline __m512 gather16(__mmask16 m, __m512i index, const float* base) {
+DHR_AVX512_TARGET inline __mmask16 ge16(__m512 a, float b) { return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_GE_OQ); }
+DHR_AVX512_TARGET inline __mmask16 le16(__m512 a, float b) { return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_LE_OQ); }
+DHR_AVX512_TARGET inline __mmask16 finite16(__m512 a) { return __mmask16(~_mm512_fpclass_ps_mask(a, 0x99)); }  // not NaN or +-inf
+DHR_AVX512_TARGET inline __m512 gather16(__mmask16 m, __m512i index, const float* base) {
   return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, index, base, 4);
 }
 
@@ -170,7 +149,7 @@ constexpr Deinterleave3 kDeinterleave3{};
 struct Xyz16 {
   __m512 x, y, z;
 };
-DHR_REPROJECT_TARGET inline Xyz16 load_xyz16(const glm::vec3* v) {
+DHR_AVX512_TARGET inline Xyz16 load_xyz16(const glm::vec3* v) {
   static_assert(sizeof(glm::vec3) == 3 * sizeof(float));
   const float* f = &v->x;
   const __m512 a = _mm512_loadu_ps(f), b = _mm512_loadu_ps(f + 16), c = _mm512_loadu_ps(f + 32);
@@ -182,7 +161,7 @@ DHR_REPROJECT_TARGET inline Xyz16 load_xyz16(const glm::vec3* v) {
   return {out[0], out[1], out[2]};
 }
 // The same for lanes at any indices j (gathered; lanes outside m read nothing and hold 0).
-DHR_REPROJECT_TARGET inline Xyz16 gather_xyz16(__mmask16 m, __m512i j, const glm::vec3* v) {
+DHR_AVX512_TARGET inline Xyz16 gather_xyz16(__mmask16 m, __m512i j, const glm::vec3* v) {
   const __m512i j3 = _mm512_mullo_epi32(j, _mm512_set1_epi32(3));
   const float* f = &v->x;
   return {gather16(m, j3, f), gather16(m, _mm512_add_epi32(j3, _mm512_set1_epi32(1)), f),
@@ -196,7 +175,7 @@ DHR_REPROJECT_TARGET inline Xyz16 gather_xyz16(__mmask16 m, __m512i j, const glm
 // take: a valid tap for the bilinear ones, a valid nearest (largest-weight) tap for the nearest
 // ones. Every other lane (background, off-screen, image border, disocclusion, a nearest tap
 // that fails) is left to the scalar code.
-DHR_REPROJECT_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& out) {
+DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& out) {
   const size_t i0 = size_t(y) * size_t(a.w) + size_t(x);
   const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const __m512i one = _mm512_set1_epi32(1), two = _mm512_set1_epi32(2);
@@ -315,13 +294,13 @@ struct PassIo {
   uint8_t full = 255;    // 8-bit: full_scale
 };
 
-#if DHR_REPROJECT_X16
+#if DHR_AVX512_KERNELS
 // Pass p's values of the resolved lanes of a plan (dst pixels i0 .. i0 + 15), as the scalar
 // write_pass makes them: the nearest tap's byte, or the valid taps' weighted sum in tap order,
 // from 0, rounded by round_u8 (one valid tap has weight 1 exactly: its byte). Bitmasks of more
 // than one byte per pixel, and blocks whose 4-byte gathers could reach past the buffer's end,
 // are left to the caller (false).
-DHR_REPROJECT_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan16& plan, size_t i0, int w) {
+DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan16& plan, size_t i0, int w) {
   if (p.bitmask && p.bpp != 1) return false;
   const __m512i j0 = _mm512_loadu_si512(plan.j0);
   const __m512i byte = _mm512_set1_epi32(0xFF);
@@ -618,7 +597,7 @@ class Reprojection final : public Predictor {
         for (const PassIo& pass : io) write_pass(pass, i, t, nearest);
     };
 
-#if DHR_REPROJECT_X16
+#if DHR_AVX512_KERNELS
     // Where the CPU has AVX-512, 16 pixels at a time find their taps (plan_x16), and the pixels
     // it does not resolve take the scalar path above: the same taps, weights and bytes.
     const bool x16 = cpu_has_avx512dq() && !g_scalar_only.load(std::memory_order_relaxed);
@@ -628,7 +607,7 @@ class Reprojection final : public Predictor {
     predict::parallel_rows(h, [&](int y) {
       uint32_t row_covered = 0, row_disoccluded = 0;
       int x = 0;
-#if DHR_REPROJECT_X16
+#if DHR_AVX512_KERNELS
       if (x16) {
         Plan16 plan;
         for (; x + 16 <= w; x += 16) {
