@@ -22,17 +22,17 @@ STAGES = [
     ("trace: shadow pass (surfaces, lights, packets)", r"visibility_rows|sphere_light|distant_light|trace_pairs|surfaces_x|soft_pair_rays|update_triangle|triangle_world|light_infos|visibility_impl|pack_visibility|visibility_to_planes|uniforms_pixels"),
     ("trace: AO pass (ray generation)", r"ao_rays_|ao_rows|ao_impl|trace_ao"),
     ("denoise (svgf_ao: temporal, moments, a-trous)", r"denoise::|atrous|svgf|Svgf|moment|accumulate_row|guide_"),
-    ("metrics: FLIP", r"flip|Flip|filter_column|filter_row|weighted_rows|lab_f_row|horizontal_pass|vertical_row|RowScratch|__powf|powf"),
-    ("metrics: SSIM, PSNR, temporal", r"ssim|Ssim|psnr|temporal_scores|dhr::luma"),
+    ("metrics: FLIP", r"flip|Flip|filter_column|filter_row|weighted_rows|lab_f_row|horizontal_pass|vertical_row|RowScratch|magnitude_row|colour_row|lab_row|__powf|powf"),
+    ("metrics: SSIM, PSNR, temporal", r"ssim|Ssim|psnr|temporal_scores|step_terms|dhr::luma|luma_pixels|difference_sums"),
     ("rasterize (client and server)", r"dhr::rasterize|resolve|cover|setup_triangles|sample_bilinear|Texture|raster|pixel_bounds|alpha_cutout"),
-    ("composite and tone mapping", r"composite|shade_lambert|shade_row|tonemap|srgb8"),
+    ("composite and tone mapping", r"composite|shade_lambert|shade_row|gbuffer_row|tonemap|srgb8"),
     ("predict (reprojection)", r"Reprojection|reproject|Predictor|warp"),
     ("codecs", r"^liblz4|^libzstd|^libx26|^libav|^libsw|^libaom|^libdav1d|LZ4|ZSTD|Codec"),
-    ("packets, network, assembler", r"packet|Packet|assembl|Assembl|crc32|Link::|network"),
+    ("packets, network, assembler", r"packet|Packet|assembl|Assembl|crc32|update_hardware|Link::|network"),
     ("report (report.py, plots) and image files", r"^python|^_multiarray|^_imaging|^_image|^_backend|^libz\.|^libpng|^libjpeg|^libOpenImageIO|write_png|downscale|png"),
     ("scene loading", r"^libassimp|scene_load|mesh_import"),
     ("kernel (page faults, zeroing fresh memory)", r"^\[kernel"),
-    ("runtime (TBB, allocation, copies)", r"^libtbb|^libc\.|^libstdc|^ld-linux|tbb::|memcpy|memset|memmove|malloc|operator new"),
+    ("runtime (TBB, allocation, copies)", r"^libtbb|^libc\.|^libstdc|^ld-linux|tbb::|memcpy|memset|memmove|malloc|operator new|Hasher::"),
 ]
 
 LINE = re.compile(r"^\s*([0-9.]+)%\s+(.*\S)\s*$")
