@@ -295,6 +295,12 @@ struct PassIo {
 };
 
 #if DHR_AVX512_KERNELS
+// Tap k's source index, j0 + (k & 1) + (k >> 1) w, in 16 lanes.
+DHR_AVX512_TARGET inline __m512i tap_index16(__m512i j0, __m512i k, int w) {
+  return _mm512_add_epi32(_mm512_add_epi32(j0, _mm512_and_si512(k, _mm512_set1_epi32(1))),
+                          _mm512_mullo_epi32(_mm512_srli_epi32(k, 1), _mm512_set1_epi32(w)));
+}
+
 // Pass p's values of the resolved lanes of a plan (dst pixels i0 .. i0 + 15), as the scalar
 // write_pass makes them: the nearest tap's byte, or the valid taps' weighted sum in tap order,
 // from 0, rounded by round_u8 (one valid tap has weight 1 exactly: its byte). Bitmasks of more
@@ -310,23 +316,19 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
   const size_t last = size_t(_mm512_mask_reduce_max_epi32(__mmask16(resolved), j0)) + 1 + size_t(w) + size_t(planes - 1) * stride;
   if (last + 4 > p.in_bytes) return false;
   const __mmask16 m = __mmask16(resolved);
-  auto tap_index = [&](__m512i k) {  // j0 + (k & 1) + (k >> 1) w
-    return _mm512_add_epi32(_mm512_add_epi32(j0, _mm512_and_si512(k, _mm512_set1_epi32(1))),
-                            _mm512_mullo_epi32(_mm512_srli_epi32(k, 1), _mm512_set1_epi32(w)));
-  };
   const __m512i valid = _mm512_loadu_si512(plan.valid);
   for (int c = 0; c < planes; ++c) {
     const uint8_t* in = p.in + size_t(c) * stride;
     uint8_t* out = p.out + i0 + size_t(c) * stride;
     __m512i result;
     if (p.nearest) {
-      const __m512i jn = tap_index(_mm512_loadu_si512(plan.nearest));
+      const __m512i jn = tap_index16(j0, _mm512_loadu_si512(plan.nearest), w);
       result = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, jn, in, 1), byte);
     } else {
       __m512 v = _mm512_setzero_ps();
       for (int k = 0; k < 4; ++k) {
         const __mmask16 mk = m & _mm512_test_epi32_mask(valid, _mm512_set1_epi32(1 << k));
-        const __m512i jk = tap_index(_mm512_set1_epi32(k));
+        const __m512i jk = tap_index16(j0, _mm512_set1_epi32(k), w);
         const __m512i b = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, jk, in, 1), byte);
         v = _mm512_mask_add_ps(v, mk, v, _mm512_mul_ps(_mm512_loadu_ps(plan.weight[k]), _mm512_cvtepi32_ps(b)));
       }
