@@ -1,8 +1,8 @@
 // <immintrin.h> and the function attribute for the AVX-512 kernels (core/trace_avx512.cpp,
 // backends/predict/reprojection.cpp). Only the functions marked DHR_AVX512_TARGET are compiled
-// for AVX-512F/DQ; the rest of a file keeps the baseline ISA, and the caller picks the kernel at
-// run time (__builtin_cpu_supports). No lambdas inside those functions: a lambda does not
-// inherit its enclosing function's target attribute, and clang then refuses the AVX-512
+// for AVX-512F/DQ; the rest of a file keeps the baseline ISA, and the caller picks the kernel
+// at run time (dhr::cpu_has_avx512dq, below). No lambdas inside those functions: a lambda does
+// not inherit its enclosing function's target attribute, and clang then refuses the AVX-512
 // intrinsics in it.
 #pragma once
 
@@ -20,6 +20,15 @@
 #pragma GCC diagnostic pop
 
 #define DHR_AVX512_KERNELS 1
+
+namespace dhr {
+// Whether the CPU has AVX-512F and DQ, what the kernels are built for (checked once).
+inline bool cpu_has_avx512dq() {
+  static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
+  return has;
+}
+}  // namespace dhr
+
 #if defined(__clang__)
 #define DHR_AVX512_TARGET __attribute__((target("avx512f,avx512dq")))
 #else

@@ -30,11 +30,6 @@
 
 namespace dhr::trace_detail {
 
-bool cpu_has_avx512dq() {
-  static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
-  return has;
-}
-
 namespace {
 
 DHR_TRACE_TARGET_AVX512 inline __m512i mix64_x8(__m512i z) {  // core/rng.h's mix64, 8 lanes

@@ -9,6 +9,7 @@
 //   rows_out, records the rays of each row instead of tracing them).
 #pragma once
 
+#include "core/avx512.h"
 #include "core/trace.h"
 
 #include <algorithm>
@@ -438,9 +439,8 @@ void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch, uint64_t& invalid);
 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8>& batch);
 // Stage 1 for the pixels of kind 1, 8 at a time (surfaces_x16's work on AVX2, below).
 void surfaces_x8(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes);
-// core/trace_avx512.cpp: whether the CPU has AVX-512F and DQ (checked once), and the AO rays
-// 16 at a time (only where that holds and Embree has 16-wide packets).
-bool cpu_has_avx512dq();
+// core/trace_avx512.cpp: the AO rays 16 at a time (only where the CPU has AVX-512F and DQ,
+// cpu_has_avx512dq in core/avx512.h, and Embree has 16-wide packets).
 void ao_rays_x16(const AoPixels& px, int rays, float radius_m, Batch<16>& batch);
 // Stage 2 of the visibility pass for a sphere light (sphere_light_row in core/trace_rows.cpp),
 // 16 pixels at a time: every pixel's code, the compacted indices (r.idx) of the covered pairs

@@ -114,11 +114,6 @@ struct Plan16 {
 std::atomic<bool> g_scalar_only{false};
 
 #if DHR_AVX512_KERNELS
-bool cpu_has_avx512dq() {
-  static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
-  return has;
-}
-
 // glm::dot's sum in its order, (x x' + y y') + z z', and the scalar code's comparisons (false
 // on NaN, as there).
 DHR_AVX512_TARGET inline __m512 dot16(__m512 ax, __m512 ay, __m512 az, __m512 bx, __m512 by, __m512 bz) {
@@ -217,12 +212,10 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
   // valid_tap for each tap k, in 16 lanes. Where every lane is in play and the taps lie side
   // by side (tap 0 of lane l at j0 of lane 0 plus l, as under smooth motion), each tap's source
   // values are 16 consecutive pixels, loaded as such; else they are gathered.
-  const __m512i vid = id;
-  const __m512 ndx = nx, ndy = ny, ndz = nz, vz = z;
+  const int32_t lane0 = _mm_cvtsi128_si32(_mm512_castsi512_si128(j0));
   const bool side_by_side =
-      m == 0xFFFF &&
-      _mm512_cmpeq_epi32_mask(j0, _mm512_add_epi32(_mm512_set1_epi32(_mm_cvtsi128_si32(_mm512_castsi512_si128(j0))), lane)) == 0xFFFF;
-  const size_t first = side_by_side ? size_t(uint32_t(_mm_cvtsi128_si32(_mm512_castsi512_si128(j0)))) : 0;
+      m == 0xFFFF && _mm512_cmpeq_epi32_mask(j0, _mm512_add_epi32(_mm512_set1_epi32(lane0), lane)) == 0xFFFF;
+  const size_t first = side_by_side ? size_t(lane0) : 0;
   __mmask16 ok[4];
   for (int k = 0; k < 4; ++k) {
     const int offset = (k & 1) + (k >> 1) * a.w;
@@ -231,12 +224,12 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
     __mmask16 t = m & _mm512_cmp_ps_mask(bw[k], _mm512_setzero_ps(), _CMP_GT_OQ);
     const __m512i sid = side_by_side ? _mm512_loadu_si512(a.sid + fk)
                                      : _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), t, jk, a.sid, 4);
-    t &= _mm512_cmpeq_epi32_mask(sid, vid);
+    t &= _mm512_cmpeq_epi32_mask(sid, id);
     const Xyz16 sn = side_by_side ? load_xyz16(a.snrm + fk) : gather_xyz16(t, jk, a.snrm);
     const __m512 sx = sn.x, sy = sn.y, sz = sn.z;
     const __m512 ls = dot16(sx, sy, sz, sx, sy, sz);
     t &= ge16(ls, 0.25f) & le16(ls, 4.0f);
-    const __m512 d = dot16(sx, sy, sz, ndx, ndy, ndz);
+    const __m512 d = dot16(sx, sy, sz, nx, ny, nz);
     const __m512 bound = _mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.thr2), ls), ln);
     const __m512 d2 = _mm512_mul_ps(d, d);
     const __mmask16 d_nonneg = ge16(d, 0.0f);
@@ -250,11 +243,11 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
     const __m512 ex = _mm512_sub_ps(px, sp.x), ey = _mm512_sub_ps(py, sp.y), ez = _mm512_sub_ps(pz, sp.z);
     const __m512 e = dot16(ex, ey, ez, gx, gy, gz);
     const __mmask16 plane = _mm512_cmp_ps_mask(
-        _mm512_mul_ps(e, e), _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.tol2), vz), vz), lg), _CMP_LE_OQ);
+        _mm512_mul_ps(e, e), _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.tol2), z), z), lg), _CMP_LE_OQ);
     const __m512 sd = side_by_side ? _mm512_loadu_ps(a.sdep + fk)
                                    : _mm512_mask_i32gather_ps(_mm512_setzero_ps(), t & ~has_plane, jk, a.sdep, 4);
-    const __m512 adz = _mm512_abs_ps(_mm512_sub_ps(sd, vz));
-    const __mmask16 depth = _mm512_cmp_ps_mask(adz, _mm512_mul_ps(_mm512_set1_ps(a.tol), vz), _CMP_LE_OQ);
+    const __m512 adz = _mm512_abs_ps(_mm512_sub_ps(sd, z));
+    const __mmask16 depth = _mm512_cmp_ps_mask(adz, _mm512_mul_ps(_mm512_set1_ps(a.tol), z), _CMP_LE_OQ);
     t &= (has_plane & plane) | (~has_plane & depth);
     ok[k] = t;
   }
@@ -493,110 +486,110 @@ class Reprojection final : public Predictor {
     const float fw = float(w), fh = float(h);
     const int radius = s.fill_radius_px;
     auto pixel = [&](int y, int x, uint32_t& row_covered, uint32_t& row_disoccluded) {
-        const size_t i = size_t(y) * size_t(w) + size_t(x);
-        const uint32_t id = dst.object_id[i];
-        if (id == kBackgroundId) {
-          write_lit(i);
-          return;
+      const size_t i = size_t(y) * size_t(w) + size_t(x);
+      const uint32_t id = dst.object_id[i];
+      if (id == kBackgroundId) {
+        write_lit(i);
+        return;
+      }
+      ++row_covered;
+      const glm::vec3 p = dst.position[i];
+      const glm::vec3 nd = dst.normal[i];
+      const float ln = glm::dot(nd, nd);
+      Taps t;                // the bilinear passes' taps
+      int64_t nearest = -1;  // the nearest passes' tap
+      float qx = 0.0f, qy = 0.0f, z = 0.0f;
+      bool projected = false;
+      if (predict::finite3(p) && ln >= 0.25f && ln <= 4.0f) {
+        const glm::vec3 q = proj.project(p);
+        qx = q.x;
+        qy = q.y;
+        z = q.z;
+        // Inside the image rectangle and in front of the camera (NaN fails every test).
+        projected = z > 0.0f && std::isfinite(z) && std::isfinite(qx) && std::isfinite(qy);
+        if (projected && qx >= 0.0f && qx < fw && qy >= 0.0f && qy < fh) {
+          const float u = qx - 0.5f, v = qy - 0.5f;
+          const float x0f = std::floor(u), y0f = std::floor(v);
+          const float ax = u - x0f, ay = v - y0f;
+          const int x0 = int(x0f), y0 = int(y0f);
+          const float bw[4] = {(1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay};
+          // Tap k's index when it lies in the image, has weight and passes the tests; else -1.
+          auto tap = [&](int k) -> int64_t {
+            const int tx = x0 + (k & 1), ty = y0 + (k >> 1);
+            if (!(bw[k] > 0.0f) || tx < 0 || ty < 0 || tx >= w || ty >= h) return -1;
+            const size_t j = size_t(ty) * size_t(w) + size_t(tx);
+            return valid_tap(j, p, nd, ln, z, id) ? int64_t(j) : -1;
+          };
+          // The nearest: the valid tap of largest weight, ties in tap order. The nearest tap
+          // (largest weight) is tried first: it passes almost always, and the common path
+          // then has no data-dependent branch. `valid(k)`: tap k's index or -1.
+          const int kn = int(ax > 0.5f) | (int(ay > 0.5f) << 1);
+          auto nearest_of = [&](auto&& valid) {
+            int64_t j = valid(kn);
+            if (j < 0) {
+              int order[4] = {0, 1, 2, 3};  // stable insertion sort by decreasing weight
+              for (int a = 1; a < 4; ++a) {
+                const int k = order[a];
+                int b = a;
+                for (; b > 0 && bw[order[b - 1]] < bw[k]; --b) order[b] = order[b - 1];
+                order[b] = k;
+              }
+              for (int r = 0; r < 4 && j < 0; ++r)
+                if (order[r] != kn) j = valid(order[r]);
+            }
+            return j;
+          };
+          if (!any_bilinear) {
+            nearest = nearest_of(tap);
+          } else {
+            int64_t taps[4];
+            float sum = 0.0f;
+            for (int k = 0; k < 4; ++k) {
+              taps[k] = tap(k);
+              if (taps[k] >= 0) sum += bw[k];
+            }
+            // Each weight divided as it is stored: dividing the stored weights afterwards
+            // compiled to one vector load of the four scalar stores just made, a
+            // store-forwarding stall that was a tenth of the pass (perf, bench_predict).
+            for (int k = 0; k < 4; ++k) {
+              if (taps[k] < 0) continue;
+              t.index[t.count] = uint32_t(taps[k]);
+              t.weight[t.count] = bw[k] / sum;
+              ++t.count;
+            }
+            if (any_nearest) nearest = nearest_of([&](int k) { return taps[k]; });
+          }
         }
-        ++row_covered;
-        const glm::vec3 p = dst.position[i];
-        const glm::vec3 nd = dst.normal[i];
-        const float ln = glm::dot(nd, nd);
-        Taps t;                // the bilinear passes' taps
-        int64_t nearest = -1;  // the nearest passes' tap
-        float qx = 0.0f, qy = 0.0f, z = 0.0f;
-        bool projected = false;
-        if (predict::finite3(p) && ln >= 0.25f && ln <= 4.0f) {
-          const glm::vec3 q = proj.project(p);
-          qx = q.x;
-          qy = q.y;
-          z = q.z;
-          // Inside the image rectangle and in front of the camera (NaN fails every test).
-          projected = z > 0.0f && std::isfinite(z) && std::isfinite(qx) && std::isfinite(qy);
-          if (projected && qx >= 0.0f && qx < fw && qy >= 0.0f && qy < fh) {
-            const float u = qx - 0.5f, v = qy - 0.5f;
-            const float x0f = std::floor(u), y0f = std::floor(v);
-            const float ax = u - x0f, ay = v - y0f;
-            const int x0 = int(x0f), y0 = int(y0f);
-            const float bw[4] = {(1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay};
-            // Tap k's index when it lies in the image, has weight and passes the tests; else -1.
-            auto tap = [&](int k) -> int64_t {
-              const int tx = x0 + (k & 1), ty = y0 + (k >> 1);
-              if (!(bw[k] > 0.0f) || tx < 0 || ty < 0 || tx >= w || ty >= h) return -1;
+      }
+      if (any_bilinear ? t.count == 0 : nearest < 0) {  // no valid tap (the same for every pass)
+        ++row_disoccluded;
+        bool filled = false;
+        if (s.fill_nearest_valid && projected && qx > -float(radius + 1) && qx < fw + float(radius + 1) &&
+            qy > -float(radius + 1) && qy < fh + float(radius + 1)) {
+          // Nearest valid source pixel in the window, by distance from q to its centre;
+          // ties keep the first in scan order.
+          const int cx = int(std::floor(qx)), cy = int(std::floor(qy));
+          float best_d2 = INFINITY;
+          size_t best = 0;
+          for (int ty = std::max(0, cy - radius); ty <= std::min(h - 1, cy + radius); ++ty)
+            for (int tx = std::max(0, cx - radius); tx <= std::min(w - 1, cx + radius); ++tx) {
+              const float dx = float(tx) + 0.5f - qx, dy = float(ty) + 0.5f - qy;
+              const float d2 = dx * dx + dy * dy;
+              if (d2 >= best_d2) continue;
               const size_t j = size_t(ty) * size_t(w) + size_t(tx);
-              return valid_tap(j, p, nd, ln, z, id) ? int64_t(j) : -1;
-            };
-            // The nearest: the valid tap of largest weight, ties in tap order. The nearest tap
-            // (largest weight) is tried first: it passes almost always, and the common path
-            // then has no data-dependent branch. `valid(k)`: tap k's index or -1.
-            const int kn = int(ax > 0.5f) | (int(ay > 0.5f) << 1);
-            auto nearest_of = [&](auto&& valid) {
-              int64_t j = valid(kn);
-              if (j < 0) {
-                int order[4] = {0, 1, 2, 3};  // stable insertion sort by decreasing weight
-                for (int a = 1; a < 4; ++a) {
-                  const int k = order[a];
-                  int b = a;
-                  for (; b > 0 && bw[order[b - 1]] < bw[k]; --b) order[b] = order[b - 1];
-                  order[b] = k;
-                }
-                for (int r = 0; r < 4 && j < 0; ++r)
-                  if (order[r] != kn) j = valid(order[r]);
-              }
-              return j;
-            };
-            if (!any_bilinear) {
-              nearest = nearest_of(tap);
-            } else {
-              int64_t taps[4];
-              float sum = 0.0f;
-              for (int k = 0; k < 4; ++k) {
-                taps[k] = tap(k);
-                if (taps[k] >= 0) sum += bw[k];
-              }
-              // Each weight divided as it is stored: dividing the stored weights afterwards
-              // compiled to one vector load of the four scalar stores just made, a
-              // store-forwarding stall that was a tenth of the pass (perf, bench_predict).
-              for (int k = 0; k < 4; ++k) {
-                if (taps[k] < 0) continue;
-                t.index[t.count] = uint32_t(taps[k]);
-                t.weight[t.count] = bw[k] / sum;
-                ++t.count;
-              }
-              if (any_nearest) nearest = nearest_of([&](int k) { return taps[k]; });
+              if (!valid_tap(j, p, nd, ln, z, id)) continue;
+              best_d2 = d2;
+              best = j;
             }
+          if (best_d2 < INFINITY) {
+            for (const PassIo& io_pass : io) write_tap(io_pass, i, best);
+            filled = true;
           }
         }
-        if (any_bilinear ? t.count == 0 : nearest < 0) {  // no valid tap (the same for every pass)
-          ++row_disoccluded;
-          bool filled = false;
-          if (s.fill_nearest_valid && projected && qx > -float(radius + 1) && qx < fw + float(radius + 1) &&
-              qy > -float(radius + 1) && qy < fh + float(radius + 1)) {
-            // Nearest valid source pixel in the window, by distance from q to its centre;
-            // ties keep the first in scan order.
-            const int cx = int(std::floor(qx)), cy = int(std::floor(qy));
-            float best_d2 = INFINITY;
-            size_t best = 0;
-            for (int ty = std::max(0, cy - radius); ty <= std::min(h - 1, cy + radius); ++ty)
-              for (int tx = std::max(0, cx - radius); tx <= std::min(w - 1, cx + radius); ++tx) {
-                const float dx = float(tx) + 0.5f - qx, dy = float(ty) + 0.5f - qy;
-                const float d2 = dx * dx + dy * dy;
-                if (d2 >= best_d2) continue;
-                const size_t j = size_t(ty) * size_t(w) + size_t(tx);
-                if (!valid_tap(j, p, nd, ln, z, id)) continue;
-                best_d2 = d2;
-                best = j;
-              }
-            if (best_d2 < INFINITY) {
-              for (const PassIo& io_pass : io) write_tap(io_pass, i, best);
-              filled = true;
-            }
-          }
-          if (!filled) write_lit(i);
-          return;
-        }
-        for (const PassIo& pass : io) write_pass(pass, i, t, nearest);
+        if (!filled) write_lit(i);
+        return;
+      }
+      for (const PassIo& pass : io) write_pass(pass, i, t, nearest);
     };
 
 #if DHR_AVX512_KERNELS
@@ -612,25 +605,26 @@ class Reprojection final : public Predictor {
 #if DHR_AVX512_KERNELS
       if (x16) {
         Plan16 plan;
+        std::vector<const PassIo*> rest;  // the passes write_x16 leaves to the lane-by-lane writes
         for (; x + 16 <= w; x += 16) {
           const uint32_t resolved = plan_x16(plan_in, y, x, plan);
           const size_t i0 = size_t(y) * size_t(w) + size_t(x);
           row_covered += uint32_t(std::popcount(resolved));
-          for (const PassIo& pass : io) {
-            if (!resolved || write_x16(pass, resolved, plan, i0, w)) continue;
-            for (int l = 0; l < 16; ++l) {  // the pass's resolved lanes one at a time
-              if (!((resolved >> l) & 1u)) continue;
-              const size_t j0 = size_t(plan.j0[l]);
-              auto tap_index = [&](int k) { return j0 + size_t(k & 1) + size_t(k >> 1) * size_t(w); };
-              Taps t;
-              for (int k = 0; k < 4; ++k) {
-                if (!((plan.valid[l] >> k) & 1)) continue;
-                t.index[t.count] = uint32_t(tap_index(k));
-                t.weight[t.count] = plan.weight[k][l];
-                ++t.count;
-              }
-              write_pass(pass, i0 + size_t(l), t, int64_t(tap_index(plan.nearest[l])));
+          rest.clear();
+          for (const PassIo& pass : io)
+            if (resolved && !write_x16(pass, resolved, plan, i0, w)) rest.push_back(&pass);
+          for (int l = 0; l < 16 && !rest.empty(); ++l) {  // their resolved lanes one at a time
+            if (!((resolved >> l) & 1u)) continue;
+            const size_t j0 = size_t(plan.j0[l]);
+            auto tap_index = [&](int k) { return j0 + size_t(k & 1) + size_t(k >> 1) * size_t(w); };
+            Taps t;
+            for (int k = 0; k < 4; ++k) {
+              if (!((plan.valid[l] >> k) & 1)) continue;
+              t.index[t.count] = uint32_t(tap_index(k));
+              t.weight[t.count] = plan.weight[k][l];
+              ++t.count;
             }
+            for (const PassIo* pass : rest) write_pass(*pass, i0 + size_t(l), t, int64_t(tap_index(plan.nearest[l])));
           }
           for (int l = 0; l < 16; ++l)
             if (!((resolved >> l) & 1u)) pixel(y, x + l, row_covered, row_disoccluded);
