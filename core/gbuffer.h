@@ -31,6 +31,18 @@ struct GBuffer {
   int width() const { return depth.width(); }
   int height() const { return depth.height(); }
   bool covered(int x, int y) const { return object_id(x, y) != kBackgroundId; }
+  // Every plane sized; values unspecified until written (the rasterizer writes every pixel).
+  void resize_for_overwrite(int width, int height) {
+    depth.resize_for_overwrite(width, height);
+    position.resize_for_overwrite(width, height);
+    normal.resize_for_overwrite(width, height);
+    geo_normal.resize_for_overwrite(width, height);
+    albedo.resize_for_overwrite(width, height);
+    object_id.resize_for_overwrite(width, height);
+    prim_id.resize_for_overwrite(width, height);
+    bary.resize_for_overwrite(width, height);
+    motion.resize_for_overwrite(width, height);
+  }
   void resize(int width, int height) {
     depth.resize(width, height, kBackgroundDepth);
     position.resize(width, height);

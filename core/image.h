@@ -4,9 +4,14 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
+#include <memory>
 #include <span>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace dhr {
@@ -22,6 +27,37 @@ constexpr int64_t kMaxImagePixels = int64_t(1) << 26;
 // Throws dhr::Error when width or height is negative, above kMaxImageSide, or the product
 // is above kMaxImagePixels.
 void check_image_size(int width, int height);
+
+// The allocator of image storage: growing a vector without a value default-initialises the new
+// elements, so a trivially constructible pixel (float, integers, glm vectors) is left unwritten
+// and its page untouched. Image::resize then writes its fill value with for_chunks, so that the
+// first touch of a large new buffer, where the kernel zeroes each page, runs on every core instead
+// of one (docs/performance.md, "Fresh memory, touched in parallel").
+template <class T>
+struct DefaultInitAllocator : std::allocator<T> {
+  template <class U>
+  struct rebind {
+    using other = DefaultInitAllocator<U>;
+  };
+  DefaultInitAllocator() = default;
+  template <class U>
+  DefaultInitAllocator(const DefaultInitAllocator<U>&) noexcept {}
+  template <class U>
+  void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
+    ::new (static_cast<void*>(p)) U;
+  }
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    std::construct_at(p, std::forward<Args>(args)...);
+  }
+};
+template <class T>
+using PixelVector = std::vector<T, DefaultInitAllocator<T>>;
+
+// Calls fn(begin, end) on pieces of [0, n) that together cover it once: on one thread when the n
+// elements of elem_bytes each take less than 1 MiB, otherwise in parallel (TBB) in pieces of
+// 256 KiB. For writes whose result does not depend on the order, such as a fill.
+void for_chunks(size_t n, size_t elem_bytes, const std::function<void(size_t, size_t)>& fn);
 
 template <class T>
 struct ImageView {
@@ -42,11 +78,22 @@ class Image {
   Image() = default;
   Image(int width, int height, const T& fill = T{}) { resize(width, height, fill); }
 
+  // Every pixel is `fill` afterwards (written in parallel for a large image: for_chunks).
   void resize(int width, int height, const T& fill = T{}) {
+    resize_for_overwrite(width, height);
+    T* d = pixels_.data();
+    for_chunks(pixels_.size(), sizeof(T), [d, &fill](size_t b, size_t e) { std::fill(d + b, d + e, fill); });
+  }
+  // The size only: a pixel's value is unspecified until written, for a caller that writes every
+  // pixel itself (the rasterizer's tiles). The old pixels are not kept.
+  void resize_for_overwrite(int width, int height) {
     check_image_size(width, height);
+    const size_t n = size_t(width) * size_t(height);
+    width_ = height_ = 0;
+    if (pixels_.capacity() < n) pixels_ = PixelVector<T>();  // freed first, and nothing copied
+    pixels_.resize(n);
     width_ = width;
     height_ = height;
-    pixels_.assign(size_t(width) * size_t(height), fill);
   }
   int width() const { return width_; }
   int height() const { return height_; }
@@ -64,8 +111,8 @@ class Image {
   const T& operator[](size_t i) const { return pixels_[i]; }
   std::span<T> row(int y) { return {pixels_.data() + size_t(y) * width_, size_t(width_)}; }
   std::span<const T> row(int y) const { return {pixels_.data() + size_t(y) * width_, size_t(width_)}; }
-  std::vector<T>& pixels() { return pixels_; }
-  const std::vector<T>& pixels() const { return pixels_; }
+  PixelVector<T>& pixels() { return pixels_; }
+  const PixelVector<T>& pixels() const { return pixels_; }
   void fill(const T& value) { std::fill(pixels_.begin(), pixels_.end(), value); }
 
   ImageView<T> view() { return {pixels_.data(), width_, height_, width_}; }
@@ -78,7 +125,7 @@ class Image {
  private:
   int width_ = 0;
   int height_ = 0;
-  std::vector<T> pixels_;
+  PixelVector<T> pixels_;
 };
 
 using ImageF = Image<float>;

@@ -724,7 +724,9 @@ RasterStats rasterize(const RasterFrame& frame, GBuffer& out) {
     stats.triangles_culled += binned[j].culled;
   }
 
-  if (!has_size(out, cam.width, cam.height)) out.resize(cam.width, cam.height);
+  // Sized without a fill: raster_tile writes every pixel of its tile, so the planes' fresh pages
+  // are first touched by the tiles, on every core.
+  if (!has_size(out, cam.width, cam.height)) out.resize_for_overwrite(cam.width, cam.height);
   out.camera = cam;
   out.time_s = frame.time_s;
   const int tiles = ctx.tiles_x * ctx.tiles_y;

@@ -46,8 +46,8 @@ class Hasher {
   void pod(const T& v) {
     bytes(&v, sizeof(T));
   }
-  template <class T>
-  void vec(const std::vector<T>& v) {
+  template <class T, class A>
+  void vec(const std::vector<T, A>& v) {
     pod(v.size());
     if (!v.empty()) bytes(v.data(), v.size() * sizeof(T));
   }
