@@ -495,7 +495,7 @@ Filters make_filters(double ppd) {
 // FLIP's scratch planes of one call (kPlanes floats per pixel: 58 MB at 1920x1080), kept by the
 // calling thread between calls (core/workspace.h) instead of taking fresh pages every call.
 struct FlipWorkspace {
-  std::vector<float> planes[kPlanes];
+  PixelVector<float> planes[kPlanes];  // not zeroed: first touched by the parallel pass
 };
 
 // The horizontal pass of one image into the workspace's planes, each grown to the image's size
@@ -503,8 +503,8 @@ struct FlipWorkspace {
 std::array<float*, kPlanes> horizontal_planes(const ImageRGB8& image, const Filters& fl, FlipWorkspace& ws) {
   std::array<float*, kPlanes> planes;
   for (int k = 0; k < kPlanes; ++k) {
-    std::vector<float>& p = ws.planes[k];
-    if (p.size() < image.size()) p = std::vector<float>(image.size());
+    PixelVector<float>& p = ws.planes[k];
+    if (p.size() < image.size()) p = PixelVector<float>(image.size());
     planes[size_t(k)] = p.data();
   }
   horizontal_pass(image, fl, planes.data());
@@ -524,7 +524,7 @@ FlipFeatures flip_features(const ImageRGB8& image, double ppd) {
   f.width = w;
   f.height = h;
   f.ppd = ppd;
-  f.lab.resize(3 * image.size());
+  f.lab.resize(3 * image.size());  // left unwritten (PixelVector): the rows below write every value
   f.edge.resize(image.size());
   f.point.resize(image.size());
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
@@ -563,7 +563,7 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
   const float cmax = max_colour_error();
   const float knee = kPc * cmax;
   FlipResult result;
-  result.map.resize(w, h);
+  result.map.resize_for_overwrite(w, h);  // every value written below
   std::vector<double> row_sums(size_t(h), 0.0);
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
     RowScratch s(w);

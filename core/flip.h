@@ -42,8 +42,8 @@ FlipResult flip(const ImageRGB8& reference, const ImageRGB8& test, double ppd = 
 struct FlipFeatures {
   int width = 0, height = 0;
   double ppd = 0;
-  std::vector<float> lab;          // L, a, b per pixel, row-major
-  std::vector<float> edge, point;  // one per pixel, row-major
+  PixelVector<float> lab;          // L, a, b per pixel, row-major
+  PixelVector<float> edge, point;  // one per pixel, row-major
   size_t bytes() const { return (lab.size() + edge.size() + point.size()) * sizeof(float); }
 };
 

@@ -59,6 +59,16 @@ using PixelVector = std::vector<T, DefaultInitAllocator<T>>;
 // 256 KiB. For writes whose result does not depend on the order, such as a fill.
 void for_chunks(size_t n, size_t elem_bytes, const std::function<void(size_t, size_t)>& fn);
 
+// v becomes n copies of value. When it must grow, the old storage is freed first and nothing is
+// copied; the values are written by for_chunks, in parallel for a large vector.
+template <class T>
+void fill_parallel(PixelVector<T>& v, size_t n, const T& value) {
+  if (v.capacity() < n) v = PixelVector<T>();
+  v.resize(n);
+  T* d = v.data();
+  for_chunks(n, sizeof(T), [d, &value](size_t b, size_t e) { std::fill(d + b, d + e, value); });
+}
+
 template <class T>
 struct ImageView {
   T* data = nullptr;
@@ -80,9 +90,11 @@ class Image {
 
   // Every pixel is `fill` afterwards (written in parallel for a large image: for_chunks).
   void resize(int width, int height, const T& fill = T{}) {
-    resize_for_overwrite(width, height);
-    T* d = pixels_.data();
-    for_chunks(pixels_.size(), sizeof(T), [d, &fill](size_t b, size_t e) { std::fill(d + b, d + e, fill); });
+    check_image_size(width, height);
+    width_ = height_ = 0;
+    fill_parallel(pixels_, size_t(width) * size_t(height), fill);
+    width_ = width;
+    height_ = height;
   }
   // The size only: a pixel's value is unspecified until written, for a caller that writes every
   // pixel itself (the rasterizer's tiles). The old pixels are not kept.

@@ -316,9 +316,9 @@ void Guide::resize(int w, int h) {
   width = w;
   height = h;
   const size_t n = size_t(w) * size_t(h);
-  for (auto* v : {&depth, &nx, &ny, &nz, &valid_f}) v->assign(n, 0.0f);
-  id.assign(n, kBackgroundId);
-  valid.assign(n, 0);
+  for (auto* v : {&depth, &nx, &ny, &nz, &valid_f}) fill_parallel(*v, n, 0.0f);
+  fill_parallel(id, n, kBackgroundId);
+  fill_parallel(valid, n, uint8_t(0));
 }
 
 // ---------------------------------------------------------------- parameters
@@ -416,8 +416,8 @@ void FilterPipeline::allocate(int w, int h) {
   for (auto* v : {&input_, &value_, &var_, &inv_phi_z_, &inv_valid_k_, &work_v_[0], &work_v_[1], &work_var_[0],
                   &work_var_[1], &hv_[0], &hv_[1], &hm1_[0], &hm1_[1], &hm2_[0], &hm2_[1], &hist_[0], &hist_[1],
                   &hk_[0], &hk_[1]})
-    v->assign(n, 0.0f);
-  cls_.assign(n, 0);
+    fill_parallel(*v, n, 0.0f);
+  fill_parallel(cls_, n, uint8_t(0));
   span_lo_.assign(size_t(h), 0);
   span_hi_.assign(size_t(h), -1);
   guide_[0].resize(w, h);

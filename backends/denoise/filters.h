@@ -157,10 +157,10 @@ void force_portable_kernels(bool on);
 struct Guide {
   int width = 0;
   int height = 0;
-  std::vector<float> depth, nx, ny, nz;
-  std::vector<float> valid_f;  // 1 at a valid pixel, else 0
-  std::vector<uint32_t> id;
-  std::vector<uint8_t> valid;
+  PixelVector<float> depth, nx, ny, nz;
+  PixelVector<float> valid_f;  // 1 at a valid pixel, else 0
+  PixelVector<uint32_t> id;
+  PixelVector<uint8_t> valid;
 
   void resize(int w, int h);
 };
@@ -196,12 +196,12 @@ class FilterPipeline {
   Guide guide_[2];
   // input_: the rescaled input (spatial-only denoiser); value_: the accumulated value when the
   // first a-trous iteration is fed back into hv_.
-  std::vector<float> input_, value_, var_, inv_phi_z_, inv_valid_k_;
-  std::vector<float> work_v_[2], work_var_[2];
+  PixelVector<float> input_, value_, var_, inv_phi_z_, inv_valid_k_;
+  PixelVector<float> work_v_[2], work_var_[2];
   // History: value, moments, length, and the variance factor k of the accumulated value (the
   // variance of the EMA of independent samples is k times that of one sample).
-  std::vector<float> hv_[2], hm1_[2], hm2_[2], hist_[2], hk_[2];
-  std::vector<uint8_t> cls_;            // light_history: 1 = filtered by every iteration
+  PixelVector<float> hv_[2], hm1_[2], hm2_[2], hist_[2], hk_[2];
+  PixelVector<uint8_t> cls_;            // light_history: 1 = filtered by every iteration
   std::vector<int> span_lo_, span_hi_;  // per row: the pixels that need the spatial variance
 };
 
