@@ -98,6 +98,19 @@ std::string truth_key(const std::string& scene_key, const SimConfig& c, int fram
 
 }  // namespace
 
+// The reads Simulation::client_frame makes (flip_features_of), frame by frame.
+std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& c) {
+  std::vector<std::string> keys;
+  if (c.score_every <= 0) return keys;
+  for (int a = c.warmup_frames; a < c.warmup_frames + c.frames; ++a) {
+    const int frame = a - c.warmup_frames;
+    if (frame % c.score_every != 0) continue;
+    keys.push_back(local_reference_key(scene_key, c, a));
+    if (c.ground_truth_every > 0 && frame % c.ground_truth_every == 0) keys.push_back(truth_key(scene_key, c, a));
+  }
+  return keys;
+}
+
 // ---- small pieces ---------------------------------------------------------------------------
 
 namespace {
@@ -290,12 +303,48 @@ void TraceCache::insert_image(const std::string& key, std::shared_ptr<const Imag
 
 std::shared_ptr<const FlipFeatures> TraceCache::find_flip(const std::string& key) {
   std::lock_guard lock(mutex_);
-  return lookup(flips_, key, tick_);
+  std::shared_ptr<const FlipFeatures> hit = lookup(flips_, key, tick_);
+  if (!flip_reads_announced_) return hit;
+  const auto it = flip_reads_.find(key);
+  if (it == flip_reads_.end()) {
+    ++flip_reads_unannounced_;
+  } else if (--it->second == 0) {  // the last read: its caller holds what it needs
+    flip_reads_.erase(it);
+    if (const auto f = flips_.find(key); f != flips_.end()) {
+      bytes_ -= bytes_of(*f->second.second);
+      flips_.erase(f);
+    }
+  }
+  return hit;
 }
 
 void TraceCache::insert_flip(const std::string& key, std::shared_ptr<const FlipFeatures> features) {
   std::lock_guard lock(mutex_);
+  if (flip_reads_announced_ && !flip_reads_.count(key)) return;  // nobody reads it again
   if (add(flips_, key, std::move(features), tick_, bytes_)) evict_locked();
+}
+
+void TraceCache::expect_flip_reads(const std::string& key, int reads) {
+  std::lock_guard lock(mutex_);
+  flip_reads_announced_ = true;
+  if (reads > 0) flip_reads_[key] += reads;
+}
+
+size_t TraceCache::flip_reads_pending() const {
+  std::lock_guard lock(mutex_);
+  size_t n = 0;
+  for (const auto& [key, reads] : flip_reads_) n += size_t(reads);
+  return n;
+}
+
+uint64_t TraceCache::flip_reads_unannounced() const {
+  std::lock_guard lock(mutex_);
+  return flip_reads_unannounced_;
+}
+
+size_t TraceCache::flips_held() const {
+  std::lock_guard lock(mutex_);
+  return flips_.size();
 }
 
 Rastered TraceCache::find_raster(const std::string& scene_key, const RasterFrame& frame) {

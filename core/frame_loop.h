@@ -69,8 +69,18 @@ class TraceCache {
   void insert_image(const std::string& key, std::shared_ptr<const ImageRGB8> image);
   // FLIP's half of the work on a reference image (flip_features), under the image's key: the
   // runs that score against the same local reference or ground truth compute it once.
+  // Each find_flip counts as one read of its key. A key whose reads were announced
+  // (expect_flip_reads, by the runner, from flip_reference_keys of the runs to come) is kept only
+  // while reads remain: insert_flip keeps nothing when no read is left, and the last read drops
+  // it. A key never announced is kept as before, under the byte bound. The features are the same
+  // either way (a dropped key is computed again if read after all): memory, not results.
   std::shared_ptr<const FlipFeatures> find_flip(const std::string& key);
   void insert_flip(const std::string& key, std::shared_ptr<const FlipFeatures> features);
+  void expect_flip_reads(const std::string& key, int reads);
+  // Announced reads not yet made, and reads of keys never announced while some were.
+  size_t flip_reads_pending() const;
+  uint64_t flip_reads_unannounced() const;
+  size_t flips_held() const;
   // A temporal denoiser's output for one pass and frame, under the key of the sequence that fed
   // it (DenoiseStage::share): the runs whose servers or local references feed the same frames
   // denoise them once.
@@ -102,6 +112,9 @@ class TraceCache {
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const Entry>>> entries_;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const ImageRGB8>>> images_;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const FlipFeatures>>> flips_;
+  std::map<std::string, int> flip_reads_;  // announced reads left, by key
+  bool flip_reads_announced_ = false;
+  uint64_t flip_reads_unannounced_ = 0;
   std::map<std::string, std::pair<uint64_t, std::shared_ptr<const DenoisedPass>>> denoised_;
   struct KeptRaster {
     RasterFrame frame;
@@ -125,6 +138,10 @@ RunResult run_simulation(const SimConfig& config, const Scene& scene, const std:
 // depends on. A run finding the key of every frame it scores takes them instead of computing its
 // own (docs/performance.md, item 2).
 std::string local_reference_key(const std::string& scene_key, const SimConfig& config, int frame);
+
+// One key per FLIP score the run will compute, in order: the local reference of every scored
+// frame and the ground truth of every frame scored against it (TraceCache::expect_flip_reads).
+std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config);
 
 // The checks run_simulation does first: throws dhr::Error listing every problem.
 void validate_sim_config(const SimConfig& config, const Scene& scene, const Registries& registries);

@@ -241,6 +241,11 @@ Runner add_run_command(CLI::App& app) {
 
     TraceCache cache;
     if (!o->no_disk_cache) cache.set_disk_dir((fs::path(default_cache_dir()) / "trace").string());
+    // Every FLIP score the sweep will compute, so that the cache keeps a reference's features
+    // only while a later score needs them (a reference one run scores is never kept).
+    for (const RunSpec& spec : e.runs)
+      for (const std::string& key : flip_reference_keys(loaded.keys.at(spec.scene), spec.config))
+        cache.expect_flip_reads(key, 1);
     Progress progress(e.runs.size());
     int failed = 0;
     for (size_t i = 0; i < e.runs.size(); ++i) {

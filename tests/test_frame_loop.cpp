@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <set>
 #include <tuple>
 
 namespace dhr {
@@ -482,6 +483,61 @@ TEST(FrameLoop, SharedClientGBuffersScoreAsTheirOwn) {
   TraceCache nothing(0);
   EXPECT_EQ(run_outcome(a, shared, "street"), run_outcome(a, nothing, "street"));
   EXPECT_EQ(shared.raster_hits(), 0u);
+}
+
+// The runner announces every FLIP score of a sweep (flip_reference_keys): the cache keeps a
+// reference's features only while a later score reads them, every announced read is made, and
+// the scores are those of a cache that keeps everything.
+TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
+  SimConfig plain = small_config(12);
+  plain.warmup_frames = 2;
+  plain.score_every = 2;
+  plain.ground_truth_every = 4;
+  plain.ground_truth_ao_rays = 16;
+  plain.ground_truth_samples_per_light = 4;
+  SimConfig denoised = plain;  // another local reference, the same ground truths
+  denoised.pass("ao").denoiser = {"svgf_ao"};
+  SimConfig remote = denoised;  // the same local reference as `denoised`
+  remote.mode = "remote";
+  SimConfig every = denoised;  // more frames of both
+  every.score_every = 1;
+  every.ground_truth_every = 3;
+  const std::vector<const SimConfig*> runs{&plain, &denoised, &remote, &every};
+  auto scores = [](const RunResult& r) {
+    nlohmann::json out = nlohmann::json::array();
+    for (const FrameRecord& f : r.frames)
+      if (f.scored) out.push_back({f.frame, f.local, f.ground_truth});
+    return out.dump();
+  };
+  TraceCache keep_all;  // nothing announced: keeps every reference's features
+  std::vector<std::string> want;
+  for (const SimConfig* c : runs) want.push_back(scores(run_simulation(*c, scene("room"), "room", keep_all, registries())));
+  EXPECT_EQ(keep_all.flip_reads_pending(), 0u);
+  EXPECT_GT(keep_all.flips_held(), 0u);
+
+  std::vector<std::vector<std::string>> keys;
+  TraceCache announced;
+  size_t pending = 0;
+  for (const SimConfig* c : runs) {
+    keys.push_back(flip_reference_keys("room", *c));
+    for (const std::string& k : keys.back()) announced.expect_flip_reads(k, 1);
+    pending += keys.back().size();
+  }
+  EXPECT_EQ(keys[0].size(), 6u + 3u) << "frames 0, 2, .., 10 scored, 0, 4, 8 against the ground truth";
+  ASSERT_EQ(announced.flip_reads_pending(), pending);
+  for (size_t i = 0; i < runs.size(); ++i) {
+    EXPECT_EQ(scores(run_simulation(*runs[i], scene("room"), "room", announced, registries())), want[i]) << i;
+    pending -= keys[i].size();
+    EXPECT_EQ(announced.flip_reads_pending(), pending) << "run " << i << " read what was announced for it";
+    // Held: the keys read so far that a later run reads again.
+    std::set<std::string> before, after;
+    for (size_t j = 0; j < runs.size(); ++j) (j <= i ? before : after).insert(keys[j].begin(), keys[j].end());
+    size_t shared = 0;
+    for (const std::string& k : before) shared += after.count(k);
+    EXPECT_EQ(announced.flips_held(), shared) << "after run " << i;
+  }
+  EXPECT_EQ(announced.flip_reads_unannounced(), 0u);
+  EXPECT_EQ(announced.flips_held(), 0u);
 }
 
 // Every video codec (h264, hevc, av1) through bursty loss: lost frames, a keyframe request,
