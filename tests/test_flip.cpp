@@ -242,6 +242,40 @@ TEST(Flip, SameBitsAsTheOneTapAtATimeFilters) {
   }
 }
 
+// FLIP's final loop takes pow's exact cases without calling it (a zero colour difference, a zero
+// feature difference). The cases it relies on hold for this libm, bit for bit: x^1 = x for every
+// 61st float of [0, 1] and 0^y = +0 for every 4099th float y of (0, 1].
+TEST(Flip, PowfExactCasesAsSkipped) {
+  for (uint32_t b = 0; b <= std::bit_cast<uint32_t>(1.0f); b += 61) {
+    const float x = std::bit_cast<float>(b);
+    ASSERT_EQ(std::bit_cast<uint32_t>(std::pow(x, 1.0f)), b) << x;
+  }
+  for (uint32_t b = 1; b <= std::bit_cast<uint32_t>(1.0f); b += 4099) {
+    const float y = std::bit_cast<float>(b);
+    ASSERT_EQ(std::bit_cast<uint32_t>(std::pow(0.0f, y)), 0u) << y;
+  }
+}
+
+// The same pins on a pair that matches exactly in its left half and the top rows, so that
+// a fifth or more of the map takes those cases; recorded before the final loop skipped pow.
+TEST(Flip, PartlyEqualPairKeepsItsBits) {
+  const ImageRGB8 a = scene_like(150, 90, 11);
+  ImageRGB8 b = with_noise(a, 30, 12);
+  for (int y = 0; y < b.height(); ++y)
+    for (int x = 0; x < b.width(); ++x)
+      if (x < 75 || y < 20) b(x, y) = a(x, y);
+  const FlipResult r = flip(a, b);
+  uint64_t map_hash = 1469598103934665603ull;  // FNV-1a over the map's float bits
+  size_t zeros = 0;
+  for (size_t i = 0; i < r.map.size(); ++i) {
+    map_hash = (map_hash ^ std::bit_cast<uint32_t>(r.map[i])) * 1099511628211ull;
+    zeros += r.map[i] == 0.0f;
+  }
+  EXPECT_GT(zeros, r.map.size() / 5) << "the pair does not exercise the exact cases";
+  EXPECT_EQ(map_hash, 0x42b3dfb1d3934893ull);
+  EXPECT_EQ(std::bit_cast<uint64_t>(r.mean), 0x3facdd00c7946a0aull);
+}
+
 // CIELAB's f over a row (four values at a time in double, core/flip.cpp) against the scalar
 // function, bit for bit: every float of [0.5, 1] (FLIP's inputs are X/Xn, Y/Yn, Z/Zn of colours
 // in [0, 1]), every 997th float of [0, 4], 2,000 floats around the linear segment's edge
