@@ -272,43 +272,52 @@ TEST(FrameLoop, PassesTracedAloneAndJoinedAreTheTraceOfAll) {
     }
 }
 
+// Every frame's scores against both references (no value: -1), for the tests of shared FLIP
+// features.
+std::string both_scores(const SimConfig& c, TraceCache& cache) {
+  const RunResult r = run_simulation(c, scene("room"), "room", cache, registries());
+  nlohmann::json frames = nlohmann::json::array();
+  for (const auto& f : r.frames) {
+    nlohmann::json local = nlohmann::json::array(), truth = nlohmann::json::array();
+    for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);
+    for (double v : f.ground_truth) truth.push_back(std::isnan(v) ? -1.0 : v);
+    frames.push_back({f.frame, f.scored, local, f.scored_ground_truth, truth});
+  }
+  return frames.dump();
+}
+
+// 12 frames after 2 of warm-up: every 2nd scored, every 4th also against a small ground truth.
+SimConfig scored_config() {
+  SimConfig c = small_config(12);
+  c.warmup_frames = 2;
+  c.score_every = 2;
+  c.ground_truth_every = 4;
+  c.ground_truth_ao_rays = 8;
+  c.ground_truth_samples_per_light = 2;
+  return c;
+}
+
 // FLIP's features of a reference (a local reference, a ground truth) are computed by the first run
 // that scores against it and kept in the cache for the others: a run sharing them scores every
 // frame as a run with a cache of its own does, both references, every metric; and it does take
 // them (features of a black image under its local reference's keys change its FLIP).
 TEST(FrameLoop, SharedFlipFeaturesScoreAsTheirOwn) {
-  auto scores = [](const SimConfig& c, TraceCache& cache) {
-    const RunResult r = run_simulation(c, scene("room"), "room", cache, registries());
-    nlohmann::json frames = nlohmann::json::array();
-    for (const auto& f : r.frames) {
-      nlohmann::json local = nlohmann::json::array(), truth = nlohmann::json::array();
-      for (double v : f.local) local.push_back(std::isnan(v) ? -1.0 : v);
-      for (double v : f.ground_truth) truth.push_back(std::isnan(v) ? -1.0 : v);
-      frames.push_back({f.frame, f.scored, local, f.scored_ground_truth, truth});
-    }
-    return frames.dump();
-  };
-  SimConfig a = small_config(12);
-  a.warmup_frames = 2;
-  a.score_every = 2;
-  a.ground_truth_every = 4;
-  a.ground_truth_ao_rays = 8;
-  a.ground_truth_samples_per_light = 2;
+  const SimConfig a = scored_config();
   SimConfig late = a;  // another network: other images shown, the same references
   late.uplink.latency_ms = 50;
   TraceCache shared;
-  (void)scores(a, shared);
+  (void)both_scores(a, shared);
   for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
     EXPECT_NE(shared.find_flip(local_reference_key("room", a, f)), nullptr) << "frame " << f;
   TraceCache fresh;
-  const std::string own = scores(late, fresh);
-  EXPECT_EQ(scores(late, shared), own);
+  const std::string own = both_scores(late, fresh);
+  EXPECT_EQ(both_scores(late, shared), own);
 
   TraceCache planted;
   for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
     planted.insert_flip(local_reference_key("room", late, f),
                         std::make_shared<const FlipFeatures>(flip_features(ImageRGB8(late.width, late.height))));
-  EXPECT_NE(scores(late, planted), own);
+  EXPECT_NE(both_scores(late, planted), own);
 }
 
 // A temporal denoiser's outputs shared through a memo (DenoiseStage::share): a sequence the memo
@@ -489,12 +498,7 @@ TEST(FrameLoop, SharedClientGBuffersScoreAsTheirOwn) {
 // reference's features only while a later score reads them, every announced read is made, and
 // the scores are those of a cache that keeps everything.
 TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
-  SimConfig plain = small_config(12);
-  plain.warmup_frames = 2;
-  plain.score_every = 2;
-  plain.ground_truth_every = 4;
-  plain.ground_truth_ao_rays = 16;
-  plain.ground_truth_samples_per_light = 4;
+  const SimConfig plain = scored_config();
   SimConfig denoised = plain;  // another local reference, the same ground truths
   denoised.pass("ao").denoiser = {"svgf_ao"};
   SimConfig remote = denoised;  // the same local reference as `denoised`
@@ -503,15 +507,9 @@ TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
   every.score_every = 1;
   every.ground_truth_every = 3;
   const std::vector<const SimConfig*> runs{&plain, &denoised, &remote, &every};
-  auto scores = [](const RunResult& r) {
-    nlohmann::json out = nlohmann::json::array();
-    for (const FrameRecord& f : r.frames)
-      if (f.scored) out.push_back({f.frame, f.local, f.ground_truth});
-    return out.dump();
-  };
   TraceCache keep_all;  // nothing announced: keeps every reference's features
   std::vector<std::string> want;
-  for (const SimConfig* c : runs) want.push_back(scores(run_simulation(*c, scene("room"), "room", keep_all, registries())));
+  for (const SimConfig* c : runs) want.push_back(both_scores(*c, keep_all));
   EXPECT_EQ(keep_all.flip_reads_pending(), 0u);
   EXPECT_GT(keep_all.flips_held(), 0u);
 
@@ -526,7 +524,7 @@ TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
   EXPECT_EQ(keys[0].size(), 6u + 3u) << "frames 0, 2, .., 10 scored, 0, 4, 8 against the ground truth";
   ASSERT_EQ(announced.flip_reads_pending(), pending);
   for (size_t i = 0; i < runs.size(); ++i) {
-    EXPECT_EQ(scores(run_simulation(*runs[i], scene("room"), "room", announced, registries())), want[i]) << i;
+    EXPECT_EQ(both_scores(*runs[i], announced), want[i]) << i;
     pending -= keys[i].size();
     EXPECT_EQ(announced.flip_reads_pending(), pending) << "run " << i << " read what was announced for it";
     // Held: the keys read so far that a later run reads again.
