@@ -69,11 +69,12 @@ class TraceCache {
   void insert_image(const std::string& key, std::shared_ptr<const ImageRGB8> image);
   // FLIP's half of the work on a reference image (flip_features), under the image's key: the
   // runs that score against the same local reference or ground truth compute it once.
-  // Each find_flip counts as one read of its key. A key whose reads were announced
-  // (expect_flip_reads, by the runner, from flip_reference_keys of the runs to come) is kept only
-  // while reads remain: insert_flip keeps nothing when no read is left, and the last read drops
-  // it. A key never announced is kept as before, under the byte bound. The features are the same
-  // either way (a dropped key is computed again if read after all): memory, not results.
+  // Each find_flip counts as one read of its key. Once reads are announced (expect_flip_reads, by
+  // the runner, from flip_reference_keys of the runs to come), a key is kept only while announced
+  // reads of it remain: insert_flip keeps nothing else (a key never announced included), and the
+  // last read drops it. A cache with no announcement keeps every key, under the byte bound. The
+  // features are the same either way (a dropped key is computed again if read after all):
+  // memory, not results.
   std::shared_ptr<const FlipFeatures> find_flip(const std::string& key);
   void insert_flip(const std::string& key, std::shared_ptr<const FlipFeatures> features);
   void expect_flip_reads(const std::string& key, int reads);
