@@ -98,15 +98,26 @@ std::string truth_key(const std::string& scene_key, const SimConfig& c, int fram
 
 }  // namespace
 
+namespace {
+
+// Which displayed frames (0 = the first after warm-up) a run scores against the local
+// reference, and which of those also against the ground truth.
+bool scores_frame(const SimConfig& c, int frame) { return frame % c.score_every == 0; }
+bool scores_ground_truth(const SimConfig& c, int frame) {
+  return scores_frame(c, frame) && c.ground_truth_every > 0 && frame % c.ground_truth_every == 0;
+}
+
+}  // namespace
+
 // The reads Simulation::client_frame makes (flip_features_of), frame by frame.
 std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& c) {
   std::vector<std::string> keys;
-  if (c.score_every <= 0) return keys;
+  if (c.score_every <= 0) return keys;  // not validated yet: the runner calls this first
   for (int a = c.warmup_frames; a < c.warmup_frames + c.frames; ++a) {
     const int frame = a - c.warmup_frames;
-    if (frame % c.score_every != 0) continue;
+    if (!scores_frame(c, frame)) continue;
     keys.push_back(local_reference_key(scene_key, c, a));
-    if (c.ground_truth_every > 0 && frame % c.ground_truth_every == 0) keys.push_back(truth_key(scene_key, c, a));
+    if (scores_ground_truth(c, frame)) keys.push_back(truth_key(scene_key, c, a));
   }
   return keys;
 }
@@ -564,7 +575,7 @@ class Simulation {
   // first, so a run takes all or none).
   void take_cached_local_reference(int total) {
     for (int a = c_.warmup_frames; a < total; ++a) {
-      if ((a - c_.warmup_frames) % c_.score_every != 0) continue;
+      if (!scores_frame(c_, a - c_.warmup_frames)) continue;
       std::shared_ptr<const ImageRGB8> image = cache_.find_image(local_key(a));
       if (!image) {
         local_cached_.clear();
@@ -787,7 +798,7 @@ class Simulation {
     client_ms += client_decode_ms_;
 
     // Local reference: this frame's own passes, denoised by the client-side sequence.
-    const bool score_now = count && (rec.frame % c_.score_every == 0);
+    const bool score_now = count && scores_frame(c_, rec.frame);
     std::optional<ImageRGB8> local_image;
     if (!local_cached_.empty()) {
       if (score_now) local_image = *local_cached_.at(a);
@@ -828,7 +839,7 @@ class Simulation {
                               prev_local_ ? &*prev_local_ : nullptr, prev_shown_ ? &*prev_shown_ : nullptr);
       prev_local_ = *local_image;  // the step metrics' previous scored frame
       prev_shown_ = image;
-      if (c_.ground_truth_every > 0 && rec.frame % c_.ground_truth_every == 0) {
+      if (scores_ground_truth(c_, rec.frame)) {
         auto truth = ground_truth(a, gbuf);
         rec.scored_ground_truth = true;
         const auto truth_flip = flip_features_of(truth_key(scene_key_, c_, a), *truth);

@@ -31,17 +31,14 @@ struct GBuffer {
   int width() const { return depth.width(); }
   int height() const { return depth.height(); }
   bool covered(int x, int y) const { return object_id(x, y) != kBackgroundId; }
+  // f(plane) for every plane, in declaration order.
+  template <class F>
+  void for_each_plane(F&& f) const { planes_of(*this, f); }
+  template <class F>
+  void for_each_plane(F&& f) { planes_of(*this, f); }
   // Every plane sized; values unspecified until written (the rasterizer writes every pixel).
   void resize_for_overwrite(int width, int height) {
-    depth.resize_for_overwrite(width, height);
-    position.resize_for_overwrite(width, height);
-    normal.resize_for_overwrite(width, height);
-    geo_normal.resize_for_overwrite(width, height);
-    albedo.resize_for_overwrite(width, height);
-    object_id.resize_for_overwrite(width, height);
-    prim_id.resize_for_overwrite(width, height);
-    bary.resize_for_overwrite(width, height);
-    motion.resize_for_overwrite(width, height);
+    for_each_plane([&](auto& plane) { plane.resize_for_overwrite(width, height); });
   }
   void resize(int width, int height) {
     depth.resize(width, height, kBackgroundDepth);
@@ -53,6 +50,20 @@ struct GBuffer {
     prim_id.resize(width, height);
     bary.resize(width, height);
     motion.resize(width, height);
+  }
+
+ private:
+  template <class G, class F>
+  static void planes_of(G& g, F& f) {
+    f(g.depth);
+    f(g.position);
+    f(g.normal);
+    f(g.geo_normal);
+    f(g.albedo);
+    f(g.object_id);
+    f(g.prim_id);
+    f(g.bary);
+    f(g.motion);
   }
 };
 

@@ -674,9 +674,9 @@ struct Workspace {
 };
 
 bool has_size(const GBuffer& g, int w, int h) {
-  return g.depth.same_size(w, h) && g.position.same_size(w, h) && g.normal.same_size(w, h) &&
-         g.geo_normal.same_size(w, h) && g.albedo.same_size(w, h) && g.object_id.same_size(w, h) &&
-         g.prim_id.same_size(w, h) && g.bary.same_size(w, h) && g.motion.same_size(w, h);
+  bool all = true;
+  g.for_each_plane([&](const auto& plane) { all = all && plane.same_size(w, h); });
+  return all;
 }
 
 }  // namespace

@@ -17,7 +17,7 @@
 // every scene with lights).
 // docs/performance.md has the measurements.
 //
-// Only the functions marked DHR_TRACE_TARGET_AVX512 are compiled for AVX-512 (core/avx512.h).
+// Only the functions marked DHR_AVX512_TARGET are compiled for AVX-512 (core/avx512.h).
 #include "core/avx512.h"
 #include "core/trace_kernels.h"
 
@@ -26,13 +26,12 @@
 #include <numbers>
 
 #if DHR_TRACE_X86_KERNELS
-#define DHR_TRACE_TARGET_AVX512 DHR_AVX512_TARGET
 
 namespace dhr::trace_detail {
 
 namespace {
 
-DHR_TRACE_TARGET_AVX512 inline __m512i mix64_x8(__m512i z) {  // core/rng.h's mix64, 8 lanes
+DHR_AVX512_TARGET inline __m512i mix64_x8(__m512i z) {  // core/rng.h's mix64, 8 lanes
   z = _mm512_add_epi64(z, _mm512_set1_epi64(int64_t(0x9E3779B97F4A7C15ull)));
   z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 30)), _mm512_set1_epi64(int64_t(0xBF58476D1CE4E5B9ull)));
   z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 27)), _mm512_set1_epi64(int64_t(0x94D049BB133111EBull)));
@@ -40,14 +39,14 @@ DHR_TRACE_TARGET_AVX512 inline __m512i mix64_x8(__m512i z) {  // core/rng.h's mi
 }
 
 // float(bits >> 40) / 2^24 for 16 keys given as two halves of 8 (exact: the values fit 24 bits).
-DHR_TRACE_TARGET_AVX512 inline __m512 uniform_x16(__m512i lo, __m512i hi) {
+DHR_AVX512_TARGET inline __m512 uniform_x16(__m512i lo, __m512i hi) {
   const __m256 a = _mm512_cvtepi64_ps(_mm512_srli_epi64(lo, 40));
   const __m256 b = _mm512_cvtepi64_ps(_mm512_srli_epi64(hi, 40));
   return _mm512_mul_ps(_mm512_insertf32x8(_mm512_castps256_ps512(a), b, 1), _mm512_set1_ps(1.0f / 16777216.0f));
 }
 
 // sincos_2pi_x4 on 16 lanes: the same IEEE operations in the same order.
-DHR_TRACE_TARGET_AVX512 inline void sincos_2pi_x16(__m512 u, __m512& c, __m512& s) {
+DHR_AVX512_TARGET inline void sincos_2pi_x16(__m512 u, __m512& c, __m512& s) {
   const __m512 one = _mm512_set1_ps(1.0f);
   const __m512 sign = _mm512_castsi512_ps(_mm512_set1_epi32(int32_t(0x80000000u)));
   const __m512 x = _mm512_mul_ps(_mm512_set1_ps(4.0f), u);
@@ -74,13 +73,13 @@ DHR_TRACE_TARGET_AVX512 inline void sincos_2pi_x16(__m512 u, __m512& c, __m512& 
 }
 
 // Component comp of each lane's pixel: lane l reads pixel p0 + pick[l].
-DHR_TRACE_TARGET_AVX512 inline __m512 lane_values(const AoPixels& px, int comp, int p0, __m512i pick) {
+DHR_AVX512_TARGET inline __m512 lane_values(const AoPixels& px, int comp, int p0, __m512i pick) {
   return _mm512_permutexvar_ps(pick, _mm512_loadu_ps(px.c[size_t(comp)].data() + p0));
 }
 
 // One component of cosine_dirs_chunk's direction, t * (r c) + b * (r s) + n * z, for the
 // axis whose t component is comp_t (b's and n's follow at +3 and +6).
-DHR_TRACE_TARGET_AVX512 inline __m512 cosine_dir_x16(const AoPixels& px, int comp_t, int p0, __m512i pick, __m512 rc,
+DHR_AVX512_TARGET inline __m512 cosine_dir_x16(const AoPixels& px, int comp_t, int p0, __m512i pick, __m512 rc,
                                                      __m512 rs, __m512 z) {
   const __m512 t = lane_values(px, comp_t, p0, pick), b = lane_values(px, comp_t + 3, p0, pick);
   const __m512 n = lane_values(px, comp_t + 6, p0, pick);
@@ -98,7 +97,7 @@ DHR_TRACE_TARGET_AVX512 inline __m512 cosine_dir_x16(const AoPixels& px, int com
 // cosine_dirs_chunk's operations in the same order (bit-identical rays), computed 16 at a time
 // and stored straight into the packet. Each pixel's unoccluded lanes are added with one
 // popcount.
-DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float radius_m, Batch<16>& batch) {
+DHR_AVX512_TARGET void ao_rays_x16(const AoPixels& px, int rays, float radius_m, Batch<16>& batch) {
   const int total = px.n * rays;
   const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const __m512i rays_i = _mm512_set1_epi32(rays);
@@ -163,12 +162,12 @@ DHR_TRACE_TARGET_AVX512 void ao_rays_x16(const AoPixels& px, int rays, float rad
 namespace {
 
 // The low 8 lanes of lo, then the low 8 of hi.
-DHR_TRACE_TARGET_AVX512 inline __m512 join(__m512 lo, __m512 hi) {
+DHR_AVX512_TARGET inline __m512 join(__m512 lo, __m512 hi) {
   return _mm512_insertf32x8(lo, _mm512_castps512_ps256(hi), 1);
 }
 
 // orthonormal_basis_x4 (core/trace_directions.h) on 16 lanes: the same operations.
-DHR_TRACE_TARGET_AVX512 inline void orthonormal_basis_x16(__m512 nx, __m512 ny, __m512 nz, __m512 t[3], __m512 b[3]) {
+DHR_AVX512_TARGET inline void orthonormal_basis_x16(__m512 nx, __m512 ny, __m512 nz, __m512 t[3], __m512 b[3]) {
   const __m512 signbit = _mm512_castsi512_ps(_mm512_set1_epi32(int32_t(0x80000000u)));
   const __m512 sign = _mm512_or_ps(_mm512_and_ps(nz, signbit), _mm512_set1_ps(1.0f));  // copysign(1, n.z)
   const __m512 neg_sign = _mm512_xor_ps(sign, signbit);
@@ -183,7 +182,7 @@ DHR_TRACE_TARGET_AVX512 inline void orthonormal_basis_x16(__m512 nx, __m512 ny, 
 }
 
 // cone_x4 (core/trace_directions.h) on 16 lanes: normalize(t * (c sin) + b * (s sin) + w * cos).
-DHR_TRACE_TARGET_AVX512 inline void cone_x16(const __m512 t[3], const __m512 b[3], const __m512 w[3], __m512 omc_max,
+DHR_AVX512_TARGET inline void cone_x16(const __m512 t[3], const __m512 b[3], const __m512 w[3], __m512 omc_max,
                                              __m512 u0, __m512 u1, __m512 d[3]) {
   const __m512 omc = _mm512_mul_ps(u0, omc_max);
   const __m512 cos_t = _mm512_sub_ps(_mm512_set1_ps(1.0f), omc);
@@ -202,7 +201,7 @@ DHR_TRACE_TARGET_AVX512 inline void cone_x16(const __m512 t[3], const __m512 b[3
 }
 
 // sphere_tfar_x4 (core/trace_directions.h) on 16 lanes.
-DHR_TRACE_TARGET_AVX512 inline __m512 sphere_tfar_x16(const __m512 d[3], const __m512 oc[3], __m512 r2) {
+DHR_AVX512_TARGET inline __m512 sphere_tfar_x16(const __m512 d[3], const __m512 oc[3], __m512 r2) {
   const __m512 b = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(d[0], oc[0]), _mm512_mul_ps(d[1], oc[1])),
                                  _mm512_mul_ps(d[2], oc[2]));
   const __m512 qx = _mm512_sub_ps(oc[0], _mm512_mul_ps(b, d[0]));
@@ -216,7 +215,7 @@ DHR_TRACE_TARGET_AVX512 inline __m512 sphere_tfar_x16(const __m512 d[3], const _
 }
 
 // direction_valid (core/trace_directions.h), 16 lanes.
-DHR_TRACE_TARGET_AVX512 inline __mmask16 directions_valid_x16(const __m512 d[3], __m512 tfar) {
+DHR_AVX512_TARGET inline __mmask16 directions_valid_x16(const __m512 d[3], __m512 tfar) {
   const __m512 zero = _mm512_setzero_ps(), fmax = _mm512_set1_ps(std::numeric_limits<float>::max());
   const __mmask16 finite = _mm512_cmp_ps_mask(_mm512_abs_ps(d[0]), fmax, _CMP_LE_OQ) &
                            _mm512_cmp_ps_mask(_mm512_abs_ps(d[1]), fmax, _CMP_LE_OQ) &
@@ -227,14 +226,14 @@ DHR_TRACE_TARGET_AVX512 inline __mmask16 directions_valid_x16(const __m512 d[3],
 }
 
 // directions_valid_x16 and the origin's validity (bytes 0/1).
-DHR_TRACE_TARGET_AVX512 inline __mmask16 rays_valid_x16(const __m512 d[3], __m512 tfar, const uint8_t* origin_ok) {
+DHR_AVX512_TARGET inline __mmask16 rays_valid_x16(const __m512 d[3], __m512 tfar, const uint8_t* origin_ok) {
   const __m512i ook = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(origin_ok)));
   return directions_valid_x16(d, tfar) & _mm512_test_epi32_mask(ook, ook);
 }
 
 }  // namespace
 
-DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
+DHR_AVX512_TARGET int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
   const int w = r.w;
   const __m512d cx = _mm512_set1_pd(li.centre_d.x), cy = _mm512_set1_pd(li.centre_d.y), cz = _mm512_set1_pd(li.centre_d.z);
   const __m512d range = _mm512_set1_pd(double(li.range)), radius = _mm512_set1_pd(double(li.radius));
@@ -330,7 +329,7 @@ DHR_TRACE_TARGET_AVX512 int sphere_light_row_x16(VisibilityRow& r, const LightIn
   return m;
 }
 
-DHR_TRACE_TARGET_AVX512 void surfaces_x16(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes) {
+DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes) {
   const int w = r.w;
   const double* tri = r.tris.data();
   const __m512d zero_d = _mm512_setzero_pd(), one_d = _mm512_set1_pd(1.0);
@@ -452,7 +451,7 @@ DHR_TRACE_TARGET_AVX512 void surfaces_x16(VisibilityRow& r, const TraceSettings&
   }
 }
 
-DHR_TRACE_TARGET_AVX512 void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base) {
+DHR_AVX512_TARGET void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base) {
   constexpr float kInf = std::numeric_limits<float>::infinity();
   const int w = r.w;
   const __m512 lt[3] = {_mm512_set1_ps(li.t.x), _mm512_set1_ps(li.t.y), _mm512_set1_ps(li.t.z)};
@@ -492,7 +491,7 @@ DHR_TRACE_TARGET_AVX512 void distant_light_row_x16(VisibilityRow& r, const Light
 // origin and point the same way: coherent packets). The hashes, uniforms, directions, tfar and
 // validity are the cone loop's operations in the same order (same rays); an invalid ray counts
 // as unoccluded without a trace; with batch.record the valid rays are kept in sample order.
-DHR_TRACE_TARGET_AVX512 void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, uint64_t& invalid) {
+DHR_AVX512_TARGET void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, uint64_t& invalid) {
   const __m512i stream = _mm512_set1_epi64(int64_t(p.stream));
   const __m512i dim1 = _mm512_set1_epi64(1);
   const __m512i h = _mm512_set1_epi64(int64_t(p.h));
@@ -558,7 +557,7 @@ DHR_TRACE_TARGET_AVX512 void soft_pair_rays_x16(const SoftPair& p, Batch<16>& ba
   }
 }
 
-DHR_TRACE_TARGET_AVX512 void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch) {
+DHR_AVX512_TARGET void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch) {
   auto& pk = batch.packet;
   alignas(64) int valid[16];
   const __m512 zero = _mm512_setzero_ps();

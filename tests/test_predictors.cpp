@@ -559,15 +559,20 @@ TEST(Reprojection, HardTapTestsKeepTheirBits) {
   predict::force_scalar_reprojection(false);
 }
 
+// One pass of each layout the client predicts together: bitmasks of one and two bytes (5 and 12
+// lights), soft visibility of three planes, AO; random bytes from seeds seed + 1 .. seed + 4.
+std::vector<PassBuffer> pass_layouts(const GBuffer& src, uint64_t seed) {
+  return {make_random(src, PassKind::Visibility, 5, 1, seed + 1), make_random(src, PassKind::Visibility, 12, 1, seed + 2),
+          make_random(src, PassKind::SoftVisibility, 3, 64, seed + 3), make_random(src, PassKind::Ao, 1, 255, seed + 4)};
+}
+
 // The 16-lane path against the scalar one on every pass layout it writes or leaves to the
 // lane-by-lane writes: bitmasks of one and two bytes, soft visibility of three planes, AO, each
 // filter, predicted together. (On a CPU without AVX-512 both runs take the scalar path.)
 TEST(Reprojection, SameBytesOnTheVectorAndScalarPaths) {
   const Scene scene;
   const GBuffer src = render(scene, oblique()), dst = render(scene, translated(oblique(), {0.9f, -0.1f, 0.3f}));
-  const std::vector<PassBuffer> passes{
-      make_random(src, PassKind::Visibility, 5, 1, 61), make_random(src, PassKind::Visibility, 12, 1, 62),
-      make_random(src, PassKind::SoftVisibility, 3, 64, 63), make_random(src, PassKind::Ao, 1, 255, 64)};
+  const std::vector<PassBuffer> passes = pass_layouts(src, 60);
   for (const char* filter : {"bilinear", "nearest"}) {
     std::vector<PassBuffer> outs[2];
     for (int scalar = 0; scalar < 2; ++scalar) {
@@ -594,9 +599,7 @@ TEST(Reprojection, SameBytesOnTheVectorAndScalarPaths) {
 TEST(Reprojection, PassesPredictedTogetherAreEachPredictedAlone) {
   const Scene scene;
   const GBuffer src = render(scene, oblique()), dst = render(scene, translated(oblique(), {1.2f, -0.2f, 0.4f}));
-  const std::vector<PassBuffer> passes{
-      make_random(src, PassKind::Visibility, 5, 1, 31), make_random(src, PassKind::Visibility, 12, 1, 32),
-      make_random(src, PassKind::SoftVisibility, 3, 64, 33), make_random(src, PassKind::Ao, 1, 255, 34)};
+  const std::vector<PassBuffer> passes = pass_layouts(src, 30);
   for (const nlohmann::json& params : {nlohmann::json::object(), nlohmann::json{{"filter", "nearest"}},
                                        nlohmann::json{{"fill", "local"}}, nlohmann::json{{"fill_radius_px", 6}}}) {
     EXPECT_TRUE(make("reprojection", params)->predicts_passes_together());
