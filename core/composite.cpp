@@ -2,6 +2,7 @@
 // and sRGB tone mapping.
 #include "core/composite.h"
 
+#include "core/avx512.h"
 #include "core/error.h"
 #include "core/vec8.h"
 
@@ -10,6 +11,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstring>
@@ -22,33 +24,38 @@ namespace {
 
 double srgb_to_linear(double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4); }
 
-// Linear values at which the rounded 8-bit sRGB code steps from k-1 to k (k = 1..255), and for
-// 128 buckets per binade of floats in [2^-13, 1) the code at the bucket's first float. The first
-// boundary, 1.5e-4, lies above 2^-13 and the last, 0.99, below 1; no bucket holds more than
-// kBucketSteps boundaries (checked when the table is built), and boundary[255..] is +inf.
+// Linear values at which the rounded 8-bit sRGB code steps from k-1 to k (k = 1..255): the
+// code of a value is the number of boundaries <= it. The first boundary, 1.5e-4, lies above
+// 2^-13 and the last, 0.99, below 1. The floats of [2^-13, 1) fall in 128 buckets per binade
+// (their exponent and top 7 mantissa bits), and no bucket holds more than one boundary after
+// its first float (checked when the table is built). Within a bucket every float shares its
+// top 16 bits, so comparing the low 16 bits as integers compares the floats (all positive).
+// A bucket's entry packs its first float's code (bits 17-24) and the low 16 bits of its
+// boundary, or 0x10000, above any low bits, when it has none: one lookup and one integer
+// comparison per value (srgb8_code, and srgb8_x16 with one gather per 16 values).
 constexpr int kBucketBits = 7;
-constexpr int kBucketSteps = 2;
+constexpr int kLowBits = 23 - kBucketBits;
+constexpr uint32_t kLowMask = (1u << kLowBits) - 1u;
 constexpr uint32_t kFirstBucketExponent = 127 - 13;  // biased exponent of 2^-13
 struct SrgbCodes {
-  std::array<float, 255 + kBucketSteps> boundary{};
-  std::array<uint8_t, 13u << kBucketBits> start{};
+  std::array<float, 255> boundary{};
+  std::array<uint32_t, 13u << kBucketBits> bucket{};  // code << 17 | boundary's low bits (or 0x10000)
 };
 
 const SrgbCodes& srgb_codes() {
   static const SrgbCodes table = [] {
     SrgbCodes t;
     for (int k = 1; k <= 255; ++k) t.boundary[size_t(k - 1)] = float(srgb_to_linear((k - 0.5) / 255.0));
-    for (size_t k = 255; k < t.boundary.size(); ++k) t.boundary[k] = std::numeric_limits<float>::infinity();
-    const auto codes = [&](float v) {
-      return std::upper_bound(t.boundary.begin(), t.boundary.begin() + 255, v) - t.boundary.begin();
-    };
-    for (uint32_t i = 0; i < t.start.size(); ++i) {
-      const uint32_t first = (i + (kFirstBucketExponent << kBucketBits)) << (23 - kBucketBits);
-      t.start[i] = uint8_t(codes(std::bit_cast<float>(first)));
-      const float last = std::bit_cast<float>(first + (1u << (23 - kBucketBits)) - 1);
-      if (codes(last) - t.start[i] > kBucketSteps)
-        fail("composite: sRGB code bucket {} ([{}, {}]) holds {} boundaries, the lookup steps over at most {}", i,
-             std::bit_cast<float>(first), last, codes(last) - t.start[i], kBucketSteps);
+    const auto codes = [&](float v) { return std::upper_bound(t.boundary.begin(), t.boundary.end(), v) - t.boundary.begin(); };
+    for (uint32_t i = 0; i < t.bucket.size(); ++i) {
+      const uint32_t first = (i + (kFirstBucketExponent << kBucketBits)) << kLowBits;
+      const float last = std::bit_cast<float>(first + kLowMask);
+      const auto start = codes(std::bit_cast<float>(first)), inside = codes(last) - start;
+      if (inside > 1)
+        fail("composite: sRGB code bucket {} ([{}, {}]) holds {} boundaries, the lookup takes at most one", i,
+             std::bit_cast<float>(first), last, inside);
+      const uint32_t low = inside ? std::bit_cast<uint32_t>(t.boundary[size_t(start)]) & kLowMask : kLowMask + 1u;
+      t.bucket[i] = uint32_t(start) << (kLowBits + 1) | low;
     }
     return t;
   }();
@@ -56,16 +63,14 @@ const SrgbCodes& srgb_codes() {
 }
 
 // The 8-bit sRGB code of a linear value: the number of code boundaries <= linear (what
-// std::upper_bound counts); 0 for linear <= 0 and NaN. The bucket of the float's exponent and
-// top mantissa bits gives the count at the bucket's start, then the bucket's own boundaries
-// are stepped over without branches.
+// std::upper_bound counts); 0 for linear <= 0 and NaN. The bucket's entry gives the count at
+// the bucket's first float and its boundary, if any.
 inline uint8_t srgb8_code(const SrgbCodes& t, float linear) {
   if (!(linear >= 0x1p-13f)) return 0;  // NaN, <= 0, or below the first boundary
   if (linear >= 1.0f) return 255;       // above the last
-  const uint32_t bucket = (std::bit_cast<uint32_t>(linear) >> (23 - kBucketBits)) - (kFirstBucketExponent << kBucketBits);
-  uint32_t code = t.start[bucket];
-  for (int step = 0; step < kBucketSteps; ++step) code += t.boundary[code] <= linear ? 1u : 0u;
-  return uint8_t(code);
+  const uint32_t bits = std::bit_cast<uint32_t>(linear);
+  const uint32_t e = t.bucket[(bits >> kLowBits) - (kFirstBucketExponent << kBucketBits)];
+  return uint8_t((e >> (kLowBits + 1)) + ((bits & kLowMask) >= (e & (2u * kLowMask + 1u)) ? 1u : 0u));
 }
 
 // The inputs of the shading, one slot per composited meaning. A new composite term is a slot
@@ -163,12 +168,13 @@ struct RowPlanes {
 };
 constexpr int kPlaneAo = 9, kPlaneVisibility = 10;
 
-// linear[c][x] = exposure * albedo * (ambient * AO + sum_l V_l * ...), for x < in.stride.
-DHR_VEC8_TARGETS void shade_row(const RowPlanes& in, const LightTerm* lights, int light_count,
+// linear[c][x] = exposure * albedo * (ambient * AO + sum_l V_l * ...), for x < count (a
+// multiple of 8, at most in.stride); linear's planes are in.stride apart.
+DHR_VEC8_TARGETS void shade_row(const RowPlanes& in, size_t count, const LightTerm* lights, int light_count,
                                 glm::vec3 ambient, float exposure, float* linear) {
   constexpr float kMinDistance2 = 1e-6f;
   const size_t n = in.stride;
-  for (size_t i = 0; i < n; i += 8) {
+  for (size_t i = 0; i < count; i += 8) {
     const Vec8 px = load8(in.plane(0) + i), py = load8(in.plane(1) + i), pz = load8(in.plane(2) + i);
     const Vec8 nx = load8(in.plane(3) + i), ny = load8(in.plane(4) + i), nz = load8(in.plane(5) + i);
     const Vec8 ao = load8(in.plane(kPlaneAo) + i);
@@ -249,17 +255,231 @@ DHR_VEC8_TARGETS void gbuffer_row(const float* __restrict pos, const float* __re
   }
 }
 
+// What the 16-lane row kernel reads of the passes: composite() of pass buffers. (The float
+// fractions of composite_fractions take the row path only.)
+struct PassBytes {
+  const uint8_t* ao = nullptr;  // null: AO = 1
+  float ao_scale = 1.0f;        // 1 / full_scale
+  const uint8_t* vis = nullptr;  // null: fully lit
+  bool bitmask = false;
+  size_t bpp = 0;          // bitmask: bytes per pixel
+  size_t plane = 0;        // 8-bit planes: pixels per plane
+  float vis_scale = 1.0f;  // 8-bit planes: 1 / full_scale
+};
+
+std::atomic<bool> g_row_path_only{false};
+
+#if DHR_AVX512_KERNELS
+// All lanes, for the zero-masked forms of the intrinsics whose plain forms GCC 12 warns about
+// (an undefined source "used uninitialized").
+constexpr __mmask16 kAll = 0xffff;
+
+// Permute indices that take component `comp` of 16 vec3 (48 floats in three registers a, b, c):
+// the first permute picks the lanes whose float lies in a or b, the second the rest from c.
+struct Vec3Picks {
+  int32_t ab[3][16];
+  int32_t c[3][16];
+};
+constexpr Vec3Picks make_vec3_picks() {
+  Vec3Picks p{};
+  for (int comp = 0; comp < 3; ++comp)
+    for (int k = 0; k < 16; ++k) {
+      const int e = 3 * k + comp;
+      p.ab[comp][k] = e < 32 ? e : 0;
+      p.c[comp][k] = e < 32 ? k : 16 + (e - 32);
+    }
+  return p;
+}
+constexpr Vec3Picks kVec3Picks = make_vec3_picks();
+
+// pshufb masks that interleave 16 R, G and B bytes into 48: [output block][channel][byte].
+struct RgbShuffles {
+  int8_t m[3][3][16];
+};
+constexpr RgbShuffles make_rgb_shuffles() {
+  RgbShuffles s{};
+  for (int o = 0; o < 3; ++o)
+    for (int c = 0; c < 3; ++c)
+      for (int k = 0; k < 16; ++k) {
+        const int j = 16 * o + k;
+        s.m[o][c][k] = j % 3 == c ? int8_t(j / 3) : int8_t(-128);  // high bit: a zero byte
+      }
+  return s;
+}
+constexpr RgbShuffles kRgbShuffles = make_rgb_shuffles();
+
+// 16 vec3 of an array of structures (48 floats at p) as three planes.
+DHR_AVX512_TARGET inline void load_vec3_x16(const float* p, __m512 out[3]) {
+  const __m512 a = _mm512_loadu_ps(p), b = _mm512_loadu_ps(p + 16), c = _mm512_loadu_ps(p + 32);
+  for (int k = 0; k < 3; ++k) {
+    const __m512 ab = _mm512_permutex2var_ps(a, _mm512_loadu_si512(kVec3Picks.ab[k]), b);
+    out[k] = _mm512_permutex2var_ps(ab, _mm512_loadu_si512(kVec3Picks.c[k]), c);
+  }
+}
+
+// fraction_row of 16 bytes: min(1, byte * scale), as std::min(1.0f, v) (v < 1 ? v : 1).
+DHR_AVX512_TARGET inline __m512 fractions_x16(const uint8_t* bytes, float scale) {
+  const __m128i b = _mm_loadu_si128(reinterpret_cast<const __m128i*>(bytes));
+  const __m512 v = _mm512_mul_ps(_mm512_maskz_cvtepi32_ps(kAll, _mm512_maskz_cvtepu8_epi32(kAll, b)), _mm512_set1_ps(scale));
+  return _mm512_maskz_min_ps(kAll, v, _mm512_set1_ps(1.0f));
+}
+
+// srgb8_code of 16 values: the same comparisons, the buckets' entries gathered.
+DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
+  const __mmask16 ge = _mm512_cmp_ps_mask(v, _mm512_set1_ps(0x1p-13f), _CMP_GE_OQ);  // false for NaN
+  const __mmask16 top = _mm512_cmp_ps_mask(v, _mm512_set1_ps(1.0f), _CMP_GE_OQ);
+  const __mmask16 mid = ge & __mmask16(~top);
+  const __m512i bits = _mm512_castps_si512(v);
+  const __m512i bucket = _mm512_sub_epi32(_mm512_maskz_srli_epi32(kAll, bits, kLowBits),
+                                          _mm512_set1_epi32(int32_t(kFirstBucketExponent << kBucketBits)));
+  const __m512i e = _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mid, bucket, t.bucket.data(), 4);
+  const __mmask16 past = _mm512_cmpge_epu32_mask(_mm512_and_si512(bits, _mm512_set1_epi32(int32_t(kLowMask))),
+                                                 _mm512_and_si512(e, _mm512_set1_epi32(int32_t(2u * kLowMask + 1u))));
+  const __m512i code = _mm512_mask_add_epi32(_mm512_maskz_srli_epi32(mid, e, kLowBits + 1), mid & past,
+                                             _mm512_maskz_srli_epi32(mid, e, kLowBits + 1), _mm512_set1_epi32(1));
+  return _mm512_mask_mov_epi32(code, top, _mm512_set1_epi32(255));
+}
+
+// Codes 0-255 of 16 pixels' three channels as 48 interleaved RGB bytes at out.
+DHR_AVX512_TARGET inline void store_rgb8_x16(__m512i r, __m512i g, __m512i b, uint8_t* out) {
+  const __m128i ch[3] = {_mm512_maskz_cvtepi32_epi8(kAll, r), _mm512_maskz_cvtepi32_epi8(kAll, g),
+                         _mm512_maskz_cvtepi32_epi8(kAll, b)};
+  for (int o = 0; o < 3; ++o) {
+    __m128i v = _mm_setzero_si128();
+    for (int c = 0; c < 3; ++c)
+      v = _mm_or_si128(v, _mm_shuffle_epi8(ch[c], _mm_loadu_si128(reinterpret_cast<const __m128i*>(kRgbShuffles.m[o][c]))));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + 16 * o), v);
+  }
+}
+
+// tonemap_srgb8 of values [0, n - n % 16), 16 at a time. Returns where it ended.
+DHR_AVX512_TARGET size_t tonemap_x16(const SrgbCodes& t, const float* linear, size_t n, uint8_t* out) {
+  size_t i = 0;
+  for (; i + 16 <= n; i += 16)
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + i),
+                     _mm512_maskz_cvtepi32_epi8(kAll, srgb8_x16(t, _mm512_loadu_ps(linear + i))));
+  return i;
+}
+
+// V_l of the 16 pixels from pixel i on.
+DHR_AVX512_TARGET inline __m512 visibility_x16(const PassBytes& pb, size_t l, size_t i) {
+  if (!pb.vis) return _mm512_set1_ps(1.0f);
+  if (!pb.bitmask) return fractions_x16(pb.vis + l * pb.plane + i, pb.vis_scale);
+  if (pb.bpp == 1) {  // a light's bit of 16 consecutive bytes
+    const __m128i b = _mm_loadu_si128(reinterpret_cast<const __m128i*>(pb.vis + i));
+    const __m512i bits = _mm512_and_si512(_mm512_maskz_srli_epi32(kAll, _mm512_maskz_cvtepu8_epi32(kAll, b), unsigned(l & 7)), _mm512_set1_epi32(1));
+    return _mm512_maskz_cvtepi32_ps(kAll, bits);
+  }
+  alignas(64) float v[16];
+  const uint8_t* src = pb.vis + i * pb.bpp + (l >> 3);
+  for (size_t k = 0; k < 16; ++k) v[k] = float((src[k * pb.bpp] >> (l & 7)) & 1u);
+  return _mm512_load_ps(v);
+}
+
+// Pixels [0, w - w % 16) of row y of the composite, 16 at a time: gbuffer_row, fraction_row,
+// shade_row and srgb8_code's values by the same IEEE operations in the same order (no FMA:
+// DHR_AVX512_TARGET), so the same bits as the row path. Returns where it ended.
+DHR_AVX512_TARGET int composite_row16(const GBuffer& g, int y, const PassBytes& pb, const LightTerm* lights, int nl,
+                                      glm::vec3 ambient, float exposure, const SrgbCodes& t, Rgb8 background,
+                                      Rgb8* out) {
+  static_assert(sizeof(Rgb8) == 3 && sizeof(glm::vec3) == 3 * sizeof(float));
+  constexpr float kMinDistance2 = 1e-6f;
+  const int w = g.width();
+  const size_t first = size_t(y) * size_t(w);
+  const float* pos = &g.position(0, y).x;
+  const float* nrm = &g.normal(0, y).x;
+  const float* geo = &g.geo_normal(0, y).x;
+  const float* alb = &g.albedo(0, y).x;
+  const uint32_t* id = &g.object_id(0, y);
+  const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f);
+  int x = 0;
+  for (; x + 16 <= w; x += 16) {
+    const size_t i = first + size_t(x);
+    __m512 p[3], n[3], a[3];
+    load_vec3_x16(pos + 3 * size_t(x), p);
+    load_vec3_x16(nrm + 3 * size_t(x), n);
+    // The geometric normal where the shading normal is zero or NaN (glm::dot's sum, in its order).
+    const __m512 nn = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], n[0]), _mm512_mul_ps(n[1], n[1])),
+                                    _mm512_mul_ps(n[2], n[2]));
+    const __mmask16 fallback = _mm512_cmp_ps_mask(nn, zero, _CMP_NGT_UQ);
+    if (fallback) {
+      __m512 gn[3];
+      load_vec3_x16(geo + 3 * size_t(x), gn);
+      for (int k = 0; k < 3; ++k) n[k] = _mm512_mask_blend_ps(fallback, n[k], gn[k]);
+    }
+    load_vec3_x16(alb + 3 * size_t(x), a);
+    const __m512 ao = pb.ao ? fractions_x16(pb.ao + i, pb.ao_scale) : one;
+    __m512 lx = _mm512_mul_ps(_mm512_set1_ps(ambient.x), ao);
+    __m512 ly = _mm512_mul_ps(_mm512_set1_ps(ambient.y), ao);
+    __m512 lz = _mm512_mul_ps(_mm512_set1_ps(ambient.z), ao);
+    for (int l = 0; l < nl; ++l) {
+      const LightTerm& L = lights[l];
+      if (L.skip) continue;
+      const Light& light = *L.light;
+      __mmask16 ok = 0xffff;
+      __m512 n_dot_l, falloff;
+      if (L.sphere) {
+        const __m512 tx = _mm512_sub_ps(_mm512_set1_ps(light.position.x), p[0]);
+        const __m512 ty = _mm512_sub_ps(_mm512_set1_ps(light.position.y), p[1]);
+        const __m512 tz = _mm512_sub_ps(_mm512_set1_ps(light.position.z), p[2]);
+        const __m512 d2 = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(tx, tx), _mm512_mul_ps(ty, ty)), _mm512_mul_ps(tz, tz));
+        if (L.ranged) ok &= _mm512_cmp_ps_mask(d2, _mm512_set1_ps(L.range2), _CMP_NGT_UQ);
+        const __m512 d = _mm512_maskz_sqrt_ps(kAll, d2);
+        ok &= _mm512_cmp_ps_mask(d, zero, _CMP_GT_OQ);
+        const __m512 dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], tx), _mm512_mul_ps(n[1], ty)), _mm512_mul_ps(n[2], tz));
+        n_dot_l = _mm512_div_ps(dot, d);
+        __m512 m = d2;  // std::max({d2, radius^2, kMinDistance2}): the first largest
+        m = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(m, _mm512_set1_ps(L.radius2), _CMP_LT_OQ), m, _mm512_set1_ps(L.radius2));
+        m = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(m, _mm512_set1_ps(kMinDistance2), _CMP_LT_OQ), m,
+                                 _mm512_set1_ps(kMinDistance2));
+        falloff = _mm512_div_ps(one, m);
+      } else {
+        const __m512 dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], _mm512_set1_ps(light.direction.x)),
+                                                       _mm512_mul_ps(n[1], _mm512_set1_ps(light.direction.y))),
+                                         _mm512_mul_ps(n[2], _mm512_set1_ps(light.direction.z)));
+        n_dot_l = _mm512_div_ps(dot, _mm512_set1_ps(L.length));
+        falloff = one;
+      }
+      const __m512 v = visibility_x16(pb, size_t(l), i);
+      ok &= _mm512_cmp_ps_mask(n_dot_l, zero, _CMP_GT_OQ);
+      ok &= _mm512_cmp_ps_mask(v, zero, _CMP_GT_OQ);
+      const __m512 s = _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(v, _mm512_set1_ps(light.intensity)), n_dot_l), falloff);
+      lx = _mm512_mask_add_ps(lx, ok, lx, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.x)));
+      ly = _mm512_mask_add_ps(ly, ok, ly, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.y)));
+      lz = _mm512_mask_add_ps(lz, ok, lz, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.z)));
+    }
+    const __m512 ex = _mm512_set1_ps(exposure);
+    const __mmask16 bg = _mm512_cmpeq_epi32_mask(_mm512_loadu_si512(id + x), _mm512_set1_epi32(int32_t(kBackgroundId)));
+    const __m512i r = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[0], lx), ex)), bg,
+                                            _mm512_set1_epi32(background.r));
+    const __m512i gg = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[1], ly), ex)), bg,
+                                             _mm512_set1_epi32(background.g));
+    const __m512i bb = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[2], lz), ex)), bg,
+                                             _mm512_set1_epi32(background.b));
+    store_rgb8_x16(r, gg, bb, reinterpret_cast<uint8_t*>(out + x));
+  }
+  return x;
+}
+#endif
+
 // vis_row(l, first, n, out) writes V_l of the n pixels from pixel `first` on; terms_row(first,
 // n, in) the planes of their PixelTerms (kPlaneAo, ...). A row's pass values are read plane by
 // plane, in loops the compiler vectorizes. Uncovered pixels are shaded with whatever their
 // inputs hold, and never shown (the background is).
+// bytes: the passes as the 16-lane row kernel reads them (null: the row path only).
 template <class VisRow, class TermsRow>
 ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSettings& settings, VisRow&& vis_row,
-                         TermsRow&& terms_row) {
+                         TermsRow&& terms_row, const PassBytes* bytes) {
   if (!(settings.exposure > 0.0f) || !std::isfinite(settings.exposure))
     fail("composite: exposure {} must be finite and > 0", settings.exposure);
   const int w = g.width(), h = g.height();
-  ImageRGB8 out(w, h);
+  ImageRGB8 out;
+  out.resize_for_overwrite(w, h);  // every pixel is written below
+#if DHR_AVX512_KERNELS
+  const bool wide = bytes && cpu_has_avx512dq() && !g_row_path_only.load(std::memory_order_relaxed);
+#else
+  (void)bytes;
+#endif
   const Rgb8 background = tonemap_srgb8(scene.background * settings.exposure);
   const std::vector<LightTerm> lights = light_terms(scene);
   const int nl = int(lights.size());
@@ -274,18 +494,23 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
     for (int k = 0; k < 9; ++k) planes[k] = in.plane(k);
     for (int y = rows.begin(); y < rows.end(); ++y) {
       const size_t first = size_t(y) * size_t(w);
+      int x0 = 0;  // pixels [x0, w) take the row path
+#if DHR_AVX512_KERNELS
+      if (wide)
+        x0 = composite_row16(g, y, *bytes, lights.data(), nl, scene.ambient, settings.exposure, b, background, &out(0, y));
+#endif
+      if (x0 == w) continue;
+      const size_t n = size_t(w - x0), start = first + size_t(x0);
       static_assert(sizeof(glm::vec3) == 3 * sizeof(float));
-      gbuffer_row(&g.position(0, y).x, &g.normal(0, y).x, &g.geo_normal(0, y).x, &g.albedo(0, y).x, w, planes);
-      terms_row(first, size_t(w), in);
-      for (int l = 0; l < nl; ++l) vis_row(size_t(l), first, size_t(w), in.plane(kPlaneVisibility + l));
-      shade_row(in, lights.data(), nl, scene.ambient, settings.exposure, linear.data());
-      const uint32_t* id = &g.object_id(0, y);
-      for (int x = 0; x < w; ++x) {
-        const size_t i = size_t(x);
-        out(x, y) = id[i] != kBackgroundId ? Rgb8{srgb8_code(b, linear[i]), srgb8_code(b, linear[stride + i]),
-                                                  srgb8_code(b, linear[2 * stride + i])}
-                                           : background;
-      }
+      gbuffer_row(&g.position(x0, y).x, &g.normal(x0, y).x, &g.geo_normal(x0, y).x, &g.albedo(x0, y).x, int(n), planes);
+      terms_row(start, n, in);
+      for (int l = 0; l < nl; ++l) vis_row(size_t(l), start, n, in.plane(kPlaneVisibility + l));
+      shade_row(in, (n + 7) / 8 * 8, lights.data(), nl, scene.ambient, settings.exposure, linear.data());
+      const uint32_t* id = &g.object_id(x0, y);
+      for (size_t i = 0; i < n; ++i)
+        out(x0 + int(i), y) = id[i] != kBackgroundId ? Rgb8{srgb8_code(b, linear[i]), srgb8_code(b, linear[stride + i]),
+                                                            srgb8_code(b, linear[2 * stride + i])}
+                                                     : background;
     }
   });
   return out;
@@ -294,6 +519,17 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
 }  // namespace
 
 uint8_t tonemap_srgb8(float linear) { return srgb8_code(srgb_codes(), linear); }
+
+void tonemap_srgb8(std::span<const float> linear, std::span<uint8_t> out) {
+  if (out.size() != linear.size()) fail("tonemap_srgb8: {} values for {} codes", linear.size(), out.size());
+  const SrgbCodes& t = srgb_codes();
+  size_t i = 0;
+#if DHR_AVX512_KERNELS
+  if (cpu_has_avx512dq() && !g_row_path_only.load(std::memory_order_relaxed))
+    i = tonemap_x16(t, linear.data(), linear.size(), out.data());
+#endif
+  for (; i < linear.size(); ++i) out[i] = srgb8_code(t, linear[i]);
+}
 
 Rgb8 tonemap_srgb8(const glm::vec3& linear) {
   return {tonemap_srgb8(linear.x), tonemap_srgb8(linear.y), tonemap_srgb8(linear.z)};
@@ -313,22 +549,31 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const Compos
   auto terms_row = [&](size_t first, size_t n, RowPlanes& rp) {
     fraction_row(ao, first, n, 1.0f, rp.plane(kPlaneAo));
   };
-  if (visibility && visibility->desc.layout() == PassLayout::Bitmask) {
-    const uint8_t* bytes = visibility->bytes.data();
-    const size_t bpp = size_t((visibility->desc.channels + 7) / 8);
+  PassBytes pb;
+  if (ao) pb.ao = ao->bytes.data(), pb.ao_scale = 1.0f / float(ao->desc.full_scale);
+  if (visibility) {
+    pb.vis = visibility->bytes.data();
+    pb.bitmask = visibility->desc.layout() == PassLayout::Bitmask;
+    pb.bpp = size_t((visibility->desc.channels + 7) / 8);
+    pb.plane = npx;
+    pb.vis_scale = 1.0f / float(visibility->desc.full_scale);
+  }
+  if (pb.bitmask) {
+    const uint8_t* bytes = pb.vis;
+    const size_t bpp = pb.bpp;
     return composite_impl(
         g, scene, settings,
         [&](size_t l, size_t first, size_t n, float* __restrict out) {
           const uint8_t* __restrict src = bytes + first * bpp + (l >> 3);
           for (size_t i = 0; i < n; ++i) out[i] = float((src[i * bpp] >> (l & 7)) & 1u);
         },
-        terms_row);
+        terms_row, &pb);
   }
   // 8-bit planes, one per light, or no pass (fully lit).
   return composite_impl(
       g, scene, settings,
       [&](size_t l, size_t first, size_t n, float* out) { fraction_row(visibility, l * npx + first, n, 1.0f, out); },
-      terms_row);
+      terms_row, &pb);
 }
 
 ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
@@ -356,7 +601,9 @@ ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<co
   return composite_impl(
       g, scene, settings,
       [&](size_t l, size_t first, size_t n, float* out) { fraction_row(visibility, l * npx + first, n, 1.0f, out); },
-      [&](size_t first, size_t n, RowPlanes& rp) { fraction_row(ao, first, n, 1.0f, rp.plane(kPlaneAo)); });
+      [&](size_t first, size_t n, RowPlanes& rp) { fraction_row(ao, first, n, 1.0f, rp.plane(kPlaneAo)); }, nullptr);
 }
+
+void composite_row_path_only(bool on) { g_row_path_only.store(on, std::memory_order_relaxed); }
 
 }  // namespace dhr

@@ -37,6 +37,9 @@ struct CompositeSettings {
 // The 8-bit sRGB code of a linear value (after exposure); see the header comment.
 uint8_t tonemap_srgb8(float linear);
 Rgb8 tonemap_srgb8(const glm::vec3& linear);
+// The same for many values (out.size() == linear.size()), 16 at a time where the CPU has
+// AVX-512, as the composite's kernel maps them.
+void tonemap_srgb8(std::span<const float> linear, std::span<uint8_t> out);
 
 // The per-pixel scalar terms of the shading, each at the value of an absent pass by default.
 struct PixelTerms {
@@ -84,6 +87,11 @@ struct CompositeFractions {
 // The composite of float estimates (at most one per meaning); the same terms as composite().
 ImageRGB8 composite_fractions(const GBuffer& gbuf, const Scene& scene, std::span<const CompositeFractions> passes,
                               const CompositeSettings& settings = {});
+
+// For tests and benchmarks: on, composite() shades every pixel on the 8-lane row path and
+// tonemap_srgb8 maps every value one at a time, even where the CPU has AVX-512 (whose 16-lane
+// kernels give the same bits). Process-wide.
+void composite_row_path_only(bool on);
 
 // ---- implementation of the kernel ----
 

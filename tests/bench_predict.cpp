@@ -403,6 +403,8 @@ BENCHMARK(BM_Upsample_Ao_Bilinear)->Arg(2)->Arg(4)->Unit(benchmark::kMillisecond
 
 // The composite of room (three lights) at 1280x720: a visibility bitmask and an AO pass of
 // synthetic bytes over the rasterized G-buffer.
+// state.range(0): 1 = the 8-lane row path only (composite_row_path_only), 0 = the default (the
+// 16-lane kernel where the CPU has AVX-512).
 void BM_Composite(benchmark::State& state) {
   Scene scene;
   try {
@@ -412,6 +414,7 @@ void BM_Composite(benchmark::State& state) {
     state.SkipWithError(e.what());
     return;
   }
+  composite_row_path_only(state.range(0) != 0);
   const Camera cam = scene.camera.at(0.0, kW, kH);
   GBuffer g;
   rasterize({&scene, cam, 0.0, cam, 0.0}, g);
@@ -444,8 +447,9 @@ void BM_Composite(benchmark::State& state) {
   state.counters["cpu_ms"] = cpu_ms;
   state.counters["floor_cpu_ms"] = floor_ms;
   state.counters["x_floor"] = cpu_ms / floor_ms;
+  composite_row_path_only(false);
 }
-BENCHMARK(BM_Composite)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Composite)->ArgName("row_path_only")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // The ceiling on its own, for reference (the counters above re-measure it beside each run).
 void BM_GatherCeiling_U8(benchmark::State& state) {

@@ -797,12 +797,17 @@ TEST(Composite, ShadowRemovesExactlyThatLight) {
   EXPECT_THROW(composite(g, s, &wrong, nullptr), Error);
 }
 
-// The composite shades eight pixels at a time (core/composite.cpp); every pixel must be what
-// the scalar kernel, shade_lambert, gives it, bit for bit, also in the hard cases: points inside
-// or at the centre of a sphere light, beyond its range, facing away, zero normals (the geometric
-// normal then), a distant light without a direction, zero and tiny radii, huge and tiny
-// distances, odd widths (partial groups of eight), with bitmask, 8-bit and float visibility.
+// The composite shades eight pixels at a time on its row path and sixteen where the CPU has
+// AVX-512 (core/composite.cpp); every pixel of both must be what the scalar kernel,
+// shade_lambert, gives it, bit for bit, also in the hard cases: points inside or at the centre
+// of a sphere light, beyond its range, facing away, zero normals (the geometric normal then), a
+// distant light without a direction, zero and tiny radii, huge and tiny distances, odd widths
+// (partial groups of eight and sixteen), with bitmask (one and two bytes a pixel), 8-bit and
+// float visibility.
 TEST(Composite, RowKernelMatchesShadeLambert) {
+  for (const bool row_path : {false, true})
+    for (const int copies : {1, 2}) {  // 5 lights, and 10 (two bitmask bytes a pixel)
+  composite_row_path_only(row_path);
   Scene s = base_scene();
   s.ambient = {0.05f, 0.06f, 0.07f};
   s.lights = {sphere_light({0.3f, 1.5f, -0.2f}, 0.25f, 3.0f), sphere_light({-2.0f, 0.5f, 1.0f}, 0.0f, 40.0f),
@@ -811,8 +816,14 @@ TEST(Composite, RowKernelMatchesShadeLambert) {
   s.lights[0].range_m = 2.5f;
   s.lights[2].colour = {1.0f, 0.5f, 0.25f};
   s.lights[4].range_m = 1e-3f;
+  if (copies == 2)
+    for (int l = 0; l < 5; ++l) {
+      Light copy = s.lights[size_t(l)];
+      copy.position += glm::vec3(0.5f, 0.25f, 0.0f);
+      s.lights.push_back(copy);
+    }
   const int nl = int(s.lights.size());
-  for (const int w : {1, 7, 8, 13, 37}) {
+  for (const int w : {1, 7, 8, 13, 16, 37, 50}) {
     const int h = 9;
     GBuffer g;
     g.camera = cam({0, 2, 2}, {0, 0, 0});
@@ -877,6 +888,38 @@ TEST(Composite, RowKernelMatchesShadeLambert) {
     expect(composite_fractions(g, s, est), [&](size_t l, size_t i) { return fractions[l * n + i]; },
            [&](size_t i) { return ao_fractions[i]; }, "fractions");
   }
+  composite_row_path_only(false);
+    }
+}
+
+// The tone map of many values (16 at a time where the CPU has AVX-512) gives each value's code
+// one at a time: every float from 2^-14 to 1, and the values outside it.
+TEST(Composite, ToneMapManyMatchesOneAtATime) {
+  std::vector<float> v;
+  for (float x : {0.0f, -0.0f, -1.0f, 1e-30f, 0x1p-13f, std::nextafter(0x1p-13f, 0.0f), 1.0f, std::nextafter(1.0f, 0.0f),
+                  1e30f, std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(), std::nanf(""),
+                  -std::nanf(""), std::numeric_limits<float>::denorm_min()})
+    v.push_back(x);
+  std::vector<uint8_t> codes;
+  auto check = [&](const char* what) {
+    codes.assign(v.size(), 0);
+    tonemap_srgb8(v, codes);
+    for (size_t i = 0; i < v.size(); ++i)
+      if (codes[i] != tonemap_srgb8(v[i])) {
+        ADD_FAILURE() << what << ": " << v[i] << " maps to " << int(codes[i]) << ", one at a time to "
+                      << int(tonemap_srgb8(v[i]));
+        return false;
+      }
+    return true;
+  };
+  ASSERT_TRUE(check("special values"));
+  const uint32_t last = std::bit_cast<uint32_t>(1.0f);
+  for (uint32_t bits = std::bit_cast<uint32_t>(0x1p-14f); bits <= last;) {
+    v.clear();
+    for (; bits <= last && v.size() < (1u << 20) + 5; ++bits) v.push_back(std::bit_cast<float>(bits));  // not a multiple of 16
+    ASSERT_TRUE(check("the codes' range"));
+  }
+  EXPECT_THROW(tonemap_srgb8(v, std::span<uint8_t>(codes).first(1)), Error);
 }
 
 // ---- references ----
