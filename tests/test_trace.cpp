@@ -802,8 +802,8 @@ TEST(Composite, ShadowRemovesExactlyThatLight) {
 // shade_lambert, gives it, bit for bit, also in the hard cases: points inside or at the centre
 // of a sphere light, beyond its range, facing away, zero normals (the geometric normal then), a
 // distant light without a direction, zero and tiny radii, huge and tiny distances, odd widths
-// (partial groups of eight and sixteen), with bitmask (one and two bytes a pixel), 8-bit and
-// float visibility.
+// (partial groups of eight and sixteen), NaN normals, points at exactly a light's range, with
+// bitmask (one and two bytes a pixel), 8-bit and float visibility.
 TEST(Composite, RowKernelMatchesShadeLambert) {
   for (const bool row_path : {false, true})
     for (const int copies : {1, 2}) {  // 5 lights, and 10 (two bitmask bytes a pixel)
@@ -848,11 +848,14 @@ TEST(Composite, RowKernelMatchesShadeLambert) {
         if (kind == 2) p = s.lights[0].position + glm::vec3(0.0f, 0.1f, 0.0f);  // inside its sphere
         if (kind == 3) p = {1e6f, -3e5f, 2e5f};                               // far away
         if (kind == 4) p = s.lights[4].position + glm::vec3(1e-7f, 0.0f, 0.0f);  // within the clamp
+        if (kind == 8) p = s.lights[4].position + glm::vec3(1e-3f, 0.0f, 0.0f);  // d^2 = range^2 exactly
         g.position(x, y) = p;
         glm::vec3 nrm = glm::normalize(glm::vec3(u(i, 4) - 0.5f, u(i, 5), u(i, 6) - 0.5f) + glm::vec3(0, 0.1f, 0));
         if (kind == 5) nrm = -nrm;  // facing away from most lights
+        if (kind == 8) nrm = glm::normalize(glm::vec3(-1.0f, u(i, 5), 0.0f));  // towards light 4
         g.geo_normal(x, y) = glm::normalize(glm::vec3(0.1f, 1.0f, 0.2f));
         g.normal(x, y) = kind == 6 ? glm::vec3(0.0f) : nrm;  // zero: the geometric normal
+        if (kind == 7) g.normal(x, y) = glm::vec3(std::nanf(""), 0.0f, 1.0f);  // NaN: the geometric normal too
         g.albedo(x, y) = {u(i, 7), u(i, 8), u(i, 9)};
         ao.bytes[i] = uint8_t(rng_bits({79, uint32_t(i), 0, 0, 3}) % 9);
         ao_fractions[i] = u(i, 10);
