@@ -310,19 +310,40 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
   if (last + 4 > p.in_bytes) return false;
   const __mmask16 m = __mmask16(resolved);
   const __m512i valid = _mm512_loadu_si512(plan.valid);
+  // Where the taps lie side by side (tap 0 of lane l at lane 0's plus l, as under smooth
+  // motion), a tap's 16 bytes are consecutive: one load instead of a gather. The lanes a
+  // gather would leave at 0 (not resolved, or the tap not valid) are not used either way.
+  const int32_t lane0 = _mm_cvtsi128_si32(_mm512_castsi512_si128(j0));
+  const bool side_by_side =
+      _mm512_cmpeq_epi32_mask(j0, _mm512_add_epi32(_mm512_set1_epi32(lane0),
+                                                   _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))) == 0xFFFF &&
+      size_t(lane0) + 16 + 1 + size_t(w) + size_t(planes - 1) * stride <= p.in_bytes;  // tap 3's last byte, last plane
+  const __m512i nearest = _mm512_loadu_si512(plan.nearest);
+  const bool one_nearest = side_by_side && p.nearest &&
+                           _mm512_mask_cmpneq_epi32_mask(m, nearest, _mm512_set1_epi32(plan.nearest[std::countr_zero(resolved)])) == 0;
   for (int c = 0; c < planes; ++c) {
     const uint8_t* in = p.in + size_t(c) * stride;
     uint8_t* out = p.out + i0 + size_t(c) * stride;
     __m512i result;
-    if (p.nearest) {
-      const __m512i jn = tap_index16(j0, _mm512_loadu_si512(plan.nearest), w);
+    if (one_nearest) {  // every resolved lane takes tap k: 16 consecutive bytes
+      const int k = plan.nearest[std::countr_zero(resolved)];
+      const size_t jk = size_t(lane0) + size_t(k & 1) + size_t(k >> 1) * size_t(w);
+      result = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + jk)));
+    } else if (p.nearest) {
+      const __m512i jn = tap_index16(j0, nearest, w);
       result = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, jn, in, 1), byte);
     } else {
       __m512 v = _mm512_setzero_ps();
       for (int k = 0; k < 4; ++k) {
         const __mmask16 mk = m & _mm512_test_epi32_mask(valid, _mm512_set1_epi32(1 << k));
-        const __m512i jk = tap_index16(j0, _mm512_set1_epi32(k), w);
-        const __m512i b = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, jk, in, 1), byte);
+        __m512i b;
+        if (side_by_side) {
+          const size_t jk = size_t(lane0) + size_t(k & 1) + size_t(k >> 1) * size_t(w);
+          b = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + jk)));
+        } else {
+          const __m512i jk = tap_index16(j0, _mm512_set1_epi32(k), w);
+          b = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, jk, in, 1), byte);
+        }
         v = _mm512_mask_add_ps(v, mk, v, _mm512_mul_ps(_mm512_loadu_ps(plan.weight[k]), _mm512_cvtepi32_ps(b)));
       }
       // round_u8: r = v + 0.5, 0 below 0 and for NaN, 255 from 255 on, then truncated.
