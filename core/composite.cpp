@@ -392,9 +392,16 @@ DHR_AVX512_TARGET int composite_row16(const GBuffer& g, int y, const PassBytes& 
   const float* alb = &g.albedo(0, y).x;
   const uint32_t* id = &g.object_id(0, y);
   const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f);
+  const __m512i bg_r = _mm512_set1_epi32(background.r), bg_g = _mm512_set1_epi32(background.g),
+                bg_b = _mm512_set1_epi32(background.b);
   int x = 0;
   for (; x + 16 <= w; x += 16) {
     const size_t i = first + size_t(x);
+    const __mmask16 bg = _mm512_cmpeq_epi32_mask(_mm512_loadu_si512(id + x), _mm512_set1_epi32(int32_t(kBackgroundId)));
+    if (bg == 0xFFFF) {  // nothing covered: the background only
+      store_rgb8_x16(bg_r, bg_g, bg_b, reinterpret_cast<uint8_t*>(out + x));
+      continue;
+    }
     __m512 p[3], n[3], a[3];
     load_vec3_x16(pos + 3 * size_t(x), p);
     load_vec3_x16(nrm + 3 * size_t(x), n);
@@ -449,13 +456,9 @@ DHR_AVX512_TARGET int composite_row16(const GBuffer& g, int y, const PassBytes& 
       lz = _mm512_mask_add_ps(lz, ok, lz, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.z)));
     }
     const __m512 ex = _mm512_set1_ps(exposure);
-    const __mmask16 bg = _mm512_cmpeq_epi32_mask(_mm512_loadu_si512(id + x), _mm512_set1_epi32(int32_t(kBackgroundId)));
-    const __m512i r = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[0], lx), ex)), bg,
-                                            _mm512_set1_epi32(background.r));
-    const __m512i gg = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[1], ly), ex)), bg,
-                                             _mm512_set1_epi32(background.g));
-    const __m512i bb = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[2], lz), ex)), bg,
-                                             _mm512_set1_epi32(background.b));
+    const __m512i r = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[0], lx), ex)), bg, bg_r);
+    const __m512i gg = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[1], ly), ex)), bg, bg_g);
+    const __m512i bb = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[2], lz), ex)), bg, bg_b);
     store_rgb8_x16(r, gg, bb, reinterpret_cast<uint8_t*>(out + x));
   }
   return x;
