@@ -19,6 +19,8 @@
 #include <immintrin.h>
 #pragma GCC diagnostic pop
 
+#include <cstdint>
+
 #define DHR_AVX512_KERNELS 1
 
 namespace dhr {
@@ -36,6 +38,37 @@ inline bool cpu_has_avx512dq() {
 // brings; off keeps every product and sum rounded separately, as in the SSE2 and scalar code.
 #define DHR_AVX512_TARGET __attribute__((target("avx512f,avx512dq"), optimize("fp-contract=off")))
 #endif
+
+namespace dhr {
+// x, y and z of 16 consecutive vec3 (48 floats a b c, an array of glm::vec3 or of three-float
+// structures): component k of element i is float 3i + k, taken from a:b by a first permute and
+// from c by a second (backends/predict/reprojection.cpp, core/composite.cpp).
+struct Deinterleave3 {
+  alignas(64) int32_t first[3][16];
+  alignas(64) int32_t second[3][16];
+  constexpr Deinterleave3() : first{}, second{} {
+    for (int k = 0; k < 3; ++k)
+      for (int i = 0; i < 16; ++i) {
+        const int f = 3 * i + k;
+        first[k][i] = f < 32 ? f : 0;
+        second[k][i] = f < 32 ? i : 16 + f - 32;
+      }
+  }
+};
+inline constexpr Deinterleave3 kDeinterleave3{};
+struct Xyz16 {
+  __m512 x, y, z;
+};
+DHR_AVX512_TARGET inline Xyz16 load_xyz16(const float* f) {
+  const __m512 a = _mm512_loadu_ps(f), b = _mm512_loadu_ps(f + 16), c = _mm512_loadu_ps(f + 32);
+  __m512 out[3];
+  for (int k = 0; k < 3; ++k) {
+    const __m512 ab = _mm512_permutex2var_ps(a, _mm512_load_si512(kDeinterleave3.first[k]), b);
+    out[k] = _mm512_permutex2var_ps(ab, _mm512_load_si512(kDeinterleave3.second[k]), c);
+  }
+  return {out[0], out[1], out[2]};
+}
+}  // namespace dhr
 #else
 #define DHR_AVX512_KERNELS 0
 #endif

@@ -274,24 +274,6 @@ std::atomic<bool> g_row_path_only{false};
 // (an undefined source "used uninitialized").
 constexpr __mmask16 kAll = 0xffff;
 
-// Permute indices that take component `comp` of 16 vec3 (48 floats in three registers a, b, c):
-// the first permute picks the lanes whose float lies in a or b, the second the rest from c.
-struct Vec3Picks {
-  int32_t ab[3][16];
-  int32_t c[3][16];
-};
-constexpr Vec3Picks make_vec3_picks() {
-  Vec3Picks p{};
-  for (int comp = 0; comp < 3; ++comp)
-    for (int k = 0; k < 16; ++k) {
-      const int e = 3 * k + comp;
-      p.ab[comp][k] = e < 32 ? e : 0;
-      p.c[comp][k] = e < 32 ? k : 16 + (e - 32);
-    }
-  return p;
-}
-constexpr Vec3Picks kVec3Picks = make_vec3_picks();
-
 // pshufb masks that interleave 16 R, G and B bytes into 48: [output block][channel][byte].
 struct RgbShuffles {
   int8_t m[3][3][16];
@@ -307,15 +289,6 @@ constexpr RgbShuffles make_rgb_shuffles() {
   return s;
 }
 constexpr RgbShuffles kRgbShuffles = make_rgb_shuffles();
-
-// 16 vec3 of an array of structures (48 floats at p) as three planes.
-DHR_AVX512_TARGET inline void load_vec3_x16(const float* p, __m512 out[3]) {
-  const __m512 a = _mm512_loadu_ps(p), b = _mm512_loadu_ps(p + 16), c = _mm512_loadu_ps(p + 32);
-  for (int k = 0; k < 3; ++k) {
-    const __m512 ab = _mm512_permutex2var_ps(a, _mm512_loadu_si512(kVec3Picks.ab[k]), b);
-    out[k] = _mm512_permutex2var_ps(ab, _mm512_loadu_si512(kVec3Picks.c[k]), c);
-  }
-}
 
 // fraction_row of 16 bytes: min(1, byte * scale), as std::min(1.0f, v) (v < 1 ? v : 1).
 DHR_AVX512_TARGET inline __m512 fractions_x16(const uint8_t* bytes, float scale) {
@@ -402,19 +375,20 @@ DHR_AVX512_TARGET int composite_row16(const GBuffer& g, int y, const PassBytes& 
       store_rgb8_x16(bg_r, bg_g, bg_b, reinterpret_cast<uint8_t*>(out + x));
       continue;
     }
-    __m512 p[3], n[3], a[3];
-    load_vec3_x16(pos + 3 * size_t(x), p);
-    load_vec3_x16(nrm + 3 * size_t(x), n);
+    const Xyz16 pv = load_xyz16(pos + 3 * size_t(x)), nv = load_xyz16(nrm + 3 * size_t(x));
+    const __m512 p[3] = {pv.x, pv.y, pv.z};
+    __m512 n[3] = {nv.x, nv.y, nv.z};
     // The geometric normal where the shading normal is zero or NaN (glm::dot's sum, in its order).
     const __m512 nn = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], n[0]), _mm512_mul_ps(n[1], n[1])),
                                     _mm512_mul_ps(n[2], n[2]));
     const __mmask16 fallback = _mm512_cmp_ps_mask(nn, zero, _CMP_NGT_UQ);
     if (fallback) {
-      __m512 gn[3];
-      load_vec3_x16(geo + 3 * size_t(x), gn);
+      const Xyz16 gv = load_xyz16(geo + 3 * size_t(x));
+      const __m512 gn[3] = {gv.x, gv.y, gv.z};
       for (int k = 0; k < 3; ++k) n[k] = _mm512_mask_blend_ps(fallback, n[k], gn[k]);
     }
-    load_vec3_x16(alb + 3 * size_t(x), a);
+    const Xyz16 av = load_xyz16(alb + 3 * size_t(x));
+    const __m512 a[3] = {av.x, av.y, av.z};
     const __m512 ao = pb.ao ? fractions_x16(pb.ao + i, pb.ao_scale) : one;
     __m512 lx = _mm512_mul_ps(_mm512_set1_ps(ambient.x), ao);
     __m512 ly = _mm512_mul_ps(_mm512_set1_ps(ambient.y), ao);

@@ -126,34 +126,10 @@ DHR_AVX512_TARGET inline __m512 gather16(__mmask16 m, __m512i index, const float
   return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, index, base, 4);
 }
 
-// x, y and z of 16 consecutive vec3 (48 floats a b c): component k of element i is float
-// 3i + k, taken from a:b by a first permute and from c by a second.
-struct Deinterleave3 {
-  alignas(64) int32_t first[3][16];
-  alignas(64) int32_t second[3][16];
-  constexpr Deinterleave3() : first{}, second{} {
-    for (int k = 0; k < 3; ++k)
-      for (int i = 0; i < 16; ++i) {
-        const int f = 3 * i + k;
-        first[k][i] = f < 32 ? f : 0;
-        second[k][i] = f < 32 ? i : 16 + f - 32;
-      }
-  }
-};
-constexpr Deinterleave3 kDeinterleave3{};
-struct Xyz16 {
-  __m512 x, y, z;
-};
+// x, y and z of 16 consecutive vec3 (core/avx512.h's load_xyz16).
 DHR_AVX512_TARGET inline Xyz16 load_xyz16(const glm::vec3* v) {
   static_assert(sizeof(glm::vec3) == 3 * sizeof(float));
-  const float* f = &v->x;
-  const __m512 a = _mm512_loadu_ps(f), b = _mm512_loadu_ps(f + 16), c = _mm512_loadu_ps(f + 32);
-  __m512 out[3];
-  for (int k = 0; k < 3; ++k) {
-    const __m512 ab = _mm512_permutex2var_ps(a, _mm512_load_si512(kDeinterleave3.first[k]), b);
-    out[k] = _mm512_permutex2var_ps(ab, _mm512_load_si512(kDeinterleave3.second[k]), c);
-  }
-  return {out[0], out[1], out[2]};
+  return dhr::load_xyz16(&v->x);
 }
 // The same for lanes at any indices j (gathered; lanes outside m read nothing and hold 0).
 DHR_AVX512_TARGET inline Xyz16 gather_xyz16(__mmask16 m, __m512i j, const glm::vec3* v) {
