@@ -498,7 +498,9 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
 uint8_t tonemap_srgb8(float linear) { return srgb8_code(srgb_codes(), linear); }
 
 void tonemap_srgb8(std::span<const float> linear, std::span<uint8_t> out) {
-  if (out.size() != linear.size()) fail("tonemap_srgb8: {} values for {} codes", linear.size(), out.size());
+  if (out.size() != linear.size())
+    fail("tonemap_srgb8: {} linear values but room for {} codes; out must hold one code per value", linear.size(),
+         out.size());
   const SrgbCodes& t = srgb_codes();
   size_t i = 0;
 #if DHR_AVX512_KERNELS

@@ -96,10 +96,6 @@ std::string truth_key(const std::string& scene_key, const SimConfig& c, int fram
   return fmt::format("truth|{}|f{}|{}", scene_key, frame, settings_key(c, kInTruthKey));
 }
 
-}  // namespace
-
-namespace {
-
 // Which displayed frames (0 = the first after warm-up) a run scores against the local
 // reference, and which of those also against the ground truth.
 bool scores_frame(const SimConfig& c, int frame) { return frame % c.score_every == 0; }

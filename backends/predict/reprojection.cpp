@@ -126,6 +126,17 @@ DHR_AVX512_TARGET inline __m512 gather16(__mmask16 m, __m512i index, const float
   return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, index, base, 4);
 }
 
+// Tap k's offset from tap 0 (the pixel right, below, below right): Plan16's layout.
+inline int tap_offset(int k, int w) { return (k & 1) + (k >> 1) * w; }
+
+// Whether tap 0 of lane l is lane 0's plus l for all 16 lanes (the taps lie side by side, as
+// under smooth motion: a tap's 16 source values are then consecutive). lane0: lane 0's index.
+DHR_AVX512_TARGET inline bool side_by_side16(__m512i j0, int32_t& lane0) {
+  lane0 = _mm_cvtsi128_si32(_mm512_castsi512_si128(j0));
+  const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  return _mm512_cmpeq_epi32_mask(j0, _mm512_add_epi32(_mm512_set1_epi32(lane0), lane)) == 0xFFFF;
+}
+
 // x, y and z of 16 consecutive vec3 (core/avx512.h's load_xyz16).
 DHR_AVX512_TARGET inline Xyz16 load_xyz16(const glm::vec3* v) {
   static_assert(sizeof(glm::vec3) == 3 * sizeof(float));
@@ -148,7 +159,6 @@ DHR_AVX512_TARGET inline Xyz16 gather_xyz16(__mmask16 m, __m512i j, const glm::v
 // that fails) is left to the scalar code.
 DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& out) {
   const size_t i0 = size_t(y) * size_t(a.w) + size_t(x);
-  const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const __m512i one = _mm512_set1_epi32(1), two = _mm512_set1_epi32(2);
   const __m512i id = _mm512_loadu_si512(a.did + i0);
   __mmask16 m = _mm512_cmpneq_epi32_mask(id, _mm512_set1_epi32(int(kBackgroundId)));
@@ -188,13 +198,12 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
   // valid_tap for each tap k, in 16 lanes. Where every lane is in play and the taps lie side
   // by side (tap 0 of lane l at j0 of lane 0 plus l, as under smooth motion), each tap's source
   // values are 16 consecutive pixels, loaded as such; else they are gathered.
-  const int32_t lane0 = _mm_cvtsi128_si32(_mm512_castsi512_si128(j0));
-  const bool side_by_side =
-      m == 0xFFFF && _mm512_cmpeq_epi32_mask(j0, _mm512_add_epi32(_mm512_set1_epi32(lane0), lane)) == 0xFFFF;
+  int32_t lane0 = 0;
+  const bool side_by_side = m == 0xFFFF && side_by_side16(j0, lane0);
   const size_t first = side_by_side ? size_t(lane0) : 0;
   __mmask16 ok[4];
   for (int k = 0; k < 4; ++k) {
-    const int offset = (k & 1) + (k >> 1) * a.w;
+    const int offset = tap_offset(k, a.w);
     const __m512i jk = _mm512_add_epi32(j0, _mm512_set1_epi32(offset));
     const size_t fk = first + size_t(offset);
     __mmask16 t = m & _mm512_cmp_ps_mask(bw[k], _mm512_setzero_ps(), _CMP_GT_OQ);
@@ -289,21 +298,19 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
   // Where the taps lie side by side (tap 0 of lane l at lane 0's plus l, as under smooth
   // motion), a tap's 16 bytes are consecutive: one load instead of a gather. The lanes a
   // gather would leave at 0 (not resolved, or the tap not valid) are not used either way.
-  const int32_t lane0 = _mm_cvtsi128_si32(_mm512_castsi512_si128(j0));
-  const bool side_by_side =
-      _mm512_cmpeq_epi32_mask(j0, _mm512_add_epi32(_mm512_set1_epi32(lane0),
-                                                   _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))) == 0xFFFF &&
-      size_t(lane0) + 16 + 1 + size_t(w) + size_t(planes - 1) * stride <= p.in_bytes;  // tap 3's last byte, last plane
+  int32_t lane0 = 0;
+  const bool side_by_side = side_by_side16(j0, lane0) &&
+                            size_t(lane0) + 16 + size_t(tap_offset(3, w)) + size_t(planes - 1) * stride <= p.in_bytes;  // tap 3's last byte, last plane
   const __m512i nearest = _mm512_loadu_si512(plan.nearest);
+  const int first_nearest = plan.nearest[std::countr_zero(resolved) & 15];  // the first resolved lane's (resolved != 0)
   const bool one_nearest = side_by_side && p.nearest &&
-                           _mm512_mask_cmpneq_epi32_mask(m, nearest, _mm512_set1_epi32(plan.nearest[std::countr_zero(resolved)])) == 0;
+                           _mm512_mask_cmpneq_epi32_mask(m, nearest, _mm512_set1_epi32(first_nearest)) == 0;
   for (int c = 0; c < planes; ++c) {
     const uint8_t* in = p.in + size_t(c) * stride;
     uint8_t* out = p.out + i0 + size_t(c) * stride;
     __m512i result;
-    if (one_nearest) {  // every resolved lane takes tap k: 16 consecutive bytes
-      const int k = plan.nearest[std::countr_zero(resolved)];
-      const size_t jk = size_t(lane0) + size_t(k & 1) + size_t(k >> 1) * size_t(w);
+    if (one_nearest) {  // every resolved lane takes the same tap: 16 consecutive bytes
+      const size_t jk = size_t(lane0) + size_t(tap_offset(first_nearest, w));
       result = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + jk)));
     } else if (p.nearest) {
       const __m512i jn = tap_index16(j0, nearest, w);
@@ -314,7 +321,7 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
         const __mmask16 mk = m & _mm512_test_epi32_mask(valid, _mm512_set1_epi32(1 << k));
         __m512i b;
         if (side_by_side) {
-          const size_t jk = size_t(lane0) + size_t(k & 1) + size_t(k >> 1) * size_t(w);
+          const size_t jk = size_t(lane0) + size_t(tap_offset(k, w));
           b = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + jk)));
         } else {
           const __m512i jk = tap_index16(j0, _mm512_set1_epi32(k), w);
