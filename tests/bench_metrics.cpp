@@ -6,6 +6,8 @@
 //    8-bit RGB inputs and writes a float per pixel, the least any full-image error map costs;
 //    whole (both images) and its test half (the reference's features computed once, as the
 //    runner scores every frame of a run against one reference);
+//  - FLIP's powers (core/pow_row.h) against the library's powf called per element, and FLIP's
+//    test half with each;
 //  - the temporal stability scores of one frame step against their previous sequential loop.
 // After the runs a table prints the fastest repetition of each and the ratios, twice: wall ms
 // (the metrics use all cores through TBB) and process CPU ms per iteration summed over all
@@ -13,6 +15,7 @@
 // time a metric consumes varies much less).
 #include "core/flip.h"
 #include "core/metrics.h"
+#include "core/pow_row.h"
 #include "core/rng.h"
 #include "core/temporal.h"
 #include "tests/support.h"
@@ -112,6 +115,63 @@ void BM_Flip_test_half(benchmark::State& state) {
 }
 BENCHMARK(BM_Flip_test_half)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+// The same with pow through libm one pixel at a time (the code before core/pow_row.h, and what
+// CPUs without AVX-512 run): the same bits.
+void BM_Flip_test_half_libm_pow(benchmark::State& state) {
+  static const dhr::FlipFeatures features = dhr::flip_features(frame_a());
+  const auto& b = frame_b();
+  dhr::pow_row_portable_only(true);
+  {
+    CpuCounter cpu{state};
+    for (auto _ : state) benchmark::DoNotOptimize(dhr::flip(features, b).mean);
+  }
+  dhr::pow_row_portable_only(false);
+}
+BENCHMARK(BM_Flip_test_half_libm_pow)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// pow_row against the library's own call on the same 1280x720 values: FLIP's second power,
+// errors in (0, 1] to powers in (0.16, 1]; one thread. `fallback_pct`: the lanes the kernel
+// left to std::pow.
+struct PowInputs {
+  std::vector<float> x, y;
+  PowInputs() : x(1280 * 720), y(1280 * 720) {
+    for (size_t i = 0; i < x.size(); ++i) {
+      x[i] = dhr::rng_uniform({9, uint32_t(i), 0, 0, 1});
+      y[i] = 0.16f + 0.84f * dhr::rng_uniform({9, uint32_t(i), 0, 0, 2});
+    }
+  }
+};
+const PowInputs& pow_inputs() {
+  static const PowInputs p;
+  return p;
+}
+void BM_PowRow(benchmark::State& state) {
+  const PowInputs& p = pow_inputs();
+  std::vector<float> out(p.x.size());
+  const dhr::PowRowCounts before = dhr::pow_row_counts();
+  {
+    CpuCounter cpu{state};
+    for (auto _ : state) {
+      dhr::pow_row(p.x.data(), p.y.data(), out.data(), out.size());
+      benchmark::DoNotOptimize(out.data());
+    }
+  }
+  const dhr::PowRowCounts after = dhr::pow_row_counts();
+  state.counters["fallback_pct"] =
+      after.lanes > before.lanes ? 100.0 * double(after.fallbacks - before.fallbacks) / double(after.lanes - before.lanes) : 100.0;
+}
+BENCHMARK(BM_PowRow)->Unit(benchmark::kMillisecond)->UseRealTime();
+void BM_PowLibm(benchmark::State& state) {
+  const PowInputs& p = pow_inputs();
+  std::vector<float> out(p.x.size());
+  CpuCounter cpu{state};
+  for (auto _ : state) {
+    for (size_t i = 0; i < out.size(); ++i) out[i] = std::pow(p.x[i], p.y[i]);
+    benchmark::DoNotOptimize(out.data());
+  }
+}
+BENCHMARK(BM_PowLibm)->Unit(benchmark::kMillisecond)->UseRealTime();
+
 // The floor: read both inputs once, write one float per pixel (a fresh map, as flip() returns).
 void BM_Flip_floor(benchmark::State& state) {
   const auto &a = frame_a(), &b = frame_b();
@@ -173,6 +233,8 @@ class Summary : public benchmark::ConsoleReporter {
       row("SSIM valid / OpenCV QualitySSIM", "BM_SsimLuma_valid", "BM_SsimLuma_OpenCvQuality");
       row("FLIP / memory floor (read 2 RGB8, write float)", "BM_Flip", "BM_Flip_floor");
       row("FLIP test half / memory floor", "BM_Flip_test_half", "BM_Flip_floor");
+      row("FLIP test half / with libm's pow per pixel", "BM_Flip_test_half", "BM_Flip_test_half_libm_pow");
+      row("pow_row / libm's powf per element", "BM_PowRow", "BM_PowLibm");
       row("temporal scores / the sequential loop before", "BM_Temporal", "BM_Temporal_one_loop");
     }
   }
