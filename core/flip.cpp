@@ -288,6 +288,51 @@ DHR_VEC8_TARGETS void weighted_rows(const float* const* src, const float* w, int
   }
 }
 
+// Two outputs a row apart: out0[x] = sum_t w[t] * src[t][x] and out1[x] = sum_t w[t] *
+// src[t + 1][x] (src holds taps + 1 rows), each in tap order as weighted_rows sums it, 32
+// columns of both in registers. Each source row is loaded once for both outputs: a column
+// filter's rows come from L2, and its loads, not its arithmetic, set its pace.
+template <int kVecs>
+inline void weighted_block_pair(const float* const* src, const float* w, int taps, int x, float* out0, float* out1) {
+  Vec8 a0[kVecs], a1[kVecs];
+  // Source row 0 is out0's first tap, row 1 out0's second and out1's first, row t out0's tap t
+  // and out1's tap t - 1, row `taps` out1's last.
+  for (int v = 0; v < kVecs; ++v) a0[v] = splat8(w[0]) * load8(src[0] + x + 8 * v);
+  if (taps == 1) {
+    for (int v = 0; v < kVecs; ++v) a1[v] = splat8(w[0]) * load8(src[1] + x + 8 * v);
+  } else {
+    for (int v = 0; v < kVecs; ++v) {
+      const Vec8 s = load8(src[1] + x + 8 * v);
+      a0[v] = a0[v] + splat8(w[1]) * s;
+      a1[v] = splat8(w[0]) * s;
+    }
+    for (int t = 2; t < taps; ++t) {
+      const Vec8 wt = splat8(w[t]), wp = splat8(w[t - 1]);
+      const float* r = src[t] + x;
+      for (int v = 0; v < kVecs; ++v) {
+        const Vec8 s = load8(r + 8 * v);
+        a0[v] = a0[v] + wt * s;
+        a1[v] = a1[v] + wp * s;
+      }
+    }
+    for (int v = 0; v < kVecs; ++v) a1[v] = a1[v] + splat8(w[taps - 1]) * load8(src[taps] + x + 8 * v);
+  }
+  for (int v = 0; v < kVecs; ++v) store8(out0 + x + 8 * v, a0[v]), store8(out1 + x + 8 * v, a1[v]);
+}
+
+DHR_VEC8_TARGETS void weighted_rows_pair(const float* const* src, const float* w, int taps, int width, float* out0,
+                                         float* out1) {
+  int x = 0;
+  for (; x + 32 <= width; x += 32) weighted_block_pair<4>(src, w, taps, x, out0, out1);
+  for (; x + 8 <= width; x += 8) weighted_block_pair<1>(src, w, taps, x, out0, out1);
+  for (; x < width; ++x) {
+    float a = w[0] * src[0][x], b = w[0] * src[1][x];
+    for (int t = 1; t < taps; ++t) a += w[t] * src[t][x], b += w[t] * src[t + 1][x];
+    out0[x] = a;
+    out1[x] = b;
+  }
+}
+
 // The largest kernel: the CSF's radius at the highest ppd flip() takes (1000) is 136.
 constexpr int kMaxTaps = 2 * 160 + 1;
 
@@ -308,6 +353,15 @@ void filter_column(const float* plane, int width, int height, int y, const Kerne
   for (int t = 0; t < taps; ++t)
     src[size_t(t)] = plane + size_t(std::clamp(y + t - k.radius, 0, height - 1)) * size_t(width);
   weighted_rows(src.data(), k.w.data(), taps, width, out);
+}
+
+// Rows y and y + 1 of filter_column at once (weighted_rows_pair).
+void filter_column_pair(const float* plane, int width, int height, int y, const Kernel& k, float* out0, float* out1) {
+  const int taps = 2 * k.radius + 1;
+  std::array<const float*, kMaxTaps + 1> src;
+  for (int t = 0; t <= taps; ++t)
+    src[size_t(t)] = plane + size_t(std::clamp(y + t - k.radius, 0, height - 1)) * size_t(width);
+  weighted_rows_pair(src.data(), k.w.data(), taps, width, out0, out1);
 }
 
 // The horizontal results of one image: 4 CSF planes (Yy, Cx, Cz with g1, Cz with g2) and 3
@@ -457,6 +511,35 @@ void vertical_row(const float* const* planes, const Filters& fl, int w, int h, i
   magnitude_row(t[6], t[5], w, out.point);
 }
 
+// Rows y and y + 1 (< h) of vertical_row: the column filters of both rows at once
+// (filter_column_pair), the per-pixel steps of each as vertical_row does them.
+void vertical_row_pair(const float* const* planes, const Filters& fl, int w, int h, int y, RowScratch& s0,
+                       RowScratch& s1, FeatureRow out0, FeatureRow out1) {
+  const ColourSpace& cs = colour_space();
+  float* t[2][7];
+  for (int k = 0; k < 7; ++k) t[0][k] = s0.tmp[k].data(), t[1][k] = s1.tmp[k].data();
+  auto column = [&](Plane plane, const Kernel& k, int slot) {
+    filter_column_pair(planes[plane], w, h, y, k, t[0][slot], t[1][slot]);
+  };
+  column(kY, fl.y.g1, 0);
+  column(kCx, fl.cx.g1, 1);
+  column(kCz1, fl.cz.g1, 2);
+  column(kCz2, fl.cz.g2, 3);
+  column(kFd1, fl.f.g, 4);
+  column(kFg, fl.f.d1, 5);
+  column(kFd2, fl.f.g, 6);
+  for (int r = 0; r < 2; ++r) {
+    const FeatureRow& out = r == 0 ? out0 : out1;
+    colour_row(t[r], fl.cz.alpha1, fl.cz.alpha2, cs.from_xyz, cs.to_xyz, w);
+    magnitude_row(t[r][4], t[r][5], w, out.edge);
+    for (int c = 0; c < 3; ++c) lab_f_row(t[r][c], size_t(w));
+    lab_row(t[r], w, out.lab);
+  }
+  column(kFg, fl.f.d2, 5);
+  magnitude_row(t[0][6], t[0][5], w, out0.point);
+  magnitude_row(t[1][6], t[1][5], w, out1.point);
+}
+
 // The largest colour error: Hunt-adjusted HyAB between pure green and pure blue, to the q_c.
 float max_colour_error() {
   const ColourSpace& cs = colour_space();
@@ -529,11 +612,14 @@ FlipFeatures flip_features(const ImageRGB8& image, double ppd) {
   f.edge.resize(image.size());
   f.point.resize(image.size());
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-    RowScratch s(w);
-    for (int y = rows.begin(); y < rows.end(); ++y) {
+    RowScratch s(w), s1(w);
+    auto row = [&](int y) -> FeatureRow {
       const size_t off = size_t(y) * size_t(w);
-      vertical_row(planes.data(), fl, w, h, y, s, {&f.lab[3 * off], &f.edge[off], &f.point[off]});
-    }
+      return {&f.lab[3 * off], &f.edge[off], &f.point[off]};
+    };
+    int y = rows.begin();
+    for (; y + 1 < rows.end(); y += 2) vertical_row_pair(planes.data(), fl, w, h, y, s, s1, row(y), row(y + 1));
+    if (y < rows.end()) vertical_row(planes.data(), fl, w, h, y, s, row(y));
   });
   return f;
 }
@@ -567,13 +653,17 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
   result.map.resize_for_overwrite(w, h);  // every value written below
   std::vector<double> row_sums(size_t(h), 0.0);
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-    RowScratch s(w);
+    RowScratch s(w), s1(w);
     const size_t wn = size_t(w);
-    std::vector<float> lab(3 * wn), edge(wn), point(wn);
+    // The test's features of two rows.
+    std::vector<float> lab[2] = {std::vector<float>(3 * wn), std::vector<float>(3 * wn)};
+    std::vector<float> edge[2] = {std::vector<float>(wn), std::vector<float>(wn)};
+    std::vector<float> point[2] = {std::vector<float>(wn), std::vector<float>(wn)};
+    auto features = [&](int r) -> FeatureRow { return {lab[r].data(), edge[r].data(), point[r].data()}; };
     // The row's colour differences (then their powers), feature terms and error powers.
     std::vector<float> dc(wn), ef(wn), ey(wn), e(wn);
-    for (int y = rows.begin(); y < rows.end(); ++y) {
-      vertical_row(test_planes.data(), fl, w, h, y, s, {lab.data(), edge.data(), point.data()});
+    // Row y's errors from the test's features `f` of that row.
+    auto score_row = [&](int y, const FeatureRow& f) {
       const size_t off = size_t(y) * size_t(w);
       const float* rlab = &reference.lab[3 * off];
       const float* redge = &reference.edge[off];
@@ -589,16 +679,15 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
       // no libm call: pow_row gives 0 to a positive power as +0, and x to the power 1 (ef = 0)
       // is taken as x below (libm's powf is within 0.82 ULP, so it returns a representable
       // result exactly: Flip.PowfExactCasesAsSkipped checks both).
-      for (int x = 0; x < w; ++x) {
-        const size_t i = size_t(x);
-        const Lab rl{rlab[3 * i], rlab[3 * i + 1], rlab[3 * i + 2]}, tl{lab[3 * i], lab[3 * i + 1], lab[3 * i + 2]};
+      for (size_t i = 0; i < wn; ++i) {
+        const Lab rl{rlab[3 * i], rlab[3 * i + 1], rlab[3 * i + 2]}, tl{f.lab[3 * i], f.lab[3 * i + 1], f.lab[3 * i + 2]};
         dc[i] = hyab(rl, tl);
       }
       pow_row(dc.data(), kQc, dc.data(), wn);  // 0^q_c is +0
       for (size_t i = 0; i < wn; ++i) {
         const float c = dc[i];
         dc[i] = c < knee ? (kPt / knee) * c : kPt + (c - knee) / (cmax - knee) * (1.0f - kPt);
-        const float fd = std::max(std::abs(redge[i] - edge[i]), std::abs(rpoint[i] - point[i]));
+        const float fd = std::max(std::abs(redge[i] - f.edge[i]), std::abs(rpoint[i] - f.point[i]));
         ef[i] = std::sqrt(fd * float(1.0 / std::sqrt(2.0)));  // to the power q_f = 1/2
         ey[i] = 1.0f - ef[i];
       }
@@ -610,6 +699,16 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
         row += v;
       }
       row_sums[size_t(y)] = row;
+    };
+    int y = rows.begin();
+    for (; y + 1 < rows.end(); y += 2) {
+      vertical_row_pair(test_planes.data(), fl, w, h, y, s, s1, features(0), features(1));
+      score_row(y, features(0));
+      score_row(y + 1, features(1));
+    }
+    if (y < rows.end()) {
+      vertical_row(test_planes.data(), fl, w, h, y, s, features(0));
+      score_row(y, features(0));
     }
   });
   double total = 0;
