@@ -106,6 +106,39 @@ inline void vertical_taps(const float* const* rows, const float* g, int n, doubl
   }
 }
 
+// vertical_taps for two output rows at once: rows[0..2 kRadius + 1], out0 from rows[0..2 kRadius]
+// and out1 from rows[1..2 kRadius + 1], each sum in window order from 0 as vertical_taps does
+// it. Each row's values are loaded and widened once for both outputs: the ring's rows come from
+// L2, and the loads set the pace.
+inline void vertical_taps_pair(const float* const* rows, const float* g, int n, double* __restrict out0,
+                               double* __restrict out1) {
+  constexpr int kTaps = 2 * kRadius + 1;
+  int i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const Vec4d zero{};
+    Vec4d a[4] = {zero, zero, zero, zero}, b[4] = {zero, zero, zero, zero};
+    for (int k = 0; k <= kTaps; ++k) {
+      const float* p = rows[k] + i;
+      const Vec4d v[4] = {load4f_as_double(p), load4f_as_double(p + 4), load4f_as_double(p + 8), load4f_as_double(p + 12)};
+      if (k < kTaps) {
+        const Vec4d gk = zero + double(g[k]);
+        for (int j = 0; j < 4; ++j) a[j] = a[j] + gk * v[j];
+      }
+      if (k > 0) {
+        const Vec4d gp = zero + double(g[k - 1]);
+        for (int j = 0; j < 4; ++j) b[j] = b[j] + gp * v[j];
+      }
+    }
+    for (int j = 0; j < 4; ++j) store4d(out0 + i + 4 * j, a[j]), store4d(out1 + i + 4 * j, b[j]);
+  }
+  for (; i < n; ++i) {
+    double s0 = 0.0, s1 = 0.0;
+    for (int k = 0; k < kTaps; ++k) s0 += double(g[k]) * rows[k][i], s1 += double(g[k]) * rows[k + 1][i];
+    out0[i] = s0;
+    out1[i] = s1;
+  }
+}
+
 // SSIM of n <= kBlock pixels from their blurred moments, in three loops that run on vectors
 // (the square roots through SSE2: std::sqrt's errno path keeps the compiler from it), each
 // pixel's operations as in one scalar expression.
@@ -145,8 +178,8 @@ struct SsimBand {
   double* row_sums;   // per image row
 };
 
-// The rows one output row reads lie within 11 consecutive image rows (reflect101 maps the
-// window into [y - 5, y + 5] clipped to the image), so 16 ring slots never collide.
+// The rows two output rows read lie within 12 consecutive image rows (reflect101 maps the
+// windows into [y - 5, y + 6] clipped to the image), so 16 ring slots never collide.
 constexpr int kRing = 16;
 constexpr int kBandRows = 32;
 
@@ -181,24 +214,46 @@ DHR_VEC8_TARGETS void ssim_band(const SsimBand& p, int ya, int yb, float* ring) 
     }
     return out;
   };
-  const float* rows[2 * kRadius + 1];
-  const float* plane_rows[2 * kRadius + 1];
-  double s[5][kBlock];
+  // The rows of one output row's window (two output rows': one more), and one plane's of them.
+  const float* rows[2 * kRadius + 2];
+  const float* plane_rows[2 * kRadius + 2];
+  double s[2][5][kBlock];
   double v[kBlock];
-  for (int y = ya; y < yb; ++y) {
+  // SSIM of n pixels of output row y from moments m, into the map and the row's sum.
+  auto finish = [&](int y, int bx, int n, const double (&m)[5][kBlock], double& row) {
+    ssim_from_moments(m[0], m[1], m[2], m[3], m[4], v, n);
+    if (p.map)
+      for (int i = 0; i < n; ++i) (*p.map)(bx + i, y) = float(v[i]);
+    for (int i = 0; i < n; ++i)  // in column order, as one sum per row
+      if (!p.valid || (bx + i >= kRadius && bx + i < w - kRadius)) row += v[i];
+  };
+  int y = ya;
+  // Two output rows at a time: their windows share 10 of their 12 rows (vertical_taps_pair).
+  for (; y + 1 < yb; y += 2) {
+    for (int k = -kRadius; k <= kRadius + 1; ++k) rows[k + kRadius] = horizontal(reflect101(y + k, p.h));
+    double row0 = 0, row1 = 0;
+    for (int bx = x0; bx < x1; bx += kBlock) {
+      const int n = std::min(kBlock, x1 - bx);
+      for (int c = 0; c < 5; ++c) {
+        for (int k = 0; k < 2 * kRadius + 2; ++k) plane_rows[k] = rows[k] + size_t(c) * ws + size_t(bx);
+        vertical_taps_pair(plane_rows, p.g, n, s[0][c], s[1][c]);
+      }
+      finish(y, bx, n, s[0], row0);
+      finish(y + 1, bx, n, s[1], row1);
+    }
+    p.row_sums[size_t(y)] = row0;
+    p.row_sums[size_t(y) + 1] = row1;
+  }
+  for (; y < yb; ++y) {
     for (int k = -kRadius; k <= kRadius; ++k) rows[k + kRadius] = horizontal(reflect101(y + k, p.h));
     double row = 0;
     for (int bx = x0; bx < x1; bx += kBlock) {
       const int n = std::min(kBlock, x1 - bx);
       for (int c = 0; c < 5; ++c) {
         for (int k = 0; k < 2 * kRadius + 1; ++k) plane_rows[k] = rows[k] + size_t(c) * ws + size_t(bx);
-        vertical_taps(plane_rows, p.g, n, s[c]);
+        vertical_taps(plane_rows, p.g, n, s[0][c]);
       }
-      ssim_from_moments(s[0], s[1], s[2], s[3], s[4], v, n);
-      if (p.map)
-        for (int i = 0; i < n; ++i) (*p.map)(bx + i, y) = float(v[i]);
-      for (int i = 0; i < n; ++i)  // in column order, as one sum per row
-        if (!p.valid || (bx + i >= kRadius && bx + i < w - kRadius)) row += v[i];
+      finish(y, bx, n, s[0], row);
     }
     p.row_sums[size_t(y)] = row;
   }
