@@ -6,6 +6,7 @@
 // mean is summed per row and then over rows in order, so results do not depend on threads.
 #include "core/flip.h"
 
+#include "core/avx512.h"
 #include "core/error.h"
 #include "core/flip_magma.h"
 #include "core/pow_row.h"
@@ -540,6 +541,45 @@ void vertical_row_pair(const float* const* planes, const Filters& fl, int w, int
   magnitude_row(t[1][6], t[1][5], w, out1.point);
 }
 
+// The per-pixel steps of flip()'s rows before and between its powers, each as one scalar
+// expression would round it (AVX-512, fp-contract off: the same bits; Flip's pinned digests
+// hold on both paths). Rows' last n % 16 pixels and CPUs without AVX-512 take the scalar loops.
+struct ErrorTerms {
+  float knee, slope, cmax_minus_knee;  // slope = kPt / knee
+};
+
+// dc[i] = hyab(reference lab i, test lab i) for i < n16 (a multiple of 16).
+#if DHR_AVX512_KERNELS
+DHR_AVX512_TARGET void hyab_rows16(const float* rlab, const float* tlab, size_t n16, float* dc) {
+  for (size_t i = 0; i < n16; i += 16) {
+    const Xyz16 r = load_xyz16(rlab + 3 * i), t = load_xyz16(tlab + 3 * i);
+    const __m512 da = _mm512_sub_ps(r.y, t.y), db = _mm512_sub_ps(r.z, t.z);
+    const __m512 chroma = _mm512_sqrt_ps(_mm512_add_ps(_mm512_mul_ps(da, da), _mm512_mul_ps(db, db)));
+    _mm512_storeu_ps(dc + i, _mm512_add_ps(_mm512_abs_ps(_mm512_sub_ps(r.x, t.x)), chroma));
+  }
+}
+
+// The colour error redistributed (dc in place), the feature term ef and the power 1 - ef.
+DHR_AVX512_TARGET void error_terms16(const ErrorTerms& k, const float* redge, const float* tedge, const float* rpoint,
+                                     const float* tpoint, size_t n16, float* dc, float* ef, float* ey) {
+  const __m512 knee = _mm512_set1_ps(k.knee), slope = _mm512_set1_ps(k.slope);
+  const __m512 span = _mm512_set1_ps(k.cmax_minus_knee), pt = _mm512_set1_ps(kPt), rest = _mm512_set1_ps(1.0f - kPt);
+  const __m512 inv_sqrt2 = _mm512_set1_ps(float(1.0 / std::sqrt(2.0))), one = _mm512_set1_ps(1.0f);
+  for (size_t i = 0; i < n16; i += 16) {
+    const __m512 c = _mm512_loadu_ps(dc + i);
+    const __m512 low = _mm512_mul_ps(slope, c);
+    const __m512 high = _mm512_add_ps(pt, _mm512_mul_ps(_mm512_div_ps(_mm512_sub_ps(c, knee), span), rest));
+    _mm512_storeu_ps(dc + i, _mm512_mask_blend_ps(_mm512_cmp_ps_mask(c, knee, _CMP_LT_OQ), high, low));
+    const __m512 de = _mm512_abs_ps(_mm512_sub_ps(_mm512_loadu_ps(redge + i), _mm512_loadu_ps(tedge + i)));
+    const __m512 dp = _mm512_abs_ps(_mm512_sub_ps(_mm512_loadu_ps(rpoint + i), _mm512_loadu_ps(tpoint + i)));
+    const __m512 fd = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(de, dp, _CMP_LT_OQ), de, dp);  // std::max(de, dp)
+    const __m512 f = _mm512_sqrt_ps(_mm512_mul_ps(fd, inv_sqrt2));
+    _mm512_storeu_ps(ef + i, f);
+    _mm512_storeu_ps(ey + i, _mm512_sub_ps(one, f));
+  }
+}
+#endif
+
 // The largest colour error: Hunt-adjusted HyAB between pure green and pure blue, to the q_c.
 float max_colour_error() {
   const ColourSpace& cs = colour_space();
@@ -649,6 +689,7 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
 
   const float cmax = max_colour_error();
   const float knee = kPc * cmax;
+  const ErrorTerms terms{knee, kPt / knee, cmax - knee};
   FlipResult result;
   result.map.resize_for_overwrite(w, h);  // every value written below
   std::vector<double> row_sums(size_t(h), 0.0);
@@ -679,14 +720,24 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
       // no libm call: pow_row gives 0 to a positive power as +0, and x to the power 1 (ef = 0)
       // is taken as x below (libm's powf is within 0.82 ULP, so it returns a representable
       // result exactly: Flip.PowfExactCasesAsSkipped checks both).
-      for (size_t i = 0; i < wn; ++i) {
+      size_t i0 = 0;  // the pixels before i0 went through the AVX-512 kernels
+#if DHR_AVX512_KERNELS
+      if (cpu_has_avx512dq()) {
+        i0 = wn - wn % 16;
+        hyab_rows16(rlab, f.lab, i0, dc.data());
+      }
+#endif
+      for (size_t i = i0; i < wn; ++i) {
         const Lab rl{rlab[3 * i], rlab[3 * i + 1], rlab[3 * i + 2]}, tl{f.lab[3 * i], f.lab[3 * i + 1], f.lab[3 * i + 2]};
         dc[i] = hyab(rl, tl);
       }
       pow_row(dc.data(), kQc, dc.data(), wn);  // 0^q_c is +0
-      for (size_t i = 0; i < wn; ++i) {
+#if DHR_AVX512_KERNELS
+      if (i0) error_terms16(terms, redge, f.edge, rpoint, f.point, i0, dc.data(), ef.data(), ey.data());
+#endif
+      for (size_t i = i0; i < wn; ++i) {
         const float c = dc[i];
-        dc[i] = c < knee ? (kPt / knee) * c : kPt + (c - knee) / (cmax - knee) * (1.0f - kPt);
+        dc[i] = c < knee ? terms.slope * c : kPt + (c - knee) / terms.cmax_minus_knee * (1.0f - kPt);
         const float fd = std::max(std::abs(redge[i] - f.edge[i]), std::abs(rpoint[i] - f.point[i]));
         ef[i] = std::sqrt(fd * float(1.0 / std::sqrt(2.0)));  // to the power q_f = 1/2
         ey[i] = 1.0f - ef[i];
