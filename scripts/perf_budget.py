@@ -22,7 +22,7 @@ STAGES = [
     ("trace: shadow pass (surfaces, lights, packets)", r"visibility_rows|sphere_light|distant_light|trace_pairs|surfaces_x|soft_pair_rays|update_triangle|triangle_world|light_infos|visibility_impl|pack_visibility|visibility_to_planes|uniforms_pixels"),
     ("trace: AO pass (ray generation)", r"ao_rays_|ao_rows|ao_impl|trace_ao"),
     ("denoise (svgf_ao: temporal, moments, a-trous)", r"denoise::|atrous|svgf|Svgf|moment|accumulate_row|guide_"),
-    ("metrics: FLIP", r"flip|Flip|filter_column|filter_row|weighted_rows|lab_f_row|horizontal_pass|vertical_row|RowScratch|magnitude_row|colour_row|lab_row|__powf|powf"),
+    ("metrics: FLIP", r"flip|Flip|filter_column|filter_row|weighted_rows|lab_f_row|horizontal_pass|vertical_row|RowScratch|magnitude_row|colour_row|lab_row|__powf|powf|pow_row|hyab_rows|error_terms"),
     ("metrics: SSIM, PSNR, temporal", r"ssim|Ssim|psnr|temporal_scores|step_terms|dhr::luma|luma_pixels|difference_sums"),
     ("rasterize (client and server)", r"dhr::rasterize|resolve|cover|setup_triangles|sample_bilinear|Texture|raster|pixel_bounds|alpha_cutout"),
     ("composite and tone mapping", r"composite|shade_lambert|shade_row|gbuffer_row|tonemap|srgb8"),
