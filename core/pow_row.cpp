@@ -132,15 +132,9 @@ DHR_AVX512_TARGET void pow_row16(const float* x, const float* y, float y1, float
   g_fallbacks.fetch_add(fallbacks + (n % 16), std::memory_order_relaxed);
 }
 
-#endif  // DHR_AVX512_KERNELS
+bool wide() { return cpu_has_avx512dq() && !g_portable_only.load(std::memory_order_relaxed); }
 
-bool wide() {
-#if DHR_AVX512_KERNELS
-  return cpu_has_avx512dq() && !g_portable_only.load(std::memory_order_relaxed);
-#else
-  return false;
-#endif
-}
+#endif  // DHR_AVX512_KERNELS
 
 }  // namespace
 
