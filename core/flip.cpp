@@ -141,7 +141,7 @@ DHR_VEC8_TARGETS void lab_f_row(float* v, size_t n) {
 }
 
 // CIELAB's f of X/Xn, Y/Yn, Z/Zn -> CIELAB with the Hunt adjustment (a and b scaled by 0.01 L);
-// for a float and for eight lanes (vertical_row's rows).
+// for a float and for eight lanes (vertical_rows' rows).
 template <class T>
 inline void hunt_from_f(T fx, T fy, T fz, T& l, T& a, T& b) {
   l = 116.0f * fy - 16.0f;
@@ -347,22 +347,17 @@ void filter_row(const float* padded, int pad, const Kernel& k, int width, float*
   weighted_rows(src.data(), k.w.data(), taps, width, out);
 }
 
-// out[x] = sum_k w[k] * plane[clamp(y + k - r)][x]
-void filter_column(const float* plane, int width, int height, int y, const Kernel& k, float* out) {
-  const int taps = 2 * k.radius + 1;
-  std::array<const float*, kMaxTaps> src;
-  for (int t = 0; t < taps; ++t)
-    src[size_t(t)] = plane + size_t(std::clamp(y + t - k.radius, 0, height - 1)) * size_t(width);
-  weighted_rows(src.data(), k.w.data(), taps, width, out);
-}
-
-// Rows y and y + 1 of filter_column at once (weighted_rows_pair).
-void filter_column_pair(const float* plane, int width, int height, int y, const Kernel& k, float* out0, float* out1) {
+// out[r][x] = sum_k w[k] * plane[clamp(y + r + k - radius)][x] for rows y + r, r < n (1 or 2):
+// two rows at once load each source row once for both (weighted_rows_pair).
+void filter_columns(const float* plane, int width, int height, int y, int n, const Kernel& k, float* const* out) {
   const int taps = 2 * k.radius + 1;
   std::array<const float*, kMaxTaps + 1> src;
-  for (int t = 0; t <= taps; ++t)
+  for (int t = 0; t < taps + n - 1; ++t)
     src[size_t(t)] = plane + size_t(std::clamp(y + t - k.radius, 0, height - 1)) * size_t(width);
-  weighted_rows_pair(src.data(), k.w.data(), taps, width, out0, out1);
+  if (n == 2)
+    weighted_rows_pair(src.data(), k.w.data(), taps, width, out[0], out[1]);
+  else
+    weighted_rows(src.data(), k.w.data(), taps, width, out[0]);
 }
 
 // The horizontal results of one image: 4 CSF planes (Yy, Cx, Cz with g1, Cz with g2) and 3
@@ -423,7 +418,7 @@ struct FeatureRow {
   float* point;
 };
 
-// The per-pixel steps of vertical_row, written once for a float and for eight lanes (Vec8), so
+// The per-pixel steps of vertical_rows, written once for a float and for eight lanes (Vec8), so
 // that both run the same operations in the same order (the same bits).
 inline float clamp01(float v) { return std::clamp(v, 0.0f, 1.0f); }
 inline Vec8 clamp01(Vec8 v) { return clamp8(v, 0.0f, 1.0f); }
@@ -488,57 +483,36 @@ DHR_VEC8_TARGETS void magnitude_row(const float* p, const float* q, int w, float
   for (; x < w; ++x) out[x] = root(p[x] * p[x] + q[x] * q[x]);
 }
 
-// One row of one image after the vertical pass: Hunt-adjusted CIELAB of the filtered colour,
-// and the edge and point feature magnitudes.
-void vertical_row(const float* const* planes, const Filters& fl, int w, int h, int y, RowScratch& s,
-                  FeatureRow out) {
+// Rows y .. y + n - 1 (n = 1 or 2, all < h) of one image after the vertical pass: Hunt-adjusted
+// CIELAB of the filtered colour, and the edge and point feature magnitudes. Two rows share their
+// column filters' loads (filter_columns); each row's per-pixel steps are its own.
+void vertical_rows(const float* const* planes, const Filters& fl, int w, int h, int y, int n, RowScratch* const* s,
+                   const FeatureRow* out) {
   const ColourSpace& cs = colour_space();
-  float* t[7];
-  for (int k = 0; k < 7; ++k) t[k] = s.tmp[k].data();
-  filter_column(planes[kY], w, h, y, fl.y.g1, t[0]);
-  filter_column(planes[kCx], w, h, y, fl.cx.g1, t[1]);
-  filter_column(planes[kCz1], w, h, y, fl.cz.g1, t[2]);
-  filter_column(planes[kCz2], w, h, y, fl.cz.g2, t[3]);
-  // Features: d/dx = d1(x) g(y), d/dy = g(x) d1(y), and the same with d2.
-  filter_column(planes[kFd1], w, h, y, fl.f.g, t[4]);
-  filter_column(planes[kFg], w, h, y, fl.f.d1, t[5]);
-  filter_column(planes[kFd2], w, h, y, fl.f.g, t[6]);
-  colour_row(t, fl.cz.alpha1, fl.cz.alpha2, cs.from_xyz, cs.to_xyz, w);
-  magnitude_row(t[4], t[5], w, out.edge);
-  for (int c = 0; c < 3; ++c) lab_f_row(t[c], size_t(w));
-  lab_row(t, w, out.lab);
-  // The point detector's y term needs the Gaussian-row plane with d2 vertically.
-  filter_column(planes[kFg], w, h, y, fl.f.d2, t[5]);
-  magnitude_row(t[6], t[5], w, out.point);
-}
-
-// Rows y and y + 1 (< h) of vertical_row: the column filters of both rows at once
-// (filter_column_pair), the per-pixel steps of each as vertical_row does them.
-void vertical_row_pair(const float* const* planes, const Filters& fl, int w, int h, int y, RowScratch& s0,
-                       RowScratch& s1, FeatureRow out0, FeatureRow out1) {
-  const ColourSpace& cs = colour_space();
-  float* t[2][7];
-  for (int k = 0; k < 7; ++k) t[0][k] = s0.tmp[k].data(), t[1][k] = s1.tmp[k].data();
+  float* t[2][7] = {};
+  for (int r = 0; r < n; ++r)
+    for (int k = 0; k < 7; ++k) t[r][k] = s[r]->tmp[k].data();
   auto column = [&](Plane plane, const Kernel& k, int slot) {
-    filter_column_pair(planes[plane], w, h, y, k, t[0][slot], t[1][slot]);
+    float* const rows_out[2] = {t[0][slot], t[1][slot]};
+    filter_columns(planes[plane], w, h, y, n, k, rows_out);
   };
   column(kY, fl.y.g1, 0);
   column(kCx, fl.cx.g1, 1);
   column(kCz1, fl.cz.g1, 2);
   column(kCz2, fl.cz.g2, 3);
+  // Features: d/dx = d1(x) g(y), d/dy = g(x) d1(y), and the same with d2.
   column(kFd1, fl.f.g, 4);
   column(kFg, fl.f.d1, 5);
   column(kFd2, fl.f.g, 6);
-  for (int r = 0; r < 2; ++r) {
-    const FeatureRow& out = r == 0 ? out0 : out1;
+  for (int r = 0; r < n; ++r) {
     colour_row(t[r], fl.cz.alpha1, fl.cz.alpha2, cs.from_xyz, cs.to_xyz, w);
-    magnitude_row(t[r][4], t[r][5], w, out.edge);
+    magnitude_row(t[r][4], t[r][5], w, out[r].edge);
     for (int c = 0; c < 3; ++c) lab_f_row(t[r][c], size_t(w));
-    lab_row(t[r], w, out.lab);
+    lab_row(t[r], w, out[r].lab);
   }
+  // The point detector's y term needs the Gaussian-row plane with d2 vertically.
   column(kFg, fl.f.d2, 5);
-  magnitude_row(t[0][6], t[0][5], w, out0.point);
-  magnitude_row(t[1][6], t[1][5], w, out1.point);
+  for (int r = 0; r < n; ++r) magnitude_row(t[r][6], t[r][5], w, out[r].point);
 }
 
 // The per-pixel steps of flip()'s rows before and between its powers, each as one scalar
@@ -652,14 +626,17 @@ FlipFeatures flip_features(const ImageRGB8& image, double ppd) {
   f.edge.resize(image.size());
   f.point.resize(image.size());
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-    RowScratch s(w), s1(w);
+    RowScratch s0(w), s1(w);
+    RowScratch* const s[2] = {&s0, &s1};
     auto row = [&](int y) -> FeatureRow {
       const size_t off = size_t(y) * size_t(w);
       return {&f.lab[3 * off], &f.edge[off], &f.point[off]};
     };
-    int y = rows.begin();
-    for (; y + 1 < rows.end(); y += 2) vertical_row_pair(planes.data(), fl, w, h, y, s, s1, row(y), row(y + 1));
-    if (y < rows.end()) vertical_row(planes.data(), fl, w, h, y, s, row(y));
+    for (int y = rows.begin(); y < rows.end(); y += 2) {  // two rows at a time, the last alone
+      const int n = std::min(2, rows.end() - y);
+      const FeatureRow out[2] = {row(y), n == 2 ? row(y + 1) : FeatureRow{}};
+      vertical_rows(planes.data(), fl, w, h, y, n, s, out);
+    }
   });
   return f;
 }
@@ -694,13 +671,15 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
   result.map.resize_for_overwrite(w, h);  // every value written below
   std::vector<double> row_sums(size_t(h), 0.0);
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-    RowScratch s(w), s1(w);
+    RowScratch s0(w), s1(w);
+    RowScratch* const s[2] = {&s0, &s1};
     const size_t wn = size_t(w);
     // The test's features of two rows.
     std::vector<float> lab[2] = {std::vector<float>(3 * wn), std::vector<float>(3 * wn)};
     std::vector<float> edge[2] = {std::vector<float>(wn), std::vector<float>(wn)};
     std::vector<float> point[2] = {std::vector<float>(wn), std::vector<float>(wn)};
-    auto features = [&](int r) -> FeatureRow { return {lab[r].data(), edge[r].data(), point[r].data()}; };
+    const FeatureRow features[2] = {{lab[0].data(), edge[0].data(), point[0].data()},
+                                    {lab[1].data(), edge[1].data(), point[1].data()}};
     // The row's colour differences (then their powers), feature terms and error powers.
     std::vector<float> dc(wn), ef(wn), ey(wn), e(wn);
     // Row y's errors from the test's features `f` of that row.
@@ -737,7 +716,7 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
 #endif
       for (size_t i = i0; i < wn; ++i) {
         const float c = dc[i];
-        dc[i] = c < knee ? terms.slope * c : kPt + (c - knee) / terms.cmax_minus_knee * (1.0f - kPt);
+        dc[i] = c < terms.knee ? terms.slope * c : kPt + (c - terms.knee) / terms.cmax_minus_knee * (1.0f - kPt);
         const float fd = std::max(std::abs(redge[i] - f.edge[i]), std::abs(rpoint[i] - f.point[i]));
         ef[i] = std::sqrt(fd * float(1.0 / std::sqrt(2.0)));  // to the power q_f = 1/2
         ey[i] = 1.0f - ef[i];
@@ -751,15 +730,10 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
       }
       row_sums[size_t(y)] = row;
     };
-    int y = rows.begin();
-    for (; y + 1 < rows.end(); y += 2) {
-      vertical_row_pair(test_planes.data(), fl, w, h, y, s, s1, features(0), features(1));
-      score_row(y, features(0));
-      score_row(y + 1, features(1));
-    }
-    if (y < rows.end()) {
-      vertical_row(test_planes.data(), fl, w, h, y, s, features(0));
-      score_row(y, features(0));
+    for (int y = rows.begin(); y < rows.end(); y += 2) {  // two rows at a time, the last alone
+      const int n = std::min(2, rows.end() - y);
+      vertical_rows(test_planes.data(), fl, w, h, y, n, s, features);
+      for (int r = 0; r < n; ++r) score_row(y + r, features[r]);
     }
   });
   double total = 0;

@@ -26,8 +26,10 @@ void pow_row(const float* x, const float* y, float* out, size_t n);
 // out[i] = std::pow(x[i], y) for i < n.
 void pow_row(const float* x, float y, float* out, size_t n);
 
-// Lanes the wide kernel has handed to std::pow since the process started (all threads), and the
-// lanes it has seen: the fallback rate bench_metrics reports. Both stay 0 without AVX-512.
+// The lanes the wide kernel has seen since the process started (all threads), and those it left
+// to the scalar path (std::pow and its two exact cases: lanes near a rounding midpoint, inputs
+// outside its range, rows' last n % 16): the fallback rate bench_metrics reports. Both stay 0
+// without AVX-512.
 struct PowRowCounts {
   uint64_t lanes = 0;
   uint64_t fallbacks = 0;
