@@ -14,11 +14,16 @@
 //                                 temporal denoisers take their spatial-variance path
 //                                 everywhere: the worst case, what disoccluded pixels cost)
 // The interleaved table also times svgf_ao with a 3x3 kernel, with 3x3 and 3 iterations, with
-// one 5x5 iteration (what its default accuracy costs in time), and with light_history 4, 8,
-// 16 (DHR-S 3.3's lightweight path for pixels with a long history).
+// one 5x5 iteration (what its default accuracy costs in time), with the exact weights of
+// fast_weights = false, and with light_history 4, 8, 16 (DHR-S 3.3's lightweight path for pixels
+// with a long history).
 // After the runs two tables print ms per frame and the ratio to one AO ray: the Google
 // Benchmark figures, and the fastest frame of --rounds=N (default 9) interleaved rounds of
 // every configuration (the fair comparison on a shared, fluctuating machine).
+//
+// With --fast_weights_diff=N (run by hand; instead of the benchmarks; --scenes=a,b to choose):
+// svgf_ao with its default fast weights against fast_weights = false on N frames of each
+// scene's camera path at 1280x720: the share of output pixels equal, 1 level apart, 2 or more.
 //
 // With --accuracy (run by hand; instead of the benchmarks; about 5 minutes for all eight
 // scenes on 2 cores): the accuracy-versus-time table (issue "Denoiser backends") at 640x360,
@@ -257,6 +262,10 @@ std::vector<Minima> interleaved_minima(int rounds) {
   configs.push_back({"svgf_ao 3x3 kernel (steady)", "svgf_ao", false, {{"kernel_radius", 1}}});
   configs.push_back({"svgf_ao 3x3 kernel, 3 iterations (steady)", "svgf_ao", false, {{"kernel_radius", 1}, {"iterations", 3}}});
   configs.push_back({"svgf_ao 5x5 kernel, 1 iteration (steady)", "svgf_ao", false, {{"iterations", 1}}});
+  // The same filter with its a-trous weights by separate products and sums and a degree-4
+  // exponential (fast_weights false), as before the fast weights became the default.
+  configs.push_back({"svgf_ao exact weights (steady)", "svgf_ao", false, {{"fast_weights", false}}});
+  configs.push_back({"svgf_ao exact weights (reset)", "svgf_ao", true, {{"fast_weights", false}}});
   // The paper's lightweight path for long history (light_history = L: one 3x3 iteration where
   // the history has L frames or more). Steady: every pixel is at history_cap (32) >= L, so the
   // whole image takes it; reset: no pixel does (history 1), the full path everywhere.
@@ -497,17 +506,81 @@ void accuracy_table(const AccuracyOptions& opt) {
   }
 }
 
+// ---- --fast_weights_diff: svgf_ao (fast_weights, the default) against fast_weights = false, frame by frame on
+// each scene's camera path (60 fps from t = 1 s, 1280x720, 8 AO rays, history kept): how many
+// output pixels differ, by how many 8-bit levels.
+void fast_weights_diff(const AccuracyOptions& opt, int frames) {
+  const int w = 1280, h = 720, rays = 8;
+  std::vector<std::string> scenes = opt.scenes;
+  if (scenes.empty()) {
+    for (const auto& f : builtin_scene_files()) scenes.push_back(file_stem(f));
+    for (const auto& f : real_scene_files()) scenes.push_back(file_stem(f));
+  }
+  std::printf("svgf_ao (fast_weights) against fast_weights = false: %dx%d, %d AO rays, %d frames at 60 fps from t = 1 s\n",
+              w, h, rays, frames);
+  std::printf("| scene | pixels | equal | 1 level | 2 or more | most levels | mean levels |\n");
+  std::printf("| --- | ---: | ---: | ---: | ---: | ---: | ---: |\n");
+  for (const auto& name : scenes) {
+    Scene scene;
+    try {
+      scene = load_scene_or_model(name, SceneSearchPath::standard());
+    } catch (const Error& e) {
+      std::fprintf(stderr, "[fast_weights_diff] skipping %s: it does not load:\n%s\n", name.c_str(), e.what());
+      continue;
+    }
+    if (!scene.ao) continue;
+    RtScene rt(scene);
+    auto exact = registries().denoisers.create("svgf_ao", {{"fast_weights", false}});
+    auto fast = registries().denoisers.create("svgf_ao", nlohmann::json::object());
+    uint64_t counts[3] = {0, 0, 0}, sum = 0;
+    int most = 0;
+    ImageU8 out_exact, out_fast;
+    for (int f = 0; f < frames; ++f) {
+      const double t = 1.0 + f / 60.0, tp = f == 0 ? t : t - 1.0 / 60.0;
+      RasterFrame rf;
+      rf.scene = &scene;
+      rf.camera = scene.camera.at(t, w, h);
+      rf.prev_camera = scene.camera.at(tp, w, h);
+      rf.time_s = t;
+      rf.prev_time_s = tp;
+      GBuffer g;
+      rasterize(rf, g);
+      rt.set_time(g.time_s);
+      const ImageU8 noisy = trace_ao_image(scene, rt, g, rays, uint32_t(f));
+      exact->denoise(DenoiseInput{g, noisy, rays, uint32_t(f), f > 0}, out_exact);
+      fast->denoise(DenoiseInput{g, noisy, rays, uint32_t(f), f > 0}, out_fast);
+      for (size_t i = 0; i < out_exact.size(); ++i) {
+        const int d = std::abs(int(out_exact[i]) - int(out_fast[i]));
+        ++counts[std::min(d, 2)];
+        sum += uint64_t(d);
+        most = std::max(most, d);
+      }
+    }
+    const double n = double(counts[0] + counts[1] + counts[2]);
+    std::printf("| %s | %.0f | %.4f %% | %.4f %% | %.6f %% | %d | %.6f |\n", name.c_str(), n, 100.0 * double(counts[0]) / n,
+                100.0 * double(counts[1]) / n, 100.0 * double(counts[2]) / n, most, double(sum) / n);
+    std::fflush(stdout);
+  }
+}
+
 }  // namespace
 }  // namespace dhr
 
 int main(int argc, char** argv) {
   bool accuracy = false;
-  int rounds = 9;
+  int rounds = 9, diff_frames = 0;
   dhr::AccuracyOptions acc;
   std::vector<char*> args;
   for (int i = 0; i < argc; ++i) {
     if (std::strcmp(argv[i], "--accuracy") == 0)
       accuracy = true;
+    else if (std::strncmp(argv[i], "--fast_weights_diff=", 20) == 0) {
+      diff_frames = std::atoi(argv[i] + 20);
+      if (diff_frames < 1 || diff_frames > 10000) {
+        std::fprintf(stderr, "bench_denoise: --fast_weights_diff=%s must be a frame count, 1..10000\n", argv[i] + 20);
+        return 2;
+      }
+    }
     else if (std::strncmp(argv[i], "--rounds=", 9) == 0)
       rounds = std::max(1, std::atoi(argv[i] + 9));
     else if (std::strncmp(argv[i], "--scenes=", 9) == 0) {
@@ -537,6 +610,15 @@ int main(int argc, char** argv) {
       }
     } else
       args.push_back(argv[i]);
+  }
+  if (diff_frames > 0) {
+    try {
+      dhr::fast_weights_diff(acc, diff_frames);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "bench_denoise --fast_weights_diff: %s\n", e.what());
+      return 1;
+    }
+    return 0;
   }
   if (accuracy) {
     try {

@@ -7,6 +7,7 @@
 // Measured figures the assertions are built on (Release, 64x48; printed by the tests): see
 // the comments at each test.
 #include "backends/denoise/filters.h"
+#include "backends/denoise/filters_simd.h"
 #include "backends/register_all.h"
 #include "core/backend.h"
 #include "core/error.h"
@@ -17,6 +18,7 @@
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -517,14 +519,17 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
     a.var_in = var.data();
     return a;
   };
+  // Each with the default weights and with the fast ones (fast_weights).
+  for (bool fast : {false, true})
   for (int radius : {1, 2})
     for (int step : {1, 2, 4})
       for (int nsq : {7, 3}) {
         SCOPED_TRACE("radius " + std::to_string(radius) + " step " + std::to_string(step) + " squarings " +
-                     std::to_string(nsq));
+                     std::to_string(nsq) + " fast_weights " + std::to_string(fast));
         denoise::AtrousArgs a = args(radius, step);
         a.normal_squarings = nsq;
         a.inv_phi_l = ipl.data();
+        a.fast_weights = fast;
         std::vector<float> acc(size_t(w) * 4), v8(n), var8(n), v16(n), var16(n);
         a.v_out = v8.data();
         a.var_out = var8.data();
@@ -538,6 +543,21 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
         int changed = 0;
         for (size_t i = 0; i < n; ++i) changed += valid[i] && v8[i] != v[i];
         EXPECT_GT(changed, int(n) / 2);
+        if (fast) {  // the fast weights are other weights: close to the default's, not the same
+          std::vector<float> exact(n), exact_var(n);
+          a.fast_weights = false;
+          a.v_out = exact.data();
+          a.var_out = exact_var.data();
+          denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/false);
+          int differ = 0;
+          float worst = 0.0f;
+          for (size_t i = 0; i < n; ++i) {
+            differ += exact[i] != v8[i];
+            worst = std::max(worst, std::fabs(exact[i] - v8[i]));
+          }
+          EXPECT_GT(differ, int(n) / 4);
+          EXPECT_LT(worst, 1e-3f);
+        }
       }
   // The same with the options of svgf_ao's light_history path: only the pixels of one class
   // filtered (the others left as they are), the AO phi computed inside the rows from the
@@ -556,12 +576,14 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
       vf[i] = valid[i] ? 1.0f : 0.0f;
       ivk[i] = valid[i] ? 1.0f / (0.25f + 0.75f * u(i, 9)) : 0.0f;
     }
+    for (bool fast : {false, true})
     for (int radius : {1, 2})
       for (int step : {1, 8})
         for (uint8_t active : {0, 1}) {
           SCOPED_TRACE("classes: radius " + std::to_string(radius) + " step " + std::to_string(step) + " active " +
-                       std::to_string(active));
+                       std::to_string(active) + " fast_weights " + std::to_string(fast));
           denoise::AtrousArgs a = args(radius, step);
+          a.fast_weights = fast;
           a.inv_valid_k = ivk.data();
           a.valid_f = vf.data();
           a.sigma_l = 4.0f;
@@ -660,6 +682,62 @@ std::vector<ImageU8> run_moving(Denoiser& d, int n, int cut = -1) {
     outs.push_back(run(d, fr, noisy_counts(fr.truth, 4, uint32_t(f)), 4, uint32_t(f), f != cut));
   }
   return outs;
+}
+
+// ---------------------------------------------------------------- fast_weights
+
+// The fast weights' exponential: hw 2^t within 1e-4 (relative) of hw e^(t ln 2) wherever it is
+// kept, exactly 0 below kFastExpLo and for NaN, and the same on every lane type. Every 251st
+// float of [kFastExpLo, 0].
+TEST(FastWeights, ExponentialIsAccurateAndCutWhereTheDefaultCuts) {
+  const uint32_t lo_bits = std::bit_cast<uint32_t>(-denoise::kFastExpLo);
+  double worst = 0.0;
+  uint64_t checked = 0;
+  for (uint32_t b = 0; b <= lo_bits; b += 251) {
+    const float t = -std::bit_cast<float>(b);
+    const float got = denoise::fast_weight(0.75f, t);
+    const double want = 0.75 * std::exp2(double(t));
+    worst = std::max(worst, std::fabs(double(got) / want - 1.0));
+    denoise::VecF16 t16 = denoise::VecF16{} + t;
+    t16[3] = -1.0f;
+    const denoise::VecF16 got16 = denoise::fast_weight(denoise::VecF16{} + 0.75f, t16);
+    denoise::VecF t8 = denoise::VecF{} + t;
+    const denoise::VecF got8 = denoise::fast_weight(denoise::VecF{} + 0.75f, t8);
+    ASSERT_EQ(std::bit_cast<uint32_t>(got16[0]), std::bit_cast<uint32_t>(got)) << t;
+    ASSERT_EQ(std::bit_cast<uint32_t>(got8[7]), std::bit_cast<uint32_t>(got)) << t;
+    ++checked;
+  }
+  EXPECT_GT(checked, 4000000u);
+  EXPECT_LT(worst, 1e-4);
+  EXPECT_GT(worst, 1e-6);  // a polynomial, not the library's exp
+  EXPECT_EQ(denoise::fast_weight(0.75f, std::nextafter(denoise::kFastExpLo, -100.0f)), 0.0f);
+  EXPECT_EQ(denoise::fast_weight(0.75f, -1e30f), 0.0f);
+  EXPECT_EQ(denoise::fast_weight(0.75f, -std::numeric_limits<float>::infinity()), 0.0f);
+  EXPECT_EQ(denoise::fast_weight(0.75f, std::numeric_limits<float>::quiet_NaN()), 0.0f);
+  EXPECT_EQ(denoise::fast_weight(0.75f, 0.0f), 0.75f * denoise::kFastExpC0);
+}
+
+// The filters with the fast weights (the default) stay within one 8-bit level of the same
+// filters with the exact ones on a moving sequence with a disocclusion and a camera cut, and
+// nearly every pixel is the same.
+TEST(FastWeights, WithinOneLevelOfTheDefault) {
+  for (const std::string name : {"svgf_ao", "atrous", "single_iteration"}) {
+    SCOPED_TRACE(name);
+    const auto exact = run_moving(*make(name, {{"fast_weights", false}}), 14, 9);
+    const auto fast = run_moving(*make(name), 14, 9);  // the default
+    size_t equal = 0, total = 0;
+    int most = 0;
+    for (size_t f = 0; f < exact.size(); ++f)
+      for (size_t i = 0; i < exact[f].size(); ++i) {
+        const int d = std::abs(int(exact[f][i]) - int(fast[f][i]));
+        most = std::max(most, d);
+        equal += d == 0;
+        ++total;
+      }
+    EXPECT_LE(most, 1);
+    EXPECT_GT(double(equal), 0.99 * double(total));
+  }
+  EXPECT_THROW(make("svgf_ao", {{"fast_weights", 1}}), Error);  // a boolean
 }
 
 // Off (0) is the old filter, and a threshold no history reaches (above history_cap) runs the
@@ -777,6 +855,8 @@ TEST(Denoisers, SameBitsWithPortableKernels) {
   };
   std::vector<std::string> specs = kSvgfFamily;
   specs.push_back("svgf_ao{\"light_history\": 4}");
+  specs.push_back("svgf_ao{\"fast_weights\": false}");
+  specs.push_back("atrous{\"fast_weights\": false}");
   for (const std::string& spec : specs) {
     SCOPED_TRACE(spec);
     const auto fast = run_rough(*make_spec(spec));

@@ -347,6 +347,11 @@ std::vector<ParamSpec> spatial_param_specs(int default_iterations, int default_r
                       "depth edge-stopping: exp(-|z_p - z_q| / (sigma_z |grad z| |offset|)); 0 turns it off"),
       ParamSpec::integer("variance_radius", 3, 1, 5,
                          "window radius of the spatial variance estimate (3: 7x7) used where history is short"),
+      ParamSpec::boolean("fast_weights", true,
+                         "a-trous weights by fused multiply-adds and a degree-3 exponential (true: 0.8x the CPU "
+                         "on AVX-512) or by separate products and sums and a degree-4 exponential (false: the "
+                         "weights of reports before this option); outputs within one 8-bit level of each other "
+                         "(docs/performance.md, svgf_ao's fast weights)"),
   };
 }
 
@@ -367,6 +372,7 @@ void read_spatial_params(const Params& p, FilterSettings& s, bool with_iteration
          "computed by repeated squaring", s.sigma_n);
   s.sigma_z = float(p.get_float("sigma_z"));
   s.variance_radius = p.get_int("variance_radius");
+  s.fast_weights = p.get_bool("fast_weights");
 }
 
 // ---------------------------------------------------------------- the pipeline
@@ -755,6 +761,7 @@ AtrousArgs FilterPipeline::atrous_args(int step, int radius) const {
   a.valid_f = g.valid_f.data();
   a.sigma_l = s_.sigma_l;
   a.eps_l = kEpsL;
+  a.fast_weights = s_.fast_weights;
   return a;
 }
 

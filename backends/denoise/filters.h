@@ -48,6 +48,11 @@ struct FilterSettings {
   // svgf_ao's lightweight path (DHR-S 3.3, last paragraph): pixels with at least this many
   // frames of history get one 3x3 a-trous iteration instead of `iterations`; 0 = off.
   int light_history = 0;
+  // The a-trous weights with fused multiply-adds and a degree-3 exponential (filters_simd.h,
+  // fast_weight); false: separate products and sums and exp_neg, as before this option. The
+  // same filter, its weights rounded differently; less CPU (docs/performance.md, "svgf_ao's
+  // fast weights").
+  bool fast_weights = true;
 };
 
 // The parameters of the temporal part (alpha, history_cap, depth_tolerance, normal_threshold)
@@ -85,6 +90,7 @@ struct AtrousArgs {
   uint8_t active_cls = 1;
   float *v_out2 = nullptr, *v_out3 = nullptr, *var_out2 = nullptr;  // copies of v_out / var_out
   uint8_t* u8_out = nullptr;  // the result in 0..255 (to_u8) of every pixel (inactive: of v_out as it is)
+  bool fast_weights = false;  // FilterSettings::fast_weights
 };
 
 // Rows [y0, y1) of one a-trous iteration; acc holds 4 * width floats of scratch (need not be

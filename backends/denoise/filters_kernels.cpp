@@ -80,9 +80,36 @@ struct AtrousTapPlanes {
   float *sw, *sl, *sv;                                  // accumulators, indexed by x
 };
 
-template <int K, class L>
+// The fast weights' tap (AtrousArgs::fast_weights), one lane type for all: t = -(|l_p - l_q|
+// ipl log2(e) + |z_p - z_q| (ipz log2(e) inv_len)), the dot product and the sums by fused
+// multiply-adds, the weight by fast_weight. atrous_block16_unrolled's fast taps do the same
+// operations.
+template <int K, class T>
+DHR_ALWAYS_INLINE void fast_tap(T ncx, T ncy, T ncz, T nqx, T nqy, T nqz, T adz, T az, T adl, T iplg, float hk, int nsq,
+                                T lq, T vq, T& sw, T& sl, T& sv) {
+  const T d = fma_l(ncz, nqz, fma_l(ncy, nqy, ncx * nqx));
+  const T wn = pow_2k<K>(d, nsq);
+  const T t = -fma_l(adl, iplg, adz * az);
+  const T wgt = fast_weight(hk * wn, t);
+  sw = sw + wgt;
+  sl = fma_l(wgt, lq, sl);
+  sv = fma_l(wgt * wgt, vq, sv);
+}
+
+template <int K, class L, bool F>
 DHR_ALWAYS_INLINE void atrous_tap(const AtrousTapPlanes& p, int x, int q, float hk, float inv_len, int nsq) {
   using T = typename L::T;
+  if constexpr (F) {
+    const T lq = L::load(p.lq + q);
+    T sw = L::load(p.sw + x), sl = L::load(p.sl + x), sv = L::load(p.sv + x);
+    fast_tap<K>(L::load(p.ncx + x), L::load(p.ncy + x), L::load(p.ncz + x), L::load(p.nqx + q), L::load(p.nqy + q),
+                L::load(p.nqz + q), abs_f(L::load(p.zc + x) - L::load(p.zq + q)), (L::load(p.ipz + x) * kLog2e) * inv_len,
+                abs_f(L::load(p.lc + x) - lq), L::load(p.ipl + x) * kLog2e, hk, nsq, lq, L::load(p.vq + q), sw, sl, sv);
+    L::store(p.sw + x, sw);
+    L::store(p.sl + x, sl);
+    L::store(p.sv + x, sv);
+    return;
+  }
   const T d = L::load(p.ncx + x) * L::load(p.nqx + q) + L::load(p.ncy + x) * L::load(p.nqy + q) +
               L::load(p.ncz + x) * L::load(p.nqz + q);
   const T wn = pow_2k<K>(d, nsq);
@@ -99,7 +126,7 @@ DHR_ALWAYS_INLINE void atrous_tap(const AtrousTapPlanes& p, int x, int q, float 
 // (x - r step >= 0, x + lanes - 1 + r step < width): centre values and sums stay in registers
 // across the taps. Same operations in the same order as atrous_tap, so the same bits.
 // ipl_row: the AO phi of row y, indexed by x.
-template <int K, class L>
+template <int K, class L, bool F>
 DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const float* ipl_row, const float (*hk)[5],
                                     const float (*inv_len)[5], float* sw_out, float* sl_out, float* sv_out) {
   using T = typename L::T;
@@ -118,6 +145,13 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
     for (int tx = -r; tx <= r; ++tx) {
       if (tx == 0 && ty == 0) continue;
       const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here
+      if constexpr (F) {
+        const T lq = L::load(a.v_in + q);
+        fast_tap<K>(ncx, ncy, ncz, L::load(a.nx + q), L::load(a.ny + q), L::load(a.nz + q),
+                    abs_f(zc - L::load(a.depth + q)), (ipz * kLog2e) * inv_len[ty + 2][tx + 2], abs_f(lc - lq),
+                    ipl * kLog2e, hk[ty + 2][tx + 2], nsq, lq, L::load(a.var_in + q), sw, sl, sv);
+        continue;
+      }
       const T d = ncx * L::load(a.nx + q) + ncy * L::load(a.ny + q) + ncz * L::load(a.nz + q);
       const T wn = pow_2k<K>(d, nsq);
       const T wz = abs_f(zc - L::load(a.depth + q)) * ipz * inv_len[ty + 2][tx + 2];
@@ -225,7 +259,14 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 void atrous_blocks8(const Atro
 //    is vrndscaleps (truncate), exact where it is used (|t| < 87); adding i to the exponent bits of p
 //    (p in [0.7, 1.5), i >= -87) is p 2^i by vscalefps, exact in the normal range it stays in.
 //  - max(0, d) is vmaxps(d, 0) (d > 0 ? d : 0, NaN to 0 as well).
-template <int K, int R>
+//
+// With F (AtrousArgs::fast_weights) the taps are fast_tap's operations: the fused multiply-adds
+// as instructions, t's rounding to nearest as vrndscaleps (equal to fast_weight's shift for the
+// |t| <= 86.57 that are kept), 2^i by vscalefps (exact, as the exponent add), the cut at
+// kFastExpLo (and NaN) as a mask on the last product, and ipz log2(e) inv_len computed once per
+// block for each of the kernel's distinct offset lengths (tx^2 + ty^2 = 1, 2, 4, 5, 8: the same
+// products fast_tap makes per tap).
+template <int K, int R, bool F>
 DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const AtrousArgs& a, int y, int x,
                                                                         const float* ipl_row, const float (*hk)[5],
                                                                         const float (*inv_len)[5], float* sw_out,
@@ -242,6 +283,59 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
   T sv = (hc * hc) * L::load(a.var_in + c);
   const __m512 zero = _mm512_setzero_ps(), sixty = _mm512_set1_ps(60.0f);
   const __mmask16 all = 0xffff;  // the zero-masked forms: GCC 12 warns on the plain ones' undefined source
+  if constexpr (F) {
+    const T ipzl = ipz * kLog2e, iplg = ipl * kLog2e;
+    constexpr int kLengthClass[9] = {-1, 0, 1, -1, 2, 3, -1, -1, 4};  // by tx^2 + ty^2
+    __m512 az[5] = {zero, zero, zero, zero, zero};
+    az[0] = (__m512)(ipzl * inv_len[2][3]);  // (1, 0)
+    az[1] = (__m512)(ipzl * inv_len[3][3]);  // (1, 1)
+    if constexpr (R == 2) {
+      az[2] = (__m512)(ipzl * inv_len[2][4]);  // (2, 0)
+      az[3] = (__m512)(ipzl * inv_len[3][4]);  // (2, 1)
+      az[4] = (__m512)(ipzl * inv_len[4][4]);  // (2, 2)
+    }
+    const __m512 lo = _mm512_set1_ps(kFastExpLo), c3 = _mm512_set1_ps(kFastExpC3), c2 = _mm512_set1_ps(kFastExpC2),
+                 c1 = _mm512_set1_ps(kFastExpC1), c0 = _mm512_set1_ps(kFastExpC0);
+#pragma GCC unroll 5
+    for (int ty = -R; ty <= R; ++ty) {
+      const int qy = y + ty * step;
+      if (qy < 0 || qy >= a.height) continue;
+      const size_t qrow = size_t(qy) * size_t(a.width) + size_t(x);
+#pragma GCC unroll 5
+      for (int tx = -R; tx <= R; ++tx) {
+        if (tx == 0 && ty == 0) continue;
+        const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here
+        const float hkv = hk[ty + 2][tx + 2];
+        __m512 d = _mm512_mul_ps((__m512)ncx, _mm512_loadu_ps(a.nx + q));
+        d = _mm512_fmadd_ps((__m512)ncy, _mm512_loadu_ps(a.ny + q), d);
+        d = _mm512_fmadd_ps((__m512)ncz, _mm512_loadu_ps(a.nz + q), d);
+        T wn = (T)_mm512_maskz_max_ps(all, d, zero);  // then pow_2k's squarings
+        if constexpr (K >= 0) {
+          for (int i = 0; i < K; ++i) wn = wn * wn;
+        } else {
+          for (int i = 0; i < nsq; ++i) wn = wn * wn;
+        }
+        const T adz = abs_f(zc - L::load(a.depth + q));
+        const T lq = L::load(a.v_in + q);
+        const T adl = abs_f(lc - lq);
+        const __m512 t =
+            _mm512_fnmsub_ps((__m512)adl, (__m512)iplg, _mm512_mul_ps((__m512)adz, az[kLengthClass[tx * tx + ty * ty]]));
+        const __m512 fi = _mm512_maskz_roundscale_ps(all, t, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+        const __m512 f = _mm512_sub_ps(t, fi);
+        const __m512 p = _mm512_fmadd_ps(_mm512_fmadd_ps(_mm512_fmadd_ps(c3, f, c2), f, c1), f, c0);
+        const __m512 r = _mm512_maskz_scalef_ps(all, p, fi);
+        const __mmask16 keep = _mm512_cmp_ps_mask(t, lo, _CMP_GE_OQ);
+        const __m512 wgt = _mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
+        sw = sw + (T)wgt;
+        sl = (T)_mm512_fmadd_ps(wgt, (__m512)lq, (__m512)sl);
+        sv = (T)_mm512_fmadd_ps(_mm512_mul_ps(wgt, wgt), _mm512_loadu_ps(a.var_in + q), (__m512)sv);
+      }
+    }
+    L::store(sw_out, sw);
+    L::store(sl_out, sl);
+    L::store(sv_out, sv);
+    return;
+  }
 #pragma GCC unroll 5
   for (int ty = -R; ty <= R; ++ty) {
     const int qy = y + ty * step;
@@ -287,7 +381,7 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
 // The 16-pixel blocks of [xb, xm) of row y; returns where they end (the rest, under 16
 // pixels, is left to the 8-lane blocks). A call per row (not inlined: atrous_rows_impl is
 // compiled for the baseline target too).
-template <int K, int R>
+template <int K, int R, bool F>
 __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_blocks16(const AtrousArgs& a, int y, int xb, int xm,
                                                                         const uint8_t* cls, const float* ipl_row,
                                                                         const float (*hk)[5],
@@ -296,7 +390,7 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_blocks16(const At
   const uint8_t ac = a.active_cls;
   for (; xb + kLanes16 <= xm; xb += kLanes16)
     if (!cls || block_has(cls, xb, kLanes16, ac))
-      atrous_block16_unrolled<K, R>(a, y, xb, ipl_row, hk, inv_len, sw + xb, sl + xb, sv + xb);
+      atrous_block16_unrolled<K, R, F>(a, y, xb, ipl_row, hk, inv_len, sw + xb, sl + xb, sv + xb);
   return xb;
 }
 
@@ -400,7 +494,7 @@ DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) 
 // (atrous_block8_unrolled) or kAvx512 (16 lanes where it can, the rest 8 at a time); the same
 // bits on each.
 enum AtrousPath { kPortable, kAvx2, kAvx512 };
-template <int K, int Path>
+template <int K, int Path, bool F>
 DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, float* acc) {
   const int w = a.width, h = a.height, r = a.radius, step = a.step;
   float hk[5][5] = {}, inv_len[5][5] = {};
@@ -434,11 +528,11 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
 #if DHR_DENOISE_AVX512
     if constexpr (Path == kAvx512) {
       if (r == 2)
-        xb = atrous_blocks16<K, 2>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+        xb = atrous_blocks16<K, 2, F>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
       else
-        xb = atrous_blocks16<K, 1>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+        xb = atrous_blocks16<K, 1, F>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
     }
-    if constexpr (Path == kAvx2) {
+    if constexpr (Path == kAvx2 && !F) {
       if (r == 2)
         atrous_blocks8<K, 2>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
       else
@@ -448,7 +542,7 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
 #endif
     for (; xb < xm; xb += kLanes)
       if (!cls || block_has(cls, xb, kLanes, ac))
-        atrous_block<K, VectorLane>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
+        atrous_block<K, VectorLane, F>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
     const float hc = a.k1d[0] * a.k1d[0];
     for (int x = 0; x < w; ++x) {  // centre tap of the border pixels: weight h_c
       if (x == xl) x = xm;
@@ -481,8 +575,9 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
         for (int part = 0; part < 2; ++part) {  // the two border ranges
           const int lo = std::max(part == 0 ? 0 : xm, -off), hi = std::min(part == 0 ? xl : w, w - off);
           int x = lo;
-          for (; x + kLanes <= hi; x += kLanes) atrous_tap<K, VectorLane>(p, x, x + off, hkv, il, a.normal_squarings);
-          for (; x < hi; ++x) atrous_tap<K, ScalarLane>(p, x, x + off, hkv, il, a.normal_squarings);
+          for (; x + kLanes <= hi; x += kLanes)
+            atrous_tap<K, VectorLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
+          for (; x < hi; ++x) atrous_tap<K, ScalarLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
         }
       }
     }
@@ -515,29 +610,41 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
   }
 }
 
+// One entry per path: the normal power compiled in or not, the fast weights or not.
+template <int Path, bool F>
+DHR_ALWAYS_INLINE void atrous_rows_path(const AtrousArgs& a, int y0, int y1, float* acc) {
+  if (a.normal_squarings == kDefaultSquarings)
+    atrous_rows_impl<kDefaultSquarings, Path, F>(a, y0, y1, acc);
+  else
+    atrous_rows_impl<-1, Path, F>(a, y0, y1, acc);
+}
+
 DHR_DENOISE_TARGETS
 void atrous_rows_8(const AtrousArgs& a, int y0, int y1, float* acc) {
-  if (a.normal_squarings == kDefaultSquarings)
-    atrous_rows_impl<kDefaultSquarings, kPortable>(a, y0, y1, acc);
+  if (a.fast_weights)
+    atrous_rows_path<kPortable, true>(a, y0, y1, acc);
   else
-    atrous_rows_impl<-1, kPortable>(a, y0, y1, acc);
+    atrous_rows_path<kPortable, false>(a, y0, y1, acc);
 }
 
 #if DHR_DENOISE_AVX512
 DHR_DENOISE_TARGET_AVX2
 void atrous_rows_avx2(const AtrousArgs& a, int y0, int y1, float* acc) {
-  if (a.normal_squarings == kDefaultSquarings)
-    atrous_rows_impl<kDefaultSquarings, kAvx2>(a, y0, y1, acc);
-  else
-    atrous_rows_impl<-1, kAvx2>(a, y0, y1, acc);
+  atrous_rows_path<kAvx2, false>(a, y0, y1, acc);
+}
+
+// The fast weights on AVX2: the portable 8-lane blocks with FMA instructions.
+DHR_DENOISE_TARGET_AVX2_FMA
+void atrous_rows_avx2_fma(const AtrousArgs& a, int y0, int y1, float* acc) {
+  atrous_rows_path<kPortable, true>(a, y0, y1, acc);
 }
 
 DHR_DENOISE_TARGET_AVX512
 void atrous_rows_16(const AtrousArgs& a, int y0, int y1, float* acc) {
-  if (a.normal_squarings == kDefaultSquarings)
-    atrous_rows_impl<kDefaultSquarings, kAvx512>(a, y0, y1, acc);
+  if (a.fast_weights)
+    atrous_rows_path<kAvx512, true>(a, y0, y1, acc);
   else
-    atrous_rows_impl<-1, kAvx512>(a, y0, y1, acc);
+    atrous_rows_path<kAvx512, false>(a, y0, y1, acc);
 }
 #endif
 
@@ -635,7 +742,11 @@ bool cpu_has_avx2() {
 void atrous_rows(const AtrousArgs& a, int y0, int y1, float* acc, bool fastest) {
 #if DHR_DENOISE_AVX512
   if (fastest && cpu_has_avx512()) return atrous_rows_16(a, y0, y1, acc);
-  if (fastest && cpu_has_avx2()) return atrous_rows_avx2(a, y0, y1, acc);
+  if (fastest && cpu_has_avx2()) {
+    if (!a.fast_weights) return atrous_rows_avx2(a, y0, y1, acc);
+    static const bool has_fma = __builtin_cpu_supports("fma");
+    if (has_fma) return atrous_rows_avx2_fma(a, y0, y1, acc);
+  }
 #else
   (void)fastest;
 #endif

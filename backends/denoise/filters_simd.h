@@ -45,6 +45,9 @@ namespace dhr::denoise {
 // The a-trous interior's unrolled 8-lane kernel for AVX2 CPUs (atrous_rows); AVX2 alone brings no
 // FMA instructions, so nothing is contracted.
 #define DHR_DENOISE_TARGET_AVX2 __attribute__((target("avx2")))
+// The fast weights' rows (AtrousArgs::fast_weights) on AVX2 CPUs with FMA: the 8-lane kernel
+// with its fused multiply-adds as instructions; fp-contract=off, so only those are fused.
+#define DHR_DENOISE_TARGET_AVX2_FMA __attribute__((target("avx2,fma"), optimize("fp-contract=off")))
 #else
 #define DHR_DENOISE_TARGETS
 #define DHR_DENOISE_AVX512 0
@@ -101,6 +104,53 @@ DHR_ALWAYS_INLINE V exp_neg_lanes(V x) {
 }
 DHR_ALWAYS_INLINE VecF exp_neg(VecF x) { return exp_neg_lanes<VecF, VecI, VecU>(x); }
 DHR_ALWAYS_INLINE VecF16 exp_neg(VecF16 x) { return exp_neg_lanes<VecF16, VecI16, VecU16>(x); }
+
+// ---- The a-trous taps' fast weights (FilterSettings::fast_weights; docs/performance.md,
+// "svgf_ao's fast weights"). e^-s = 2^t with t = -s log2(e) computed by the caller; t = i + f
+// with i = t rounded to nearest (even), f in [-0.5, 0.5]; 2^f by the degree-3 polynomial
+// closest to it in relative error on that interval (7.5e-5, as small as the degree-4 Taylor
+// polynomial of exp_neg), evaluated by fused multiply-adds; 2^i added to the exponent bits.
+// Exactly 0 for t < kFastExpLo (s > 60, as exp_neg) and for a NaN t. Every lane type gives the
+// same bits: the rounding to nearest is exact for |t| < 2^22 (the 1.5 2^23 shift), a fused
+// multiply-add is one rounding on every machine, and p 2^i stays normal (p >= 0.7, i >= -87).
+constexpr float kFastExpLo = -86.5617f;  // -60 log2(e), rounded up: every t kept has i >= -87
+constexpr float kFastExpC0 = 0.99992808f, kFastExpC1 = 0.69326099f, kFastExpC2 = 0.24261096f,
+                kFastExpC3 = 0.055171501f;
+constexpr float kLog2e = 1.44269504f;
+constexpr float kRoundShift = 12582912.0f;  // 1.5 2^23: (t + it) - it is t rounded to an integer
+
+// a b + c with one rounding, lane by lane (an FMA instruction where the target has one).
+DHR_ALWAYS_INLINE float fma_l(float a, float b, float c) { return __builtin_fmaf(a, b, c); }
+template <class V>
+DHR_ALWAYS_INLINE V fma_l(V a, V b, V c) {
+  V r;
+  for (int i = 0; i < int(sizeof(V) / sizeof(float)); ++i) r[i] = __builtin_fmaf(a[i], b[i], c[i]);
+  return r;
+}
+
+// 2^f for f in [-0.5, 0.5], the fast weights' polynomial.
+template <class V>
+DHR_ALWAYS_INLINE V fast_exp2_poly(V f) {
+  const V c3 = V{} + kFastExpC3, c2 = V{} + kFastExpC2, c1 = V{} + kFastExpC1, c0 = V{} + kFastExpC0;
+  return fma_l(fma_l(fma_l(c3, f, c2), f, c1), f, c0);
+}
+
+// hw 2^t (hw = h wn, finite and >= 0), 0 where t < kFastExpLo or t is NaN.
+DHR_ALWAYS_INLINE float fast_weight(float hw, float t) {
+  if (!(t >= kFastExpLo)) return 0.0f;
+  const float fi = (t + kRoundShift) - kRoundShift;
+  const float p = fast_exp2_poly(t - fi);
+  return hw * std::bit_cast<float>(std::bit_cast<int32_t>(p) + int32_t(uint32_t(int32_t(fi)) << 23));
+}
+template <class V, class VI, class VU>
+DHR_ALWAYS_INLINE V fast_weight_lanes(V hw, V t) {
+  const V fi = (t + kRoundShift) - kRoundShift;
+  const V p = fast_exp2_poly(t - fi);
+  const V r = (V)((VI)p + (VI)((VU)__builtin_convertvector(fi, VI) << 23));
+  return t >= V{} + kFastExpLo ? hw * r : V{};
+}
+DHR_ALWAYS_INLINE VecF fast_weight(VecF hw, VecF t) { return fast_weight_lanes<VecF, VecI, VecU>(hw, t); }
+DHR_ALWAYS_INLINE VecF16 fast_weight(VecF16 hw, VecF16 t) { return fast_weight_lanes<VecF16, VecI16, VecU16>(hw, t); }
 
 DHR_ALWAYS_INLINE float abs_f(float v) { return std::fabs(v); }
 DHR_ALWAYS_INLINE VecF abs_f(VecF v) { return (VecF)((VecI)v & 0x7fffffff); }
