@@ -140,13 +140,14 @@ DHR_ALWAYS_INLINE float fast_weight(float hw, float t) {
   if (!(t >= kFastExpLo)) return 0.0f;
   const float fi = (t + kRoundShift) - kRoundShift;
   const float p = fast_exp2_poly(t - fi);
-  return hw * std::bit_cast<float>(std::bit_cast<int32_t>(p) + int32_t(uint32_t(int32_t(fi)) << 23));
+  return hw * std::bit_cast<float>(std::bit_cast<uint32_t>(p) + (uint32_t(int32_t(fi)) << 23));
 }
 template <class V, class VI, class VU>
 DHR_ALWAYS_INLINE V fast_weight_lanes(V hw, V t) {
   const V fi = (t + kRoundShift) - kRoundShift;
   const V p = fast_exp2_poly(t - fi);
-  const V r = (V)((VI)p + (VI)((VU)__builtin_convertvector(fi, VI) << 23));
+  // In unsigned lanes: a lane the cut drops may hold any exponent (its sum wraps, unused).
+  const V r = (V)((VU)p + ((VU)__builtin_convertvector(fi, VI) << 23));
   return t >= V{} + kFastExpLo ? hw * r : V{};
 }
 DHR_ALWAYS_INLINE VecF fast_weight(VecF hw, VecF t) { return fast_weight_lanes<VecF, VecI, VecU>(hw, t); }
