@@ -150,18 +150,25 @@ void BM_TraceAoOneRay(benchmark::State& state) {
 }
 BENCHMARK(BM_TraceAoOneRay)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// ---- The arithmetic floor of svgf_ao's a-trous iterations (docs/performance.md). Each of
-// the 24 off-centre taps of a 16-pixel AVX-512 block is 45 vector instructions in the compiled
-// kernel (atrous_block16_unrolled in backends/denoise/filters_kernels.cpp, counted in its
-// disassembly: 23 multiplies, 14 adds/subtracts, 2 abs (and), max, compare, vrndscaleps,
-// vscalefps, and 2 broadcasts of the tap's constants) and 43 without the broadcasts, the fewest
-// known with the same bits (dot 5, clamp 1, 7 squarings, depth term 4, AO term 3, their sum 1,
-// exponential 14 -- scale 1, rounding 3, polynomial 8, exponent 1, underflow mask 1 --, weight
-// 2, sums 6: the operations the bits depend on, in order). The machine's rate of independent
-// 16-lane float multiplies and adds (no loads, no dependencies between the chains, all
-// threads) turns those counts into CPU milliseconds per frame: the least the five iterations
+// ---- The arithmetic floor of svgf_ao's a-trous iterations (docs/performance.md). With the
+// exact weights (fast_weights = false) each of the 24 off-centre taps of a 16-pixel AVX-512
+// block is 45 vector instructions in the compiled kernel (atrous_block16_unrolled in
+// backends/denoise/filters_kernels.cpp, counted in its disassembly: 23 multiplies, 14
+// adds/subtracts, 2 abs (and), max, compare, vrndscaleps, vscalefps, and 2 broadcasts of the
+// tap's constants) and 43 without the broadcasts, the fewest known with the same bits (dot 5,
+// clamp 1, 7 squarings, depth term 4, AO term 3, their sum 1, exponential 14 -- scale 1,
+// rounding 3, polynomial 8, exponent 1, underflow mask 1 --, weight 2, sums 6: the operations
+// the bits depend on, in order). With the fast weights (the default) a tap is 33 instructions
+// on average in the compiled kernel (29-38 between two vscalefps in the disassembly of
+// atrous_blocks16<7, 2, true>: the operations, broadcasts of constants and register copies for
+// the FMAs) and 31 operations without those (dot 3 with two FMAs, clamp 1, 7 squarings, |dz|
+// and |dl| 4, their weighted sum 2, rounding 1, fraction 1, polynomial 3, exponent 1, cut mask
+// 1, weight 2, sums 4). The machine's rate of independent 16-lane float multiplies and adds (no
+// loads, no dependencies between the chains, all threads; an FMA is one instruction like a
+// multiply) turns those counts into CPU milliseconds per frame: the least the five iterations
 // can cost at 1280x720 on this machine.
-constexpr int kTapOpsCompiled = 45, kTapOpsMinimal = 43;
+constexpr int kTapOpsCompiled = 33, kTapOpsMinimal = 31;            // fast weights, the default
+constexpr int kTapOpsCompiledExact = 45, kTapOpsMinimalExact = 43;  // fast_weights = false
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 using Vec16 = float __attribute__((vector_size(64)));
@@ -662,8 +669,11 @@ int main(int argc, char** argv) {
                 "measured rate %.3g 16-lane ops per CPU second (independent multiplies and adds)\n",
                 rate);
     std::printf("| taps as | ops per tap | CPU ms per frame | ratio to one AO ray (CPU) |\n| --- | ---: | ---: | ---: |\n");
-    for (const auto& [label, ops] : {std::pair<const char*, int>{"compiled kernel", dhr::kTapOpsCompiled},
-                                     std::pair<const char*, int>{"fewest with the same bits", dhr::kTapOpsMinimal}}) {
+    for (const auto& [label, ops] :
+         {std::pair<const char*, int>{"compiled kernel (fast weights)", dhr::kTapOpsCompiled},
+          std::pair<const char*, int>{"fewest with the same bits (fast weights)", dhr::kTapOpsMinimal},
+          std::pair<const char*, int>{"compiled kernel (exact weights)", dhr::kTapOpsCompiledExact},
+          std::pair<const char*, int>{"fewest with the same bits (exact weights)", dhr::kTapOpsMinimalExact}}) {
       const double ms = iterations * taps * blocks * double(ops) / rate * 1e3;
       std::printf("| %s | %d | %.2f | %.2f |\n", label, ops, ms, ms / ray_cpu);
     }
