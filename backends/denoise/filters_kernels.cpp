@@ -12,7 +12,8 @@
 // bench_denoise). With the 16-lane taps unrolled around a 14-instruction exponential
 // (atrous_block16_unrolled), the row ends 16 at a time and the AO phi's sums in registers:
 // from 3.79x to 2.69x the CPU time of one traced AO ray, 2.41x with the temporal part's rows
-// in 16 lanes too (docs/performance.md, svgf_ao).
+// in 16 lanes too, 1.83-1.92x with the fast weights (FMAs and a degree-3 exponential; the
+// default, AtrousArgs::fast_weights) on a 2-vCPU Zen 4 (docs/performance.md, svgf_ao).
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 
@@ -281,12 +282,15 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
   T sw = T{} + hc;
   T sl = hc * lc;
   T sv = (hc * hc) * L::load(a.var_in + c);
-  const __m512 zero = _mm512_setzero_ps(), sixty = _mm512_set1_ps(60.0f);
+  const __m512 zero = _mm512_setzero_ps();
+  [[maybe_unused]] const __m512 sixty = _mm512_set1_ps(60.0f);  // the exact weights' cut
   const __mmask16 all = 0xffff;  // the zero-masked forms: GCC 12 warns on the plain ones' undefined source
+  // The fast weights' values per block (F only).
+  [[maybe_unused]] const T iplg = ipl * kLog2e;
+  [[maybe_unused]] constexpr int kLengthClass[9] = {-1, 0, 1, -1, 2, 3, -1, -1, 4};  // by tx^2 + ty^2
+  [[maybe_unused]] __m512 az[5] = {zero, zero, zero, zero, zero};
   if constexpr (F) {
-    const T ipzl = ipz * kLog2e, iplg = ipl * kLog2e;
-    constexpr int kLengthClass[9] = {-1, 0, 1, -1, 2, 3, -1, -1, 4};  // by tx^2 + ty^2
-    __m512 az[5] = {zero, zero, zero, zero, zero};
+    const T ipzl = ipz * kLog2e;
     az[0] = (__m512)(ipzl * inv_len[2][3]);  // (1, 0)
     az[1] = (__m512)(ipzl * inv_len[3][3]);  // (1, 1)
     if constexpr (R == 2) {
@@ -294,48 +298,10 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
       az[3] = (__m512)(ipzl * inv_len[3][4]);  // (2, 1)
       az[4] = (__m512)(ipzl * inv_len[4][4]);  // (2, 2)
     }
-    const __m512 lo = _mm512_set1_ps(kFastExpLo), c3 = _mm512_set1_ps(kFastExpC3), c2 = _mm512_set1_ps(kFastExpC2),
-                 c1 = _mm512_set1_ps(kFastExpC1), c0 = _mm512_set1_ps(kFastExpC0);
-#pragma GCC unroll 5
-    for (int ty = -R; ty <= R; ++ty) {
-      const int qy = y + ty * step;
-      if (qy < 0 || qy >= a.height) continue;
-      const size_t qrow = size_t(qy) * size_t(a.width) + size_t(x);
-#pragma GCC unroll 5
-      for (int tx = -R; tx <= R; ++tx) {
-        if (tx == 0 && ty == 0) continue;
-        const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here
-        const float hkv = hk[ty + 2][tx + 2];
-        __m512 d = _mm512_mul_ps((__m512)ncx, _mm512_loadu_ps(a.nx + q));
-        d = _mm512_fmadd_ps((__m512)ncy, _mm512_loadu_ps(a.ny + q), d);
-        d = _mm512_fmadd_ps((__m512)ncz, _mm512_loadu_ps(a.nz + q), d);
-        T wn = (T)_mm512_maskz_max_ps(all, d, zero);  // then pow_2k's squarings
-        if constexpr (K >= 0) {
-          for (int i = 0; i < K; ++i) wn = wn * wn;
-        } else {
-          for (int i = 0; i < nsq; ++i) wn = wn * wn;
-        }
-        const T adz = abs_f(zc - L::load(a.depth + q));
-        const T lq = L::load(a.v_in + q);
-        const T adl = abs_f(lc - lq);
-        const __m512 t =
-            _mm512_fnmsub_ps((__m512)adl, (__m512)iplg, _mm512_mul_ps((__m512)adz, az[kLengthClass[tx * tx + ty * ty]]));
-        const __m512 fi = _mm512_maskz_roundscale_ps(all, t, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-        const __m512 f = _mm512_sub_ps(t, fi);
-        const __m512 p = _mm512_fmadd_ps(_mm512_fmadd_ps(_mm512_fmadd_ps(c3, f, c2), f, c1), f, c0);
-        const __m512 r = _mm512_maskz_scalef_ps(all, p, fi);
-        const __mmask16 keep = _mm512_cmp_ps_mask(t, lo, _CMP_GE_OQ);
-        const __m512 wgt = _mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
-        sw = sw + (T)wgt;
-        sl = (T)_mm512_fmadd_ps(wgt, (__m512)lq, (__m512)sl);
-        sv = (T)_mm512_fmadd_ps(_mm512_mul_ps(wgt, wgt), _mm512_loadu_ps(a.var_in + q), (__m512)sv);
-      }
-    }
-    L::store(sw_out, sw);
-    L::store(sl_out, sl);
-    L::store(sv_out, sv);
-    return;
   }
+  [[maybe_unused]] const __m512 lo = _mm512_set1_ps(kFastExpLo), c3 = _mm512_set1_ps(kFastExpC3),
+                                c2 = _mm512_set1_ps(kFastExpC2), c1 = _mm512_set1_ps(kFastExpC1),
+                                c0 = _mm512_set1_ps(kFastExpC0);
 #pragma GCC unroll 5
   for (int ty = -R; ty <= R; ++ty) {
     const int qy = y + ty * step;
@@ -345,32 +311,56 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
     for (int tx = -R; tx <= R; ++tx) {
       if (tx == 0 && ty == 0) continue;
       const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here
-      const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
-      const T d = ncx * L::load(a.nx + q) + ncy * L::load(a.ny + q) + ncz * L::load(a.nz + q);
-      T wn = (T)_mm512_maskz_max_ps(all, (__m512)d, zero);  // then pow_2k's squarings
+      const float hkv = hk[ty + 2][tx + 2];
+      __m512 d;
+      if constexpr (F) {
+        d = _mm512_mul_ps((__m512)ncx, _mm512_loadu_ps(a.nx + q));
+        d = _mm512_fmadd_ps((__m512)ncy, _mm512_loadu_ps(a.ny + q), d);
+        d = _mm512_fmadd_ps((__m512)ncz, _mm512_loadu_ps(a.nz + q), d);
+      } else {
+        d = (__m512)(ncx * L::load(a.nx + q) + ncy * L::load(a.ny + q) + ncz * L::load(a.nz + q));
+      }
+      T wn = (T)_mm512_maskz_max_ps(all, d, zero);  // then pow_2k's squarings
       if constexpr (K >= 0) {
         for (int i = 0; i < K; ++i) wn = wn * wn;
       } else {
         for (int i = 0; i < nsq; ++i) wn = wn * wn;
       }
-      const T wz = abs_f(zc - L::load(a.depth + q)) * ipz * il;
       const T lq = L::load(a.v_in + q);
-      const T wl = abs_f(lc - lq) * ipl;
-      const T s = wz + wl;
-      const T t = s * -1.44269504f;
-      const __m512 fi = _mm512_maskz_roundscale_ps(all, (__m512)(t - 0.5f), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC);
-      const T f = t - (T)fi;
-      T p = T{} + 9.6181291e-3f;
-      p = p * f + 5.5504109e-2f;
-      p = p * f + 2.4022651e-1f;
-      p = p * f + 6.9314718e-1f;
-      p = p * f + 1.0f;
-      const __m512 r = _mm512_maskz_scalef_ps(all, (__m512)p, fi);
-      const __mmask16 keep = _mm512_cmp_ps_mask((__m512)s, sixty, _CMP_NGT_UQ);
-      const T wgt = (T)_mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
-      sw = sw + wgt;
-      sl = sl + wgt * lq;
-      sv = sv + wgt * wgt * L::load(a.var_in + q);
+      if constexpr (F) {
+        const T adz = abs_f(zc - L::load(a.depth + q));
+        const T adl = abs_f(lc - lq);
+        const __m512 t = _mm512_fnmsub_ps((__m512)adl, (__m512)iplg,
+                                          _mm512_mul_ps((__m512)adz, az[kLengthClass[tx * tx + ty * ty]]));
+        const __m512 fi = _mm512_maskz_roundscale_ps(all, t, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+        const __m512 f = _mm512_sub_ps(t, fi);
+        const __m512 p = _mm512_fmadd_ps(_mm512_fmadd_ps(_mm512_fmadd_ps(c3, f, c2), f, c1), f, c0);
+        const __m512 r = _mm512_maskz_scalef_ps(all, p, fi);
+        const __mmask16 keep = _mm512_cmp_ps_mask(t, lo, _CMP_GE_OQ);
+        const __m512 wgt = _mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
+        sw = sw + (T)wgt;
+        sl = (T)_mm512_fmadd_ps(wgt, (__m512)lq, (__m512)sl);
+        sv = (T)_mm512_fmadd_ps(_mm512_mul_ps(wgt, wgt), _mm512_loadu_ps(a.var_in + q), (__m512)sv);
+      } else {
+        const T wz = abs_f(zc - L::load(a.depth + q)) * ipz * inv_len[ty + 2][tx + 2];
+        const T wl = abs_f(lc - lq) * ipl;
+        const T s = wz + wl;
+        const T t = s * -1.44269504f;
+        const __m512 fi =
+            _mm512_maskz_roundscale_ps(all, (__m512)(t - 0.5f), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC);
+        const T f = t - (T)fi;
+        T p = T{} + 9.6181291e-3f;
+        p = p * f + 5.5504109e-2f;
+        p = p * f + 2.4022651e-1f;
+        p = p * f + 6.9314718e-1f;
+        p = p * f + 1.0f;
+        const __m512 r = _mm512_maskz_scalef_ps(all, (__m512)p, fi);
+        const __mmask16 keep = _mm512_cmp_ps_mask((__m512)s, sixty, _CMP_NGT_UQ);
+        const T wgt = (T)_mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
+        sw = sw + wgt;
+        sl = sl + wgt * lq;
+        sv = sv + wgt * wgt * L::load(a.var_in + q);
+      }
     }
   }
   L::store(sw_out, sw);
