@@ -110,13 +110,15 @@ ImageU8 trace_ao_image(const Scene& scene, RtScene& rt, const GBuffer& gbuf, int
   return img;
 }
 
-GBuffer raster_gbuffer(const Scene& scene, int w, int h, double t) {
+// The G-buffer at time t, its motion vectors from the previous frame at prev_t (default: t, no motion).
+GBuffer raster_gbuffer(const Scene& scene, int w, int h, double t, double prev_t = -1.0) {
+  if (prev_t < 0.0) prev_t = t;
   RasterFrame rf;
   rf.scene = &scene;
   rf.camera = scene.camera.at(t, w, h);
-  rf.prev_camera = rf.camera;
+  rf.prev_camera = scene.camera.at(prev_t, w, h);
   rf.time_s = t;
-  rf.prev_time_s = t;
+  rf.prev_time_s = prev_t;
   GBuffer g;
   rasterize(rf, g);
   return g;
@@ -332,25 +334,38 @@ double ms_since(std::chrono::steady_clock::time_point t0) {
 
 std::string file_stem(const std::string& path) { return std::filesystem::path(path).stem().string(); }
 
+// The scenes a by-hand mode runs: --scenes (each a built-in or real scene's name; an unknown one
+// fails, naming the valid ones), or all of them. The real ones need ../shared/scenes: the modes
+// skip one that does not load.
+struct SceneList {
+  std::vector<std::string> names, real;
+  bool is_real(const std::string& n) const { return std::find(real.begin(), real.end(), n) != real.end(); }
+};
+SceneList scene_list(const AccuracyOptions& opt) {
+  SceneList l;
+  std::vector<std::string> builtin;
+  for (const auto& f : builtin_scene_files()) builtin.push_back(file_stem(f));
+  for (const auto& f : real_scene_files()) l.real.push_back(file_stem(f));
+  l.names = opt.scenes;
+  if (l.names.empty()) {
+    l.names = builtin;
+    l.names.insert(l.names.end(), l.real.begin(), l.real.end());
+  }
+  std::string valid;
+  for (const auto& n : builtin) valid += " " + n;
+  for (const auto& n : l.real) valid += " " + n;
+  for (const auto& n : l.names)
+    if (std::find(builtin.begin(), builtin.end(), n) == builtin.end() && !l.is_real(n))
+      fail("bench_denoise --scenes: unknown scene '{}' (valid:{})", n, valid);
+  return l;
+}
+
 void accuracy_table(const AccuracyOptions& opt) {
   const int w = 640, h = 360, kFrames = opt.frames, kTimingRounds = 5;
   const std::vector<int> kRays = {1, 2, 4, 8, 16, 32, 64};
   const double time_s = 1.0;
-  std::vector<std::string> builtin, real;
-  for (const auto& f : builtin_scene_files()) builtin.push_back(file_stem(f));
-  for (const auto& f : real_scene_files()) real.push_back(file_stem(f));
-  std::vector<std::string> scenes = opt.scenes;
-  if (scenes.empty()) {
-    scenes = builtin;
-    scenes.insert(scenes.end(), real.begin(), real.end());
-  }
-  std::string valid;
-  for (const auto& n : builtin) valid += " " + n;
-  for (const auto& n : real) valid += " " + n;
-  for (const auto& n : scenes)
-    if (std::find(builtin.begin(), builtin.end(), n) == builtin.end() &&
-        std::find(real.begin(), real.end(), n) == real.end())
-      fail("bench_denoise --scenes: unknown scene '{}' (valid:{})", n, valid);
+  const SceneList list = scene_list(opt);
+  const std::vector<std::string>& scenes = list.names;
   std::ofstream csv;
   if (!opt.csv_path.empty()) {
     csv.open(opt.csv_path);
@@ -375,7 +390,7 @@ void accuracy_table(const AccuracyOptions& opt) {
   }
   for (const auto& d : denoisers) create(d);  // unknown names and parameters fail before any work
   for (const auto& name : scenes) {
-    const bool is_real = std::find(real.begin(), real.end(), name) != real.end();
+    const bool is_real = list.is_real(name);
     Scene scene;
     const auto t_load = std::chrono::steady_clock::now();
     try {
@@ -518,24 +533,25 @@ void accuracy_table(const AccuracyOptions& opt) {
 // output pixels differ, by how many 8-bit levels.
 void fast_weights_diff(const AccuracyOptions& opt, int frames) {
   const int w = 1280, h = 720, rays = 8;
-  std::vector<std::string> scenes = opt.scenes;
-  if (scenes.empty()) {
-    for (const auto& f : builtin_scene_files()) scenes.push_back(file_stem(f));
-    for (const auto& f : real_scene_files()) scenes.push_back(file_stem(f));
-  }
+  const SceneList list = scene_list(opt);
   std::printf("svgf_ao (fast_weights) against fast_weights = false: %dx%d, %d AO rays, %d frames at 60 fps from t = 1 s\n",
               w, h, rays, frames);
   std::printf("| scene | pixels | equal | 1 level | 2 or more | most levels | mean levels |\n");
   std::printf("| --- | ---: | ---: | ---: | ---: | ---: | ---: |\n");
-  for (const auto& name : scenes) {
+  for (const auto& name : list.names) {
     Scene scene;
     try {
       scene = load_scene_or_model(name, SceneSearchPath::standard());
     } catch (const Error& e) {
-      std::fprintf(stderr, "[fast_weights_diff] skipping %s: it does not load:\n%s\n", name.c_str(), e.what());
+      if (!list.is_real(name)) throw;
+      std::fprintf(stderr, "[fast_weights_diff] skipping real scene %s: it does not load (is ../shared/scenes there?):\n%s\n",
+                   name.c_str(), e.what());
       continue;
     }
-    if (!scene.ao) continue;
+    if (!scene.ao) {
+      std::fprintf(stderr, "[fast_weights_diff] skipping %s: the scene has no AO block\n", name.c_str());
+      continue;
+    }
     RtScene rt(scene);
     auto exact = registries().denoisers.create("svgf_ao", {{"fast_weights", false}});
     auto fast = registries().denoisers.create("svgf_ao", nlohmann::json::object());
@@ -543,15 +559,8 @@ void fast_weights_diff(const AccuracyOptions& opt, int frames) {
     int most = 0;
     ImageU8 out_exact, out_fast;
     for (int f = 0; f < frames; ++f) {
-      const double t = 1.0 + f / 60.0, tp = f == 0 ? t : t - 1.0 / 60.0;
-      RasterFrame rf;
-      rf.scene = &scene;
-      rf.camera = scene.camera.at(t, w, h);
-      rf.prev_camera = scene.camera.at(tp, w, h);
-      rf.time_s = t;
-      rf.prev_time_s = tp;
-      GBuffer g;
-      rasterize(rf, g);
+      const double t = 1.0 + f / 60.0;
+      const GBuffer g = raster_gbuffer(scene, w, h, t, f == 0 ? t : t - 1.0 / 60.0);
       rt.set_time(g.time_s);
       const ImageU8 noisy = trace_ao_image(scene, rt, g, rays, uint32_t(f));
       exact->denoise(DenoiseInput{g, noisy, rays, uint32_t(f), f > 0}, out_exact);

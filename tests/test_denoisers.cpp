@@ -704,6 +704,7 @@ TEST(FastWeights, ExponentialIsAccurateAndCutWhereTheDefaultCuts) {
     denoise::VecF t8 = denoise::VecF{} + t;
     const denoise::VecF got8 = denoise::fast_weight(denoise::VecF{} + 0.75f, t8);
     ASSERT_EQ(std::bit_cast<uint32_t>(got16[0]), std::bit_cast<uint32_t>(got)) << t;
+    ASSERT_EQ(std::bit_cast<uint32_t>(got16[3]), std::bit_cast<uint32_t>(denoise::fast_weight(0.75f, -1.0f))) << t;
     ASSERT_EQ(std::bit_cast<uint32_t>(got8[7]), std::bit_cast<uint32_t>(got)) << t;
     ++checked;
   }

@@ -139,6 +139,7 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
   T sw = T{} + hc;
   T sl = hc * lc;
   T sv = (hc * hc) * L::load(a.var_in + c);
+  [[maybe_unused]] const T ipzl = ipz * kLog2e, iplg = ipl * kLog2e;  // the fast weights' (fast_tap)
   for (int ty = -r; ty <= r; ++ty) {
     const int qy = y + ty * step;
     if (qy < 0 || qy >= a.height) continue;
@@ -149,8 +150,8 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
       if constexpr (F) {
         const T lq = L::load(a.v_in + q);
         fast_tap<K>(ncx, ncy, ncz, L::load(a.nx + q), L::load(a.ny + q), L::load(a.nz + q),
-                    abs_f(zc - L::load(a.depth + q)), (ipz * kLog2e) * inv_len[ty + 2][tx + 2], abs_f(lc - lq),
-                    ipl * kLog2e, hk[ty + 2][tx + 2], nsq, lq, L::load(a.var_in + q), sw, sl, sv);
+                    abs_f(zc - L::load(a.depth + q)), ipzl * inv_len[ty + 2][tx + 2], abs_f(lc - lq), iplg,
+                    hk[ty + 2][tx + 2], nsq, lq, L::load(a.var_in + q), sw, sl, sv);
         continue;
       }
       const T d = ncx * L::load(a.nx + q) + ncy * L::load(a.ny + q) + ncz * L::load(a.nz + q);
