@@ -75,6 +75,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <memory>
 #include <sstream>
 #include <string>
@@ -360,6 +361,25 @@ SceneList scene_list(const AccuracyOptions& opt) {
   return l;
 }
 
+// Scene `name` of the list with an AO block, or nothing when it is skipped (a real scene that does
+// not load, a scene without AO), said on stderr under `tag`; a built-in that does not load fails.
+std::optional<Scene> load_listed(const SceneList& list, const std::string& name, const char* tag) {
+  Scene scene;
+  try {
+    scene = load_scene_or_model(name, SceneSearchPath::standard());
+  } catch (const Error& e) {
+    if (!list.is_real(name)) throw;
+    std::fprintf(stderr, "[%s] skipping real scene %s: it does not load (is ../shared/scenes there?):\n%s\n", tag,
+                 name.c_str(), e.what());
+    return std::nullopt;
+  }
+  if (!scene.ao) {
+    std::fprintf(stderr, "[%s] skipping %s: the scene has no AO block\n", tag, name.c_str());
+    return std::nullopt;
+  }
+  return scene;
+}
+
 void accuracy_table(const AccuracyOptions& opt) {
   const int w = 640, h = 360, kFrames = opt.frames, kTimingRounds = 5;
   const std::vector<int> kRays = {1, 2, 4, 8, 16, 32, 64};
@@ -390,21 +410,10 @@ void accuracy_table(const AccuracyOptions& opt) {
   }
   for (const auto& d : denoisers) create(d);  // unknown names and parameters fail before any work
   for (const auto& name : scenes) {
-    const bool is_real = list.is_real(name);
-    Scene scene;
     const auto t_load = std::chrono::steady_clock::now();
-    try {
-      scene = load_scene_or_model(name, SceneSearchPath::standard());
-    } catch (const Error& e) {
-      if (!is_real) throw;
-      std::fprintf(stderr, "[accuracy] skipping real scene %s: it does not load (is ../shared/scenes there?):\n%s\n",
-                   name.c_str(), e.what());
-      continue;
-    }
-    if (!scene.ao) {
-      std::fprintf(stderr, "[accuracy] skipping %s: the scene has no AO block\n", name.c_str());
-      continue;
-    }
+    std::optional<Scene> loaded = load_listed(list, name, "accuracy");
+    if (!loaded) continue;
+    Scene& scene = *loaded;
     RtScene rt(scene);
     const GBuffer g = raster_gbuffer(scene, w, h, time_s);
     rt.set_time(g.time_s);
@@ -539,19 +548,9 @@ void fast_weights_diff(const AccuracyOptions& opt, int frames) {
   std::printf("| scene | pixels | equal | 1 level | 2 or more | most levels | mean levels |\n");
   std::printf("| --- | ---: | ---: | ---: | ---: | ---: | ---: |\n");
   for (const auto& name : list.names) {
-    Scene scene;
-    try {
-      scene = load_scene_or_model(name, SceneSearchPath::standard());
-    } catch (const Error& e) {
-      if (!list.is_real(name)) throw;
-      std::fprintf(stderr, "[fast_weights_diff] skipping real scene %s: it does not load (is ../shared/scenes there?):\n%s\n",
-                   name.c_str(), e.what());
-      continue;
-    }
-    if (!scene.ao) {
-      std::fprintf(stderr, "[fast_weights_diff] skipping %s: the scene has no AO block\n", name.c_str());
-      continue;
-    }
+    std::optional<Scene> loaded = load_listed(list, name, "fast_weights_diff");
+    if (!loaded) continue;
+    Scene& scene = *loaded;
     RtScene rt(scene);
     auto exact = registries().denoisers.create("svgf_ao", {{"fast_weights", false}});
     auto fast = registries().denoisers.create("svgf_ao", nlohmann::json::object());
