@@ -189,10 +189,13 @@ void RtScene::build() {
   rtcSetSceneFlags(top_, flags);
   const bool has_moving = scene_.has_moving_objects();
   // With moving objects the top level is rebuilt on every set_time(): keep it small (instances
-  // only) and let the static geometry sit in its own child scene, built once.
-  rtcSetSceneBuildQuality(top_, has_moving ? RTC_BUILD_QUALITY_LOW : options_.quality);
+  // only) and let the static geometry sit in its own child scene, built once. two_level leaves
+  // that to Embree: at LOW quality it keeps a BVH per geometry and rebuilds only the level above.
+  const bool two_level = options_.two_level;
+  rtcSetSceneBuildQuality(top_, has_moving || two_level ? RTC_BUILD_QUALITY_LOW : options_.quality);
+  const bool static_child = has_moving && !two_level;
   RTCScene static_target = top_;
-  if (has_moving) {
+  if (static_child) {
     static_child_ = rtcNewScene(device_);
     rtcSetSceneFlags(static_child_, flags);
     rtcSetSceneBuildQuality(static_child_, options_.quality);
@@ -211,10 +214,10 @@ void RtScene::build() {
     const unsigned id = rtcAttachGeometry(static_target, g);
     rtcReleaseGeometry(g);
     ++static_geometries;
-    if (has_moving) set_at(static_child_info_, id, infos_.back().get(), (const RtGeometryInfo*)nullptr);
+    if (static_child) set_at(static_child_info_, id, infos_.back().get(), (const RtGeometryInfo*)nullptr);
     else set_at(top_geom_info_, id, infos_.back().get(), (const RtGeometryInfo*)nullptr);
   }
-  if (has_moving && static_geometries > 0) {
+  if (static_child && static_geometries > 0) {
     arena_->execute([&] { rtcCommitScene(static_child_); });
     RTCGeometry inst = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_INSTANCE);
     rtcSetGeometryInstancedScene(inst, static_child_);

@@ -57,6 +57,13 @@ struct RtSceneOptions {
   // and the Waechter-Binder origin offset already removes self-intersection.
   bool robust = false;
   RTCBuildQuality quality = RTC_BUILD_QUALITY_HIGH;  // static and object-space BVHs (built once)
+  // Every static geometry attached to the top level, built at RTC_BUILD_QUALITY_LOW: Embree then
+  // builds two levels (one BVH per geometry at `quality`, one over the geometries and instances).
+  // For measurement only (bench_trace's scene_layout rows): it traces faster on the built-in
+  // scenes with moving objects, but Embree's traversal (without RTC_SCENE_FLAG_ROBUST) then gives
+  // some rays a result that depends on the other rays of their packet, so the vector and baseline
+  // kernels no longer give the same bits (docs/performance.md, "Embree's two-level layout").
+  bool two_level = false;
 };
 
 struct RtBuildStats {

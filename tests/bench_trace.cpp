@@ -70,6 +70,7 @@ struct PassCase {
   TraceSettings settings;
   PassPlan plan;
   std::vector<RTCRay> rays;  // exactly what the pass traces
+  uint64_t expected_rays = 0;  // where `rays` is not collected (scene_layout rows): their number
   double ceiling_mrays = 0.0;
   std::string ceiling_kind;
   // Per ceiling loop, the rate of its longest run: Google Benchmark calls a benchmark several
@@ -111,8 +112,10 @@ std::map<std::string, std::unique_ptr<BenchScene>>& scenes() {
   return m;
 }
 
-BenchScene& load(const std::string& file, const std::string& name, bool robust = false) {
-  const std::string key = name + (robust ? "#robust" : "");
+// layout: "default", or a scene_layout row's "robust" (RTC_SCENE_FLAG_ROBUST) or "two_level"
+// (RtSceneOptions::two_level).
+BenchScene& load(const std::string& file, const std::string& name, const std::string& layout = "default") {
+  const std::string key = name + "#" + layout;
   auto& m = scenes();
   auto it = m.find(key);
   if (it != m.end()) return *it->second;
@@ -124,7 +127,8 @@ BenchScene& load(const std::string& file, const std::string& name, bool robust =
   b->name = name;
   b->scene = load_scene(file, SceneSearchPath::standard());
   RtSceneOptions opt;
-  opt.robust = robust;
+  opt.robust = layout == "robust";
+  opt.two_level = layout == "two_level";
   if (const char* t = std::getenv("DHR_BENCH_THREADS")) opt.threads = std::atoi(t);
   b->rt = std::make_unique<RtScene>(b->scene, opt);
   const Camera cam = b->scene.camera.at(0.0, kWidth, kHeight);
@@ -134,9 +138,9 @@ BenchScene& load(const std::string& file, const std::string& name, bool robust =
 
 // load(), or the benchmark skipped with the error (a real scene whose files are missing).
 BenchScene* load_or_skip(benchmark::State& state, const std::string& file, const std::string& name,
-                         bool robust = false) {
+                         const std::string& layout = "default") {
   try {
-    return &load(file, name, robust);
+    return &load(file, name, layout);
   } catch (const Error& e) {
     state.SkipWithError(e.what());
     for (auto _ : state) {
@@ -271,8 +275,8 @@ double run_pass(BenchScene& b, PassCase& c, benchmark::State& state) {
     }
   }
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (rays != c.rays.size())
-    state.SkipWithError(fmt::format("pass traced {} rays, the ceiling {}", rays, c.rays.size()).c_str());
+  const uint64_t want = c.rays.empty() ? c.expected_rays : c.rays.size();
+  if (rays != want) state.SkipWithError(fmt::format("pass traced {} rays, expected {}", rays, want).c_str());
   state.counters["Mrays_per_s"] = benchmark::Counter(double(rays) * 1e-6 * double(state.iterations()),
                                                      benchmark::Counter::kIsRate);
   state.counters["rays"] = double(rays);
@@ -382,32 +386,84 @@ void register_scene(const std::string& file) {
   }
 }
 
-// RTC_SCENE_FLAG_ROBUST's cost on AO (8 rays), measured on the pass itself.
-void register_robust(const std::string& file) {
+// The scene's layout against its cost, measured on the passes themselves: RTC_SCENE_FLAG_ROBUST
+// and Embree's two-level layout (RtSceneOptions::two_level) beside the default, on AO (8 rays),
+// hard shadows and 16 rays per area light (the ground truth's cone loop). Every layout traces
+// from the default layout's G-buffer (primary rays can differ too). `counts_differ`: the counts
+// (per pixel, and light) that differ from the default layout's, whose row runs first;
+// `kernels_differ`: the counts where the baseline kernels differ from the vector kernels on
+// this layout (0 on the default layout: tests/test_trace_bits.cpp).
+struct LayoutDefault {
+  GBuffer gbuf;
+  std::map<std::string, std::vector<uint16_t>> counts;  // by pass
+};
+std::map<std::string, LayoutDefault>& layout_defaults() {  // by scene
+  static std::map<std::string, LayoutDefault> m;
+  return m;
+}
+
+std::vector<uint16_t> layout_counts(BenchScene& b, const PassCase& c, bool wide, TraceStats& st) {
+  TraceSettings s = c.settings;
+  s.wide_kernels = wide;
+  if (c.name == "ao8") {
+    const float radius = b.scene.ao ? c.plan.ao_radius_m : 1.0f;
+    return trace_ao_counts(*b.rt, b.gbuf, 8, radius, s, st).unoccluded;
+  }
+  return trace_visibility_counts(*b.rt, b.gbuf, c.plan, s, st).visible;
+}
+
+size_t count_differ(const std::vector<uint16_t>& a, const std::vector<uint16_t>& b) {
+  if (a.size() != b.size()) return std::max(a.size(), b.size());
+  size_t n = 0;
+  for (size_t i = 0; i < a.size(); ++i) n += a[i] != b[i];
+  return n;
+}
+
+void register_layouts(const std::string& file) {
   const std::string name = std::filesystem::path(file).stem().string();
   if (const char* only = std::getenv("DHR_BENCH_SCENES")) {
     const std::string list = std::string(",") + only + ",";
     if (list.find("," + name + ",") == std::string::npos) return;
   }
-  for (bool robust : {false, true}) {
-    benchmark::RegisterBenchmark(fmt::format("robust_flag/{}/ao8/{}", name, robust ? "robust" : "default").c_str(),
-                                 [=](benchmark::State& state) {
-                                   BenchScene* b = load_or_skip(state, file, name, robust);
-                                   if (!b) return;
-                                   PassCase c;
-                                   c.name = "ao8";
-                                   c.settings.ao_rays = 8;
-                                   c.plan = plan_passes(b->scene, c.settings);
-                                   c.rays.resize(0);
-                                   TraceStats st0;
-                                   const float radius = b->scene.ao ? c.plan.ao_radius_m : 1.0f;
-                                   trace_ao_counts(*b->rt, b->gbuf, 8, radius, c.settings, st0);
-                                   c.rays.resize(st0.ao_rays);
-                                   run_pass(*b, c, state);
-                                 })
-        ->Unit(benchmark::kMillisecond)
-        ->UseRealTime()
-        ->MinTime(1.0);
+  for (const std::string pass : {"ao8", "hard", "soft16"}) {
+    for (const std::string layout : {"default", "robust", "two_level"}) {
+      benchmark::RegisterBenchmark(
+          fmt::format("scene_layout/{}/{}/{}", name, pass, layout).c_str(),
+          [=](benchmark::State& state) {
+            BenchScene* b = load_or_skip(state, file, name, layout);
+            if (!b) return;
+            LayoutDefault& d = layout_defaults()[name];
+            if (layout == "default") d.gbuf = b->gbuf;
+            else if (d.gbuf.width() == b->gbuf.width()) b->gbuf = d.gbuf;
+            PassCase c;
+            c.name = pass;
+            c.settings.soft_shadows = pass == "soft16";
+            if (pass == "soft16") c.settings.samples_per_light = 16;
+            if (pass == "ao8") c.settings.ao_rays = 8;
+            if (const char* v = std::getenv("DHR_BENCH_WIDE_KERNELS"))
+              c.settings.wide_kernels = std::strcmp(v, "0") != 0;
+            c.plan = plan_passes(b->scene, c.settings);
+            if (pass != "ao8" && !c.plan.visibility()) {
+              state.SkipWithError("the scene has no lights");
+              for (auto _ : state) {
+              }
+              return;
+            }
+            TraceStats st;
+            const std::vector<uint16_t> counts = layout_counts(*b, c, c.settings.wide_kernels, st);
+            c.expected_rays = pass == "ao8" ? st.ao_rays : st.shadow_rays;
+            run_pass(*b, c, state);
+            TraceStats other;
+            state.counters["kernels_differ"] =
+                double(count_differ(counts, layout_counts(*b, c, !c.settings.wide_kernels, other)));
+            if (layout == "default") d.counts[pass] = counts;
+            const auto it = d.counts.find(pass);
+            if (it != d.counts.end()) state.counters["counts_differ"] = double(count_differ(counts, it->second));
+          })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(1.0);
+    }
   }
 }
 
@@ -419,7 +475,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> files = dhr::builtin_scene_files();
   for (const auto& f : files) dhr::register_scene(f);
   for (const auto& f : dhr::real_scene_files()) dhr::register_scene(f);
-  for (const auto& f : files) dhr::register_robust(f);
+  for (const auto& f : files) dhr::register_layouts(f);
   benchmark::RunSpecifiedBenchmarks();
   benchmark::Shutdown();
   return 0;

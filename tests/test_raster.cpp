@@ -443,6 +443,39 @@ TEST(Raster, AgreesWithEmbreePrimaryRays) {
   EXPECT_GT(compared, n / 2);
 }
 
+// RtSceneOptions::two_level (a measurement option, tests/bench_trace.cpp's scene_layout rows):
+// static geometry in Embree's two levels beside a moving object's instance. Its hits must name
+// the same objects and triangles; Embree's traversal may decide a ray on a shared edge
+// differently, so all but a few pixels must agree, and both objects must be seen.
+TEST(Raster, TwoLevelLayoutSeesTheSameSurfaces) {
+  Scene s = shapes_scene();
+  Object mover = with_shape(6, make_sphere(0.4f, 16, 8), {0, 0, 0});
+  Animation anim;
+  anim.keys = {TransformKey{0.0, {-1, 1, 0}, glm::quat(1, 0, 0, 0), glm::vec3(1)},
+               TransformKey{1.0, {1, 1, 0}, glm::angleAxis(1.0f, glm::vec3(0, 1, 0)), glm::vec3(1.5f)}};
+  mover.animation = anim;
+  s.objects.push_back(mover);
+  const Camera cam = make_camera({3, 2, 5}, {0, 0, 0});
+  RtSceneOptions two;
+  two.threads = 1;
+  two.two_level = true;
+  RtScene rt_default(s, RtSceneOptions{1}), rt_two(s, two);
+  for (double t : {0.0, 0.4, 1.0}) {
+    const GBuffer a = rt_default.primary_gbuffer(cam, t), b = rt_two.primary_gbuffer(cam, t);
+    int same = 0, mover_px = 0, static_px = 0;
+    for (int y = 0; y < a.height(); ++y)
+      for (int x = 0; x < a.width(); ++x) {
+        same += a.object_id(x, y) == b.object_id(x, y) && a.prim_id(x, y) == b.prim_id(x, y);
+        mover_px += b.object_id(x, y) == 6;
+        static_px += b.covered(x, y) && b.object_id(x, y) != 6;
+      }
+    const int n = a.width() * a.height();
+    EXPECT_GE(same, n - n / 1000) << "t = " << t;
+    EXPECT_GT(mover_px, 10) << "t = " << t;
+    EXPECT_GT(static_px, n / 10) << "t = " << t;
+  }
+}
+
 TEST(Raster, CameraTranslationGivesAnalyticMotion) {
   Scene s = empty_scene();
   const float d = 4.0f;
