@@ -60,9 +60,9 @@ struct RtSceneOptions {
   // Every static geometry attached to the top level, built at RTC_BUILD_QUALITY_LOW: Embree then
   // builds two levels (one BVH per geometry at `quality`, one over the geometries and instances).
   // For measurement only (bench_trace's scene_layout rows): it traces faster on the built-in
-  // scenes with moving objects, but Embree's traversal (without RTC_SCENE_FLAG_ROBUST) then gives
-  // some rays a result that depends on the other rays of their packet, so the vector and baseline
-  // kernels no longer give the same bits (docs/performance.md, "Embree's two-level layout").
+  // scenes with moving objects, but it changes a few rays' answers (rays on edges), hence the
+  // pinned hashes of tests/test_trace_bits.cpp on both CPU kinds and every report
+  // (docs/performance.md, "Embree's two-level layout").
   bool two_level = false;
 };
 

@@ -221,11 +221,15 @@ template <class Rows>
 TraceStats trace_rows(RtScene& rt, const TraceSettings& settings, int w, int h, Rows&& rows) {
   AtomicStats acc;
   run_in_arena(rt, settings, [&] {
-    tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& r) {
+    const auto block = [&](const tbb::blocked_range<int>& r) {
       TraceStats st;
       rows(r.begin(), r.end(), st);
       acc.add(st);
-    });
+    };
+    if (settings.rows_per_block > 0)
+      tbb::parallel_for(tbb::blocked_range<int>(0, h, size_t(settings.rows_per_block)), block, tbb::simple_partitioner());
+    else
+      tbb::parallel_for(tbb::blocked_range<int>(0, h), block);
   });
   TraceStats st;
   st.pixels = size_t(w) * size_t(h);

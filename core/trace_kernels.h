@@ -213,8 +213,12 @@ static_assert(popcount16(0xffffu) == 16 && popcount16(0x8001u) == 2 && popcount1
 // Rays are written straight into Embree's SoA layout and traced with rtcOccluded8/16 (W = 16
 // where Embree has native 16-wide kernels, i.e. AVX-512): packets of consecutive rays (the N AO
 // rays of neighbouring pixels, or neighbouring pixels' shadow rays) beat rtcOccluded1 and, on
-// most scenes, rtcOccluded1M streams (see bench_trace). Lanes never mix in Embree's traversal,
-// so a ray's answer does not depend on its packet.
+// most scenes, rtcOccluded1M streams (see bench_trace). A ray's answer can depend on its packet:
+// Embree's traversal (without RTC_SCENE_FLAG_ROBUST) may decide a ray on an edge differently
+// beside other rays (measured: one count in street's hard shadows at 640x360; docs/performance.md,
+// "Which rays share a packet"). So a packet never holds more than one row's rays: the kernels
+// flush at every row, and the rows a thread's block of work holds (TBB's choice as the threads
+// run) cannot change a count.
 // Consecutive rays of one counter (a pixel's AO rays, a light's samples) form a run; a flush
 // adds each run's unoccluded lanes with one popcount instead of one read-modify-write of the
 // same counter per lane (no measurable speed difference on its own; it removes a dependency

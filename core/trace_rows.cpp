@@ -236,6 +236,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   const size_t npx = size_t(w) * size_t(g.height());
   const int nl = int(lights.size());
   Batch<W> batch(rt.handle(), kMaskShadow);
+  Batch<W> pair_batch(rt.handle(), kMaskShadow);  // a soft light's S > 1 rays of one pixel
   TriangleCache cache;
   // One set of row arrays per thread, kept from call to call (a block of rows is often only a
   // few rows: allocating them per block cost several percent of a pass). Every value a row
@@ -269,7 +270,11 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   alignas(64) bool ok[kChunk];
   constexpr float kInf = std::numeric_limits<float>::infinity();
   for (int y = y0; y < y1; ++y) {
-    if (rows_out) batch.record = &(*rows_out)[size_t(y)];
+    // A packet holds one row's rays: the rows of a block (TBB's choice, as the threads run) must
+    // not decide which rays share a packet (Embree can answer a ray on an edge differently in
+    // another packet; TraceBits.CountsDoNotDependOnRowBlocks).
+    batch.flush();
+    if (rows_out) batch.record = pair_batch.record = &(*rows_out)[size_t(y)];
     // Stage 1: surfaces.
     bool any = false;
 #if DHR_TRACE_X86_KERNELS
@@ -482,20 +487,24 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
           for (int j = 0; j < n; ++j) ok[j] = direction_valid(dx[j], dy[j], dz[j], tfar[j]);
           for (int j = 0; j < n; ++j) {
             if (origin_ok && ok[j]) {
-              batch.push(origin, dx[j], dy[j], dz[j], tfar[j], count);
+              pair_batch.push(origin, dx[j], dy[j], dz[j], tfar[j], count);
             } else {
               ++invalid;
               ++*count;
             }
+            // Packets of the pair's samples W at a time, as soft_pair_rays_x16 and _x8 trace
+            // them: the same rays share a packet in every kernel.
+            if ((k0 + j + 1) % W == 0) pair_batch.flush();
           }
         }
+        pair_batch.flush();
       }
     }
   }
   batch.flush();
   if (rows_out)
     for (int y = y0; y < y1; ++y) batch.traced += (*rows_out)[size_t(y)].size();
-  st.shadow_rays = batch.traced;
+  st.shadow_rays = batch.traced + pair_batch.traced;
   st.invalid_rays = invalid;
   st.unresolved_pixels = unres;
   st.shadow_skipped_facing = facing;
@@ -538,6 +547,7 @@ void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_
   AoPixels px(w);
   uint64_t invalid = 0, unres = 0, cov = 0;
   for (int y = y0; y < y1; ++y) {
+    batch.flush();  // one row's rays per packet, as visibility_rows
     if (rows_out) batch.record = &(*rows_out)[size_t(y)];
     px.n = 0;
     for (int x = 0; x < w; ++x) {
