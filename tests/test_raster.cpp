@@ -352,6 +352,18 @@ Scene shapes_scene() {
   return s;
 }
 
+// shapes_scene() and a sphere (id 6) that moves, turns and grows over [0, 1] s.
+Scene shapes_scene_with_mover() {
+  Scene s = shapes_scene();
+  Object mover = with_shape(6, make_sphere(0.4f, 16, 8), {0, 0, 0});
+  Animation anim;
+  anim.keys = {TransformKey{0.0, {-1, 1, 0}, glm::quat(1, 0, 0, 0), glm::vec3(1)},
+               TransformKey{1.0, {1, 1, 0}, glm::angleAxis(1.0f, glm::vec3(0, 1, 0)), glm::vec3(1.5f)}};
+  mover.animation = anim;
+  s.objects.push_back(mover);
+  return s;
+}
+
 TEST(Raster, PositionsLieOnPrimaryRaysAndDepthIsViewDepth) {
   const Scene s = shapes_scene();
   for (const Camera& cam : {make_camera({3, 2, 5}, {0, 0, 0}), make_camera({-2.5f, 0.4f, 3}, {0.3f, 0.1f, -1}, 61, 47, 75.0f),
@@ -409,13 +421,7 @@ TEST(Raster, BarycentricsReconstructPosition) {
 // The server recomputes the G-buffer with Embree primary rays (RtScene::primary_gbuffer):
 // away from silhouettes and shared edges both must agree.
 TEST(Raster, AgreesWithEmbreePrimaryRays) {
-  Scene s = shapes_scene();
-  Object mover = with_shape(6, make_sphere(0.4f, 16, 8), {0, 0, 0});
-  Animation anim;
-  anim.keys = {TransformKey{0.0, {-1, 1, 0}, glm::quat(1, 0, 0, 0), glm::vec3(1)},
-               TransformKey{1.0, {1, 1, 0}, glm::angleAxis(1.0f, glm::vec3(0, 1, 0)), glm::vec3(1.5f)}};
-  mover.animation = anim;
-  s.objects.push_back(mover);
+  const Scene s = shapes_scene_with_mover();
   const Camera cam = make_camera({3, 2, 5}, {0, 0, 0});
   GBuffer g;
   rasterize({&s, cam, 0.4, cam, 0.4}, g);
@@ -448,13 +454,7 @@ TEST(Raster, AgreesWithEmbreePrimaryRays) {
 // the same objects and triangles; Embree's traversal may decide a ray on a shared edge
 // differently, so all but a few pixels must agree, and both objects must be seen.
 TEST(Raster, TwoLevelLayoutSeesTheSameSurfaces) {
-  Scene s = shapes_scene();
-  Object mover = with_shape(6, make_sphere(0.4f, 16, 8), {0, 0, 0});
-  Animation anim;
-  anim.keys = {TransformKey{0.0, {-1, 1, 0}, glm::quat(1, 0, 0, 0), glm::vec3(1)},
-               TransformKey{1.0, {1, 1, 0}, glm::angleAxis(1.0f, glm::vec3(0, 1, 0)), glm::vec3(1.5f)}};
-  mover.animation = anim;
-  s.objects.push_back(mover);
+  const Scene s = shapes_scene_with_mover();
   const Camera cam = make_camera({3, 2, 5}, {0, 0, 0});
   RtSceneOptions two;
   two.threads = 1;
