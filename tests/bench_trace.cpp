@@ -235,7 +235,8 @@ void trace_1m_coherent(RTCScene scene, const std::vector<RTCRay>& rays) {
   });
 }
 
-PassCase make_case(BenchScene& b, const std::string& pass) {
+// A pass's name, settings and plan, without its rays.
+PassCase case_settings(const BenchScene& b, const std::string& pass) {
   PassCase c;
   c.name = pass;
   if (pass == "hard") c.settings.soft_shadows = false;
@@ -249,9 +250,16 @@ PassCase make_case(BenchScene& b, const std::string& pass) {
   // compare with the AVX-512 ones in the same build (same rays, same bits).
   if (const char* v = std::getenv("DHR_BENCH_WIDE_KERNELS")) c.settings.wide_kernels = std::strcmp(v, "0") != 0;
   c.plan = plan_passes(b.scene, c.settings);
+  return c;
+}
+
+// The AO pass's radius: the scene's, or 1 m for a scene without an AO block.
+float ao_radius(const BenchScene& b, const PassCase& c) { return b.scene.ao ? c.plan.ao_radius_m : 1.0f; }
+
+PassCase make_case(BenchScene& b, const std::string& pass) {
+  PassCase c = case_settings(b, pass);
   if (pass == "ao8") {
-    const float radius = b.scene.ao ? c.plan.ao_radius_m : 1.0f;
-    c.rays = collect_ao_rays(*b.rt, b.gbuf, 8, radius, c.settings);
+    c.rays = collect_ao_rays(*b.rt, b.gbuf, 8, ao_radius(b, c), c.settings);
   } else if (c.plan.visibility()) {
     c.rays = collect_visibility_rays(*b.rt, b.gbuf, c.plan, c.settings);
   }
@@ -266,8 +274,7 @@ double run_pass(BenchScene& b, PassCase& c, benchmark::State& state) {
   for (auto _ : state) {
     TraceStats st;
     if (c.name == "ao8") {
-      const float radius = b.scene.ao ? c.plan.ao_radius_m : 1.0f;
-      benchmark::DoNotOptimize(trace_ao_counts(*b.rt, b.gbuf, 8, radius, c.settings, st));
+      benchmark::DoNotOptimize(trace_ao_counts(*b.rt, b.gbuf, 8, ao_radius(b, c), c.settings, st));
       rays = st.ao_rays;
     } else {
       benchmark::DoNotOptimize(trace_visibility_counts(*b.rt, b.gbuf, c.plan, c.settings, st));
@@ -392,7 +399,7 @@ void register_scene(const std::string& file) {
 // from the default layout's G-buffer (primary rays can differ too). `counts_differ`: the counts
 // (per pixel, and light) that differ from the default layout's, whose row runs first;
 // `kernels_differ`: the counts where the baseline kernels differ from the vector kernels on
-// this layout (0 on the default layout: tests/test_trace_bits.cpp).
+// this layout (tests/test_trace_bits.cpp checks the default layout on its pinned images).
 struct LayoutDefault {
   GBuffer gbuf;
   std::map<std::string, std::vector<uint16_t>> counts;  // by pass
@@ -405,10 +412,7 @@ std::map<std::string, LayoutDefault>& layout_defaults() {  // by scene
 std::vector<uint16_t> layout_counts(BenchScene& b, const PassCase& c, bool wide, TraceStats& st) {
   TraceSettings s = c.settings;
   s.wide_kernels = wide;
-  if (c.name == "ao8") {
-    const float radius = b.scene.ao ? c.plan.ao_radius_m : 1.0f;
-    return trace_ao_counts(*b.rt, b.gbuf, 8, radius, s, st).unoccluded;
-  }
+  if (c.name == "ao8") return trace_ao_counts(*b.rt, b.gbuf, 8, ao_radius(b, c), s, st).unoccluded;
   return trace_visibility_counts(*b.rt, b.gbuf, c.plan, s, st).visible;
 }
 
@@ -435,14 +439,7 @@ void register_layouts(const std::string& file) {
             LayoutDefault& d = layout_defaults()[name];
             if (layout == "default") d.gbuf = b->gbuf;
             else if (d.gbuf.width() == b->gbuf.width()) b->gbuf = d.gbuf;
-            PassCase c;
-            c.name = pass;
-            c.settings.soft_shadows = pass == "soft16";
-            if (pass == "soft16") c.settings.samples_per_light = 16;
-            if (pass == "ao8") c.settings.ao_rays = 8;
-            if (const char* v = std::getenv("DHR_BENCH_WIDE_KERNELS"))
-              c.settings.wide_kernels = std::strcmp(v, "0") != 0;
-            c.plan = plan_passes(b->scene, c.settings);
+            PassCase c = case_settings(*b, pass);
             if (pass != "ao8" && !c.plan.visibility()) {
               state.SkipWithError("the scene has no lights");
               for (auto _ : state) {

@@ -161,38 +161,37 @@ TEST(TraceBits, CountsDoNotDependOnRowBlocks) {
   test::for_each_scene([&](const std::string& name, const Scene& scene) {
     if (name != "street") return;
     RtScene rt(scene);
-    for (double t : {2.0}) {
-      const Camera cam = scene.camera.at(t, 640, 360);
-      const GBuffer g = rt.primary_gbuffer(cam, t);
-      for (const std::string mode : {"hard", "soft4", "ao8"})
-        for (bool wide : {true, false}) {
-          std::vector<uint16_t> first;
-          for (int rows : {1, 3, g.height()}) {
-            TraceSettings s;
-            s.seed = 7;
-            s.frame = uint32_t(t * 60.0);
-            s.soft_shadows = mode == "soft4";
-            s.samples_per_light = mode == "soft4" ? 4 : 1;
-            s.ao_rays = 8;
-            s.wide_kernels = wide;
-            s.rows_per_block = rows;
-            const PassPlan plan = plan_passes(scene, s);
-            TraceStats st;
-            const std::vector<uint16_t> counts =
-                mode == "ao8" ? trace_ao_counts(rt, g, 8, plan.ao_radius_m, s, st).unoccluded
-                              : trace_visibility_counts(rt, g, plan, s, st).visible;
-            if (first.empty()) {
-              first = counts;
-              continue;
-            }
-            size_t differ = 0;
-            for (size_t i = 0; i < counts.size(); ++i) differ += counts[i] != first[i];
-            EXPECT_EQ(differ, 0u) << name << " t = " << t << " " << mode << (wide ? " vector" : " baseline")
-                                  << " kernels: blocks of " << rows << " rows against 1";
-            ++compared;
+    const double t = 2.0;
+    const Camera cam = scene.camera.at(t, 640, 360);
+    const GBuffer g = rt.primary_gbuffer(cam, t);
+    for (const std::string mode : {"hard", "soft4", "ao8"})
+      for (bool wide : {true, false}) {
+        std::vector<uint16_t> first;
+        for (int rows : {1, 3, g.height()}) {
+          TraceSettings s;
+          s.seed = 7;
+          s.frame = uint32_t(t * 60.0);
+          s.soft_shadows = mode == "soft4";
+          s.samples_per_light = mode == "soft4" ? 4 : 1;
+          s.ao_rays = 8;
+          s.wide_kernels = wide;
+          s.rows_per_block = rows;
+          const PassPlan plan = plan_passes(scene, s);
+          TraceStats st;
+          const std::vector<uint16_t> counts =
+              mode == "ao8" ? trace_ao_counts(rt, g, 8, plan.ao_radius_m, s, st).unoccluded
+                            : trace_visibility_counts(rt, g, plan, s, st).visible;
+          if (first.empty()) {
+            first = counts;
+            continue;
           }
+          size_t differ = 0;
+          for (size_t i = 0; i < counts.size(); ++i) differ += counts[i] != first[i];
+          EXPECT_EQ(differ, 0u) << name << " t = " << t << " " << mode << (wide ? " vector" : " baseline")
+                                << " kernels: blocks of " << rows << " rows against 1";
+          ++compared;
         }
-    }
+      }
   });
   EXPECT_EQ(compared, 12);
 }
