@@ -238,8 +238,15 @@ struct Batch {
 
   Batch(RTCScene scene_, unsigned mask_) : scene(scene_), mask(mask_) {
     rtcInitIntersectContext(&ctx);
-    // Occlusion queries write only tfar: the other fields are set once.
+    // Occlusion queries write only tfar: the other fields are set once. Lanes past n keep
+    // whatever ray they last held, and Embree's SSE kernels (DHR_EMBREE_MAX_ISA=sse4.2, or a CPU
+    // without AVX) check every lane's values, active or not, and abort on garbage: each lane
+    // starts with a harmless ray.
     for (int k = 0; k < W; ++k) {
+      packet.org_x[k] = packet.org_y[k] = packet.org_z[k] = 0.0f;
+      packet.dir_x[k] = 1.0f;
+      packet.dir_y[k] = packet.dir_z[k] = 0.0f;
+      packet.tfar[k] = 0.0f;
       packet.tnear[k] = 0.0f;
       packet.time[k] = 0.0f;
       packet.mask[k] = mask;
