@@ -203,8 +203,14 @@ bool get(const std::string& in, size_t& pos, T& v) {
 
 }  // namespace
 
-void TraceCache::write_disk(const std::string& key, const Entry& e) const {
+void TraceCache::set_disk_dir(std::string dir) {
+  disk_tag_ = dir.empty() ? std::string() : fmt::format("|{}", embree_tracer());
+  disk_dir_ = std::move(dir);
+}
+
+void TraceCache::write_disk(const std::string& memory_key, const Entry& e) const {
   namespace fs = std::filesystem;
+  const std::string key = memory_key + disk_tag_;
   std::string out(kTraceFileMagic, sizeof(kTraceFileMagic));
   put(out, uint32_t(key.size()));
   out += key;
@@ -248,8 +254,9 @@ void TraceCache::write_disk(const std::string& key, const Entry& e) const {
   if (ec) fs::remove(tmp, ec);
 }
 
-std::shared_ptr<const TraceCache::Entry> TraceCache::read_disk(const std::string& key) const {
+std::shared_ptr<const TraceCache::Entry> TraceCache::read_disk(const std::string& memory_key) const {
   namespace fs = std::filesystem;
+  const std::string key = memory_key + disk_tag_;
   const fs::path path = fs::path(disk_dir_) / fmt::format("{:016x}.bin", fnv1a64(key));
   std::ifstream f(path, std::ios::binary);
   if (!f) return nullptr;

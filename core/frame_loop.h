@@ -60,8 +60,10 @@ class TraceCache {
   // never trace the same frame twice. Files are checked (magic, key, sizes, CRC-32C) when read;
   // a bad or foreign file is ignored and traced again. Several processes (on several machines,
   // over a shared filesystem) may share the folder: each file is written under a temporary name
-  // and renamed, so a reader never sees part of one. Empty: memory only.
-  void set_disk_dir(std::string dir) { disk_dir_ = std::move(dir); }
+  // and renamed, so a reader never sees part of one. Empty: memory only. The disk keys add the
+  // tracer (embree_tracer(), core/rt_scene.h: Embree's version and ISA, read here): machines of
+  // two CPU kinds sharing the folder keep an entry each.
+  void set_disk_dir(std::string dir);
   const std::string& disk_dir() const { return disk_dir_; }
   std::shared_ptr<const Entry> find(const std::string& key);
   void insert(const std::string& key, std::shared_ptr<const Entry> entry);
@@ -106,6 +108,7 @@ class TraceCache {
   std::shared_ptr<const Entry> read_disk(const std::string& key) const;
   void write_disk(const std::string& key, const Entry& entry) const;
   std::string disk_dir_;
+  std::string disk_tag_;  // "|" + embree_tracer(), appended to every disk key
   mutable std::mutex mutex_;
   size_t max_bytes_;
   size_t bytes_ = 0;

@@ -140,7 +140,7 @@ uint64_t scene_content_hash(const Scene& s) {
   return h.value();
 }
 
-std::string reference_key(const Scene& scene, const GBuffer& g, const ReferenceSettings& s) {
+std::string reference_key(const Scene& scene, const GBuffer& g, const ReferenceSettings& s, const std::string& tracer) {
   Hasher h;
   h.pod(kReferenceVersion);
   h.pod(scene_content_hash(scene));
@@ -158,6 +158,7 @@ std::string reference_key(const Scene& scene, const GBuffer& g, const ReferenceS
   h.pod(s.samples_per_light);
   h.pod(s.seed);
   h.pod(s.composite.exposure);
+  h.str(tracer);
   return fmt::format("{:016x}", h.value());
 }
 
@@ -167,7 +168,7 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
     fail("reference: samples_per_light {} out of range 1..65535", s.samples_per_light);
   const Scene& scene = rt.scene();
   ReferenceResult out;
-  out.key = reference_key(scene, g, s);
+  out.key = reference_key(scene, g, s, rt.tracer());
   namespace fs = std::filesystem;
   fs::path file;
   if (s.use_cache) {
@@ -232,6 +233,7 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
                            {"samples_per_light", s.samples_per_light},
                            {"seed", s.seed},
                            {"exposure", s.composite.exposure},
+                           {"tracer", rt.tracer()},
                            {"shadow_rays", out.stats.shadow_rays},
                            {"ao_rays_traced", out.stats.ao_rays}};
     const fs::path meta_file = fs::path(file).replace_extension(".json");

@@ -9,7 +9,9 @@
 // the scene's content (every mesh, material, texture, light, animation, the ambient and AO
 // settings, plus the bytes of the scene file when it can be read), the camera, the time, the
 // resolution, the G-buffer's contents (so a different rasterizer gives a different key), the
-// reference settings and kReferenceVersion (bumped whenever the estimator changes). The cache
+// reference settings, the tracer (Embree's version and ISA: a cache folder shared by machines of
+// two CPU kinds keeps one entry per kind) and kReferenceVersion (bumped whenever the estimator
+// changes). The cache
 // folder defaults to $DHR_CACHE_DIR, else <repo>/cache/.
 #pragma once
 
@@ -43,8 +45,10 @@ std::string default_cache_dir();
 
 // 64-bit content hash of a scene (see the header comment).
 uint64_t scene_content_hash(const Scene& scene);
-// The cache key (16 hex digits) of a ground truth.
-std::string reference_key(const Scene& scene, const GBuffer& gbuf, const ReferenceSettings& settings);
+// The cache key (16 hex digits) of a ground truth traced by `tracer` (RtScene::tracer(): Embree's
+// version and ISA, which can decide a ray on an edge).
+std::string reference_key(const Scene& scene, const GBuffer& gbuf, const ReferenceSettings& settings,
+                          const std::string& tracer);
 
 struct ReferenceResult {
   ImageRGB8 image;

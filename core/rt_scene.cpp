@@ -13,7 +13,10 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
+#include <string>
+#include <utility>
 
 namespace dhr {
 
@@ -52,6 +55,52 @@ void alpha_cutout_filter(const RTCFilterFunctionNArguments* args) {
 }
 
 }  // namespace
+
+namespace {
+std::string tracer_name(RTCDevice device, const std::string& isa) {
+  const ssize_t v = rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_VERSION);
+  return fmt::format("embree {}.{}.{} {}", v / 10000, (v / 100) % 100, v % 100, isa);
+}
+}  // namespace
+
+std::string embree_tracer() {
+  const std::string isa = embree_isa();
+  RTCDevice device = rtcNewDevice("verbose=0");
+  if (!device) fail("rt_scene: rtcNewDevice failed (error {})", int(rtcGetDeviceError(nullptr)));
+  const std::string name = tracer_name(device, isa);
+  rtcReleaseDevice(device);
+  return name;
+}
+
+std::string embree_isa() {
+  // Embree's ISAs, best last, and what each needs of the CPU (its own tests, in short).
+  static const std::array<std::pair<const char*, bool>, 5> isas = {{
+      {"sse2", true},
+      {"sse4.2", __builtin_cpu_supports("sse4.2") && __builtin_cpu_supports("popcnt")},
+      {"avx", __builtin_cpu_supports("avx")},
+      {"avx2", __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma") && __builtin_cpu_supports("bmi") &&
+                   __builtin_cpu_supports("bmi2")},
+      {"avx512", __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512cd") &&
+                     __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512bw") &&
+                     __builtin_cpu_supports("avx512vl")},
+  }};
+  size_t cap = isas.size() - 1;
+  if (const char* env = std::getenv("DHR_EMBREE_MAX_ISA"); env && *env) {
+    const std::string want = env;
+    cap = isas.size();
+    for (size_t i = 0; i < isas.size(); ++i)
+      if (want == isas[i].first) cap = i;
+    if (cap == isas.size())
+      fail("DHR_EMBREE_MAX_ISA = \"{}\": not an Embree ISA (valid: sse2, sse4.2, avx, avx2, avx512; unset for the "
+           "best this CPU has)",
+           want);
+  }
+  size_t best = 0;
+  for (size_t i = 0; i <= cap; ++i)
+    if (isas[i].second) best = i;
+    else break;  // each ISA needs the ones before it
+  return isas[best].first;
+}
 
 RtScene::RtScene(const Scene& scene, const RtSceneOptions& options) : scene_(scene), options_(options) {
   if (options.threads < 0) fail("rt_scene: threads {} must be >= 0 (0 = all cores)", options.threads);
@@ -156,9 +205,13 @@ RTCGeometry RtScene::make_triangle_geometry(uint32_t object_index) {
 
 void RtScene::build() {
   last_error_.clear();
-  device_ = rtcNewDevice(fmt::format("threads={}", threads_).c_str());
-  if (!device_) fail("rt_scene: rtcNewDevice failed (error {})", int(rtcGetDeviceError(nullptr)));
+  const std::string isa = embree_isa();
+  std::string config = fmt::format("threads={}", threads_);
+  if (const char* cap = std::getenv("DHR_EMBREE_MAX_ISA"); cap && *cap) config += fmt::format(",max_isa={}", isa);
+  device_ = rtcNewDevice(config.c_str());
+  if (!device_) fail("rt_scene: rtcNewDevice(\"{}\") failed (error {})", config, int(rtcGetDeviceError(nullptr)));
   rtcSetDeviceErrorFunction(device_, embree_error, &last_error_);
+  tracer_ = tracer_name(device_, isa);
 
   for (size_t i = 0; i < scene_.objects.size(); ++i) {
     const Object& o = scene_.objects[i];

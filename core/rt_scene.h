@@ -66,6 +66,19 @@ struct RtSceneOptions {
   bool two_level = false;
 };
 
+// The kernels Embree traverses with: "avx512", "avx2", "avx", "sse4.2" or "sse2", the best this
+// CPU has, capped by $DHR_EMBREE_MAX_ISA when it is set (one of those names; Embree's max_isa).
+// Kernels of two ISAs can answer a ray that grazes an edge differently (their reciprocal and
+// FMA roundings differ), so the ISA is part of a result's identity: the disk caches' keys and
+// results.json's context record it, and the cap lets one machine reproduce another's bits (an
+// AVX-512 machine with DHR_EMBREE_MAX_ISA=avx2 traces as an AMD AVX2 one does:
+// tests/test_trace_bits.cpp checks every ISA's table on every machine). Throws dhr::Error naming
+// the variable when it holds anything else.
+std::string embree_isa();
+// "embree <version> <embree_isa()>", the version from the library loaded: what decides the answer
+// of a ray besides the scene and the ray (the disk caches' keys read it; RtScene::tracer()).
+std::string embree_tracer();
+
 struct RtBuildStats {
   size_t triangles_total = 0;  // in the scene
   size_t triangles_built = 0;  // handed to Embree
@@ -126,6 +139,8 @@ class RtScene {
 
   RTCScene handle() const { return top_; }
   RTCDevice device() const { return device_; }
+  // embree_tracer() of this scene's device (the ground truth's cache key reads it).
+  const std::string& tracer() const { return tracer_; }
   const Scene& scene() const { return scene_; }
   const RtSceneOptions& options() const { return options_; }
   const RtBuildStats& build_stats() const { return build_stats_; }
@@ -179,6 +194,7 @@ class RtScene {
   std::vector<int> id_to_index_;              // Object::id -> index (dense up to max id)
   RtBuildStats build_stats_;
   std::string last_error_;  // first error Embree reported (see embree_error)
+  std::string tracer_;
   double time_s_ = 0.0;
   bool time_set_ = false;
 };

@@ -165,6 +165,16 @@ Runner add_merge_command(CLI::App& app) {
           fail("{}: holds runs {}, its shard.json {}", results_path.string(), join(ids), join(m.run_ids));
         if (first->results.is_object() && &s != first && s.results.at("experiment") != first->results.at("experiment"))
           fail("{}: its experiment differs from {}'s", results_path.string(), first->dir);
+        // Embree's kernels of two ISAs can answer a ray on an edge differently: one result, one ISA.
+        if (first->results.is_object() && &s != first) {
+          const nlohmann::json none;
+          const nlohmann::json& isa = s.results.at("context").value("embree_isa", none);
+          const nlohmann::json& first_isa = first->results.at("context").value("embree_isa", none);
+          if (isa != first_isa)
+            fail("{}: traced with Embree's {} kernels, {} with its {}: the figures of one result come from one "
+                 "ISA (run every shard with the same DHR_EMBREE_MAX_ISA, e.g. avx2, the best all nodes have)",
+                 results_path.string(), isa.dump(), first->dir, first_isa.dump());
+        }
         const fs::path frames_path = fs::path(s.dir) / "frames.csv";
         std::vector<std::string> records = csv_records(read_text(frames_path));
         if (records.empty()) fail("{}: empty (a header is expected)", frames_path.string());

@@ -2,6 +2,8 @@
 // result (after Google Benchmark's context): the code, the build, the machine, the libraries.
 #include "experiments/context.h"
 
+#include "core/rt_scene.h"
+
 #include <OpenImageIO/imageio.h>
 #include <embree3/rtcore.h>
 #include <lz4.h>
@@ -83,6 +85,8 @@ nlohmann::json run_context(const std::string& build_type) {
   c["sanitizers"] = false;
 #endif
   c["cpu_model"] = cpu_model();
+  // Embree's kernels: results differ between ISAs on rays that graze an edge (core/rt_scene.h).
+  c["embree_isa"] = embree_isa();
   c["hardware_threads"] = std::thread::hardware_concurrency();
   utsname u{};
   if (uname(&u) == 0) c["kernel"] = fmt::format("{} {} {}", u.sysname, u.release, u.machine);

@@ -6,7 +6,9 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <cstdlib>
 #include <functional>
+#include <optional>
 #include <string>
 
 namespace dhr::test {
@@ -55,5 +57,25 @@ TemporalScores temporal_scores_one_loop(const ImageRGB8& reference_prev, const I
 
 // The message of the dhr::Error that `f` throws; "" when it throws none.
 std::string error_of(const std::function<void()>& f);
+
+// Sets an environment variable for a scope (setenv), then restores its earlier value or
+// absence. Tests run one at a time in their process.
+class ScopedEnv {
+ public:
+  ScopedEnv(const char* name, const char* value) : name_(name) {
+    if (const char* old = std::getenv(name)) old_ = old;
+    ::setenv(name, value, 1);
+  }
+  ~ScopedEnv() {
+    if (old_) ::setenv(name_.c_str(), old_->c_str(), 1);
+    else ::unsetenv(name_.c_str());
+  }
+  ScopedEnv(const ScopedEnv&) = delete;
+  ScopedEnv& operator=(const ScopedEnv&) = delete;
+
+ private:
+  std::string name_;
+  std::optional<std::string> old_;
+};
 
 }  // namespace dhr::test

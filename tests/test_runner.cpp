@@ -44,7 +44,7 @@ TEST(Runner, TinyExperimentEndToEnd) {
   // Context block.
   const auto& ctx = r.at("context");
   EXPECT_EQ(ctx.at("schema_version"), 1);
-  for (const char* key : {"git_commit", "git_dirty", "compiler", "build_type", "cpu_model", "hardware_threads", "kernel"})
+  for (const char* key : {"git_commit", "git_dirty", "compiler", "build_type", "cpu_model", "embree_isa", "hardware_threads", "kernel"})
     EXPECT_TRUE(ctx.contains(key)) << key;
   for (const char* lib : {"embree", "lz4", "zstd", "libavcodec", "x264", "opencv", "openimageio"})
     EXPECT_FALSE(ctx.at("libraries").at(lib).get<std::string>().empty()) << lib;

@@ -5,7 +5,9 @@
 #include "core/error.h"
 #include "core/experiment.h"
 #include "core/frame_loop.h"
+#include "core/json_io.h"
 #include "core/results.h"
+#include "core/rt_scene.h"
 #include "core/shard.h"
 #include "support.h"
 
@@ -26,11 +28,12 @@ namespace fs = std::filesystem;
 
 const std::string kExperiment = std::string(DHR_SOURCE_DIR) + "/tests/data/shard_experiment.json";
 
-// Runs the dhrbench command with DHR_CACHE_DIR=cache (when given); returns its exit code.
-int cli(const std::string& args, std::string* output = nullptr, const fs::path& cache = {}) {
+// Runs the dhrbench command with DHR_CACHE_DIR=cache (when given) and the `env` assignments
+// ("NAME=value "); returns its exit code.
+int cli(const std::string& args, std::string* output = nullptr, const fs::path& cache = {}, const std::string& env_more = "") {
   static int n = 0;
   const std::string log = (fs::temp_directory_path() / fmt::format("dhr_shard_test.{}.{}.log", ::getpid(), n++)).string();
-  const std::string env = cache.empty() ? "" : "DHR_CACHE_DIR='" + cache.string() + "' ";
+  const std::string env = (cache.empty() ? "" : "DHR_CACHE_DIR='" + cache.string() + "' ") + env_more;
   const int rc = std::system((env + DHR_CLI + " " + args + " >" + log + " 2>&1").c_str());
   std::ifstream in(log);
   std::stringstream s;
@@ -188,6 +191,20 @@ TEST(Shard, MergedShardsEqualTheUnshardedRunInEveryNonTimingFigure) {
       << log;
   EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "other").string() + " " + s3, &log), 1);
   EXPECT_NE(log.find((base / "other").string() + ": another experiment"), std::string::npos) << log;
+  // A shard traced with other Embree kernels (a node of another CPU kind): its figures could
+  // differ on rays that graze an edge.
+  const std::string isa = embree_isa(), other = isa == "sse2" ? "sse4.2" : "sse2";
+  ASSERT_EQ(cli(fmt::format("run {} --shard 2/3 --out {}", kExperiment, (base / "other_isa").string()), &log,
+                base / "cache_other_isa", "DHR_EMBREE_MAX_ISA=" + other + " "),
+            0)
+      << log;
+  const int merged = cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "other_isa").string() + " " + s3, &log);
+  const std::string got = read_json_file((base / "other_isa" / "results.json").string()).at("context").at("embree_isa");
+  if (got != isa) {  // else this CPU has no other ISA
+    EXPECT_EQ(merged, 1);
+    EXPECT_NE(log.find("traced with Embree's \"" + got + "\" kernels"), std::string::npos) << log;
+    EXPECT_NE(log.find("DHR_EMBREE_MAX_ISA"), std::string::npos) << log;
+  }
   EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "whole").string(), &log), 1);
   EXPECT_NE(log.find((base / "whole").string() + ": no shard.json here"), std::string::npos) << log;
   EXPECT_FALSE(fs::exists(base / "m2"));
@@ -289,6 +306,34 @@ TEST(TraceCache, AFlippedByteInACacheFileIsFoundByItsChecksum) {
   TraceCache again;
   again.set_disk_dir(dir.string());
   EXPECT_EQ(again.find("key"), nullptr);
+  fs::remove_all(dir);
+}
+
+// The disk keys carry Embree's ISA: a folder shared by machines of two CPU kinds never hands one
+// the other's traces (their kernels can answer a ray on an edge differently).
+TEST(TraceCache, DiskEntriesAreKeptPerEmbreeIsa) {
+  const fs::path dir = fs::temp_directory_path() / fmt::format("dhr_trace_cache_isa.{}", ::getpid());
+  fs::remove_all(dir);
+  auto entry = std::make_shared<TraceCache::Entry>();
+  PassBuffer ao;
+  ao.desc = {PassKind::Ao, 16, 4, 1, 8};
+  ao.bytes.assign(ao.desc.byte_size(), 3);
+  entry->passes.push_back({"ao", PassMeaning::Ao, ao, 0.0});
+  const std::string isa = embree_isa();
+  {
+    TraceCache writer;
+    writer.set_disk_dir(dir.string());
+    writer.insert("key", entry);
+  }
+  TraceCache same;
+  same.set_disk_dir(dir.string());
+  ASSERT_NE(same.find("key"), nullptr);
+  test::ScopedEnv cap("DHR_EMBREE_MAX_ISA", isa == "sse2" ? "sse4.2" : "sse2");
+  if (embree_isa() != isa) {  // else this CPU has no other ISA
+    TraceCache other;
+    other.set_disk_dir(dir.string());
+    EXPECT_EQ(other.find("key"), nullptr);
+  }
   fs::remove_all(dir);
 }
 

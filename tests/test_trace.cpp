@@ -31,6 +31,7 @@ namespace {
 constexpr int kW = 48, kH = 32;
 
 using test::make_object;
+using test::ScopedEnv;
 
 // A single quad (two triangles) with the given corners, counter-clockwise.
 Mesh make_quad(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec3 d) {
@@ -933,6 +934,44 @@ TEST(Composite, ToneMapManyMatchesOneAtATime) {
 
 // ---- references ----
 
+// DHR_EMBREE_MAX_ISA caps the kernels Embree traverses with (core/rt_scene.h); embree_isa()
+// names the ones it picks, and Embree agrees: its native 16-wide packets exist only with AVX-512.
+TEST(EmbreeIsa, CapIsCheckedAndApplied) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  const auto native16 = [](const RtScene& rt) {
+    return rtcGetDeviceProperty(rt.device(), RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED) != 0;
+  };
+  ScopedEnv unset("DHR_EMBREE_MAX_ISA", "");  // empty: as unset (ctest may run this with a cap)
+  const std::string best = embree_isa();
+  {
+    RtScene rt(s);
+    EXPECT_EQ(rt.tracer().substr(rt.tracer().rfind(' ') + 1), best);
+    EXPECT_EQ(native16(rt), best == "avx512") << rt.tracer();
+  }
+  for (const char* isa : {"sse2", "avx2"}) {
+    ScopedEnv cap("DHR_EMBREE_MAX_ISA", isa);
+    const std::string got = embree_isa();
+    if (std::string(isa) == "sse2" || best == "avx512") {
+      EXPECT_EQ(got, isa);
+    }
+    RtScene rt(s);
+    EXPECT_EQ(rt.tracer().substr(rt.tracer().rfind(' ') + 1), got);
+    EXPECT_FALSE(native16(rt)) << rt.tracer();
+    // It still traces: a ray down onto the plane hits it.
+    const GBuffer g = rt.primary_gbuffer(cam({0, 3, 4}, {0, 0, 0}), 0.0);
+    EXPECT_EQ(g.object_id(g.width() / 2, g.height() / 2), 1u) << isa;
+  }
+  for (const char* bad : {"avx3", "AVX2", "avx2 ", "isa=avx2"}) {
+    ScopedEnv cap("DHR_EMBREE_MAX_ISA", bad);
+    const std::string message = test::error_of([] { embree_isa(); });
+    EXPECT_NE(message.find("DHR_EMBREE_MAX_ISA"), std::string::npos) << bad << ": " << message;
+    EXPECT_NE(message.find("sse2, sse4.2, avx, avx2, avx512"), std::string::npos) << message;
+    EXPECT_EQ(test::error_of([&] { RtScene rt(s); }), message);
+  }
+  EXPECT_EQ(embree_isa(), best);
+}
+
 TEST(Reference, GroundTruthIsCachedAndKeyed) {
   Scene s = base_scene();
   s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
@@ -974,13 +1013,28 @@ TEST(Reference, GroundTruthIsCachedAndKeyed) {
   // Any input change is a different key.
   ReferenceSettings rs2 = rs;
   rs2.ao_rays = 65;
-  EXPECT_NE(reference_key(s, g, rs2), a.key);
+  EXPECT_EQ(reference_key(s, g, rs, rt.tracer()), a.key);
+  EXPECT_NE(reference_key(s, g, rs2, rt.tracer()), a.key);
   Scene s2 = s;
   s2.lights[0].intensity = 11.0f;
-  EXPECT_NE(reference_key(s2, g, rs), a.key);
+  EXPECT_NE(reference_key(s2, g, rs, rt.tracer()), a.key);
   GBuffer g2 = g;
   g2.time_s = 0.5;
-  EXPECT_NE(reference_key(s, g2, rs), a.key);
+  EXPECT_NE(reference_key(s, g2, rs, rt.tracer()), a.key);
+  // Another Embree ISA is another entry: a folder shared by two CPU kinds never hands one the
+  // other's image (their kernels can answer a ray on an edge differently).
+  EXPECT_NE(reference_key(s, g, rs, rt.tracer() + "x"), a.key);
+  const std::string isa = embree_isa();
+  {
+    ScopedEnv cap("DHR_EMBREE_MAX_ISA", isa == "sse2" ? "sse4.2" : "sse2");
+    if (embree_isa() != isa) {  // else this CPU has no other ISA to compare with
+      RtScene other(s);
+      const ReferenceResult d = ground_truth(other, g, rs);
+      EXPECT_NE(d.key, a.key);
+      EXPECT_FALSE(d.from_cache);
+      EXPECT_TRUE(ground_truth(other, g, rs).from_cache);
+    }
+  }
   // The converged image is close to the local reference with the scene's own settings, and
   // the local reference is exactly trace + composite.
   TraceSettings ts;
