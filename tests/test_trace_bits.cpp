@@ -2,11 +2,14 @@
 // (skipped when ../shared/scenes is missing), in each shadow mode (hard, one jittered ray per
 // light, 4 rays per light), the FNV-1a hash of the counts, of the statistics and of the rays
 // handed to Embree (collect_visibility_rays) must equal the values recorded from the tracer
-// of commit d05e197 (before the speed work of docs/performance.md); on a machine where Embree
-// runs without AVX-512, the values of its own table (below). A change of the tracer's
+// of commit d05e197 (before the speed work of docs/performance.md); where Embree runs other
+// kernels than AVX-512, the values of that ISA's table (below). A change of the tracer's
 // kernels that moves any ray or any count by one bit fails here; a deliberate change of the
-// output must update the table and say so.
-// Run with DHR_PRINT_TRACE_HASHES=1 to print the table's rows for the current code.
+// output must update every table and say so. Run with DHR_PRINT_TRACE_HASHES=1 to print the
+// table's rows for the current code, once per ISA on a machine with AVX-512:
+//   for isa in avx512 avx2 avx sse4.2; do DHR_EMBREE_MAX_ISA=$isa DHR_PRINT_TRACE_HASHES=1
+//     build/tests/test_trace_bits --gtest_filter=TraceBits.VisibilityPassIsPinned; done
+// (one command: the loop's body is one line).
 #include "core/error.h"
 #include "core/rt_scene.h"
 #include "core/scene_load.h"
