@@ -19,14 +19,18 @@
 #include <immintrin.h>
 #pragma GCC diagnostic pop
 
+#include "core/cpu_isa.h"
+
 #include <cstdint>
 
 #define DHR_AVX512_KERNELS 1
 
 namespace dhr {
-// Whether the CPU has AVX-512F and DQ, what the kernels are built for (checked once).
+// Whether the CPU has AVX-512F and DQ, what the kernels are built for, and $DHR_MAX_ISA allows
+// AVX-512 (core/cpu_isa.h; checked once).
 inline bool cpu_has_avx512dq() {
-  static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq");
+  static const bool has =
+      __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") && kernels_may_use(Isa::kAvx512);
   return has;
 }
 }  // namespace dhr

@@ -1,5 +1,7 @@
 #include "core/checksum.h"
 
+#include "core/cpu_isa.h"
+
 #include <array>
 #include <cstring>
 
@@ -65,8 +67,8 @@ __attribute__((target("sse4.2"))) uint32_t update_hardware(uint32_t c, const uin
   return c32;
 }
 
-bool has_hardware() {
-  static const bool has = __builtin_cpu_supports("sse4.2");
+bool has_hardware() {  // and $DHR_MAX_ISA allows SSE4.2 (core/cpu_isa.h)
+  static const bool has = __builtin_cpu_supports("sse4.2") && kernels_may_use(Isa::kSse42);
   return has;
 }
 #endif

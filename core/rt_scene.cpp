@@ -2,6 +2,7 @@
 // See core/rt_scene.h for the layout and the robustness rules.
 #include "core/rt_scene.h"
 
+#include "core/cpu_isa.h"
 #include "core/error.h"
 
 #include <fmt/format.h>
@@ -16,7 +17,6 @@
 #include <cstdlib>
 #include <limits>
 #include <string>
-#include <utility>
 
 namespace dhr {
 
@@ -72,35 +72,7 @@ std::string embree_tracer() {
   return name;
 }
 
-std::string embree_isa() {
-  // Embree's ISAs, best last, and what each needs of the CPU (its own tests, in short).
-  static const std::array<std::pair<const char*, bool>, 5> isas = {{
-      {"sse2", true},
-      {"sse4.2", __builtin_cpu_supports("sse4.2") && __builtin_cpu_supports("popcnt")},
-      {"avx", __builtin_cpu_supports("avx")},
-      {"avx2", __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma") && __builtin_cpu_supports("bmi") &&
-                   __builtin_cpu_supports("bmi2")},
-      {"avx512", __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512cd") &&
-                     __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512bw") &&
-                     __builtin_cpu_supports("avx512vl")},
-  }};
-  size_t cap = isas.size() - 1;
-  if (const char* env = std::getenv("DHR_EMBREE_MAX_ISA"); env && *env) {
-    const std::string want = env;
-    cap = isas.size();
-    for (size_t i = 0; i < isas.size(); ++i)
-      if (want == isas[i].first) cap = i;
-    if (cap == isas.size())
-      fail("DHR_EMBREE_MAX_ISA = \"{}\": not an Embree ISA (valid: sse2, sse4.2, avx, avx2, avx512; unset for the "
-           "best this CPU has)",
-           want);
-  }
-  size_t best = 0;
-  for (size_t i = 0; i <= cap; ++i)
-    if (isas[i].second) best = i;
-    else break;  // each ISA needs the ones before it
-  return isas[best].first;
-}
+std::string embree_isa() { return isa_name(usable_isa()); }
 
 RtScene::RtScene(const Scene& scene, const RtSceneOptions& options) : scene_(scene), options_(options) {
   if (options.threads < 0) fail("rt_scene: threads {} must be >= 0 (0 = all cores)", options.threads);
@@ -207,7 +179,7 @@ void RtScene::build() {
   last_error_.clear();
   const std::string isa = embree_isa();
   std::string config = fmt::format("threads={}", threads_);
-  if (const char* cap = std::getenv("DHR_EMBREE_MAX_ISA"); cap && *cap) config += fmt::format(",max_isa={}", isa);
+  if (const char* cap = std::getenv("DHR_MAX_ISA"); cap && *cap) config += fmt::format(",max_isa={}", isa);
   device_ = rtcNewDevice(config.c_str());
   if (!device_) fail("rt_scene: rtcNewDevice(\"{}\") failed (error {})", config, int(rtcGetDeviceError(nullptr)));
   rtcSetDeviceErrorFunction(device_, embree_error, &last_error_);

@@ -67,11 +67,11 @@ struct RtSceneOptions {
 };
 
 // The kernels Embree traverses with: "avx512", "avx2", "avx", "sse4.2" or "sse2", the best this
-// CPU has, capped by $DHR_EMBREE_MAX_ISA when it is set (one of those names; Embree's max_isa).
+// CPU has, capped by $DHR_MAX_ISA when it is set (core/cpu_isa.h; passed as Embree's max_isa).
 // Kernels of two ISAs can answer a ray that grazes an edge differently (their reciprocal and
 // FMA roundings differ), so the ISA is part of a result's identity: the disk caches' keys and
 // results.json's context record it, and the cap lets one machine reproduce another's bits (an
-// AVX-512 machine with DHR_EMBREE_MAX_ISA=avx2 traces as an AMD AVX2 one does:
+// AVX-512 machine with DHR_MAX_ISA=avx2 traces as an AMD AVX2 one does:
 // tests/test_trace_bits.cpp checks every ISA's table on every machine). Throws dhr::Error naming
 // the variable when it holds anything else.
 std::string embree_isa();

@@ -16,6 +16,7 @@
 // ones (mul64_x4). The target is "avx2" without "fma", so no product and sum is fused: every
 // operation rounds as the SSE2 code's does. Only the functions marked DHR_TRACE_TARGET_AVX2 are
 // compiled for AVX2; no lambdas inside them (a lambda does not inherit the target attribute).
+#include "core/cpu_isa.h"
 #include "core/trace_kernels.h"
 
 #if DHR_TRACE_X86_KERNELS
@@ -29,8 +30,8 @@
 
 namespace dhr::trace_detail {
 
-bool cpu_has_avx2() {
-  static const bool has = __builtin_cpu_supports("avx2");
+bool cpu_has_avx2() {  // and $DHR_MAX_ISA allows it (core/cpu_isa.h)
+  static const bool has = __builtin_cpu_supports("avx2") && kernels_may_use(Isa::kAvx2);
   return has;
 }
 

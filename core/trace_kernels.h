@@ -239,7 +239,7 @@ struct Batch {
   Batch(RTCScene scene_, unsigned mask_) : scene(scene_), mask(mask_) {
     rtcInitIntersectContext(&ctx);
     // Occlusion queries write only tfar: the other fields are set once. Lanes past n keep
-    // whatever ray they last held, and Embree's SSE kernels (DHR_EMBREE_MAX_ISA=sse4.2, or a CPU
+    // whatever ray they last held, and Embree's SSE kernels (DHR_MAX_ISA=sse4.2, or a CPU
     // without AVX) check every lane's values, active or not, and abort on garbage: each lane
     // starts with a harmless ray.
     for (int k = 0; k < W; ++k) {

@@ -248,7 +248,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
 #if DHR_TRACE_X86_KERNELS
   // AVX-512: every stage, and the cone loops of soft lights with S > 1 (soft_pair_rays_x16)
   // where Embree has 16-wide packets. With 8-wide ones (Embree's AVX2 kernels: a CPU without
-  // AVX-512, or DHR_EMBREE_MAX_ISA=avx2 on one with it) the AVX2 kernels below, so that the cap
+  // AVX-512, or DHR_MAX_ISA=avx2 on one with it) the AVX2 kernels below, so that the cap
   // runs exactly an AVX2 machine's path (tests/CMakeLists.txt checks it on every machine).
   const bool x16 = W == 16 && settings.wide_kernels && cpu_has_avx512dq();
   // AVX2 without AVX-512: the surfaces (surfaces_x8), the cone loops of soft lights with S > 1

@@ -172,7 +172,7 @@ Runner add_merge_command(CLI::App& app) {
           const nlohmann::json& first_isa = first->results.at("context").value("embree_isa", none);
           if (isa != first_isa)
             fail("{}: traced with Embree's {} kernels, {} with its {}: the figures of one result come from one "
-                 "ISA (run every shard with the same DHR_EMBREE_MAX_ISA, e.g. avx2, the best all nodes have)",
+                 "ISA (run every shard with the same DHR_MAX_ISA, e.g. avx2, the best all nodes have)",
                  results_path.string(), isa.dump(), first->dir, first_isa.dump());
         }
         const fs::path frames_path = fs::path(s.dir) / "frames.csv";

@@ -195,7 +195,7 @@ TEST(Shard, MergedShardsEqualTheUnshardedRunInEveryNonTimingFigure) {
   // differ on rays that graze an edge.
   const std::string isa = embree_isa(), other = isa == "sse2" ? "sse4.2" : "sse2";
   ASSERT_EQ(cli(fmt::format("run {} --shard 2/3 --out {}", kExperiment, (base / "other_isa").string()), &log,
-                base / "cache_other_isa", "DHR_EMBREE_MAX_ISA=" + other + " "),
+                base / "cache_other_isa", "DHR_MAX_ISA=" + other + " "),
             0)
       << log;
   const int merged = cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "other_isa").string() + " " + s3, &log);
@@ -203,7 +203,7 @@ TEST(Shard, MergedShardsEqualTheUnshardedRunInEveryNonTimingFigure) {
   if (got != isa) {  // else this CPU has no other ISA
     EXPECT_EQ(merged, 1);
     EXPECT_NE(log.find("traced with Embree's \"" + got + "\" kernels"), std::string::npos) << log;
-    EXPECT_NE(log.find("DHR_EMBREE_MAX_ISA"), std::string::npos) << log;
+    EXPECT_NE(log.find("DHR_MAX_ISA"), std::string::npos) << log;
   }
   EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "whole").string(), &log), 1);
   EXPECT_NE(log.find((base / "whole").string() + ": no shard.json here"), std::string::npos) << log;
@@ -328,7 +328,7 @@ TEST(TraceCache, DiskEntriesAreKeptPerEmbreeIsa) {
   TraceCache same;
   same.set_disk_dir(dir.string());
   ASSERT_NE(same.find("key"), nullptr);
-  test::ScopedEnv cap("DHR_EMBREE_MAX_ISA", isa == "sse2" ? "sse4.2" : "sse2");
+  test::ScopedEnv cap("DHR_MAX_ISA", isa == "sse2" ? "sse4.2" : "sse2");
   if (embree_isa() != isa) {  // else this CPU has no other ISA
     TraceCache other;
     other.set_disk_dir(dir.string());

@@ -1,13 +1,16 @@
 // The server's passes against analytic answers: AO (paper Eq. 1-3) on an open plane, at the
 // foot of a wall and far from everything; hard and soft shadows (section 3.1) of simple
 // occluders; ray counts and pass plans; determinism across thread counts; the composite.
+#include "core/avx512.h"
 #include "core/composite.h"
+#include "core/cpu_isa.h"
 #include "core/error.h"
 #include "core/reference.h"
 #include "core/rng.h"
 #include "core/rt_scene.h"
 #include "core/shapes.h"
 #include "core/trace.h"
+#include "core/trace_kernels.h"
 
 #include "tests/support.h"
 
@@ -934,7 +937,7 @@ TEST(Composite, ToneMapManyMatchesOneAtATime) {
 
 // ---- references ----
 
-// DHR_EMBREE_MAX_ISA caps the kernels Embree traverses with (core/rt_scene.h); embree_isa()
+// DHR_MAX_ISA caps the kernels Embree traverses with (core/rt_scene.h); embree_isa()
 // names the ones it picks, and Embree agrees: its native 16-wide packets exist only with AVX-512.
 TEST(EmbreeIsa, CapIsCheckedAndApplied) {
   Scene s = base_scene();
@@ -942,7 +945,7 @@ TEST(EmbreeIsa, CapIsCheckedAndApplied) {
   const auto native16 = [](const RtScene& rt) {
     return rtcGetDeviceProperty(rt.device(), RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED) != 0;
   };
-  ScopedEnv unset("DHR_EMBREE_MAX_ISA", "");  // empty: as unset (ctest may run this with a cap)
+  ScopedEnv unset("DHR_MAX_ISA", "");  // empty: as unset (ctest may run this with a cap)
   const std::string best = embree_isa();
   {
     RtScene rt(s);
@@ -950,7 +953,7 @@ TEST(EmbreeIsa, CapIsCheckedAndApplied) {
     EXPECT_EQ(native16(rt), best == "avx512") << rt.tracer();
   }
   for (const char* isa : {"sse2", "avx2"}) {
-    ScopedEnv cap("DHR_EMBREE_MAX_ISA", isa);
+    ScopedEnv cap("DHR_MAX_ISA", isa);
     const std::string got = embree_isa();
     if (std::string(isa) == "sse2" || best == "avx512") {
       EXPECT_EQ(got, isa);
@@ -963,13 +966,28 @@ TEST(EmbreeIsa, CapIsCheckedAndApplied) {
     EXPECT_EQ(g.object_id(g.width() / 2, g.height() / 2), 1u) << isa;
   }
   for (const char* bad : {"avx3", "AVX2", "avx2 ", "isa=avx2"}) {
-    ScopedEnv cap("DHR_EMBREE_MAX_ISA", bad);
+    ScopedEnv cap("DHR_MAX_ISA", bad);
     const std::string message = test::error_of([] { embree_isa(); });
-    EXPECT_NE(message.find("DHR_EMBREE_MAX_ISA"), std::string::npos) << bad << ": " << message;
+    EXPECT_NE(message.find("DHR_MAX_ISA"), std::string::npos) << bad << ": " << message;
     EXPECT_NE(message.find("sse2, sse4.2, avx, avx2, avx512"), std::string::npos) << message;
     EXPECT_EQ(test::error_of([&] { RtScene rt(s); }), message);
   }
   EXPECT_EQ(embree_isa(), best);
+}
+
+// The cap reaches dhrbench's own kernels too (ctest runs this binary under DHR_MAX_ISA=avx2:
+// test_trace_avx2), read once for the process.
+TEST(EmbreeIsa, CapReachesDhrbenchKernels) {
+  const Isa cap = usable_isa();
+  std::printf("DHR_MAX_ISA: %s; usable ISA %s\n", std::getenv("DHR_MAX_ISA") ? std::getenv("DHR_MAX_ISA") : "(unset)",
+              isa_name(cap));
+#if DHR_AVX512_KERNELS
+  if (cap < Isa::kAvx512) {
+    EXPECT_FALSE(cpu_has_avx512dq());
+  }
+#endif
+  EXPECT_EQ(trace_detail::cpu_has_avx2(), cap >= Isa::kAvx2);
+  EXPECT_EQ(kernels_may_use(Isa::kAvx512), cap >= Isa::kAvx512);
 }
 
 TEST(Reference, GroundTruthIsCachedAndKeyed) {
@@ -1026,7 +1044,7 @@ TEST(Reference, GroundTruthIsCachedAndKeyed) {
   EXPECT_NE(reference_key(s, g, rs, rt.tracer() + "x"), a.key);
   const std::string isa = embree_isa();
   {
-    ScopedEnv cap("DHR_EMBREE_MAX_ISA", isa == "sse2" ? "sse4.2" : "sse2");
+    ScopedEnv cap("DHR_MAX_ISA", isa == "sse2" ? "sse4.2" : "sse2");
     if (embree_isa() != isa) {  // else this CPU has no other ISA to compare with
       RtScene other(s);
       const ReferenceResult d = ground_truth(other, g, rs);

@@ -7,7 +7,7 @@
 // kernels that moves any ray or any count by one bit fails here; a deliberate change of the
 // output must update every table and say so. Run with DHR_PRINT_TRACE_HASHES=1 to print the
 // table's rows for the current code, once per ISA on a machine with AVX-512:
-//   for isa in avx512 avx2 avx sse4.2; do DHR_EMBREE_MAX_ISA=$isa DHR_PRINT_TRACE_HASHES=1
+//   for isa in avx512 avx2 avx sse4.2; do DHR_MAX_ISA=$isa DHR_PRINT_TRACE_HASHES=1
 //     build/tests/test_trace_bits --gtest_filter=TraceBits.VisibilityPassIsPinned; done
 // (one command: the loop's body is one line).
 #include "core/error.h"
@@ -33,7 +33,7 @@ namespace {
 // The G-buffer these hashes start from is Embree's (primary rays), and Embree's kernels of
 // different ISAs give hit points that differ in their last bits (their reciprocal
 // approximations and FMAs differ), so the table depends on which kernels Embree runs:
-// dhr::embree_isa(), the CPU's best or DHR_EMBREE_MAX_ISA's cap (core/rt_scene.h). ctest runs
+// dhr::embree_isa(), the CPU's best or DHR_MAX_ISA's cap (core/rt_scene.h). ctest runs
 // this binary once as it is and once per other table with the cap (tests/CMakeLists.txt), so a
 // machine with AVX-512 checks every table. The tables of the ISAs before AVX-512 were recorded
 // on AMD EPYCs: those kernels start from rcpps, whose bits the x86 vendors do not share, so an
@@ -41,7 +41,7 @@ namespace {
 
 // AVX2: recorded with DHR_PRINT_TRACE_HASHES=1 at commit c05ad78 on an AMD EPYC without AVX-512
 // (the tracer of that commit gave the AVX-512 table below on AVX-512 machines, its CI run
-// included); the AVX-512 EPYC with DHR_EMBREE_MAX_ISA=avx2 gives the same table.
+// included); the AVX-512 EPYC with DHR_MAX_ISA=avx2 gives the same table.
 const std::map<std::string, uint64_t>& pinned_avx2() {
   static const std::map<std::string, uint64_t> m = {
       {"room/hard", 0xb0b76470ba50377dull},
@@ -69,7 +69,7 @@ const std::map<std::string, uint64_t>& pinned_avx2() {
   return m;
 }
 
-// AVX (no AVX2) and SSE2 / SSE4.2 (the two agree): recorded with DHR_EMBREE_MAX_ISA=avx and =sse4.2
+// AVX (no AVX2) and SSE2 / SSE4.2 (the two agree): recorded with DHR_MAX_ISA=avx and =sse4.2
 // (and =sse2) on the AVX-512 EPYC, at the commit that brought the cap. (An earlier comment here
 // said that Embree's SSE4.2 and AVX2 kernels agree, from a ~/.embree3 file; Debian's Embree does
 // not read that file, so both runs had used AVX2.)

@@ -16,6 +16,7 @@
 // default, AtrousArgs::fast_weights) on a 2-vCPU Zen 4 (docs/performance.md, svgf_ao).
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
+#include "core/cpu_isa.h"
 
 #include <algorithm>
 #include <atomic>
@@ -714,7 +715,7 @@ void force_portable_kernels(bool on) { g_portable_only.store(on, std::memory_ord
 
 bool cpu_has_avx512() {
 #if DHR_DENOISE_AVX512
-  static const bool has = __builtin_cpu_supports("avx512f");
+  static const bool has = __builtin_cpu_supports("avx512f") && kernels_may_use(Isa::kAvx512);  // core/cpu_isa.h
   return has && !g_portable_only.load(std::memory_order_relaxed);
 #else
   return false;
@@ -723,7 +724,7 @@ bool cpu_has_avx512() {
 
 bool cpu_has_avx2() {
 #if DHR_DENOISE_AVX512
-  static const bool has = __builtin_cpu_supports("avx2");
+  static const bool has = __builtin_cpu_supports("avx2") && kernels_may_use(Isa::kAvx2);
   return has && !g_portable_only.load(std::memory_order_relaxed);
 #else
   return false;
