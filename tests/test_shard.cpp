@@ -280,14 +280,20 @@ TEST(Shard, AFailedShardIsReportedAndRerunAlone) {
   fs::remove_all(base);
 }
 
+// A cache entry of one AO pass, w x 4 pixels, every byte `value`.
+std::shared_ptr<TraceCache::Entry> ao_entry(int w, uint8_t value) {
+  auto entry = std::make_shared<TraceCache::Entry>();
+  PassBuffer ao;
+  ao.desc = {PassKind::Ao, w, 4, 1, 8};
+  ao.bytes.assign(ao.desc.byte_size(), value);
+  entry->passes.push_back({"ao", PassMeaning::Ao, ao, 0.0});
+  return entry;
+}
+
 TEST(TraceCache, AFlippedByteInACacheFileIsFoundByItsChecksum) {
   const fs::path dir = fs::temp_directory_path() / fmt::format("dhr_trace_cache_crc.{}", ::getpid());
   fs::remove_all(dir);
-  auto entry = std::make_shared<TraceCache::Entry>();
-  PassBuffer ao;
-  ao.desc = {PassKind::Ao, 64, 4, 1, 8};
-  ao.bytes.assign(ao.desc.byte_size(), 7);
-  entry->passes.push_back({"ao", PassMeaning::Ao, ao, 0.0});
+  const auto entry = ao_entry(64, 7);
   {
     TraceCache writer;
     writer.set_disk_dir(dir.string());
@@ -314,11 +320,7 @@ TEST(TraceCache, AFlippedByteInACacheFileIsFoundByItsChecksum) {
 TEST(TraceCache, DiskEntriesAreKeptPerEmbreeIsa) {
   const fs::path dir = fs::temp_directory_path() / fmt::format("dhr_trace_cache_isa.{}", ::getpid());
   fs::remove_all(dir);
-  auto entry = std::make_shared<TraceCache::Entry>();
-  PassBuffer ao;
-  ao.desc = {PassKind::Ao, 16, 4, 1, 8};
-  ao.bytes.assign(ao.desc.byte_size(), 3);
-  entry->passes.push_back({"ao", PassMeaning::Ao, ao, 0.0});
+  const auto entry = ao_entry(16, 3);
   const std::string isa = embree_isa();
   {
     TraceCache writer;
