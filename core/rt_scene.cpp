@@ -54,13 +54,12 @@ void alpha_cutout_filter(const RTCFilterFunctionNArguments* args) {
   }
 }
 
-}  // namespace
-
-namespace {
+// embree_tracer()'s text for a device.
 std::string tracer_name(RTCDevice device, const std::string& isa) {
   const ssize_t v = rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_VERSION);
   return fmt::format("embree {}.{}.{} {}", v / 10000, (v / 100) % 100, v % 100, isa);
 }
+
 }  // namespace
 
 std::string embree_tracer() {
