@@ -8,8 +8,6 @@
 // their clone when the program loads and are not capped; they give the same bits either way.)
 #pragma once
 
-#include <string>
-
 namespace dhr {
 
 enum class Isa { kSse2, kSse42, kAvx, kAvx2, kAvx512 };

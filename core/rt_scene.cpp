@@ -54,22 +54,22 @@ void alpha_cutout_filter(const RTCFilterFunctionNArguments* args) {
   }
 }
 
-// embree_tracer()'s text for a device.
-std::string tracer_name(RTCDevice device, const std::string& isa) {
-  const ssize_t v = rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_VERSION);
-  return fmt::format("embree {}.{}.{} {}", v / 10000, (v / 100) % 100, v % 100, isa);
-}
+std::string tracer_name(const std::string& isa) { return fmt::format("embree {} {}", embree_version(), isa); }
 
 }  // namespace
 
-std::string embree_tracer() {
-  const std::string isa = embree_isa();
-  RTCDevice device = rtcNewDevice("verbose=0");
-  if (!device) fail("rt_scene: rtcNewDevice failed (error {})", int(rtcGetDeviceError(nullptr)));
-  const std::string name = tracer_name(device, isa);
-  rtcReleaseDevice(device);
-  return name;
+const std::string& embree_version() {
+  static const std::string version = [] {
+    RTCDevice device = rtcNewDevice("verbose=0");
+    if (!device) fail("rt_scene: rtcNewDevice(\"verbose=0\") failed (error {})", int(rtcGetDeviceError(nullptr)));
+    const ssize_t v = rtcGetDeviceProperty(device, RTC_DEVICE_PROPERTY_VERSION);
+    rtcReleaseDevice(device);
+    return fmt::format("{}.{}.{}", v / 10000, (v / 100) % 100, v % 100);
+  }();
+  return version;
 }
+
+std::string embree_tracer() { return tracer_name(embree_isa()); }
 
 std::string embree_isa() { return isa_name(usable_isa()); }
 
@@ -182,7 +182,7 @@ void RtScene::build() {
   device_ = rtcNewDevice(config.c_str());
   if (!device_) fail("rt_scene: rtcNewDevice(\"{}\") failed (error {})", config, int(rtcGetDeviceError(nullptr)));
   rtcSetDeviceErrorFunction(device_, embree_error, &last_error_);
-  tracer_ = tracer_name(device_, isa);
+  tracer_ = tracer_name(isa);
 
   for (size_t i = 0; i < scene_.objects.size(); ++i) {
     const Object& o = scene_.objects[i];

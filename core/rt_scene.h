@@ -75,8 +75,10 @@ struct RtSceneOptions {
 // tests/test_trace_bits.cpp checks every ISA's table on every machine). Throws dhr::Error naming
 // the variable when it holds anything else.
 std::string embree_isa();
-// "embree <version> <embree_isa()>", the version from the library loaded: what decides the answer
-// of a ray besides the scene and the ray (the disk caches' keys read it; RtScene::tracer()).
+// The version of the Embree library loaded, "3.13.5" (read once, from a device of its own).
+const std::string& embree_version();
+// "embree <embree_version()> <embree_isa()>": what decides the answer of a ray besides the scene
+// and the ray (the disk caches' keys read it; RtScene::tracer()).
 std::string embree_tracer();
 
 struct RtBuildStats {

@@ -168,8 +168,8 @@ Runner add_merge_command(CLI::App& app) {
         // Embree's kernels of two ISAs can answer a ray on an edge differently: one result, one ISA.
         if (first->results.is_object() && &s != first) {
           const nlohmann::json none;
-          const nlohmann::json& isa = s.results.at("context").value("embree_isa", none);
-          const nlohmann::json& first_isa = first->results.at("context").value("embree_isa", none);
+          const nlohmann::json isa = s.results.at("context").value("embree_isa", none);
+          const nlohmann::json first_isa = first->results.at("context").value("embree_isa", none);
           if (isa != first_isa)
             fail("{}: traced with Embree's {} kernels, {} with its {}: the figures of one result come from one "
                  "ISA (run every shard with the same DHR_MAX_ISA, e.g. avx2, the best all nodes have)",

@@ -5,7 +5,6 @@
 #include "core/rt_scene.h"
 
 #include <OpenImageIO/imageio.h>
-#include <embree3/rtcore.h>
 #include <lz4.h>
 #include <opencv2/core/version.hpp>
 #include <opencv2/core/utility.hpp>
@@ -91,11 +90,8 @@ nlohmann::json run_context(const std::string& build_type) {
   utsname u{};
   if (uname(&u) == 0) c["kernel"] = fmt::format("{} {} {}", u.sysname, u.release, u.machine);
   // Library versions, read at run time where the library offers it.
-  RTCDevice dev = rtcNewDevice("verbose=0");
-  const ssize_t ev = dev ? rtcGetDeviceProperty(dev, RTC_DEVICE_PROPERTY_VERSION) : 0;
-  if (dev) rtcReleaseDevice(dev);
   c["libraries"] = {
-      {"embree", fmt::format("{}.{}.{}", ev / 10000, (ev / 100) % 100, ev % 100)},
+      {"embree", embree_version()},
       {"lz4", LZ4_versionString()},
       {"zstd", ZSTD_versionString()},
       {"libavcodec", av_version(avcodec_version())},

@@ -39,123 +39,113 @@ namespace {
 // on AMD EPYCs: those kernels start from rcpps, whose bits the x86 vendors do not share, so an
 // Intel CPU without AVX-512 may give other hashes (not checked: no such machine here).
 
-// AVX2: recorded with DHR_PRINT_TRACE_HASHES=1 at commit c05ad78 on an AMD EPYC without AVX-512
-// (the tracer of that commit gave the AVX-512 table below on AVX-512 machines, its CI run
-// included); the AVX-512 EPYC with DHR_MAX_ISA=avx2 gives the same table.
-const std::map<std::string, uint64_t>& pinned_avx2() {
-  static const std::map<std::string, uint64_t> m = {
-      {"room/hard", 0xb0b76470ba50377dull},
-      {"room/soft1", 0xc58dcc7c881ad7cbull},
-      {"room/soft4", 0xdde546653c541aa7ull},
-      {"street/hard", 0xa1a6c32f7aeef2afull},
-      {"street/soft1", 0x661ec80687982d76ull},
-      {"street/soft4", 0x23d2bcb0d1b04fa9ull},
-      {"temple/hard", 0x938355dbb8aab068ull},
-      {"temple/soft1", 0x636ec2ba11620ba0ull},
-      {"temple/soft4", 0xbbdbb4696b3c108full},
-      {"classroom/hard", 0xc04b9989dabaf3d0ull},
-      {"classroom/soft1", 0x3c2627e050f796f2ull},
-      {"classroom/soft4", 0xfed9579a8315e924ull},
-      {"dining-room/hard", 0x15d7672a030a3ba4ull},
-      {"dining-room/soft1", 0x02e0c6d5c83cc76cull},
-      {"dining-room/soft4", 0xfec625d4fb73cf65ull},
-      {"sponza-dabrovic/hard", 0x78fc1449c047b766ull},
-      {"sponza-dabrovic/soft1", 0x2207e81910f291bfull},
-      {"sponza-dabrovic/soft4", 0xc1ca47028de979d5ull},
-      {"staircase/hard", 0xa6e446c0c2fc1f03ull},
-      {"staircase/soft1", 0x00f30c34fbf870b9ull},
-      {"staircase/soft4", 0x26abf432743e04b5ull},
-  };
-  return m;
-}
-
-// AVX (no AVX2) and SSE2 / SSE4.2 (the two agree): recorded with DHR_MAX_ISA=avx and =sse4.2
-// (and =sse2) on the AVX-512 EPYC, at the commit that brought the cap. (An earlier comment here
-// said that Embree's SSE4.2 and AVX2 kernels agree, from a ~/.embree3 file; Debian's Embree does
-// not read that file, so both runs had used AVX2.)
-const std::map<std::string, uint64_t>& pinned_avx() {
-  static const std::map<std::string, uint64_t> m = {
-      {"room/hard", 0x6446b24575d15986ull},
-      {"room/soft1", 0x1f5e9c44ead5f16cull},
-      {"room/soft4", 0xa624af3460efc7ecull},
-      {"street/hard", 0x64a57b5d13314b50ull},
-      {"street/soft1", 0x215a926737cee873ull},
-      {"street/soft4", 0xc040e15f79dcf896ull},
-      {"temple/hard", 0xf20af540717db0cdull},
-      {"temple/soft1", 0x53720df8aef7529dull},
-      {"temple/soft4", 0xf48d97b6c43b4c0full},
-      {"classroom/hard", 0xc5f42136d2df0adaull},
-      {"classroom/soft1", 0xd791ad9b43f65dfaull},
-      {"classroom/soft4", 0xf014c7d9361007a4ull},
-      {"dining-room/hard", 0xca556603a8e911d7ull},
-      {"dining-room/soft1", 0x6f83e01da91f941bull},
-      {"dining-room/soft4", 0xc1112c5db6dc7495ull},
-      {"sponza-dabrovic/hard", 0x8c0680128b60140full},
-      {"sponza-dabrovic/soft1", 0x014b10084e66c93cull},
-      {"sponza-dabrovic/soft4", 0x97908e0bcdb45354ull},
-      {"staircase/hard", 0x4f41f6ccd7e831a8ull},
-      {"staircase/soft1", 0x2037ad2805b0dc3full},
-      {"staircase/soft4", 0xc69a326a1236358eull},
-  };
-  return m;
-}
-const std::map<std::string, uint64_t>& pinned_sse() {
-  static const std::map<std::string, uint64_t> m = {
-      {"room/hard", 0x6446b24575d15986ull},
-      {"room/soft1", 0x1f5e9c44ead5f16cull},
-      {"room/soft4", 0xa624af3460efc7ecull},
-      {"street/hard", 0x074dd103d44477adull},
-      {"street/soft1", 0x33913a557d6b3c64ull},
-      {"street/soft4", 0x1933479b3b181639ull},
-      {"temple/hard", 0xf20af540717db0cdull},
-      {"temple/soft1", 0x53720df8aef7529dull},
-      {"temple/soft4", 0xf48d97b6c43b4c0full},
-      {"classroom/hard", 0xc5f42136d2df0adaull},
-      {"classroom/soft1", 0xd791ad9b43f65dfaull},
-      {"classroom/soft4", 0xf014c7d9361007a4ull},
-      {"dining-room/hard", 0x4b569024b8fb26caull},
-      {"dining-room/soft1", 0xe7babefa40f1eacaull},
-      {"dining-room/soft4", 0xe707f154160001f5ull},
-      {"sponza-dabrovic/hard", 0x8c0680128b60140full},
-      {"sponza-dabrovic/soft1", 0x014b10084e66c93cull},
-      {"sponza-dabrovic/soft4", 0x97908e0bcdb45354ull},
-      {"staircase/hard", 0x4f41f6ccd7e831a8ull},
-      {"staircase/soft1", 0x2037ad2805b0dc3full},
-      {"staircase/soft4", 0xc69a326a1236358eull},
-  };
-  return m;
-}
-
-// scene/mode -> hash, recorded with DHR_PRINT_TRACE_HASHES=1 at commit d05e197 (AVX-512 machine).
+// scene/mode -> hash, by the ISA Embree runs (dhr::embree_isa(); SSE2 and SSE4.2 agree):
+// - avx512: recorded with DHR_PRINT_TRACE_HASHES=1 at commit d05e197 (AVX-512 machine);
+// - avx2: recorded at commit c05ad78 on an AMD EPYC without AVX-512 (the tracer of that commit
+//   gave the avx512 table on AVX-512 machines, its CI run included); the AVX-512 EPYC with
+//   DHR_MAX_ISA=avx2 gives the same table;
+// - avx and sse4.2 (and sse2): recorded with DHR_MAX_ISA=avx and =sse4.2 (and =sse2) on the
+//   AVX-512 EPYC at commit 2746b24, which brought the cap. (An earlier comment here said that
+//   Embree's SSE4.2 and AVX2 kernels agree, from a ~/.embree3 file; Debian's Embree does not read
+//   that file, so both runs had used AVX2.)
 const std::map<std::string, uint64_t>& pinned() {
-  const std::string isa = embree_isa();
-  if (isa == "avx2") return pinned_avx2();
-  if (isa == "avx") return pinned_avx();
-  if (isa != "avx512") return pinned_sse();
-  static const std::map<std::string, uint64_t> m = {
-      {"room/hard", 0x47c22a5598623c55ull},
-      {"room/soft1", 0xb7f90787bd269b47ull},
-      {"room/soft4", 0x016ef43aebaf323aull},
-      {"street/hard", 0xcda849315df255c7ull},
-      {"street/soft1", 0x7ef06c429751eaffull},
-      {"street/soft4", 0x21ab18080a877faeull},
-      {"temple/hard", 0x718defe329c23645ull},
-      {"temple/soft1", 0x3f06f8b5097f1e61ull},
-      {"temple/soft4", 0x71b0e834715f4253ull},
-      {"classroom/hard", 0x1f14383a0424d32eull},
-      {"classroom/soft1", 0xfb4922c2c5200c74ull},
-      {"classroom/soft4", 0x486d5ff7cbac0d3cull},
-      {"dining-room/hard", 0x27c89ad6614306e5ull},
-      {"dining-room/soft1", 0x646495173ea605c5ull},
-      {"dining-room/soft4", 0x1b4e1c68a9b1b0edull},
-      {"sponza-dabrovic/hard", 0x25f504298b1846ecull},
-      {"sponza-dabrovic/soft1", 0x40dee685a0aea845ull},
-      {"sponza-dabrovic/soft4", 0x383b601ee2f6f938ull},
-      {"staircase/hard", 0xf8b2b9fde8e8c8e3ull},
-      {"staircase/soft1", 0xd29df6f678894b72ull},
-      {"staircase/soft4", 0xa311989f05c90d74ull},
+  using Table = std::map<std::string, uint64_t>;
+  static const std::map<std::string, Table> by_isa = {
+    {"avx512", {
+        {"room/hard", 0x47c22a5598623c55ull},
+        {"room/soft1", 0xb7f90787bd269b47ull},
+        {"room/soft4", 0x016ef43aebaf323aull},
+        {"street/hard", 0xcda849315df255c7ull},
+        {"street/soft1", 0x7ef06c429751eaffull},
+        {"street/soft4", 0x21ab18080a877faeull},
+        {"temple/hard", 0x718defe329c23645ull},
+        {"temple/soft1", 0x3f06f8b5097f1e61ull},
+        {"temple/soft4", 0x71b0e834715f4253ull},
+        {"classroom/hard", 0x1f14383a0424d32eull},
+        {"classroom/soft1", 0xfb4922c2c5200c74ull},
+        {"classroom/soft4", 0x486d5ff7cbac0d3cull},
+        {"dining-room/hard", 0x27c89ad6614306e5ull},
+        {"dining-room/soft1", 0x646495173ea605c5ull},
+        {"dining-room/soft4", 0x1b4e1c68a9b1b0edull},
+        {"sponza-dabrovic/hard", 0x25f504298b1846ecull},
+        {"sponza-dabrovic/soft1", 0x40dee685a0aea845ull},
+        {"sponza-dabrovic/soft4", 0x383b601ee2f6f938ull},
+        {"staircase/hard", 0xf8b2b9fde8e8c8e3ull},
+        {"staircase/soft1", 0xd29df6f678894b72ull},
+        {"staircase/soft4", 0xa311989f05c90d74ull},
+    }},
+    {"avx2", {
+        {"room/hard", 0xb0b76470ba50377dull},
+        {"room/soft1", 0xc58dcc7c881ad7cbull},
+        {"room/soft4", 0xdde546653c541aa7ull},
+        {"street/hard", 0xa1a6c32f7aeef2afull},
+        {"street/soft1", 0x661ec80687982d76ull},
+        {"street/soft4", 0x23d2bcb0d1b04fa9ull},
+        {"temple/hard", 0x938355dbb8aab068ull},
+        {"temple/soft1", 0x636ec2ba11620ba0ull},
+        {"temple/soft4", 0xbbdbb4696b3c108full},
+        {"classroom/hard", 0xc04b9989dabaf3d0ull},
+        {"classroom/soft1", 0x3c2627e050f796f2ull},
+        {"classroom/soft4", 0xfed9579a8315e924ull},
+        {"dining-room/hard", 0x15d7672a030a3ba4ull},
+        {"dining-room/soft1", 0x02e0c6d5c83cc76cull},
+        {"dining-room/soft4", 0xfec625d4fb73cf65ull},
+        {"sponza-dabrovic/hard", 0x78fc1449c047b766ull},
+        {"sponza-dabrovic/soft1", 0x2207e81910f291bfull},
+        {"sponza-dabrovic/soft4", 0xc1ca47028de979d5ull},
+        {"staircase/hard", 0xa6e446c0c2fc1f03ull},
+        {"staircase/soft1", 0x00f30c34fbf870b9ull},
+        {"staircase/soft4", 0x26abf432743e04b5ull},
+    }},
+    {"avx", {
+        {"room/hard", 0x6446b24575d15986ull},
+        {"room/soft1", 0x1f5e9c44ead5f16cull},
+        {"room/soft4", 0xa624af3460efc7ecull},
+        {"street/hard", 0x64a57b5d13314b50ull},
+        {"street/soft1", 0x215a926737cee873ull},
+        {"street/soft4", 0xc040e15f79dcf896ull},
+        {"temple/hard", 0xf20af540717db0cdull},
+        {"temple/soft1", 0x53720df8aef7529dull},
+        {"temple/soft4", 0xf48d97b6c43b4c0full},
+        {"classroom/hard", 0xc5f42136d2df0adaull},
+        {"classroom/soft1", 0xd791ad9b43f65dfaull},
+        {"classroom/soft4", 0xf014c7d9361007a4ull},
+        {"dining-room/hard", 0xca556603a8e911d7ull},
+        {"dining-room/soft1", 0x6f83e01da91f941bull},
+        {"dining-room/soft4", 0xc1112c5db6dc7495ull},
+        {"sponza-dabrovic/hard", 0x8c0680128b60140full},
+        {"sponza-dabrovic/soft1", 0x014b10084e66c93cull},
+        {"sponza-dabrovic/soft4", 0x97908e0bcdb45354ull},
+        {"staircase/hard", 0x4f41f6ccd7e831a8ull},
+        {"staircase/soft1", 0x2037ad2805b0dc3full},
+        {"staircase/soft4", 0xc69a326a1236358eull},
+    }},
+    {"sse4.2", {
+        {"room/hard", 0x6446b24575d15986ull},
+        {"room/soft1", 0x1f5e9c44ead5f16cull},
+        {"room/soft4", 0xa624af3460efc7ecull},
+        {"street/hard", 0x074dd103d44477adull},
+        {"street/soft1", 0x33913a557d6b3c64ull},
+        {"street/soft4", 0x1933479b3b181639ull},
+        {"temple/hard", 0xf20af540717db0cdull},
+        {"temple/soft1", 0x53720df8aef7529dull},
+        {"temple/soft4", 0xf48d97b6c43b4c0full},
+        {"classroom/hard", 0xc5f42136d2df0adaull},
+        {"classroom/soft1", 0xd791ad9b43f65dfaull},
+        {"classroom/soft4", 0xf014c7d9361007a4ull},
+        {"dining-room/hard", 0x4b569024b8fb26caull},
+        {"dining-room/soft1", 0xe7babefa40f1eacaull},
+        {"dining-room/soft4", 0xe707f154160001f5ull},
+        {"sponza-dabrovic/hard", 0x8c0680128b60140full},
+        {"sponza-dabrovic/soft1", 0x014b10084e66c93cull},
+        {"sponza-dabrovic/soft4", 0x97908e0bcdb45354ull},
+        {"staircase/hard", 0x4f41f6ccd7e831a8ull},
+        {"staircase/soft1", 0x2037ad2805b0dc3full},
+        {"staircase/soft4", 0xc69a326a1236358eull},
+    }},
   };
-  return m;
+  const std::string isa = embree_isa();
+  return by_isa.at(isa == "sse2" ? "sse4.2" : isa);
 }
 
 uint64_t pass_hash(RtScene& rt, const GBuffer& g, const TraceSettings& s) {
