@@ -50,7 +50,9 @@ struct Datagram {
 
 // Bump when tracing, rasterizing or the cache file format changes: disk entries written by an
 // older version are then never read (the key is stored in the file and compared).
-constexpr int kTraceCacheVersion = 2;  // 2: ray offsets scaled by the hit triangle's own error (issue 13)
+// 2: ray offsets scaled by the hit triangle's own error (issue 13). 3: scenes with moving objects
+// in Embree's two-level layout (RtSceneOptions::static_child).
+constexpr int kTraceCacheVersion = 3;
 
 // The cache keys: the settings flagged in core/run_config.cpp as changing the traced buffers
 // (kInTraceKey) or the ground truth (kInTruthKey), plus the scene and the frame.

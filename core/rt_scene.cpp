@@ -212,12 +212,12 @@ void RtScene::build() {
   top_ = rtcNewScene(device_);
   rtcSetSceneFlags(top_, flags);
   const bool has_moving = scene_.has_moving_objects();
-  // With moving objects the top level is rebuilt on every set_time(): keep it small (instances
-  // only) and let the static geometry sit in its own child scene, built once. two_level leaves
-  // that to Embree: at LOW quality it keeps a BVH per geometry and rebuilds only the level above.
-  const bool two_level = options_.two_level;
-  rtcSetSceneBuildQuality(top_, has_moving || two_level ? RTC_BUILD_QUALITY_LOW : options_.quality);
-  const bool static_child = has_moving && !two_level;
+  // With moving objects the top level is rebuilt on every set_time(): built at LOW quality,
+  // Embree keeps a BVH per static geometry and rebuilds only the level above them and the
+  // instances (RtSceneOptions::static_child: the older layout, one child scene for all static
+  // geometry, built once and instanced).
+  rtcSetSceneBuildQuality(top_, has_moving ? RTC_BUILD_QUALITY_LOW : options_.quality);
+  const bool static_child = has_moving && options_.static_child;
   RTCScene static_target = top_;
   if (static_child) {
     static_child_ = rtcNewScene(device_);

@@ -112,8 +112,8 @@ std::map<std::string, std::unique_ptr<BenchScene>>& scenes() {
   return m;
 }
 
-// layout: "default", or a scene_layout row's "robust" (RTC_SCENE_FLAG_ROBUST) or "two_level"
-// (RtSceneOptions::two_level).
+// layout: "default", or a scene_layout row's "robust" (RTC_SCENE_FLAG_ROBUST) or "static_child"
+// (RtSceneOptions::static_child, the layout before the two-level one).
 BenchScene& load(const std::string& file, const std::string& name, const std::string& layout = "default") {
   const std::string key = name + "#" + layout;
   auto& m = scenes();
@@ -128,7 +128,7 @@ BenchScene& load(const std::string& file, const std::string& name, const std::st
   b->scene = load_scene(file, SceneSearchPath::standard());
   RtSceneOptions opt;
   opt.robust = layout == "robust";
-  opt.two_level = layout == "two_level";
+  opt.static_child = layout == "static_child";
   if (const char* t = std::getenv("DHR_BENCH_THREADS")) opt.threads = std::atoi(t);
   b->rt = std::make_unique<RtScene>(b->scene, opt);
   const Camera cam = b->scene.camera.at(0.0, kWidth, kHeight);
@@ -394,7 +394,8 @@ void register_scene(const std::string& file) {
 }
 
 // The scene's layout against its cost, measured on the passes themselves: RTC_SCENE_FLAG_ROBUST
-// and Embree's two-level layout (RtSceneOptions::two_level) beside the default, on AO (8 rays),
+// and the older static-child layout (RtSceneOptions::static_child; a scene with moving objects
+// only) beside the default two-level one, on AO (8 rays),
 // hard shadows and 16 rays per area light (the ground truth's cone loop). Every layout traces
 // from the default layout's G-buffer (primary rays can differ too). `counts_differ`: the counts
 // (per pixel, and light) that differ from the default layout's, whose row runs first;
@@ -430,7 +431,7 @@ void register_layouts(const std::string& file) {
     if (list.find("," + name + ",") == std::string::npos) return;
   }
   for (const std::string pass : {"ao8", "hard", "soft16"}) {
-    for (const std::string layout : {"default", "robust", "two_level"}) {
+    for (const std::string layout : {"default", "robust", "static_child"}) {
       benchmark::RegisterBenchmark(
           fmt::format("scene_layout/{}/{}/{}", name, pass, layout).c_str(),
           [=](benchmark::State& state) {
