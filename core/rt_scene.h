@@ -62,9 +62,10 @@ struct RtSceneOptions {
   // RTC_BUILD_QUALITY_LOW: Embree then builds two levels, one BVH per geometry at `quality` and
   // one over the geometries and instances, and a set_time() rebuilds only the upper one.
   // static_child = true is the layout before that (for measurement: bench_trace's scene_layout
-  // rows): all static geometry in one child scene built at `quality`, instanced once. It traced
-  // the built-in scenes with moving objects in 0.74-0.91x the time of the old layout, and answers
-  // a few rays on shared edges differently (docs/performance.md, "Embree's two-level layout").
+  // rows): all static geometry in one child scene built at `quality`, instanced once. The
+  // two-level layout traced the built-in scenes with moving objects in 0.74-0.91x the time of
+  // this one, and answers a few rays on shared edges differently (docs/performance.md,
+  // "Embree's two-level layout").
   // A scene without moving objects has one level, built at `quality`, either way.
   bool static_child = false;
 };
