@@ -12,6 +12,7 @@ namespace dhr {
 
 namespace {
 constexpr std::array<const char*, 5> kNames = {"sse2", "sse4.2", "avx", "avx2", "avx512"};
+constexpr const char* kCapVariable = "DHR_MAX_ISA";
 
 // The CPU's best, each ISA needing the ones before it (what Embree tests for, in short).
 Isa cpu_isa() {
@@ -25,24 +26,41 @@ Isa cpu_isa() {
     return Isa::kAvx2;
   return Isa::kAvx512;
 }
+
+// The CPU's best capped by `cap`, a value of $DHR_MAX_ISA (empty: no cap).
+Isa capped(const std::string& cap) {
+  static const Isa cpu = cpu_isa();
+  if (cap.empty()) return cpu;
+  for (size_t i = 0; i < kNames.size(); ++i)
+    if (cap == kNames[i]) return std::min(cpu, Isa(i));
+  fail("{} = \"{}\": not an instruction set dhrbench knows (valid: sse2, sse4.2, avx, avx2, avx512; unset "
+       "for the best this CPU has)",
+       kCapVariable, cap);
+}
+
+std::string cap_now() {
+  const char* env = std::getenv(kCapVariable);
+  return env ? env : "";
+}
+
+// $DHR_MAX_ISA as the process started: read before main (below), so that code which sets the
+// variable later (a test's ScopedEnv, to cap Embree) cannot fix the kernels' cap by happening
+// to make the first call.
+const std::string& cap_at_start() {
+  static const std::string cap = cap_now();
+  return cap;
+}
+[[maybe_unused]] const std::string& g_cap_read_before_main = cap_at_start();
 }  // namespace
 
 const char* isa_name(Isa isa) { return kNames[size_t(isa)]; }
 
-Isa usable_isa() {
-  static const Isa cpu = cpu_isa();
-  const char* env = std::getenv("DHR_MAX_ISA");
-  if (!env || !*env) return cpu;
-  const std::string want = env;
-  for (size_t i = 0; i < kNames.size(); ++i)
-    if (want == kNames[i]) return std::min(cpu, Isa(i));
-  fail("DHR_MAX_ISA = \"{}\": not an instruction set dhrbench knows (valid: sse2, sse4.2, avx, avx2, avx512; unset "
-       "for the best this CPU has)",
-       want);
-}
+Isa usable_isa() { return capped(cap_now()); }
+
+bool isa_capped() { return !cap_now().empty(); }
 
 bool kernels_may_use(Isa isa) {
-  static const Isa cap = usable_isa();
+  static const Isa cap = capped(cap_at_start());
   return isa <= cap;
 }
 

@@ -20,8 +20,14 @@ const char* isa_name(Isa isa);
 // names when it holds anything else.
 Isa usable_isa();
 
-// Whether dhrbench's own kernels may use `isa` (the cap only; the caller checks the CPU): read
-// once, at the first call, for the process (kernels are chosen per call, often per row).
+// Whether $DHR_MAX_ISA is set (and not empty): Embree is then given usable_isa() as its max_isa
+// (core/rt_scene.cpp); otherwise Embree makes its own choice.
+bool isa_capped();
+
+// Whether dhrbench's own kernels may use `isa` (the cap only; the caller checks the CPU). The
+// cap is $DHR_MAX_ISA as the process started, for the whole process (kernels are chosen per
+// call, often per row): setting the variable later caps Embree's next RtScene, not these.
+// Throws dhr::Error, as usable_isa() does, at the first call when that value is not valid.
 bool kernels_may_use(Isa isa);
 
 }  // namespace dhr

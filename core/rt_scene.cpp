@@ -178,7 +178,7 @@ void RtScene::build() {
   last_error_.clear();
   const std::string isa = embree_isa();
   std::string config = fmt::format("threads={}", threads_);
-  if (const char* cap = std::getenv("DHR_MAX_ISA"); cap && *cap) config += fmt::format(",max_isa={}", isa);
+  if (isa_capped()) config += fmt::format(",max_isa={}", isa);
   device_ = rtcNewDevice(config.c_str());
   if (!device_) fail("rt_scene: rtcNewDevice(\"{}\") failed (error {})", config, int(rtcGetDeviceError(nullptr)));
   rtcSetDeviceErrorFunction(device_, embree_error, &last_error_);

@@ -49,7 +49,7 @@ namespace {
 //   Embree's SSE4.2 and AVX2 kernels agree, from a ~/.embree3 file; Debian's Embree does not read
 //   that file, so both runs had used AVX2.)
 // In every table the street rows were recorded again (the same loop, every ISA on the AVX-512
-// EPYC) when scenes with moving objects moved to Embree's two-level layout
+// EPYC) at commit bf65e45, which moved scenes with moving objects to Embree's two-level layout
 // (RtSceneOptions::static_child): it answers a few of street's rays on shared edges
 // differently. The other rows did not move.
 const std::map<std::string, uint64_t>& pinned() {
