@@ -159,6 +159,7 @@ std::string reference_key(const Scene& scene, const GBuffer& g, const ReferenceS
   h.pod(s.seed);
   h.pod(s.composite.exposure);
   h.str(tracer);
+  if (s.lattice) h.str("lattice");  // independent uniforms keep the keys they had
   return fmt::format("{:016x}", h.value());
 }
 
@@ -232,6 +233,7 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
                            {"ao_rays", s.ao_rays},
                            {"samples_per_light", s.samples_per_light},
                            {"seed", s.seed},
+                           {"sampling", s.lattice ? "lattice" : "random"},
                            {"exposure", s.composite.exposure},
                            {"tracer", rt.tracer()},
                            {"shadow_rays", out.stats.shadow_rays},

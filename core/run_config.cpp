@@ -216,6 +216,13 @@ std::vector<RunSetting> make_settings() {
                           "shadow rays per area light and pixel of the ground truth",
                           [](auto& c) -> auto& { return c.ground_truth_samples_per_light; }),
                    kInTruthKey));
+  RunSetting truth_sampling = field("ground_truth_sampling", SettingType::Choice,
+                                    "the ground truth's samples of a pixel: lattice (a shifted R2 lattice per pixel and light) or "
+                                    "random (independent uniforms); both unbiased, the lattice converges faster per ray "
+                                    "(scripts/ground_truth_sampling.py)",
+                                    [](auto& c) -> auto& { return c.ground_truth_sampling; });
+  truth_sampling.choices = {"random", "lattice"};
+  v.push_back(with(truth_sampling, kInTruthKey));
   v.push_back(field("cache_dir", SettingType::String, "ground truths on disk; empty: $DHR_CACHE_DIR or cache/",
                     [](auto& c) -> auto& { return c.cache_dir; }));
   return v;

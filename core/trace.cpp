@@ -409,7 +409,9 @@ std::vector<float> converged_visibility(RtScene& rt, const GBuffer& g, const Pas
     plan.shadow = ShadowMode::SoftFraction;
     plan.samples_per_light = reference.samples_per_light;
   }
-  const VisibilityCounts vc = trace_visibility_counts(rt, g, plan, settings, stats);
+  TraceSettings ts = settings;
+  ts.lattice = reference.lattice;
+  const VisibilityCounts vc = trace_visibility_counts(rt, g, plan, ts, stats);
   const size_t npx = size_t(g.width()) * size_t(g.height());
   std::vector<float> vis(npx * size_t(vc.lights));
   for (int l = 0; l < vc.lights; ++l)
@@ -419,7 +421,9 @@ std::vector<float> converged_visibility(RtScene& rt, const GBuffer& g, const Pas
 
 std::vector<float> converged_ao(RtScene& rt, const GBuffer& g, const PassPlan& plan, const TraceSettings& settings,
                                 const ReferenceRays& reference, TraceStats& stats) {
-  const AoCounts ac = trace_ao_counts(rt, g, reference.ao_rays, plan.ao_radius_m, settings, stats);
+  TraceSettings ts = settings;
+  ts.lattice = reference.lattice;
+  const AoCounts ac = trace_ao_counts(rt, g, reference.ao_rays, plan.ao_radius_m, ts, stats);
   std::vector<float> ao(ac.unoccluded.size());
   for (size_t i = 0; i < ao.size(); ++i) ao[i] = float(ac.unoccluded[i]) / float(ac.rays);
   return ao;

@@ -80,6 +80,11 @@ struct TraceSettings {
   // The AO pass at 1/ao_scale of the width and height (1..kMaxPassScale): traced on the
   // G-buffer's sampled pixels and upsampled by the client (core/upsample.h).
   int ao_scale = 1;
+  // Where a pixel takes S > 1 samples (AO rays, rays per area light): the samples on a lattice
+  // with the pixel's own random shift (lattice_uniform below) instead of independent uniforms.
+  // Set by the ground truth's converged estimates only (ReferenceRays::lattice); every kernel
+  // gives the same bits, as with independent uniforms.
+  bool lattice = false;
 };
 
 enum class ShadowMode : uint8_t {
@@ -154,6 +159,10 @@ PassBuffer trace_ao(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, cons
 struct ReferenceRays {
   int ao_rays = 512;            // 1..65535 AO rays per pixel (radius: the scene's ao block)
   int samples_per_light = 256;  // 1..65535 rays per area light per pixel (point lights: 1)
+  // true: a shifted lattice of samples per pixel and light (TraceSettings::lattice), unbiased
+  // and converging faster than independent uniforms (false) per ray (docs/architecture.md,
+  // "The references").
+  bool lattice = true;
 };
 
 // The ground truth's converged estimates of the same passes (PassType::converged, used by
@@ -232,5 +241,23 @@ struct PixelRng {
     u1 = float(mix64(k ^ 1u) >> 40) * (1.0f / 16777216.0f);
   }
 };
+
+// The lattice of TraceSettings::lattice: sample k of a pixel (and light) is the point
+// k (a0, a1) mod 1 of Roberts' R2 sequence (a0 = 1/p, a1 = 1/p^2, p the plastic number: a
+// low-discrepancy set for any count), shifted mod 1 by a random offset of the pixel and stream
+// (Cranley-Patterson rotation: each sample is uniform on its own, so the estimate stays
+// unbiased, while a pixel's samples cover the square evenly). In 32-bit fixed point, integers
+// only, so every kernel gives the same bits: the offset is sample 0's key of PixelRng::uniform2.
+constexpr uint32_t kLatticeA0 = 3242174889u;  // round(2^32 / 1.32471795724474602596)
+constexpr uint32_t kLatticeA1 = 2447445414u;  // round(2^32 / 1.32471795724474602596^2)
+inline void lattice_shift(uint64_t pixel_hash, uint32_t stream, uint32_t& s0, uint32_t& s1) {
+  const uint64_t k = mix64(pixel_hash ^ uint64_t(stream));
+  s0 = uint32_t(mix64(k ^ 0u) >> 32);
+  s1 = uint32_t(mix64(k ^ 1u) >> 32);
+}
+// The top 24 bits of (sample a + shift) mod 2^32, as a float in [0, 1) (exact).
+inline float lattice_uniform(uint32_t sample, uint32_t a, uint32_t shift) {
+  return float((sample * a + shift) >> 8) * (1.0f / 16777216.0f);
+}
 
 }  // namespace dhr

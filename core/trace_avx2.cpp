@@ -60,6 +60,12 @@ DHR_TRACE_TARGET_AVX2 inline __m256 uniform_x8(__m256i lo, __m256i hi) {
   return _mm256_mul_ps(_mm256_cvtepi32_ps(v), _mm256_set1_ps(1.0f / 16777216.0f));
 }
 
+// lattice_uniform (core/trace.h) on 8 lanes: the top 24 bits of sample a + shift (mod 2^32).
+DHR_TRACE_TARGET_AVX2 inline __m256 lattice_x8(__m256i sample, uint32_t a, __m256i shift) {
+  const __m256i v = _mm256_add_epi32(_mm256_mullo_epi32(sample, _mm256_set1_epi32(int32_t(a))), shift);
+  return _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32(v, 8)), _mm256_set1_ps(1.0f / 16777216.0f));
+}
+
 // sincos_2pi_x4 on 8 lanes: the same IEEE operations in the same order.
 DHR_TRACE_TARGET_AVX2 inline void sincos_2pi_x8(__m256 u, __m256& c, __m256& s) {
   const __m256 one = _mm256_set1_ps(1.0f);
@@ -230,11 +236,19 @@ DHR_TRACE_TARGET_AVX2 void ao_rays_x8(const AoPixels& px, int rays, float radius
         _mm256_or_si256(_mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_castsi256_si128(sample)), 32), stream);
     const __m256i key_hi =
         _mm256_or_si256(_mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_extracti128_si256(sample, 1)), 32), stream);
-    const auto* h = reinterpret_cast<const long long*>(px.h.data() + p0);
-    const __m256i k_lo = mix64_x4(_mm256_xor_si256(_mm256_i32gather_epi64(h, pick_lo, 8), key_lo));
-    const __m256i k_hi = mix64_x4(_mm256_xor_si256(_mm256_i32gather_epi64(h, pick_hi, 8), key_hi));
-    const __m256 u0 = uniform_x8(mix64_x4(k_lo), mix64_x4(k_hi));
-    const __m256 u1 = uniform_x8(mix64_x4(_mm256_xor_si256(k_lo, dim1)), mix64_x4(_mm256_xor_si256(k_hi, dim1)));
+    __m256 u0, u1;
+    if (px.lattice) {  // each lane's pixel's shift from the 8-pixel window
+      const auto* s0p = reinterpret_cast<const __m256i*>(px.shift0.data() + p0);
+      const auto* s1p = reinterpret_cast<const __m256i*>(px.shift1.data() + p0);
+      u0 = lattice_x8(sample, kLatticeA0, _mm256_permutevar8x32_epi32(_mm256_loadu_si256(s0p), pick));
+      u1 = lattice_x8(sample, kLatticeA1, _mm256_permutevar8x32_epi32(_mm256_loadu_si256(s1p), pick));
+    } else {
+      const auto* h = reinterpret_cast<const long long*>(px.h.data() + p0);
+      const __m256i k_lo = mix64_x4(_mm256_xor_si256(_mm256_i32gather_epi64(h, pick_lo, 8), key_lo));
+      const __m256i k_hi = mix64_x4(_mm256_xor_si256(_mm256_i32gather_epi64(h, pick_hi, 8), key_hi));
+      u0 = uniform_x8(mix64_x4(k_lo), mix64_x4(k_hi));
+      u1 = uniform_x8(mix64_x4(_mm256_xor_si256(k_lo, dim1)), mix64_x4(_mm256_xor_si256(k_hi, dim1)));
+    }
     const __m256 r = _mm256_sqrt_ps(u0);
     const __m256 z = _mm256_sqrt_ps(_mm256_sub_ps(one, u0));
     __m256 c, s;
@@ -304,9 +318,16 @@ DHR_TRACE_TARGET_AVX2 void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch,
     const __m256i first = _mm256_set1_epi64x(int64_t(k0));
     const __m256i key_lo = _mm256_or_si256(_mm256_slli_epi64(_mm256_add_epi64(first, iota_lo), 32), stream);
     const __m256i key_hi = _mm256_or_si256(_mm256_slli_epi64(_mm256_add_epi64(first, iota_hi), 32), stream);
-    const __m256i k_lo = mix64_x4(_mm256_xor_si256(h, key_lo)), k_hi = mix64_x4(_mm256_xor_si256(h, key_hi));
-    const __m256 u0 = uniform_x8(mix64_x4(k_lo), mix64_x4(k_hi));
-    const __m256 u1 = uniform_x8(mix64_x4(_mm256_xor_si256(k_lo, dim1)), mix64_x4(_mm256_xor_si256(k_hi, dim1)));
+    __m256 u0, u1;
+    if (p.lattice) {
+      const __m256i samples = _mm256_add_epi32(_mm256_set1_epi32(k0), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+      u0 = lattice_x8(samples, kLatticeA0, _mm256_set1_epi32(int32_t(p.shift0)));
+      u1 = lattice_x8(samples, kLatticeA1, _mm256_set1_epi32(int32_t(p.shift1)));
+    } else {
+      const __m256i k_lo = mix64_x4(_mm256_xor_si256(h, key_lo)), k_hi = mix64_x4(_mm256_xor_si256(h, key_hi));
+      u0 = uniform_x8(mix64_x4(k_lo), mix64_x4(k_hi));
+      u1 = uniform_x8(mix64_x4(_mm256_xor_si256(k_lo, dim1)), mix64_x4(_mm256_xor_si256(k_hi, dim1)));
+    }
     __m256 d[3];
     cone_x8(t, b, w, omc_max, u0, u1, d);
     const __m256 tfar = p.sphere ? sphere_tfar_x8(d, oc, r2) : _mm256_set1_ps(std::numeric_limits<float>::infinity());

@@ -45,6 +45,12 @@ DHR_AVX512_TARGET inline __m512 uniform_x16(__m512i lo, __m512i hi) {
   return _mm512_mul_ps(_mm512_insertf32x8(_mm512_castps256_ps512(a), b, 1), _mm512_set1_ps(1.0f / 16777216.0f));
 }
 
+// lattice_uniform (core/trace.h) on 16 lanes: the top 24 bits of sample a + shift (mod 2^32).
+DHR_AVX512_TARGET inline __m512 lattice_x16(__m512i sample, uint32_t a, __m512i shift) {
+  const __m512i v = _mm512_add_epi32(_mm512_mullo_epi32(sample, _mm512_set1_epi32(int32_t(a))), shift);
+  return _mm512_mul_ps(_mm512_cvtepi32_ps(_mm512_srli_epi32(v, 8)), _mm512_set1_ps(1.0f / 16777216.0f));
+}
+
 // sincos_2pi_x4 on 16 lanes: the same IEEE operations in the same order.
 DHR_AVX512_TARGET inline void sincos_2pi_x16(__m512 u, __m512& c, __m512& s) {
   const __m512 one = _mm512_set1_ps(1.0f);
@@ -120,12 +126,18 @@ DHR_AVX512_TARGET void ao_rays_x16(const AoPixels& px, int rays, float radius_m,
     const __m512i key_lo = _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_castsi512_si256(sample)), 32), stream);
     const __m512i key_hi =
         _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(sample, 1)), 32), stream);
-    const __m512i h0 = _mm512_loadu_si512(px.h.data() + p0), h1 = _mm512_loadu_si512(px.h.data() + p0 + 8);
-    const __m512i k_lo = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_lo, h1), key_lo));
-    const __m512i k_hi = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_hi, h1), key_hi));
-    const __m512i dim1 = _mm512_set1_epi64(1);
-    const __m512 u0 = uniform_x16(mix64_x8(k_lo), mix64_x8(k_hi));
-    const __m512 u1 = uniform_x16(mix64_x8(_mm512_xor_si512(k_lo, dim1)), mix64_x8(_mm512_xor_si512(k_hi, dim1)));
+    __m512 u0, u1;
+    if (px.lattice) {  // each lane's pixel's shift from the 16-pixel window, as lane_values
+      u0 = lattice_x16(sample, kLatticeA0, _mm512_permutexvar_epi32(pick, _mm512_loadu_si512(px.shift0.data() + p0)));
+      u1 = lattice_x16(sample, kLatticeA1, _mm512_permutexvar_epi32(pick, _mm512_loadu_si512(px.shift1.data() + p0)));
+    } else {
+      const __m512i h0 = _mm512_loadu_si512(px.h.data() + p0), h1 = _mm512_loadu_si512(px.h.data() + p0 + 8);
+      const __m512i k_lo = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_lo, h1), key_lo));
+      const __m512i k_hi = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_hi, h1), key_hi));
+      const __m512i dim1 = _mm512_set1_epi64(1);
+      u0 = uniform_x16(mix64_x8(k_lo), mix64_x8(k_hi));
+      u1 = uniform_x16(mix64_x8(_mm512_xor_si512(k_lo, dim1)), mix64_x8(_mm512_xor_si512(k_hi, dim1)));
+    }
     const __m512 r = _mm512_sqrt_ps(u0);
     const __m512 z = _mm512_sqrt_ps(_mm512_sub_ps(one, u0));
     __m512 c, s;
@@ -497,6 +509,7 @@ DHR_AVX512_TARGET void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, u
   const __m512i h = _mm512_set1_epi64(int64_t(p.h));
   const __m512i iota_lo = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
   const __m512i iota_hi = _mm512_setr_epi64(8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512i iota32 = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const __m512 t[3] = {_mm512_set1_ps(p.t.x), _mm512_set1_ps(p.t.y), _mm512_set1_ps(p.t.z)};
   const __m512 b[3] = {_mm512_set1_ps(p.b.x), _mm512_set1_ps(p.b.y), _mm512_set1_ps(p.b.z)};
   const __m512 w[3] = {_mm512_set1_ps(p.w.x), _mm512_set1_ps(p.w.y), _mm512_set1_ps(p.w.z)};
@@ -521,9 +534,16 @@ DHR_AVX512_TARGET void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, u
     const __m512i first = _mm512_set1_epi64(int64_t(k0));
     const __m512i key_lo = _mm512_or_si512(_mm512_slli_epi64(_mm512_add_epi64(first, iota_lo), 32), stream);
     const __m512i key_hi = _mm512_or_si512(_mm512_slli_epi64(_mm512_add_epi64(first, iota_hi), 32), stream);
-    const __m512i k_lo = mix64_x8(_mm512_xor_si512(h, key_lo)), k_hi = mix64_x8(_mm512_xor_si512(h, key_hi));
-    const __m512 u0 = uniform_x16(mix64_x8(k_lo), mix64_x8(k_hi));
-    const __m512 u1 = uniform_x16(mix64_x8(_mm512_xor_si512(k_lo, dim1)), mix64_x8(_mm512_xor_si512(k_hi, dim1)));
+    __m512 u0, u1;
+    if (p.lattice) {
+      const __m512i samples = _mm512_add_epi32(_mm512_set1_epi32(k0), iota32);
+      u0 = lattice_x16(samples, kLatticeA0, _mm512_set1_epi32(int32_t(p.shift0)));
+      u1 = lattice_x16(samples, kLatticeA1, _mm512_set1_epi32(int32_t(p.shift1)));
+    } else {
+      const __m512i k_lo = mix64_x8(_mm512_xor_si512(h, key_lo)), k_hi = mix64_x8(_mm512_xor_si512(h, key_hi));
+      u0 = uniform_x16(mix64_x8(k_lo), mix64_x8(k_hi));
+      u1 = uniform_x16(mix64_x8(_mm512_xor_si512(k_lo, dim1)), mix64_x8(_mm512_xor_si512(k_hi, dim1)));
+    }
     __m512 d[3];
     cone_x16(t, b, w, omc_max, u0, u1, d);
     const __m512 tfar = p.sphere ? sphere_tfar_x16(d, oc, r2) : inf;

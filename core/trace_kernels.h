@@ -324,9 +324,14 @@ struct AoPixels {
   enum { kOx, kOy, kOz, kTx, kTy, kTz, kBx, kBy, kBz, kNx, kNy, kNz, kComponents };
   std::array<std::vector<float>, kComponents> c;
   std::vector<uint64_t> h;
+  // TraceSettings::lattice: each pixel's lattice shift (lattice_shift, stream kStreamAo).
+  bool lattice = false;
+  std::vector<uint32_t> shift0, shift1;
   std::vector<uint16_t*> count;
   int n = 0;
-  explicit AoPixels(int width) : h(size_t(width) + 16, 0), count(size_t(width) + 16, nullptr) {
+  explicit AoPixels(int width)
+      : h(size_t(width) + 16, 0), shift0(size_t(width) + 16, 0), shift1(size_t(width) + 16, 0),
+        count(size_t(width) + 16, nullptr) {
     for (auto& v : c) v.assign(size_t(width) + 16, 0.0f);
   }
 };
@@ -440,6 +445,8 @@ struct SoftPair {
   glm::vec3 oc{0.0f};
   float r2 = 0.0f;
   uint16_t* count = nullptr;
+  bool lattice = false;  // TraceSettings::lattice, with the pair's shift (lattice_shift)
+  uint32_t shift0 = 0, shift1 = 0;
 };
 // The pair's S rays 8 at a time on AVX2 (core/trace_avx2.cpp): traced and counted (invalid
 // rays counted as unoccluded and added to invalid), or with batch.record kept; the cone

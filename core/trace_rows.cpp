@@ -48,6 +48,15 @@ __attribute__((target_clones("default", "arch=x86-64-v4"))) void uniforms_chunk(
   }
 }
 
+// uniforms_chunk's values on the lattice of TraceSettings::lattice (core/trace.h): samples
+// first .. first + kChunk - 1 of the pixel whose shift is (s0, s1). Integers and an exact
+// conversion only, as there.
+void lattice_chunk(uint32_t s0, uint32_t s1, uint32_t first, float* u0, float* u1) {
+  for (int j = 0; j < kChunk; ++j) {
+    u0[j] = lattice_uniform(first + uint32_t(j), kLatticeA0, s0);
+    u1[j] = lattice_uniform(first + uint32_t(j), kLatticeA1, s1);
+  }
+}
 
 // uniforms_chunk for one sample of n pixels: u0[x], u1[x] from the per-pixel hashes h[x].
 __attribute__((target_clones("default", "arch=x86-64-v4"))) void uniforms_pixels(const uint64_t* h, int n,
@@ -462,10 +471,14 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
         const float omc_max = li.sphere ? r.omc[i] : li.one_minus_cos;
         const float ocx = r.ocx[i], ocy = r.ocy[i], ocz = r.ocz[i];
         const float r2 = li.radius * li.radius;
+        uint32_t shift0 = 0, shift1 = 0;
+        if (settings.lattice) lattice_shift(r.h[size_t(x)], stream, shift0, shift1);
 #if DHR_TRACE_X86_KERNELS
         if (W == 16 ? x16 : x8) {
-          const SoftPair pair{origin, origin_ok, r.h[size_t(x)], stream, li.samples, tb, bb, w_dir, omc_max,
-                              li.sphere, glm::vec3(ocx, ocy, ocz), r2, count};
+          SoftPair pair{origin, origin_ok, r.h[size_t(x)], stream, li.samples, tb, bb, w_dir, omc_max,
+                        li.sphere, glm::vec3(ocx, ocy, ocz), r2, count};
+          pair.lattice = settings.lattice;
+          pair.shift0 = shift0, pair.shift1 = shift1;
           if constexpr (W == 16) soft_pair_rays_x16(pair, batch, invalid);
           else soft_pair_rays_x8(pair, batch, invalid);
           continue;
@@ -473,7 +486,8 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
 #endif
         for (int k0 = 0; k0 < li.samples; k0 += kChunk) {
           const int n = std::min(kChunk, li.samples - k0);
-          uniforms_chunk(r.h[size_t(x)], uint32_t(k0), stream, u0, u1);
+          if (settings.lattice) lattice_chunk(shift0, shift1, uint32_t(k0), u0, u1);
+          else uniforms_chunk(r.h[size_t(x)], uint32_t(k0), stream, u0, u1);
           sample_cone_chunk(tb, bb, w_dir, omc_max, u0, u1, dx, dy, dz);
           if (li.sphere) {
             for (int j = 0; j < n; ++j) {
@@ -528,7 +542,8 @@ void ao_rays_baseline(const AoPixels& px, int rays, float radius_m, Batch<W>& ba
     const glm::vec3 n(at(AoPixels::kNx), at(AoPixels::kNy), at(AoPixels::kNz));
     for (int k0 = 0; k0 < rays; k0 += kChunk) {
       const int m = std::min(kChunk, rays - k0);
-      uniforms_chunk(px.h[size_t(i)], uint32_t(k0), kStreamAo, u0, u1);
+      if (px.lattice) lattice_chunk(px.shift0[size_t(i)], px.shift1[size_t(i)], uint32_t(k0), u0, u1);
+      else uniforms_chunk(px.h[size_t(i)], uint32_t(k0), kStreamAo, u0, u1);
       cosine_dirs_chunk(t, b, n, u0, u1, dx, dy, dz);
       // tfar = r: "occluded if anything is hit within r", never trace further.
       batch.push_chunk(origin, dx, dy, dz, radius_m, m, px.count[size_t(i)]);
@@ -547,6 +562,7 @@ void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_
   Batch<W> batch(rt.handle(), kMaskAll);
   TriangleCache cache;
   AoPixels px(w);
+  px.lattice = settings.lattice;
   uint64_t invalid = 0, unres = 0, cov = 0;
   for (int y = y0; y < y1; ++y) {
     batch.flush();  // one row's rays per packet, as visibility_rows
@@ -570,6 +586,7 @@ void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_
                                               s.b.x,      s.b.y,      s.b.z,      s.n.x, s.n.y, s.n.z};
       for (int k = 0; k < AoPixels::kComponents; ++k) px.c[size_t(k)][i] = v[k];
       px.h[i] = PixelRng(settings.seed, uint32_t(pixel), settings.frame).h;
+      if (px.lattice) lattice_shift(px.h[i], kStreamAo, px.shift0[i], px.shift1[i]);
       px.count[i] = count;
     }
     rays_fn(px, ao_rays, radius_m, batch);

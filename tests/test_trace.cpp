@@ -300,9 +300,12 @@ TEST(TraceAo, WideKernelsGiveTheSameBits) {
   RtScene rt(s);
   const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
   if (!wide_kernels_available(rt)) std::printf("note: no AVX2 or AVX-512 here; both settings run the baseline kernel\n");
-  for (int rays : {1, 2, 4, 8, 16, 32, 48, 3, 5, 7, 13, 17, 100, 255}) {
+  for (int rays : {1, 2, 4, 8, 16, 32, 48, 3, 5, 7, 13, 17, 100, 255})
+  for (bool lattice : {false, true}) {  // the ground truth's lattice (TraceSettings::lattice) too
+    SCOPED_TRACE(lattice ? "lattice" : "random");
     TraceSettings wide, base;
     wide.frame = base.frame = 7;
+    wide.lattice = base.lattice = lattice;
     base.wide_kernels = false;
     wide.threads = 2;
     base.threads = 1;
@@ -319,6 +322,75 @@ TEST(TraceAo, WideKernelsGiveTheSameBits) {
     const std::vector<RTCRay> rw = collect_ao_rays(rt, g, rays, 0.8f, wide), rb = collect_ao_rays(rt, g, rays, 0.8f, base);
     ASSERT_EQ(rw.size(), rb.size());
     EXPECT_EQ(std::memcmp(rw.data(), rb.data(), rw.size() * sizeof(RTCRay)), 0) << rays << " rays";
+  }
+}
+
+// The ground truth's lattice (TraceSettings::lattice) against independent uniforms, at the
+// same N samples per pixel: both against a reference of many independent samples (another
+// seed), over the pixels whose reference is strictly between 0 and 1 (partly occluded AO, the
+// penumbra). The lattice's estimate is unbiased (its mean error within four standard errors of
+// zero) and its squared error smaller.
+struct LatticeErrors {
+  double mse_random = 0.0, mse_lattice = 0.0, mean_lattice = 0.0, se_lattice = 0.0;
+  size_t pixels = 0;
+};
+LatticeErrors lattice_errors(const std::vector<uint16_t>& ref, int ref_n, const std::vector<uint16_t>& rnd,
+                             const std::vector<uint16_t>& lat, int n) {
+  LatticeErrors e;
+  double sum = 0.0, sum2 = 0.0;
+  for (size_t i = 0; i < ref.size(); ++i) {
+    const double r = double(ref[i]) / ref_n;
+    if (r <= 0.0 || r >= 1.0) continue;
+    const double dr = double(rnd[i]) / n - r, dl = double(lat[i]) / n - r;
+    e.mse_random += dr * dr;
+    e.mse_lattice += dl * dl;
+    sum += dl;
+    sum2 += dl * dl;
+    ++e.pixels;
+  }
+  const double m = double(e.pixels);
+  e.mse_random /= m;
+  e.mse_lattice /= m;
+  e.mean_lattice = sum / m;
+  e.se_lattice = std::sqrt(std::max(0.0, sum2 / m - e.mean_lattice * e.mean_lattice) / m);
+  return e;
+}
+
+TEST(TraceAo, LatticeIsUnbiasedAndConvergesFaster) {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
+  s.objects.push_back(make_object(3, make_sphere(0.4f, 16, 8), glm::vec3(1.0f, 0.4f, 0.5f)));
+  s.lights.push_back(sphere_light({0.5f, 2.5f, -1.0f}, 0.6f));
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
+  constexpr int kN = 32, kRef = 2048;
+  TraceSettings rnd, lat, ref;
+  lat.lattice = true;
+  ref.seed = 99;
+  TraceStats st;
+  {
+    const AoCounts r = trace_ao_counts(rt, g, kRef, 1.0f, ref, st);
+    const LatticeErrors e = lattice_errors(r.unoccluded, kRef, trace_ao_counts(rt, g, kN, 1.0f, rnd, st).unoccluded,
+                                           trace_ao_counts(rt, g, kN, 1.0f, lat, st).unoccluded, kN);
+    std::printf("AO, %zu pixels: MSE random %.3g, lattice %.3g (%.2fx); lattice mean error %.2g +- %.2g\n", e.pixels,
+                e.mse_random, e.mse_lattice, e.mse_random / e.mse_lattice, e.mean_lattice, e.se_lattice);
+    ASSERT_GT(e.pixels, 200u);
+    EXPECT_LT(e.mse_lattice, 0.6 * e.mse_random);
+    EXPECT_LT(std::abs(e.mean_lattice), 4.0 * e.se_lattice + 1e-3);
+  }
+  {
+    rnd.samples_per_light = lat.samples_per_light = kN;
+    ref.samples_per_light = 1024;  // the fraction path's most
+    const PassPlan plan = plan_passes(s, rnd), ref_plan = plan_passes(s, ref);
+    const VisibilityCounts r = trace_visibility_counts(rt, g, ref_plan, ref, st);
+    const LatticeErrors e = lattice_errors(r.visible, 1024, trace_visibility_counts(rt, g, plan, rnd, st).visible,
+                                           trace_visibility_counts(rt, g, plan, lat, st).visible, kN);
+    std::printf("shadows, %zu pixels: MSE random %.3g, lattice %.3g (%.2fx); lattice mean error %.2g +- %.2g\n",
+                e.pixels, e.mse_random, e.mse_lattice, e.mse_random / e.mse_lattice, e.mean_lattice, e.se_lattice);
+    ASSERT_GT(e.pixels, 50u);
+    EXPECT_LT(e.mse_lattice, 0.6 * e.mse_random);
+    EXPECT_LT(std::abs(e.mean_lattice), 4.0 * e.se_lattice + 1e-3);
   }
 }
 
@@ -341,9 +413,12 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
   RtScene rt(s);
   const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
   if (!wide_kernels_available(rt)) std::printf("note: no AVX2 or AVX-512 here; both settings run the baseline kernels\n");
-  for (int samples : {2, 3, 5, 7, 8, 9, 16, 17, 64}) {
+  for (int samples : {2, 3, 5, 7, 8, 9, 16, 17, 64})
+  for (bool lattice : {false, true}) {  // the ground truth's lattice (TraceSettings::lattice) too
+    SCOPED_TRACE(lattice ? "lattice" : "random");
     TraceSettings wide, base;
     wide.frame = base.frame = 5;
+    wide.lattice = base.lattice = lattice;
     wide.samples_per_light = base.samples_per_light = samples;
     base.wide_kernels = false;
     wide.threads = 2;
@@ -1044,6 +1119,14 @@ TEST(Reference, GroundTruthIsCachedAndKeyed) {
   GBuffer g2 = g;
   g2.time_s = 0.5;
   EXPECT_NE(reference_key(s, g2, rs, rt.tracer()), a.key);
+  // The samples' kind (ReferenceRays::lattice) too; both images are cached, and differ.
+  ReferenceSettings random = rs;
+  random.lattice = !rs.lattice;
+  EXPECT_NE(reference_key(s, g, random, rt.tracer()), a.key);
+  const ReferenceResult other_kind = ground_truth(rt, g, random);
+  EXPECT_FALSE(other_kind.from_cache);
+  EXPECT_NE(other_kind.image, a.image);
+  EXPECT_TRUE(ground_truth(rt, g, random).from_cache);
   // Another Embree ISA is another entry: a folder shared by two CPU kinds never hands one the
   // other's image (their kernels can answer a ray on an edge differently).
   EXPECT_NE(reference_key(s, g, rs, rt.tracer() + "x"), a.key);
