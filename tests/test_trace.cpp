@@ -62,6 +62,15 @@ using test::distant_light;
 
 Camera cam(glm::vec3 pos, glm::vec3 target) { return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f); }
 
+// A plane with a box and a sphere on it: AO partly occluded at their feet, penumbrae behind them.
+Scene occluders_scene() {
+  Scene s = base_scene();
+  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
+  s.objects.push_back(make_object(3, make_sphere(0.4f, 16, 8), glm::vec3(1.0f, 0.4f, 0.5f)));
+  return s;
+}
+
 bool bit(const PassBuffer& pb, int light, size_t pixel) {
   const size_t bpp = size_t((pb.desc.channels + 7) / 8);
   return (pb.bytes[pixel * bpp + size_t(light >> 3)] >> (light & 7)) & 1u;
@@ -261,10 +270,7 @@ TEST(TraceAo, FarFromOtherSurfacesIsUnoccluded) {
 }
 
 TEST(TraceAo, DeterministicAcrossThreadCounts) {
-  Scene s = base_scene();
-  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
-  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
-  s.objects.push_back(make_object(3, make_sphere(0.4f, 16, 8), glm::vec3(1.0f, 0.4f, 0.5f)));
+  Scene s = occluders_scene();
   s.lights.push_back(sphere_light({2, 4, 1}, 0.5f));
   s.ao = AoSettings{1.0f, 8};
   RtScene rt(s);
@@ -292,10 +298,7 @@ TEST(TraceAo, DeterministicAcrossThreadCounts) {
 // on any thread count, for ray counts that fill packets with whole pixels (divisors and
 // multiples of 16) and for those whose packets split pixels.
 TEST(TraceAo, WideKernelsGiveTheSameBits) {
-  Scene s = base_scene();
-  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
-  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
-  s.objects.push_back(make_object(3, make_sphere(0.4f, 16, 8), glm::vec3(1.0f, 0.4f, 0.5f)));
+  Scene s = occluders_scene();
   s.ao = AoSettings{1.0f, 8};
   RtScene rt(s);
   const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
@@ -357,10 +360,7 @@ LatticeErrors lattice_errors(const std::vector<uint16_t>& ref, int ref_n, const 
 }
 
 TEST(TraceAo, LatticeIsUnbiasedAndConvergesFaster) {
-  Scene s = base_scene();
-  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
-  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
-  s.objects.push_back(make_object(3, make_sphere(0.4f, 16, 8), glm::vec3(1.0f, 0.4f, 0.5f)));
+  Scene s = occluders_scene();
   s.lights.push_back(sphere_light({0.5f, 2.5f, -1.0f}, 0.6f));
   RtScene rt(s);
   const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
@@ -403,10 +403,7 @@ TEST(TraceAo, LatticeIsUnbiasedAndConvergesFaster) {
 // AVX-512 the cone loops have no vector kernel: there it compares the AVX-512 surfaces and
 // light classification with the baseline's.)
 TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
-  Scene s = base_scene();
-  s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
-  s.objects.push_back(make_object(2, make_box({1, 1, 1}), glm::vec3(0.0f, 0.5f, 0.0f)));
-  s.objects.push_back(make_object(3, make_sphere(0.4f, 16, 8), glm::vec3(1.0f, 0.4f, 0.5f)));
+  Scene s = occluders_scene();
   s.lights.push_back(sphere_light({0.5f, 2.5f, -1.0f}, 0.6f));
   s.lights.push_back(distant_light({-0.4f, 1.0f, 0.3f}, 8.0f));
   s.lights.push_back(sphere_light({0.0f, -2.0f, 0.0f}, 0.5f));
