@@ -624,7 +624,7 @@ class Simulation {
     ReferenceSettings rs;
     rs.ao_rays = c_.ground_truth_ao_rays;
     rs.samples_per_light = c_.ground_truth_samples_per_light;
-    rs.lattice = c_.ground_truth_sampling == "lattice";
+    rs.lattice = is_lattice(c_.ground_truth_sampling);
     rs.cache_dir = c_.cache_dir;
     auto img = std::make_shared<ImageRGB8>(dhr::ground_truth(rt(), gbuf, rs).image);
     cache_.insert_image(key, img);

@@ -233,7 +233,7 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
                            {"ao_rays", s.ao_rays},
                            {"samples_per_light", s.samples_per_light},
                            {"seed", s.seed},
-                           {"sampling", s.lattice ? "lattice" : "random"},
+                           {"sampling", sampling_name(s.lattice)},
                            {"exposure", s.composite.exposure},
                            {"tracer", rt.tracer()},
                            {"shadow_rays", out.stats.shadow_rays},

@@ -59,7 +59,7 @@ struct SimConfig {
   int ground_truth_every = 0;  // against the ground truth on every n-th frame (0: never)
   int ground_truth_ao_rays = 256;
   int ground_truth_samples_per_light = 64;
-  std::string ground_truth_sampling = "lattice";  // or "random" (ReferenceRays::lattice)
+  std::string ground_truth_sampling = sampling_name(ReferenceRays{}.lattice);  // or the other (core/trace.h)
   bool keep_images = false;    // keep one frame's images (RunResult::images) for image grids
   std::string cache_dir;       // ground truths on disk; empty: default_cache_dir() (core/reference.h)
   std::string dump_streams_dir;  // non-empty: the server writes each video pass's stream there

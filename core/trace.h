@@ -164,6 +164,10 @@ struct ReferenceRays {
   // "The references").
   bool lattice = true;
 };
+// ReferenceRays::lattice by name, as the run setting ground_truth_sampling and the commands'
+// --sampling options spell it: "lattice" or "random".
+inline const char* sampling_name(bool lattice) { return lattice ? "lattice" : "random"; }
+inline bool is_lattice(const std::string& sampling_name) { return sampling_name == "lattice"; }
 
 // The ground truth's converged estimates of the same passes (PassType::converged, used by
 // core/reference.h): fractions in [0, 1], planar [channel][pixel]. `plan` is the scene's plan

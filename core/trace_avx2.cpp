@@ -230,12 +230,6 @@ DHR_TRACE_TARGET_AVX2 void ao_rays_x8(const AoPixels& px, int rays, float radius
     const __m256i v = _mm256_add_epi32(_mm256_set1_epi32(s0), iota);
     const __m256i pick = _mm256_cvttps_epi32(_mm256_div_ps(_mm256_cvtepi32_ps(v), rays_f));
     const __m256i sample = _mm256_sub_epi32(v, _mm256_mullo_epi32(pick, rays_i));
-    const __m128i pick_lo = _mm256_castsi256_si128(pick), pick_hi = _mm256_extracti128_si256(pick, 1);
-    // key = (sample << 32) | stream, as PixelRng::uniform2
-    const __m256i key_lo =
-        _mm256_or_si256(_mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_castsi256_si128(sample)), 32), stream);
-    const __m256i key_hi =
-        _mm256_or_si256(_mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_extracti128_si256(sample, 1)), 32), stream);
     __m256 u0, u1;
     if (px.lattice) {  // each lane's pixel's shift from the 8-pixel window
       const auto* s0p = reinterpret_cast<const __m256i*>(px.shift0.data() + p0);
@@ -243,6 +237,12 @@ DHR_TRACE_TARGET_AVX2 void ao_rays_x8(const AoPixels& px, int rays, float radius
       u0 = lattice_x8(sample, kLatticeA0, _mm256_permutevar8x32_epi32(_mm256_loadu_si256(s0p), pick));
       u1 = lattice_x8(sample, kLatticeA1, _mm256_permutevar8x32_epi32(_mm256_loadu_si256(s1p), pick));
     } else {
+      const __m128i pick_lo = _mm256_castsi256_si128(pick), pick_hi = _mm256_extracti128_si256(pick, 1);
+      // key = (sample << 32) | stream, as PixelRng::uniform2
+      const __m256i key_lo =
+          _mm256_or_si256(_mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_castsi256_si128(sample)), 32), stream);
+      const __m256i key_hi =
+          _mm256_or_si256(_mm256_slli_epi64(_mm256_cvtepu32_epi64(_mm256_extracti128_si256(sample, 1)), 32), stream);
       const auto* h = reinterpret_cast<const long long*>(px.h.data() + p0);
       const __m256i k_lo = mix64_x4(_mm256_xor_si256(_mm256_i32gather_epi64(h, pick_lo, 8), key_lo));
       const __m256i k_hi = mix64_x4(_mm256_xor_si256(_mm256_i32gather_epi64(h, pick_hi, 8), key_hi));
@@ -314,16 +314,16 @@ DHR_TRACE_TARGET_AVX2 void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch,
   }
   for (int k0 = 0; k0 < p.samples; k0 += 8) {
     const int live = std::min(8, p.samples - k0);
-    // key = (sample << 32) | stream, as PixelRng::uniform2
-    const __m256i first = _mm256_set1_epi64x(int64_t(k0));
-    const __m256i key_lo = _mm256_or_si256(_mm256_slli_epi64(_mm256_add_epi64(first, iota_lo), 32), stream);
-    const __m256i key_hi = _mm256_or_si256(_mm256_slli_epi64(_mm256_add_epi64(first, iota_hi), 32), stream);
     __m256 u0, u1;
     if (p.lattice) {
       const __m256i samples = _mm256_add_epi32(_mm256_set1_epi32(k0), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
       u0 = lattice_x8(samples, kLatticeA0, _mm256_set1_epi32(int32_t(p.shift0)));
       u1 = lattice_x8(samples, kLatticeA1, _mm256_set1_epi32(int32_t(p.shift1)));
     } else {
+      // key = (sample << 32) | stream, as PixelRng::uniform2
+      const __m256i first = _mm256_set1_epi64x(int64_t(k0));
+      const __m256i key_lo = _mm256_or_si256(_mm256_slli_epi64(_mm256_add_epi64(first, iota_lo), 32), stream);
+      const __m256i key_hi = _mm256_or_si256(_mm256_slli_epi64(_mm256_add_epi64(first, iota_hi), 32), stream);
       const __m256i k_lo = mix64_x4(_mm256_xor_si256(h, key_lo)), k_hi = mix64_x4(_mm256_xor_si256(h, key_hi));
       u0 = uniform_x8(mix64_x4(k_lo), mix64_x4(k_hi));
       u1 = uniform_x8(mix64_x4(_mm256_xor_si256(k_lo, dim1)), mix64_x4(_mm256_xor_si256(k_hi, dim1)));

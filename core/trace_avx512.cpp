@@ -120,17 +120,18 @@ DHR_AVX512_TARGET void ao_rays_x16(const AoPixels& px, int rays, float radius_m,
     const __m512i v = _mm512_add_epi32(_mm512_set1_epi32(s0), iota);
     const __m512i pick = _mm512_cvttps_epi32(_mm512_div_ps(_mm512_cvtepi32_ps(v), rays_f));
     const __m512i sample = _mm512_sub_epi32(v, _mm512_mullo_epi32(pick, rays_i));
-    const __m512i pick_lo = _mm512_cvtepi32_epi64(_mm512_castsi512_si256(pick));
-    const __m512i pick_hi = _mm512_cvtepi32_epi64(_mm512_extracti64x4_epi64(pick, 1));
-    // key = (sample << 32) | stream, as PixelRng::uniform2
-    const __m512i key_lo = _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_castsi512_si256(sample)), 32), stream);
-    const __m512i key_hi =
-        _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(sample, 1)), 32), stream);
     __m512 u0, u1;
     if (px.lattice) {  // each lane's pixel's shift from the 16-pixel window, as lane_values
       u0 = lattice_x16(sample, kLatticeA0, _mm512_permutexvar_epi32(pick, _mm512_loadu_si512(px.shift0.data() + p0)));
       u1 = lattice_x16(sample, kLatticeA1, _mm512_permutexvar_epi32(pick, _mm512_loadu_si512(px.shift1.data() + p0)));
     } else {
+      const __m512i pick_lo = _mm512_cvtepi32_epi64(_mm512_castsi512_si256(pick));
+      const __m512i pick_hi = _mm512_cvtepi32_epi64(_mm512_extracti64x4_epi64(pick, 1));
+      // key = (sample << 32) | stream, as PixelRng::uniform2
+      const __m512i key_lo =
+          _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_castsi512_si256(sample)), 32), stream);
+      const __m512i key_hi =
+          _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(sample, 1)), 32), stream);
       const __m512i h0 = _mm512_loadu_si512(px.h.data() + p0), h1 = _mm512_loadu_si512(px.h.data() + p0 + 8);
       const __m512i k_lo = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_lo, h1), key_lo));
       const __m512i k_hi = mix64_x8(_mm512_xor_si512(_mm512_permutex2var_epi64(h0, pick_hi, h1), key_hi));
@@ -530,16 +531,16 @@ DHR_AVX512_TARGET void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, u
   }
   for (int k0 = 0; k0 < p.samples; k0 += 16) {
     const int live = std::min(16, p.samples - k0);
-    // key = (sample << 32) | stream, as PixelRng::uniform2
-    const __m512i first = _mm512_set1_epi64(int64_t(k0));
-    const __m512i key_lo = _mm512_or_si512(_mm512_slli_epi64(_mm512_add_epi64(first, iota_lo), 32), stream);
-    const __m512i key_hi = _mm512_or_si512(_mm512_slli_epi64(_mm512_add_epi64(first, iota_hi), 32), stream);
     __m512 u0, u1;
     if (p.lattice) {
       const __m512i samples = _mm512_add_epi32(_mm512_set1_epi32(k0), iota32);
       u0 = lattice_x16(samples, kLatticeA0, _mm512_set1_epi32(int32_t(p.shift0)));
       u1 = lattice_x16(samples, kLatticeA1, _mm512_set1_epi32(int32_t(p.shift1)));
     } else {
+      // key = (sample << 32) | stream, as PixelRng::uniform2
+      const __m512i first = _mm512_set1_epi64(int64_t(k0));
+      const __m512i key_lo = _mm512_or_si512(_mm512_slli_epi64(_mm512_add_epi64(first, iota_lo), 32), stream);
+      const __m512i key_hi = _mm512_or_si512(_mm512_slli_epi64(_mm512_add_epi64(first, iota_hi), 32), stream);
       const __m512i k_lo = mix64_x8(_mm512_xor_si512(h, key_lo)), k_hi = mix64_x8(_mm512_xor_si512(h, key_hi));
       u0 = uniform_x16(mix64_x8(k_lo), mix64_x8(k_hi));
       u1 = uniform_x16(mix64_x8(_mm512_xor_si512(k_lo, dim1)), mix64_x8(_mm512_xor_si512(k_hi, dim1)));

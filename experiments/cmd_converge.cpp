@@ -28,7 +28,7 @@ namespace dhr::cli {
 Runner add_converge_command(CLI::App& app) {
   struct Options {
     std::vector<std::string> scenes, scene_path;
-    std::string out, sampling = "lattice", large_sampling;
+    std::string out, sampling = sampling_name(ReferenceRays{}.lattice), large_sampling;
     int width = 320, height = 180, frames = 3, ao_rays = 128, samples_per_light = 32, factor = 4, threads = 0;
     double start_s = 1.0, duration_s = 1.0;
   };
@@ -56,12 +56,12 @@ Runner add_converge_command(CLI::App& app) {
                   "The ground truth's samples of a pixel (the larger estimate's too, unless --large-sampling): lattice (a "
                   "shifted R2 lattice per pixel and light) or random (independent uniforms); experiments: "
                   "ground_truth_sampling")
-      ->check(CLI::IsMember({"random", "lattice"}))
+      ->check(CLI::IsMember({sampling_name(false), sampling_name(true)}))
       ->capture_default_str();
   cmd->add_option("--large-sampling", o->large_sampling,
                   "The factor x N estimate's samples (default: --sampling's). Two candidates scored against one "
                   "estimate: e.g. lattice N against random 8N, then random 2N against random 8N (factor 4)")
-      ->check(CLI::IsMember({"random", "lattice"}));
+      ->check(CLI::IsMember({sampling_name(false), sampling_name(true)}));
   cmd->add_option("--factor", o->factor, "The larger estimate's samples: factor x N")->check(CLI::Range(2, 64))->capture_default_str();
   cmd->add_option("--out", o->out, "Write convergence.json here (and the larger estimates' images)");
   cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")->check(CLI::NonNegativeNumber);
@@ -72,19 +72,20 @@ Runner add_converge_command(CLI::App& app) {
       fail("converge: factor {} x N (AO rays {}, rays per light {}) exceeds 65535, the ground truth's limit", o->factor,
            o->ao_rays, o->samples_per_light);
     namespace fs = std::filesystem;
+    const std::string large_sampling = o->large_sampling.empty() ? o->sampling : o->large_sampling;
     nlohmann::json out = {{"width", o->width},
                           {"height", o->height},
                           {"ao_rays", o->ao_rays},
                           {"samples_per_light", o->samples_per_light},
                           {"factor", o->factor},
                           {"sampling", o->sampling},
-                          {"large_sampling", o->large_sampling.empty() ? o->sampling : o->large_sampling},
+                          {"large_sampling", large_sampling},
                           {"note", "each figure scores the N-sample ground truth against the factor x N one (independent "
                                    "seeds); the difference bounds the N estimate's own error from above"},
                           {"scenes", nlohmann::json::array()}};
     const auto& metrics = image_metrics();
     fmt::print("ground truth at N = {} AO rays, {} rays per light ({} samples) against {} x N ({}); {}x{}\n", o->ao_rays,
-               o->samples_per_light, o->sampling, o->factor, o->large_sampling.empty() ? o->sampling : o->large_sampling,
+               o->samples_per_light, o->sampling, o->factor, large_sampling,
                o->width, o->height);
     fmt::print("{:<24} {:>7}", "scene", "time s");
     for (const ImageMetric& m : metrics)
@@ -106,8 +107,8 @@ Runner add_converge_command(CLI::App& app) {
         large.ao_rays = o->ao_rays * o->factor;
         large.samples_per_light = o->samples_per_light * o->factor;
         large.seed = small.seed ^ 0x9e3779b97f4a7c15ull;  // independent of the N estimate's samples
-        small.lattice = o->sampling == "lattice";
-        large.lattice = (o->large_sampling.empty() ? o->sampling : o->large_sampling) == "lattice";
+        small.lattice = is_lattice(o->sampling);
+        large.lattice = is_lattice(large_sampling);
         const ImageRGB8 a = ground_truth(rt, g, small).image;
         const ImageRGB8 b = ground_truth(rt, g, large).image;
         const std::vector<double> s = score_frame(b, a);

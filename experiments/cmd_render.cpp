@@ -52,7 +52,7 @@ Runner add_render_command(CLI::App& app) {
     std::vector<std::string> scene_path, passes{"gbuffer"};
     int frame = 0, width = 1280, height = 720, threads = 0, ao_rays = 0, samples_per_light = 1;
     int reference_ao_rays = 512, reference_samples = 256;
-    std::string reference_sampling = "lattice";
+    std::string reference_sampling = sampling_name(ReferenceRays{}.lattice);
     double fps = 60.0, ao_radius_m = 0.0;
     uint64_t seed = 1;
     bool hard = false;
@@ -94,7 +94,7 @@ Runner add_render_command(CLI::App& app) {
   cmd->add_option("--reference-samples", o->reference_samples, "Ground truth: rays per area light")->check(CLI::Range(1, 65535))->capture_default_str();
   cmd->add_option("--reference-sampling", o->reference_sampling,
                   "Ground truth: samples of a pixel, random (independent uniforms) or lattice (a shifted R2 lattice)")
-      ->check(CLI::IsMember({"random", "lattice"}))
+      ->check(CLI::IsMember({sampling_name(false), sampling_name(true)}))
       ->capture_default_str();
 
   return [o] {
@@ -173,7 +173,7 @@ Runner add_render_command(CLI::App& app) {
         ReferenceSettings ref;
         ref.ao_rays = o->reference_ao_rays;
         ref.samples_per_light = o->reference_samples;
-        ref.lattice = o->reference_sampling == "lattice";
+        ref.lattice = is_lattice(o->reference_sampling);
         t0 = std::chrono::steady_clock::now();
         const ReferenceResult r = ground_truth(rt, gbuf, ref);
         fmt::print("reference {:8.2f} ms  ({}; {} AO rays, {} samples per area light)\n", ms_since(t0),
