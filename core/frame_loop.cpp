@@ -69,6 +69,15 @@ std::string pass_trace_key(const std::string& scene_key, const SimConfig& c, int
 
 }  // namespace
 
+SimConfig keyed_config(const SimConfig& config, const Scene& scene) {
+  SimConfig k = config;
+  if (scene.ao) {  // plan_passes: a setting > 0 is the run's, else the scene's
+    if (!(k.trace.ao_rays > 0)) k.trace.ao_rays = scene.ao->rays;
+    if (!(k.trace.ao_radius_m > 0.0f)) k.trace.ao_radius_m = scene.ao->radius_m;
+  }
+  return k;
+}
+
 // The local reference of client frame a depends on nothing but the traced passes of frames 0..a
 // (the scene, the camera path and the trace settings: the trace key), the denoisers and, for a
 // pass traced at reduced resolution, the upsampling filter (core/pipeline.h, LocalReference), so
@@ -511,7 +520,7 @@ class Simulation {
  public:
   Simulation(const SimConfig& c, const Scene& scene, const std::string& scene_key, TraceCache& cache,
              const Registries& registries)
-      : c_(c), scene_(scene), scene_key_(scene_key), cache_(cache), remote_(c.mode == "remote"),
+      : c_(c), scene_(scene), scene_key_(scene_key), key_c_(keyed_config(c, scene)), cache_(cache), remote_(c.mode == "remote"),
         uplink_(c.uplink, c.seed, 0), downlink_(c.downlink, c.seed, 1),
         server_(c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0,
                 [this](const RasterFrame& f) { return server_raster(f); }),
@@ -520,7 +529,7 @@ class Simulation {
     // The server and the local reference share their temporal denoisers' outputs with the
     // other runs of the sweep (DenoiseStage::share).
     std::vector<std::string> denoise_keys;
-    for (const PlannedPass& p : traced_list_) denoise_keys.push_back(denoise_chain_key(scene_key_, c_, p.name));
+    for (const PlannedPass& p : traced_list_) denoise_keys.push_back(denoise_chain_key(scene_key_, key_c_, p.name));
     server_.share_denoised(&memo_, denoise_keys);
     local_.share_denoised({&memo_, denoise_keys, [this](const RasterFrame& f) { return server_raster(f); },
                            [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }});
@@ -573,7 +582,7 @@ class Simulation {
     return *rt_;
   }
 
-  std::string local_key(int a) const { return local_reference_key(scene_key_, c_, a); }
+  std::string local_key(int a) const { return local_reference_key(scene_key_, key_c_, a); }
 
   // When the cache holds the local reference of every frame this run scores, the run takes them
   // all from there and never runs its own (a temporal denoiser must see every frame from the
@@ -600,7 +609,7 @@ class Simulation {
     const TraceSettings settings = c_.trace_for_frame(uint32_t(a));
     std::vector<std::shared_ptr<const TraceCache::Entry>> parts;
     for (const PlannedPass& p : traced_list_) {
-      const std::string key = pass_trace_key(scene_key_, c_, a, p.name);
+      const std::string key = pass_trace_key(scene_key_, key_c_, a, p.name);
       std::shared_ptr<const TraceCache::Entry> part = cache_.find(key);
       if (!part) {
         part = std::make_shared<const TraceCache::Entry>(
@@ -619,7 +628,7 @@ class Simulation {
   // Ground truth: converged visibility and AO (no denoiser), composited (core/reference.h,
   // cached on disk there and in memory here).
   std::shared_ptr<const ImageRGB8> ground_truth(int a, const GBuffer& gbuf) {
-    const std::string key = truth_key(scene_key_, c_, a);
+    const std::string key = truth_key(scene_key_, key_c_, a);
     if (auto hit = cache_.find_image(key)) return hit;
     ReferenceSettings rs;
     rs.ao_rays = c_.ground_truth_ao_rays;
@@ -848,7 +857,7 @@ class Simulation {
       if (scores_ground_truth(c_, rec.frame)) {
         auto truth = ground_truth(a, gbuf);
         rec.scored_ground_truth = true;
-        const auto truth_flip = flip_features_of(truth_key(scene_key_, c_, a), *truth);
+        const auto truth_flip = flip_features_of(truth_key(scene_key_, key_c_, a), *truth);
         rec.ground_truth = score_frame(ScoreReference{*truth, truth_flip.get()}, image);
         if (c_.keep_images) result_.ground_truth_images = {*truth};
       }
@@ -866,6 +875,7 @@ class Simulation {
   const SimConfig& c_;
   const Scene& scene_;
   std::string scene_key_;
+  SimConfig key_c_;  // c_ as the cache keys see it (keyed_config)
   std::optional<ImageRGB8> prev_local_, prev_shown_;  // the last scored frame's reference and image
   std::map<int, std::shared_ptr<const ImageRGB8>> local_cached_;  // the local references taken from the cache
   TraceCache& cache_;

@@ -137,6 +137,14 @@ using ProgressFn = std::function<void(int, int)>;
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key,
                          TraceCache& cache, const Registries& registries, const ProgressFn& progress = {});
 
+// The run's settings as its cache keys see them: what the run leaves to the scene
+// (trace.ao_rays and trace.ao_radius_m 0: the scene's ao block) set to the scene's values, as
+// plan_passes resolves them. A run that names the scene's own values (paper's "F3 AO radius 2 m"
+// on temple, whose ao.radius_m is 2) then shares the traces, denoised passes and references of
+// one that leaves them to the scene: the same plan, so the same bits. run_simulation keys
+// everything by it; the keys below take it (keyed_config(config, scene)) to name a run's entries.
+SimConfig keyed_config(const SimConfig& config, const Scene& scene);
+
 // The cache key of the local reference of client frame `frame` (TraceCache::find_image): the
 // trace key (scene, camera path, trace settings, frame) and every traced pass's denoiser, all it
 // depends on. A run finding the key of every frame it scores takes them instead of computing its

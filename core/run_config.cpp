@@ -116,10 +116,10 @@ std::vector<RunSetting> make_settings() {
                    kTraced | kInTruthKey));
   v.push_back(of_pass(with(ranged("trace.ao_rays", SettingType::Integer, 0, 255, "AO rays per pixel; 0: the scene's ao.rays",
                                   [](auto& c) -> auto& { return c.trace.ao_rays; }),
-                           kTraced | kInTruthKey), "ao"));
+                           kTraced), "ao"));
   v.push_back(of_pass(with(ranged("trace.ao_radius_m", SettingType::Number, 0, 1e6, "AO ray length in metres; 0: the scene's ao.radius_m",
                                   [](auto& c) -> auto& { return c.trace.ao_radius_m; }),
-                           kTraced | kInTruthKey), "ao"));
+                           kTraced), "ao"));
   v.push_back(of_pass(with(field("trace.soft_shadows", SettingType::Boolean, "area lights give soft shadows (else hard, one ray per light)",
                                  [](auto& c) -> auto& { return c.trace.soft_shadows; }),
                            kTraced), "visibility"));

@@ -96,7 +96,12 @@ const char* setting_type_name(SettingType type);
 enum SettingFlag : unsigned {
   kInLiveOffer = 1u << 0,    // client and server of a live session must agree on it (session_offer)
   kInTraceKey = 1u << 1,     // changes the traced buffers: part of the trace cache key
-  kInTruthKey = 1u << 2,     // changes the ground truth: part of its cache key
+  kInTruthKey = 1u << 2,     // changes the ground truth: part of its cache key. The truth is the
+                             // scene's: the run's AO settings are not in it. The seed is, though
+                             // the truth does not depend on it either (its disk key has its own,
+                             // core/reference.h), so that a seed sweep's runs can go to separate
+                             // shards (core/shard.h). FrameLoop.GroundTruthDoesNotDependOn...
+                             // checks both.
 };
 
 struct RunSetting {

@@ -7,6 +7,7 @@
 #include "core/scene_load.h"
 #include "support.h"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
@@ -16,6 +17,8 @@
 #include <map>
 #include <set>
 #include <tuple>
+
+#include <unistd.h>
 
 namespace dhr {
 namespace {
@@ -187,7 +190,7 @@ TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
     TraceCache cache;
     for (int f = c.warmup_frames; f < c.warmup_frames + c.frames; ++f)
       if ((f - c.warmup_frames) % c.score_every == 0 && f != skip)
-        cache.insert_image(local_reference_key("room", c, f), std::make_shared<const ImageRGB8>(c.width, c.height));
+        cache.insert_image(local_reference_key("room", keyed_config(c, scene("room")), f), std::make_shared<const ImageRGB8>(c.width, c.height));
     return scores(c, cache);
   };
   TraceCache fresh;
@@ -308,16 +311,78 @@ TEST(FrameLoop, SharedFlipFeaturesScoreAsTheirOwn) {
   TraceCache shared;
   (void)both_scores(a, shared);
   for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
-    EXPECT_NE(shared.find_flip(local_reference_key("room", a, f)), nullptr) << "frame " << f;
+    EXPECT_NE(shared.find_flip(local_reference_key("room", keyed_config(a, scene("room")), f)), nullptr) << "frame " << f;
   TraceCache fresh;
   const std::string own = both_scores(late, fresh);
   EXPECT_EQ(both_scores(late, shared), own);
 
   TraceCache planted;
   for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
-    planted.insert_flip(local_reference_key("room", late, f),
+    planted.insert_flip(local_reference_key("room", keyed_config(late, scene("room")), f),
                         std::make_shared<const FlipFeatures>(flip_features(ImageRGB8(late.width, late.height))));
   EXPECT_NE(both_scores(late, planted), own);
+}
+
+// A run that names the scene's own AO rays and radius is keyed as one that leaves them to the
+// scene (trace.ao_rays and ao_radius_m 0; keyed_config): run after it with the same cache, it
+// finds every trace, denoised pass and reference there (the cache grows by nothing) and scores
+// as a run with a cache of its own. A run with another radius does not.
+TEST(FrameLoop, SceneDefaultsNamedOrLeftShareTheCache) {
+  const Scene& room = scene("room");
+  ASSERT_TRUE(room.ao.has_value());
+  SimConfig left = scored_config();
+  left.trace.ao_rays = 0;
+  left.pass("ao").denoiser = {"svgf_ao"};
+  SimConfig named = left;
+  named.trace.ao_rays = room.ao->rays;
+  named.trace.ao_radius_m = room.ao->radius_m;
+  SimConfig other = named;
+  other.trace.ao_radius_m = 0.5f * room.ao->radius_m;
+  EXPECT_NE(settings_key(left, kInTraceKey), settings_key(named, kInTraceKey));
+  EXPECT_EQ(settings_key(keyed_config(left, room), kInTraceKey), settings_key(keyed_config(named, room), kInTraceKey));
+  TraceCache shared;
+  (void)both_scores(left, shared);
+  const size_t filled = shared.bytes();
+  ASSERT_GT(filled, 0u);
+  TraceCache fresh;
+  EXPECT_EQ(both_scores(named, shared), both_scores(named, fresh));
+  EXPECT_EQ(shared.bytes(), filled) << "the scene's values, named, were traced, denoised or referenced again";
+  (void)both_scores(other, shared);
+  EXPECT_GT(shared.bytes(), filled);
+}
+
+// The ground truth is the scene's converged image (core/reference.h): the run's AO rays and
+// radius and its seed do not change it. The AO settings are not in its key (kInTruthKey), so
+// runs that differ in them share it; the seed is, for the shards (core/run_config.h). Each run
+// here computes its own (a disk cache folder of its own); what the truth does depend on (its
+// own AO rays) changes it.
+TEST(FrameLoop, GroundTruthDoesNotDependOnTheRunsAoSettingsOrSeed) {
+  namespace fs = std::filesystem;
+  const fs::path root = fs::temp_directory_path() / fmt::format("dhr_truth_test_{}", ::getpid());
+  fs::remove_all(root);
+  auto truth = [&](SimConfig c, const std::string& name) {
+    c.keep_images = true;
+    c.cache_dir = (root / name).string();
+    TraceCache cache;
+    const RunResult r = run_simulation(c, scene("room"), "room", cache, registries());
+    EXPECT_EQ(r.ground_truth_images.size(), 1u) << name;
+    return r.ground_truth_images.empty() ? ImageRGB8() : r.ground_truth_images.back();
+  };
+  const SimConfig base = scored_config();
+  const ImageRGB8 own = truth(base, "base");
+  ASSERT_FALSE(own.empty());
+  SimConfig rays = base, radius = base, seed = base, more = base;
+  rays.trace.ao_rays = 7;
+  radius.trace.ao_radius_m = 0.25f;
+  seed.seed = 99;
+  more.ground_truth_ao_rays = 2 * base.ground_truth_ao_rays;
+  for (const auto& [c, name] : {std::pair{&rays, "rays"}, {&radius, "radius"}, {&seed, "seed"}}) {
+    EXPECT_TRUE(truth(*c, name) == own) << name;
+    EXPECT_EQ(settings_key(*c, kInTruthKey) == settings_key(base, kInTruthKey), c != &seed) << name;
+  }
+  EXPECT_FALSE(truth(more, "more") == own);
+  EXPECT_NE(settings_key(more, kInTruthKey), settings_key(base, kInTruthKey));
+  fs::remove_all(root);
 }
 
 // A temporal denoiser's outputs shared through a memo (DenoiseStage::share): a sequence the memo
@@ -517,7 +582,7 @@ TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
   TraceCache announced;
   size_t pending = 0;
   for (const SimConfig* c : runs) {
-    keys.push_back(flip_reference_keys("room", *c));
+    keys.push_back(flip_reference_keys("room", keyed_config(*c, scene("room"))));
     for (const std::string& k : keys.back()) announced.expect_flip_reads(k, 1);
     pending += keys.back().size();
   }
