@@ -71,9 +71,13 @@ std::string pass_trace_key(const std::string& scene_key, const SimConfig& c, int
 
 SimConfig keyed_config(const SimConfig& config, const Scene& scene) {
   SimConfig k = config;
-  if (scene.ao) {  // plan_passes: a setting > 0 is the run's, else the scene's
-    if (!(k.trace.ao_rays > 0)) k.trace.ao_rays = scene.ao->rays;
-    if (!(k.trace.ao_radius_m > 0.0f)) k.trace.ao_radius_m = scene.ao->radius_m;
+  // The AO rays and radius plan_passes resolves (the AO pass on, so that a run that switches it
+  // off is keyed the same way).
+  TraceSettings with_ao = config.trace;
+  with_ao.ao_pass = true;
+  if (const PassPlan plan = plan_passes(scene, with_ao); plan.ao) {
+    k.trace.ao_rays = plan.ao_rays;
+    k.trace.ao_radius_m = plan.ao_radius_m;
   }
   return k;
 }
@@ -117,9 +121,10 @@ bool scores_ground_truth(const SimConfig& c, int frame) {
 }  // namespace
 
 // The reads Simulation::client_frame makes (flip_features_of), frame by frame.
-std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& c) {
+std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config, const Scene& scene) {
   std::vector<std::string> keys;
-  if (c.score_every <= 0) return keys;  // not validated yet: the runner calls this first
+  if (config.score_every <= 0) return keys;  // not validated yet
+  const SimConfig c = keyed_config(config, scene);  // as the run keys them
   for (int a = c.warmup_frames; a < c.warmup_frames + c.frames; ++a) {
     const int frame = a - c.warmup_frames;
     if (!scores_frame(c, frame)) continue;
@@ -520,7 +525,8 @@ class Simulation {
  public:
   Simulation(const SimConfig& c, const Scene& scene, const std::string& scene_key, TraceCache& cache,
              const Registries& registries)
-      : c_(c), scene_(scene), scene_key_(scene_key), key_c_(keyed_config(c, scene)), cache_(cache), remote_(c.mode == "remote"),
+      : c_(c), scene_(scene), scene_key_(scene_key), key_c_(keyed_config(c, scene)), cache_(cache),
+        remote_(c.mode == "remote"),
         uplink_(c.uplink, c.seed, 0), downlink_(c.downlink, c.seed, 1),
         server_(c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0,
                 [this](const RasterFrame& f) { return server_raster(f); }),

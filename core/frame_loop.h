@@ -152,8 +152,10 @@ SimConfig keyed_config(const SimConfig& config, const Scene& scene);
 std::string local_reference_key(const std::string& scene_key, const SimConfig& config, int frame);
 
 // One key per FLIP score the run will compute, in order: the local reference of every scored
-// frame and the ground truth of every frame scored against it (TraceCache::expect_flip_reads).
-std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config);
+// frame and the ground truth of every frame scored against it (TraceCache::expect_flip_reads),
+// keyed as run_simulation keys them (keyed_config).
+std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config,
+                                             const Scene& scene);
 
 // The checks run_simulation does first: throws dhr::Error listing every problem.
 void validate_sim_config(const SimConfig& config, const Scene& scene, const Registries& registries);

@@ -221,7 +221,7 @@ std::vector<RunSetting> make_settings() {
                                     "random (independent uniforms); both unbiased, the lattice converges faster per ray "
                                     "(scripts/ground_truth_sampling.py)",
                                     [](auto& c) -> auto& { return c.ground_truth_sampling; });
-  truth_sampling.choices = {sampling_name(false), sampling_name(true)};
+  truth_sampling.choices = sampling_names();
   v.push_back(with(truth_sampling, kInTruthKey));
   v.push_back(field("cache_dir", SettingType::String, "ground truths on disk; empty: $DHR_CACHE_DIR or cache/",
                     [](auto& c) -> auto& { return c.cache_dir; }));

@@ -167,7 +167,9 @@ struct ReferenceRays {
 // ReferenceRays::lattice by name, as the run setting ground_truth_sampling and the commands'
 // --sampling options spell it: "lattice" or "random".
 inline const char* sampling_name(bool lattice) { return lattice ? "lattice" : "random"; }
-inline bool is_lattice(const std::string& sampling_name) { return sampling_name == "lattice"; }
+inline bool is_lattice(const std::string& name) { return name == sampling_name(true); }
+// Both names, the valid values of the setting and of the options.
+inline std::vector<std::string> sampling_names() { return {sampling_name(false), sampling_name(true)}; }
 
 // The ground truth's converged estimates of the same passes (PassType::converged, used by
 // core/reference.h): fractions in [0, 1], planar [channel][pixel]. `plan` is the scene's plan

@@ -56,12 +56,12 @@ Runner add_converge_command(CLI::App& app) {
                   "The ground truth's samples of a pixel (the larger estimate's too, unless --large-sampling): lattice (a "
                   "shifted R2 lattice per pixel and light) or random (independent uniforms); experiments: "
                   "ground_truth_sampling")
-      ->check(CLI::IsMember({sampling_name(false), sampling_name(true)}))
+      ->check(CLI::IsMember(sampling_names()))
       ->capture_default_str();
   cmd->add_option("--large-sampling", o->large_sampling,
                   "The factor x N estimate's samples (default: --sampling's). Two candidates scored against one "
                   "estimate: e.g. lattice N against random 8N, then random 2N against random 8N (factor 4)")
-      ->check(CLI::IsMember({sampling_name(false), sampling_name(true)}));
+      ->check(CLI::IsMember(sampling_names()));
   cmd->add_option("--factor", o->factor, "The larger estimate's samples: factor x N")->check(CLI::Range(2, 64))->capture_default_str();
   cmd->add_option("--out", o->out, "Write convergence.json here (and the larger estimates' images)");
   cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")->check(CLI::NonNegativeNumber);

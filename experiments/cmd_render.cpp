@@ -94,7 +94,7 @@ Runner add_render_command(CLI::App& app) {
   cmd->add_option("--reference-samples", o->reference_samples, "Ground truth: rays per area light")->check(CLI::Range(1, 65535))->capture_default_str();
   cmd->add_option("--reference-sampling", o->reference_sampling,
                   "Ground truth: samples of a pixel, random (independent uniforms) or lattice (a shifted R2 lattice)")
-      ->check(CLI::IsMember({sampling_name(false), sampling_name(true)}))
+      ->check(CLI::IsMember(sampling_names()))
       ->capture_default_str();
 
   return [o] {

@@ -244,8 +244,7 @@ Runner add_run_command(CLI::App& app) {
     // Every FLIP score the sweep will compute, so that the cache keeps a reference's features
     // only while a later score needs them (a reference one run scores is never kept).
     for (const RunSpec& spec : e.runs)
-      for (const std::string& key :
-           flip_reference_keys(loaded.keys.at(spec.scene), keyed_config(spec.config, loaded.scenes.at(spec.scene))))
+      for (const std::string& key : flip_reference_keys(loaded.keys.at(spec.scene), spec.config, loaded.scenes.at(spec.scene)))
         cache.expect_flip_reads(key, 1);
     Progress progress(e.runs.size());
     int failed = 0;

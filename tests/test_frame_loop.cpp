@@ -190,7 +190,8 @@ TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
     TraceCache cache;
     for (int f = c.warmup_frames; f < c.warmup_frames + c.frames; ++f)
       if ((f - c.warmup_frames) % c.score_every == 0 && f != skip)
-        cache.insert_image(local_reference_key("room", keyed_config(c, scene("room")), f), std::make_shared<const ImageRGB8>(c.width, c.height));
+        cache.insert_image(local_reference_key("room", keyed_config(c, scene("room")), f),
+                           std::make_shared<const ImageRGB8>(c.width, c.height));
     return scores(c, cache);
   };
   TraceCache fresh;
@@ -582,7 +583,7 @@ TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
   TraceCache announced;
   size_t pending = 0;
   for (const SimConfig* c : runs) {
-    keys.push_back(flip_reference_keys("room", keyed_config(*c, scene("room"))));
+    keys.push_back(flip_reference_keys("room", *c, scene("room")));
     for (const std::string& k : keys.back()) announced.expect_flip_reads(k, 1);
     pending += keys.back().size();
   }
