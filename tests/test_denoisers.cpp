@@ -481,7 +481,7 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
               denoise::cpu_has_avx512() ? "AVX-512, 16 lanes"
               : denoise::cpu_has_avx2() ? "AVX2, unrolled 8 lanes"
                                         : "none (no AVX2 on this CPU, or a sanitizer / non-GCC build)");
-  constexpr int w = 75, h = 9;
+  constexpr int w = 75, h = 40;  // tall enough for rows 16 apart
   const size_t n = size_t(w) * h;
   auto u = [](uint32_t i, uint32_t dim) { return rng_uniform(RngKey{3, i, 0, dim, kStreamAo}); };
   std::vector<float> depth(n), nx(n), ny(n), nz(n), ipz(n), ipl(n), v(n), var(n);
@@ -520,9 +520,12 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
     return a;
   };
   // Each with the default weights and with the fast ones (fast_weights).
+  // Steps up to 16: the 16-lane kernel's blocks at the row's ends, whose taps reach past it
+  // (w = 75 is no multiple of 16, so the last block overlaps its neighbour; at step 16 every
+  // block reaches past an end).
   for (bool fast : {false, true})
   for (int radius : {1, 2})
-    for (int step : {1, 2, 4})
+    for (int step : {1, 2, 4, 8, 16})
       for (int nsq : {7, 3}) {
         SCOPED_TRACE("radius " + std::to_string(radius) + " step " + std::to_string(step) + " squarings " +
                      std::to_string(nsq) + " fast_weights " + std::to_string(fast));
@@ -566,26 +569,24 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
   // be skipped or computed is taken.
   {
     std::vector<uint8_t> cls(n);
-    std::vector<float> ivk(n), vf(n);
+    std::vector<float> ivk(n);
     for (uint32_t i = 0, run = 0, c = 0; i < n; ++i, --run) {
       if (run == 0) {
         run = 1 + uint32_t(u(i, 8) * 40.0f);
         c ^= 1;
       }
       cls[i] = uint8_t(c);
-      vf[i] = valid[i] ? 1.0f : 0.0f;
       ivk[i] = valid[i] ? 1.0f / (0.25f + 0.75f * u(i, 9)) : 0.0f;
     }
     for (bool fast : {false, true})
     for (int radius : {1, 2})
-      for (int step : {1, 8})
+      for (int step : {1, 8, 16})
         for (uint8_t active : {0, 1}) {
           SCOPED_TRACE("classes: radius " + std::to_string(radius) + " step " + std::to_string(step) + " active " +
                        std::to_string(active) + " fast_weights " + std::to_string(fast));
           denoise::AtrousArgs a = args(radius, step);
           a.fast_weights = fast;
           a.inv_valid_k = ivk.data();
-          a.valid_f = vf.data();
           a.sigma_l = 4.0f;
           a.cls = cls.data();
           a.active_cls = active;

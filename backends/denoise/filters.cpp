@@ -724,7 +724,7 @@ void FilterPipeline::atrous_iterations(uint8_t* out) {
     b.v_in = v;
     b.var_in = var;
     b.v_out = v_out;
-    b.var_out = var_out;
+    b.var_out = it + 1 == n_it ? nullptr : var_out;  // the last iteration's variance is not used
     if (lt) {
       b.cls = cls_.data();
       b.active_cls = 1;
@@ -758,7 +758,6 @@ AtrousArgs FilterPipeline::atrous_args(int step, int radius) const {
   a.valid = g.valid.data();
   a.inv_phi_z = inv_phi_z_.data();
   a.inv_valid_k = inv_valid_k_.data();
-  a.valid_f = g.valid_f.data();
   a.sigma_l = s_.sigma_l;
   a.eps_l = kEpsL;
   a.fast_weights = s_.fast_weights;

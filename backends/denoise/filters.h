@@ -74,13 +74,16 @@ struct AtrousArgs {
   const uint8_t* valid = nullptr;
   const float* inv_phi_z = nullptr;
   // The AO phi per pixel: given as a plane (inv_phi_l), or, when that is null, computed row by
-  // row from var_in (3x3 Gaussian over valid pixels, inv_phi_l_lanes) with inv_valid_k, valid_f
-  // and sigma_l (sigma_l = 0: no AO term, phi^-1 = 0). The a-trous taps read it at the centre
-  // pixel only, so each row needs its own row alone (no extra pass over the image).
+  // row from var_in (3x3 Gaussian over valid pixels, inv_phi_l_lanes) with inv_valid_k (0 at an
+  // invalid pixel, which gets phi^-1 = 0) and sigma_l (sigma_l = 0: no AO term, phi^-1 = 0). The
+  // a-trous taps read it at the centre pixel only, so each row needs its own row alone (no extra
+  // pass over the image).
   const float* inv_phi_l = nullptr;
-  const float *inv_valid_k = nullptr, *valid_f = nullptr;
+  const float* inv_valid_k = nullptr;
   float sigma_l = 0.0f, eps_l = 1e-4f;
   const float *v_in = nullptr, *var_in = nullptr;
+  // var_out null: the variance is not wanted (the last iteration's); it is then neither written
+  // nor, on the 16-lane kernel, summed.
   float *v_out = nullptr, *var_out = nullptr;
   // Optional, all may be null. cls: pixels whose cls equals active_cls are filtered; the others
   // are left as they are in v_out / var_out (svgf_ao's light_history path: a pixel's result

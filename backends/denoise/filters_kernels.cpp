@@ -32,15 +32,18 @@
 namespace dhr::denoise {
 namespace {
 
-// ---- AO phi of the a-trous weight: ipl = valid / (sigma_l sqrt(var) + eps), var = the 3x3
-// Gaussian of the variance over valid pixels (sum k var / sum k valid).
+// ---- AO phi of the a-trous weight: ipl = 1 / (sigma_l sqrt(var) + eps) at a valid pixel, 0 at
+// an invalid one, var = the 3x3 Gaussian of the variance over valid pixels (sum k var / sum k
+// valid). inv_valid_k (1 / sum k valid) is in [1, 4] at a valid pixel and 0 at an invalid one,
+// so it tells which is which: no plane of valid flags is read.
 template <class L>
-DHR_ALWAYS_INLINE void inv_phi_l_lanes(const float* sum_kv, const float* inv_valid_k, const float* valid_f, float sigma_l,
-                                       float eps, float* out) {
+DHR_ALWAYS_INLINE void inv_phi_l_lanes(const float* sum_kv, const float* inv_valid_k, float sigma_l, float eps,
+                                       float* out) {
   using T = typename L::T;
   // 1/sqrt by the bit trick and two Newton steps (relative error < 1e-5); the floor keeps
   // the steps finite (sqrt(1e-20) = 1e-10 is far below eps).
-  T v = L::load(sum_kv) * L::load(inv_valid_k);
+  const T ivk = L::load(inv_valid_k);
+  T v = L::load(sum_kv) * ivk;
   v = v < T{} + 1e-20f ? T{} + 1e-20f : v;
   T y;
   if constexpr (std::is_same_v<T, float>) {
@@ -52,7 +55,8 @@ DHR_ALWAYS_INLINE void inv_phi_l_lanes(const float* sum_kv, const float* inv_val
   }
   y = y * (1.5f - 0.5f * v * y * y);
   y = y * (1.5f - 0.5f * v * y * y);
-  L::store(out, L::load(valid_f) / (sigma_l * (v * y) + eps));
+  const T ipl = 1.0f / (sigma_l * (v * y) + eps);
+  L::store(out, ivk > T{} ? ipl : T{});
 }
 
 
@@ -249,6 +253,18 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 void atrous_blocks8(const Atro
 #endif
 
 #if DHR_DENOISE_AVX512
+// A plane's 16 values at q; with M only the lanes of m (the others +0), and q may then lie
+// outside the plane: the address is computed modulo 2^64 and its lanes outside m are never
+// read (a masked load does not touch them).
+template <bool M>
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 VecF16 load16(const float* plane, size_t q, [[maybe_unused]] __mmask16 m) {
+  if constexpr (M)
+    return (VecF16)_mm512_maskz_loadu_ps(
+        m, reinterpret_cast<const void*>(reinterpret_cast<uintptr_t>(plane) + q * sizeof(float)));
+  else
+    return VectorLane16::load(plane + q);
+}
+
 // The same taps as atrous_block for a block of 16 pixels at x (AVX-512), written for
 // throughput: the taps are unrolled (radius R known at compile time) and the exponential takes
 // 14 instructions instead of 18. (Two blocks interleaved were tried and were no faster: their
@@ -269,7 +285,15 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 void atrous_blocks8(const Atro
 // kFastExpLo (and NaN) as a mask on the last product, and ipz log2(e) inv_len computed once per
 // block for each of the kernel's distinct offset lengths (tx^2 + ty^2 = 1, 2, 4, 5, 8: the same
 // products fast_tap makes per tap).
-template <int K, int R, bool F>
+//
+// With M (a block at the row's ends, atrous_row16_all) a tap's neighbours outside the row are
+// left out: its loads are masked (lanes outside read nothing and hold +0) and so is its weight
+// (exactly +0 there), so the sums of those lanes are those of the taps that remain, added in
+// the same order (s + 0 = s, fma(0, 0, s) = s): the bits of the row-wise border taps.
+//
+// Without V (AtrousArgs::var_out null: the variance is not wanted) the sums of w^2 var are
+// left out and sv_out is not written.
+template <int K, int R, bool F, bool M = false, bool V = true>
 DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const AtrousArgs& a, int y, int x,
                                                                         const float* ipl_row, const float (*hk)[5],
                                                                         const float (*inv_len)[5], float* sw_out,
@@ -277,13 +301,23 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
   using L = VectorLane16;
   using T = VecF16;
   const int step = a.step, nsq = a.normal_squarings;
+  // M: the lanes whose neighbour at column offset tx step lies in the row, by tx.
+  [[maybe_unused]] __mmask16 in_row[5] = {0xffff, 0xffff, 0xffff, 0xffff, 0xffff};
+  if constexpr (M) {
+    for (int tx = -R; tx <= R; ++tx) {
+      const int off = tx * step;
+      const int lo = std::max(0, -off - x), hi = std::min(kLanes16, a.width - off - x);
+      in_row[tx + 2] = hi > lo ? __mmask16(((1u << hi) - 1u) & ~((1u << lo) - 1u)) : __mmask16(0);
+    }
+  }
+
   const size_t c = size_t(y) * size_t(a.width) + size_t(x);
   const T zc = L::load(a.depth + c), ncx = L::load(a.nx + c), ncy = L::load(a.ny + c), ncz = L::load(a.nz + c);
   const T ipz = L::load(a.inv_phi_z + c), ipl = L::load(ipl_row + x), lc = L::load(a.v_in + c);
   const float hc = a.k1d[0] * a.k1d[0];
   T sw = T{} + hc;
   T sl = hc * lc;
-  T sv = (hc * hc) * L::load(a.var_in + c);
+  [[maybe_unused]] T sv = V ? (hc * hc) * L::load(a.var_in + c) : T{};
   const __m512 zero = _mm512_setzero_ps();
   [[maybe_unused]] const __m512 sixty = _mm512_set1_ps(60.0f);  // the exact weights' cut
   const __mmask16 all = 0xffff;  // the zero-masked forms: GCC 12 warns on the plain ones' undefined source
@@ -312,15 +346,19 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
 #pragma GCC unroll 5
     for (int tx = -R; tx <= R; ++tx) {
       if (tx == 0 && ty == 0) continue;
-      const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here
+      const size_t q = qrow + size_t(tx * step);  // x + tx step >= 0 here, unless M
+      const __mmask16 m = in_row[tx + 2];
+      if constexpr (M) {
+        if (!m) continue;  // no lane has this neighbour: the tap adds nothing
+      }
       const float hkv = hk[ty + 2][tx + 2];
       __m512 d;
       if constexpr (F) {
-        d = _mm512_mul_ps((__m512)ncx, _mm512_loadu_ps(a.nx + q));
-        d = _mm512_fmadd_ps((__m512)ncy, _mm512_loadu_ps(a.ny + q), d);
-        d = _mm512_fmadd_ps((__m512)ncz, _mm512_loadu_ps(a.nz + q), d);
+        d = _mm512_mul_ps((__m512)ncx, (__m512)load16<M>(a.nx, q, m));
+        d = _mm512_fmadd_ps((__m512)ncy, (__m512)load16<M>(a.ny, q, m), d);
+        d = _mm512_fmadd_ps((__m512)ncz, (__m512)load16<M>(a.nz, q, m), d);
       } else {
-        d = (__m512)(ncx * L::load(a.nx + q) + ncy * L::load(a.ny + q) + ncz * L::load(a.nz + q));
+        d = (__m512)(ncx * load16<M>(a.nx, q, m) + ncy * load16<M>(a.ny, q, m) + ncz * load16<M>(a.nz, q, m));
       }
       T wn = (T)_mm512_maskz_max_ps(all, d, zero);  // then pow_2k's squarings
       if constexpr (K >= 0) {
@@ -328,9 +366,9 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
       } else {
         for (int i = 0; i < nsq; ++i) wn = wn * wn;
       }
-      const T lq = L::load(a.v_in + q);
+      const T lq = load16<M>(a.v_in, q, m);
       if constexpr (F) {
-        const T adz = abs_f(zc - L::load(a.depth + q));
+        const T adz = abs_f(zc - load16<M>(a.depth, q, m));
         const T adl = abs_f(lc - lq);
         const __m512 t = _mm512_fnmsub_ps((__m512)adl, (__m512)iplg,
                                           _mm512_mul_ps((__m512)adz, az[kLengthClass[tx * tx + ty * ty]]));
@@ -338,13 +376,14 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
         const __m512 f = _mm512_sub_ps(t, fi);
         const __m512 p = _mm512_fmadd_ps(_mm512_fmadd_ps(_mm512_fmadd_ps(c3, f, c2), f, c1), f, c0);
         const __m512 r = _mm512_maskz_scalef_ps(all, p, fi);
-        const __mmask16 keep = _mm512_cmp_ps_mask(t, lo, _CMP_GE_OQ);
+        const __mmask16 keep = _mm512_cmp_ps_mask(t, lo, _CMP_GE_OQ) & m;
         const __m512 wgt = _mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
         sw = sw + (T)wgt;
         sl = (T)_mm512_fmadd_ps(wgt, (__m512)lq, (__m512)sl);
-        sv = (T)_mm512_fmadd_ps(_mm512_mul_ps(wgt, wgt), _mm512_loadu_ps(a.var_in + q), (__m512)sv);
+        if constexpr (V)
+          sv = (T)_mm512_fmadd_ps(_mm512_mul_ps(wgt, wgt), (__m512)load16<M>(a.var_in, q, m), (__m512)sv);
       } else {
-        const T wz = abs_f(zc - L::load(a.depth + q)) * ipz * inv_len[ty + 2][tx + 2];
+        const T wz = abs_f(zc - load16<M>(a.depth, q, m)) * ipz * inv_len[ty + 2][tx + 2];
         const T wl = abs_f(lc - lq) * ipl;
         const T s = wz + wl;
         const T t = s * -1.44269504f;
@@ -357,17 +396,17 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
         p = p * f + 6.9314718e-1f;
         p = p * f + 1.0f;
         const __m512 r = _mm512_maskz_scalef_ps(all, (__m512)p, fi);
-        const __mmask16 keep = _mm512_cmp_ps_mask((__m512)s, sixty, _CMP_NGT_UQ);
+        const __mmask16 keep = _mm512_cmp_ps_mask((__m512)s, sixty, _CMP_NGT_UQ) & m;
         const T wgt = (T)_mm512_maskz_mul_ps(keep, (__m512)(hkv * wn), r);
         sw = sw + wgt;
         sl = sl + wgt * lq;
-        sv = sv + wgt * wgt * L::load(a.var_in + q);
+        if constexpr (V) sv = sv + wgt * wgt * load16<M>(a.var_in, q, m);
       }
     }
   }
   L::store(sw_out, sw);
   L::store(sl_out, sl);
-  L::store(sv_out, sv);
+  if constexpr (V) L::store(sv_out, sv);
 }
 
 // The 16-pixel blocks of [xb, xm) of row y; returns where they end (the rest, under 16
@@ -384,6 +423,28 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_blocks16(const At
     if (!cls || block_has(cls, xb, kLanes16, ac))
       atrous_block16_unrolled<K, R, F>(a, y, xb, ipl_row, hk, inv_len, sw + xb, sl + xb, sv + xb);
   return xb;
+}
+
+// Every pixel of row y (width >= 16) in 16-pixel blocks, the row's end block at width - 16
+// (overlapping its neighbour, which is computed twice with the same bits); the blocks whose
+// taps reach past either end of the row take the masked kernel (M). Blocks without a pixel of
+// a.active_cls (when cls is given) are skipped. V: a.var_out is set (the variance is wanted).
+template <int K, int R, bool F, bool V>
+__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 void atrous_row16_all(const AtrousArgs& a, int y,
+                                                                          const uint8_t* cls, const float* ipl_row,
+                                                                          const float (*hk)[5],
+                                                                          const float (*inv_len)[5], float* sw,
+                                                                          float* sl, float* sv) {
+  const int w = a.width, reach = R * a.step;
+  const uint8_t ac = a.active_cls;
+  for (int xb = 0; xb < w; xb += kLanes16) {
+    const int x = std::min(xb, w - kLanes16);
+    if (cls && !block_has(cls, x, kLanes16, ac)) continue;
+    if (x >= reach && x + kLanes16 + reach <= w)
+      atrous_block16_unrolled<K, R, F, false, V>(a, y, x, ipl_row, hk, inv_len, sw + x, sl + x, sv + x);
+    else
+      atrous_block16_unrolled<K, R, F, true, V>(a, y, x, ipl_row, hk, inv_len, sw + x, sl + x, sv + x);
+  }
 }
 
 // The end of a row (the loop at the end of atrous_rows_impl) for pixels [0, w - w % 16) of the
@@ -411,15 +472,17 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_finish16(const At
     const T t = L::load(sl + x) * inv;
     const T lo = T{}, hi = T{} + 1.0f;
     T v = t < lo ? lo : (hi < t ? hi : t);  // std::clamp(t, 0, 1)
-    const T q = L::load(sv + x) * inv * inv;
-    T var = lo < q ? q : lo;  // std::max(0, q)
     v = (T)_mm512_mask_blend_ps(valid, (__m512)L::load(a.v_in + i), (__m512)v);
-    var = (T)_mm512_maskz_mov_ps(valid, (__m512)var);
     _mm512_mask_storeu_ps(a.v_out + i, act, (__m512)v);
-    _mm512_mask_storeu_ps(a.var_out + i, act, (__m512)var);
     if (a.v_out2) _mm512_mask_storeu_ps(a.v_out2 + i, act, (__m512)v);
     if (a.v_out3) _mm512_mask_storeu_ps(a.v_out3 + i, act, (__m512)v);
-    if (a.var_out2) _mm512_mask_storeu_ps(a.var_out2 + i, act, (__m512)var);
+    if (a.var_out) {
+      const T q = L::load(sv + x) * inv * inv;
+      T var = lo < q ? q : lo;  // std::max(0, q)
+      var = (T)_mm512_maskz_mov_ps(valid, (__m512)var);
+      _mm512_mask_storeu_ps(a.var_out + i, act, (__m512)var);
+      if (a.var_out2) _mm512_mask_storeu_ps(a.var_out2 + i, act, (__m512)var);
+    }
     if (a.u8_out) {  // to_u8 (filters.h), of v_out as it is where a cls leaves the pixel out
       const T vo = (T)_mm512_mask_blend_ps(act, (__m512)L::load(a.v_out + i), (__m512)v);
       T f = vo * 255.0f + 0.5f;
@@ -473,12 +536,17 @@ DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) 
   }
   for (; x < w; ++x) one(x);
   x = 0;
-  for (; x + n <= w; x += n)
-    inv_phi_l_lanes<L>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
+  // inv_valid_k is read here alone, a row per row: fetch the next row's while this one is
+  // computed (else each of its cache lines is a stall).
+  const bool next = y + 1 < h;
+  for (; x + n <= w; x += n) {
+    if (next) __builtin_prefetch(a.inv_valid_k + row + size_t(w) + x);
+    inv_phi_l_lanes<L>(out + x, a.inv_valid_k + row + x, a.sigma_l, a.eps_l, out + x);
+  }
   for (; x + kLanes <= w; x += kLanes)
-    inv_phi_l_lanes<VectorLane>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
+    inv_phi_l_lanes<VectorLane>(out + x, a.inv_valid_k + row + x, a.sigma_l, a.eps_l, out + x);
   for (; x < w; ++x)
-    inv_phi_l_lanes<ScalarLane>(out + x, a.inv_valid_k + row + x, a.valid_f + row + x, a.sigma_l, a.eps_l, out + x);
+    inv_phi_l_lanes<ScalarLane>(out + x, a.inv_valid_k + row + x, a.sigma_l, a.eps_l, out + x);
 }
 
 // Rows [y0, y1) of one a-trous iteration; acc holds 4 * width floats of scratch (need not be
@@ -517,9 +585,17 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
     if (!a.inv_phi_l)
       inv_phi_l_of_row<std::conditional_t<Path == kAvx512, VectorLane16, VectorLane>>(a, y, acc + 3 * w);
     int xb = xl;
+    bool whole_row = false;  // every pixel's sums are in p already
 #if DHR_DENOISE_AVX512
     if constexpr (Path == kAvx512) {
-      if (r == 2)
+      whole_row = w >= kLanes16;
+      if (whole_row && r == 2 && a.var_out)
+        atrous_row16_all<K, 2, F, true>(a, y, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+      else if (whole_row && r == 2)
+        atrous_row16_all<K, 2, F, false>(a, y, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+      else if (whole_row)
+        atrous_row16_all<K, 1, F, true>(a, y, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+      else if (r == 2)
         xb = atrous_blocks16<K, 2, F>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
       else
         xb = atrous_blocks16<K, 1, F>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
@@ -532,44 +608,46 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
       xb = xm;
     }
 #endif
-    for (; xb < xm; xb += kLanes)
-      if (!cls || block_has(cls, xb, kLanes, ac))
-        atrous_block<K, VectorLane, F>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
-    const float hc = a.k1d[0] * a.k1d[0];
-    for (int x = 0; x < w; ++x) {  // centre tap of the border pixels: weight h_c
-      if (x == xl) x = xm;
-      if (x >= w) break;
-      p.sw[x] = hc;
-      p.sl[x] = hc * a.v_in[row + x];
-      p.sv[x] = (hc * hc) * a.var_in[row + x];
-    }
-    p.zc = a.depth + row;
-    p.ncx = a.nx + row;
-    p.ncy = a.ny + row;
-    p.ncz = a.nz + row;
-    p.ipz = a.inv_phi_z + row;
-    p.ipl = ipl_row;
-    p.lc = a.v_in + row;
-    for (int ty = -r; ty <= r; ++ty) {
-      const int qy = y + ty * step;
-      if (qy < 0 || qy >= h) continue;
-      const size_t qrow = size_t(qy) * size_t(w);
-      p.zq = a.depth + qrow;
-      p.nqx = a.nx + qrow;
-      p.nqy = a.ny + qrow;
-      p.nqz = a.nz + qrow;
-      p.lq = a.v_in + qrow;
-      p.vq = a.var_in + qrow;
-      for (int tx = -r; tx <= r; ++tx) {
-        if (tx == 0 && ty == 0) continue;
-        const int off = tx * step;
-        const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
-        for (int part = 0; part < 2; ++part) {  // the two border ranges
-          const int lo = std::max(part == 0 ? 0 : xm, -off), hi = std::min(part == 0 ? xl : w, w - off);
-          int x = lo;
-          for (; x + kLanes <= hi; x += kLanes)
-            atrous_tap<K, VectorLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
-          for (; x < hi; ++x) atrous_tap<K, ScalarLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
+    if (!whole_row) {  // the interior's remaining 8-pixel blocks, then the row's ends tap by tap
+      for (; xb < xm; xb += kLanes)
+        if (!cls || block_has(cls, xb, kLanes, ac))
+          atrous_block<K, VectorLane, F>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
+      const float hc = a.k1d[0] * a.k1d[0];
+      for (int x = 0; x < w; ++x) {  // centre tap of the border pixels: weight h_c
+        if (x == xl) x = xm;
+        if (x >= w) break;
+        p.sw[x] = hc;
+        p.sl[x] = hc * a.v_in[row + x];
+        p.sv[x] = (hc * hc) * a.var_in[row + x];
+      }
+      p.zc = a.depth + row;
+      p.ncx = a.nx + row;
+      p.ncy = a.ny + row;
+      p.ncz = a.nz + row;
+      p.ipz = a.inv_phi_z + row;
+      p.ipl = ipl_row;
+      p.lc = a.v_in + row;
+      for (int ty = -r; ty <= r; ++ty) {
+        const int qy = y + ty * step;
+        if (qy < 0 || qy >= h) continue;
+        const size_t qrow = size_t(qy) * size_t(w);
+        p.zq = a.depth + qrow;
+        p.nqx = a.nx + qrow;
+        p.nqy = a.ny + qrow;
+        p.nqz = a.nz + qrow;
+        p.lq = a.v_in + qrow;
+        p.vq = a.var_in + qrow;
+        for (int tx = -r; tx <= r; ++tx) {
+          if (tx == 0 && ty == 0) continue;
+          const int off = tx * step;
+          const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
+          for (int part = 0; part < 2; ++part) {  // the two border ranges
+            const int lo = std::max(part == 0 ? 0 : xm, -off), hi = std::min(part == 0 ? xl : w, w - off);
+            int x = lo;
+            for (; x + kLanes <= hi; x += kLanes)
+              atrous_tap<K, VectorLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
+            for (; x < hi; ++x) atrous_tap<K, ScalarLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
+          }
         }
       }
     }
@@ -593,10 +671,10 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
         var = std::max(0.0f, p.sv[x] * inv * inv);
       }
       a.v_out[i] = v;
-      a.var_out[i] = var;
+      if (a.var_out) a.var_out[i] = var;
       if (a.v_out2) a.v_out2[i] = v;
       if (a.v_out3) a.v_out3[i] = v;
-      if (a.var_out2) a.var_out2[i] = var;
+      if (a.var_out && a.var_out2) a.var_out2[i] = var;
       if (a.u8_out) a.u8_out[i] = to_u8(v);
     }
   }
