@@ -255,6 +255,11 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 void atrous_blocks8(const Atro
 #endif
 
 #if DHR_DENOISE_AVX512
+// The a-trous sums of 16 pixels: sum w, sum w l, sum w^2 var.
+struct Sums16 {
+  VecF16 sw, sl, sv;
+};
+
 // A plane's 16 values at q; with M only the lanes of m (the others +0), and q may then lie
 // outside the plane: the address is computed modulo 2^64 and its lanes outside m are never
 // read (a masked load does not touch them).
@@ -294,12 +299,12 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 VecF16 load16(const float* plane, si
 // the same order (s + 0 = s, fma(0, 0, s) = s): the bits of the row-wise border taps.
 //
 // Without V (AtrousArgs::var_out null: the variance is not wanted) the sums of w^2 var are
-// left out and sv_out is not written.
+// left out (sv stays 0). Returns the three sums of the 16 pixels.
 template <int K, int R, bool F, bool M = false, bool V = true>
-DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const AtrousArgs& a, int y, int x,
-                                                                        const float* ipl_row, const float (*hk)[5],
-                                                                        const float (*inv_len)[5], float* sw_out,
-                                                                        float* sl_out, float* sv_out) {
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 Sums16 atrous_block16_unrolled(const AtrousArgs& a, int y, int x,
+                                                                          const float* ipl_row,
+                                                                          const float (*hk)[5],
+                                                                          const float (*inv_len)[5]) {
   using L = VectorLane16;
   using T = VecF16;
   const int step = a.step, nsq = a.normal_squarings;
@@ -406,94 +411,73 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void atrous_block16_unrolled(const A
       }
     }
   }
-  L::store(sw_out, sw);
-  L::store(sl_out, sl);
-  if constexpr (V) L::store(sv_out, sv);
+  return {sw, sl, sv};
 }
 
-// The 16-pixel blocks of [xb, xm) of row y; returns where they end (the rest, under 16
-// pixels, is left to the 8-lane blocks). A call per row (not inlined: atrous_rows_impl is
-// compiled for the baseline target too).
-template <int K, int R, bool F>
-__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_blocks16(const AtrousArgs& a, int y, int xb, int xm,
-                                                                        const uint8_t* cls, const float* ipl_row,
-                                                                        const float (*hk)[5],
-                                                                        const float (*inv_len)[5], float* sw,
-                                                                        float* sl, float* sv) {
-  const uint8_t ac = a.active_cls;
-  for (; xb + kLanes16 <= xm; xb += kLanes16)
-    if (!cls || block_has(cls, xb, kLanes16, ac))
-      atrous_block16_unrolled<K, R, F>(a, y, xb, ipl_row, hk, inv_len, sw + xb, sl + xb, sv + xb);
-  return xb;
+// The end of a row (the loop at the end of atrous_rows_impl) for the 16 pixels from index i,
+// from their sums: the same IEEE operations per pixel (1 / sw, the products, the clamps as the
+// same comparisons), so the same bits; the pixels a cls leaves out keep v_out and var_out and
+// take to_u8 of v_out.
+DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void finish_block16(const AtrousArgs& a, size_t i, const Sums16& s) {
+  using L = VectorLane16;
+  using T = VecF16;
+  const __mmask16 all = 0xffff;  // the zero-masked forms: see atrous_block16_unrolled
+  const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.valid + i));
+  const __mmask16 valid = _mm512_test_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, vb), _mm512_maskz_cvtepu8_epi32(all, vb));
+  __mmask16 act = 0xffff;
+  if (a.cls) {
+    const __m128i cb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.cls + i));
+    act = _mm512_cmpeq_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, cb), _mm512_set1_epi32(a.active_cls));
+  }
+  const T inv = T{} + 1.0f / s.sw;  // sw >= h_c > 0 at a valid pixel
+  const T t = s.sl * inv;
+  const T lo = T{}, hi = T{} + 1.0f;
+  T v = t < lo ? lo : (hi < t ? hi : t);  // std::clamp(t, 0, 1)
+  v = (T)_mm512_mask_blend_ps(valid, (__m512)L::load(a.v_in + i), (__m512)v);
+  _mm512_mask_storeu_ps(a.v_out + i, act, (__m512)v);
+  if (a.v_out2) _mm512_mask_storeu_ps(a.v_out2 + i, act, (__m512)v);
+  if (a.v_out3) _mm512_mask_storeu_ps(a.v_out3 + i, act, (__m512)v);
+  if (a.var_out) {
+    const T q = s.sv * inv * inv;
+    T var = lo < q ? q : lo;  // std::max(0, q)
+    var = (T)_mm512_maskz_mov_ps(valid, (__m512)var);
+    _mm512_mask_storeu_ps(a.var_out + i, act, (__m512)var);
+    if (a.var_out2) _mm512_mask_storeu_ps(a.var_out2 + i, act, (__m512)var);
+  }
+  if (a.u8_out) {  // to_u8 (filters.h), of v_out as it is where a cls leaves the pixel out
+    const T vo = (T)_mm512_mask_blend_ps(act, (__m512)L::load(a.v_out + i), (__m512)v);
+    T f = vo * 255.0f + 0.5f;
+    f = f >= lo ? f : lo;
+    f = f <= T{} + 255.0f ? f : T{} + 255.0f;
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(a.u8_out + i), _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_cvttps_epi32(all, (__m512)f)));
+  }
 }
 
-// Every pixel of row y (width >= 16) in 16-pixel blocks, the row's end block at width - 16
-// (overlapping its neighbour, which is computed twice with the same bits); the blocks whose
-// taps reach past either end of the row take the masked kernel (M). Blocks without a pixel of
-// a.active_cls (when cls is given) are skipped. V: a.var_out is set (the variance is wanted).
+// One a-trous iteration's row y (width >= 16), whole: its pixels in 16-pixel blocks, the row's
+// end block at width - 16 (overlapping its neighbour, which is computed twice with the same
+// bits); the blocks whose taps reach past either end of the row take the masked kernel (M). Each
+// block is finished (finish_block16) from its sums in registers. A block without a pixel of
+// a.active_cls (when cls is given) is not filtered, only given its 8-bit output. V: a.var_out
+// is set (the variance is wanted).
 template <int K, int R, bool F, bool V>
 __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 void atrous_row16_all(const AtrousArgs& a, int y,
                                                                           const uint8_t* cls, const float* ipl_row,
                                                                           const float (*hk)[5],
-                                                                          const float (*inv_len)[5], float* sw,
-                                                                          float* sl, float* sv) {
+                                                                          const float (*inv_len)[5]) {
   const int w = a.width, reach = R * a.step;
-  const uint8_t ac = a.active_cls;
+  const size_t row = size_t(y) * size_t(w);
   for (int xb = 0; xb < w; xb += kLanes16) {
     const int x = std::min(xb, w - kLanes16);
-    if (cls && !block_has(cls, x, kLanes16, ac)) continue;
-    if (x >= reach && x + kLanes16 + reach <= w)
-      atrous_block16_unrolled<K, R, F, false, V>(a, y, x, ipl_row, hk, inv_len, sw + x, sl + x, sv + x);
-    else
-      atrous_block16_unrolled<K, R, F, true, V>(a, y, x, ipl_row, hk, inv_len, sw + x, sl + x, sv + x);
+    Sums16 sums{};
+    if (cls && !block_has(cls, x, kLanes16, a.active_cls)) {
+      if (!a.u8_out) continue;  // nothing of this block changes
+    } else if (x >= reach && x + kLanes16 + reach <= w) {
+      sums = atrous_block16_unrolled<K, R, F, false, V>(a, y, x, ipl_row, hk, inv_len);
+    } else {
+      sums = atrous_block16_unrolled<K, R, F, true, V>(a, y, x, ipl_row, hk, inv_len);
+    }
+    finish_block16(a, row + size_t(x), sums);
   }
-}
-
-// The end of a row (the loop at the end of atrous_rows_impl) for pixels [0, w - w % 16) of the
-// row at `row`, 16 at a time: the same IEEE operations per pixel (1 / sw, the products, the
-// clamps as the same comparisons), so the same bits; the pixels a cls leaves out keep v_out and
-// var_out and take to_u8 of v_out. Returns where it ended.
-__attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int atrous_finish16(const AtrousArgs& a, size_t row, int w,
-                                                                        const float* sw, const float* sl,
-                                                                        const float* sv) {
-  using L = VectorLane16;
-  using T = VecF16;
-  const uint8_t ac = a.active_cls;
-  const __mmask16 all = 0xffff;  // the zero-masked forms: see atrous_block16_unrolled
-  int x = 0;
-  for (; x + kLanes16 <= w; x += kLanes16) {
-    const size_t i = row + size_t(x);
-    const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.valid + i));
-    const __mmask16 valid = _mm512_test_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, vb), _mm512_maskz_cvtepu8_epi32(all, vb));
-    __mmask16 act = 0xffff;
-    if (a.cls) {
-      const __m128i cb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.cls + i));
-      act = _mm512_cmpeq_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, cb), _mm512_set1_epi32(ac));
-    }
-    const T inv = T{} + 1.0f / L::load(sw + x);  // sw >= h_c > 0 at a valid pixel
-    const T t = L::load(sl + x) * inv;
-    const T lo = T{}, hi = T{} + 1.0f;
-    T v = t < lo ? lo : (hi < t ? hi : t);  // std::clamp(t, 0, 1)
-    v = (T)_mm512_mask_blend_ps(valid, (__m512)L::load(a.v_in + i), (__m512)v);
-    _mm512_mask_storeu_ps(a.v_out + i, act, (__m512)v);
-    if (a.v_out2) _mm512_mask_storeu_ps(a.v_out2 + i, act, (__m512)v);
-    if (a.v_out3) _mm512_mask_storeu_ps(a.v_out3 + i, act, (__m512)v);
-    if (a.var_out) {
-      const T q = L::load(sv + x) * inv * inv;
-      T var = lo < q ? q : lo;  // std::max(0, q)
-      var = (T)_mm512_maskz_mov_ps(valid, (__m512)var);
-      _mm512_mask_storeu_ps(a.var_out + i, act, (__m512)var);
-      if (a.var_out2) _mm512_mask_storeu_ps(a.var_out2 + i, act, (__m512)var);
-    }
-    if (a.u8_out) {  // to_u8 (filters.h), of v_out as it is where a cls leaves the pixel out
-      const T vo = (T)_mm512_mask_blend_ps(act, (__m512)L::load(a.v_out + i), (__m512)v);
-      T f = vo * 255.0f + 0.5f;
-      f = f >= lo ? f : lo;
-      f = f <= T{} + 255.0f ? f : T{} + 255.0f;
-      _mm_storeu_si128(reinterpret_cast<__m128i*>(a.u8_out + i), _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_cvttps_epi32(all, (__m512)f)));
-    }
-  }
-  return x;
 }
 #endif
 
@@ -588,20 +572,17 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
     if (!a.inv_phi_l)
       inv_phi_l_of_row<std::conditional_t<Path == kAvx512, VectorLane16, VectorLane>>(a, y, acc + 3 * w);
     int xb = xl;
-    bool whole_row = false;  // every pixel's sums are in p already
 #if DHR_DENOISE_AVX512
     if constexpr (Path == kAvx512) {
-      whole_row = w >= kLanes16;
-      if (whole_row && r == 2 && a.var_out)
-        atrous_row16_all<K, 2, F, true>(a, y, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
-      else if (whole_row && r == 2)
-        atrous_row16_all<K, 2, F, false>(a, y, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
-      else if (whole_row)
-        atrous_row16_all<K, 1, F, true>(a, y, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
-      else if (r == 2)
-        xb = atrous_blocks16<K, 2, F>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
-      else
-        xb = atrous_blocks16<K, 1, F>(a, y, xb, xm, cls, ipl_row, hk, inv_len, p.sw, p.sl, p.sv);
+      if (w >= kLanes16) {  // the whole row, finished (shorter rows: the 8-lane blocks and taps below)
+        if (r == 2 && a.var_out)
+          atrous_row16_all<K, 2, F, true>(a, y, cls, ipl_row, hk, inv_len);
+        else if (r == 2)
+          atrous_row16_all<K, 2, F, false>(a, y, cls, ipl_row, hk, inv_len);
+        else
+          atrous_row16_all<K, 1, F, true>(a, y, cls, ipl_row, hk, inv_len);
+        continue;
+      }
     }
     if constexpr (Path == kAvx2 && !F) {
       if (r == 2)
@@ -611,54 +592,49 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
       xb = xm;
     }
 #endif
-    if (!whole_row) {  // the interior's remaining 8-pixel blocks, then the row's ends tap by tap
-      for (; xb < xm; xb += kLanes)
-        if (!cls || block_has(cls, xb, kLanes, ac))
-          atrous_block<K, VectorLane, F>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
-      const float hc = a.k1d[0] * a.k1d[0];
-      for (int x = 0; x < w; ++x) {  // centre tap of the border pixels: weight h_c
-        if (x == xl) x = xm;
-        if (x >= w) break;
-        p.sw[x] = hc;
-        p.sl[x] = hc * a.v_in[row + x];
-        p.sv[x] = (hc * hc) * a.var_in[row + x];
-      }
-      p.zc = a.depth + row;
-      p.ncx = a.nx + row;
-      p.ncy = a.ny + row;
-      p.ncz = a.nz + row;
-      p.ipz = a.inv_phi_z + row;
-      p.ipl = ipl_row;
-      p.lc = a.v_in + row;
-      for (int ty = -r; ty <= r; ++ty) {
-        const int qy = y + ty * step;
-        if (qy < 0 || qy >= h) continue;
-        const size_t qrow = size_t(qy) * size_t(w);
-        p.zq = a.depth + qrow;
-        p.nqx = a.nx + qrow;
-        p.nqy = a.ny + qrow;
-        p.nqz = a.nz + qrow;
-        p.lq = a.v_in + qrow;
-        p.vq = a.var_in + qrow;
-        for (int tx = -r; tx <= r; ++tx) {
-          if (tx == 0 && ty == 0) continue;
-          const int off = tx * step;
-          const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
-          for (int part = 0; part < 2; ++part) {  // the two border ranges
-            const int lo = std::max(part == 0 ? 0 : xm, -off), hi = std::min(part == 0 ? xl : w, w - off);
-            int x = lo;
-            for (; x + kLanes <= hi; x += kLanes)
-              atrous_tap<K, VectorLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
-            for (; x < hi; ++x) atrous_tap<K, ScalarLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
-          }
+    // The interior's 8-pixel blocks, then the row's ends tap by tap.
+    for (; xb < xm; xb += kLanes)
+      if (!cls || block_has(cls, xb, kLanes, ac))
+        atrous_block<K, VectorLane, F>(a, y, xb, ipl_row, hk, inv_len, p.sw + xb, p.sl + xb, p.sv + xb);
+    const float hc = a.k1d[0] * a.k1d[0];
+    for (int x = 0; x < w; ++x) {  // centre tap of the border pixels: weight h_c
+      if (x == xl) x = xm;
+      if (x >= w) break;
+      p.sw[x] = hc;
+      p.sl[x] = hc * a.v_in[row + x];
+      p.sv[x] = (hc * hc) * a.var_in[row + x];
+    }
+    p.zc = a.depth + row;
+    p.ncx = a.nx + row;
+    p.ncy = a.ny + row;
+    p.ncz = a.nz + row;
+    p.ipz = a.inv_phi_z + row;
+    p.ipl = ipl_row;
+    p.lc = a.v_in + row;
+    for (int ty = -r; ty <= r; ++ty) {
+      const int qy = y + ty * step;
+      if (qy < 0 || qy >= h) continue;
+      const size_t qrow = size_t(qy) * size_t(w);
+      p.zq = a.depth + qrow;
+      p.nqx = a.nx + qrow;
+      p.nqy = a.ny + qrow;
+      p.nqz = a.nz + qrow;
+      p.lq = a.v_in + qrow;
+      p.vq = a.var_in + qrow;
+      for (int tx = -r; tx <= r; ++tx) {
+        if (tx == 0 && ty == 0) continue;
+        const int off = tx * step;
+        const float hkv = hk[ty + 2][tx + 2], il = inv_len[ty + 2][tx + 2];
+        for (int part = 0; part < 2; ++part) {  // the two border ranges
+          const int lo = std::max(part == 0 ? 0 : xm, -off), hi = std::min(part == 0 ? xl : w, w - off);
+          int x = lo;
+          for (; x + kLanes <= hi; x += kLanes)
+            atrous_tap<K, VectorLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
+          for (; x < hi; ++x) atrous_tap<K, ScalarLane, F>(p, x, x + off, hkv, il, a.normal_squarings);
         }
       }
     }
-    int x0 = 0;
-#if DHR_DENOISE_AVX512
-    if constexpr (Path == kAvx512) x0 = atrous_finish16(a, row, w, p.sw, p.sl, p.sv);
-#endif
-    for (int x = x0; x < w; ++x) {
+    for (int x = 0; x < w; ++x) {
       const size_t i = row + x;
       if (cls && cls[x] != ac) {
         if (a.u8_out) a.u8_out[i] = to_u8(a.v_out[i]);
