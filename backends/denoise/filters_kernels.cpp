@@ -14,8 +14,9 @@
 // from 3.79x to 2.69x the CPU time of one traced AO ray, 2.41x with the temporal part's rows
 // in 16 lanes too, 1.83-1.92x with the fast weights (FMAs and a degree-3 exponential; the
 // default, AtrousArgs::fast_weights) on a 2-vCPU Zen 4 (docs/performance.md, svgf_ao); every
-// pixel of a row in 16-lane blocks (the ends masked) and the last iteration's variance left out:
-// 0.91-0.93x that time, 1.95-2.00x in an hour when the code before was 2.10-2.17x.
+// pixel of a row in 16-lane blocks (the ends masked), each finished in registers, and the last
+// iteration's variance left out: 0.85-0.87x that time, 1.83-1.92x in an hour when the code before
+// was 2.12-2.29x.
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 #include "core/cpu_isa.h"
@@ -241,7 +242,7 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 void atrous_block8_unrolled(const Atro
   L::store(sv_out, sv);
 }
 
-// The 8-pixel blocks of [xb, xm) of row y (atrous_blocks16's twin for AVX2).
+// The 8-pixel blocks of [xb, xm) of row y (the interior of atrous_row16_all's rows, for AVX2).
 template <int K, int R>
 __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 void atrous_blocks8(const AtrousArgs& a, int y, int xb, int xm,
                                                                      const uint8_t* cls, const float* ipl_row,
