@@ -164,8 +164,7 @@ BENCHMARK(BM_TraceAoOneRay)->Unit(benchmark::kMillisecond)->UseRealTime();
 // the bits depend on, in order). With the fast weights (the default) a tap is 33 instructions
 // on average in the compiled kernel (29-38 between two vscalefps in the disassembly of
 // atrous_blocks16<7, 2, true>, whose unmasked blocks atrous_row16_all now runs: the operations,
-// broadcasts of constants and register copies for
-// the FMAs) and 31 operations without those (dot 3 with two FMAs, clamp 1, 7 squarings, |dz|
+// broadcasts of constants and register copies for the FMAs) and 31 operations without those (dot 3 with two FMAs, clamp 1, 7 squarings, |dz|
 // and |dl| 4, their weighted sum 2, rounding 1, fraction 1, polynomial 3, exponent 1, cut mask
 // 1, weight 2, sums 4). The machine's rate of independent 16-lane float multiplies and adds (no
 // loads, no dependencies between the chains, all threads; an FMA is one instruction like a

@@ -859,6 +859,7 @@ TEST(Denoisers, SameBitsWithPortableKernels) {
   specs.push_back("svgf_ao{\"light_history\": 4}");
   specs.push_back("svgf_ao{\"fast_weights\": false}");
   specs.push_back("atrous{\"fast_weights\": false}");
+  specs.push_back("svgf_ao{\"kernel_radius\": 1}");  // the 3x3 kernel's last iteration without its variance
   for (const std::string& spec : specs) {
     SCOPED_TRACE(spec);
     const auto fast = run_rough(*make_spec(spec));

@@ -576,12 +576,11 @@ DHR_ALWAYS_INLINE void atrous_rows_impl(const AtrousArgs& a, int y0, int y1, flo
 #if DHR_DENOISE_AVX512
     if constexpr (Path == kAvx512) {
       if (w >= kLanes16) {  // the whole row, finished (shorter rows: the 8-lane blocks and taps below)
-        if (r == 2 && a.var_out)
-          atrous_row16_all<K, 2, F, true>(a, y, cls, ipl_row, hk, inv_len);
-        else if (r == 2)
-          atrous_row16_all<K, 2, F, false>(a, y, cls, ipl_row, hk, inv_len);
+        const bool var = a.var_out != nullptr;
+        if (r == 2)
+          (var ? atrous_row16_all<K, 2, F, true> : atrous_row16_all<K, 2, F, false>)(a, y, cls, ipl_row, hk, inv_len);
         else
-          atrous_row16_all<K, 1, F, true>(a, y, cls, ipl_row, hk, inv_len);
+          (var ? atrous_row16_all<K, 1, F, true> : atrous_row16_all<K, 1, F, false>)(a, y, cls, ipl_row, hk, inv_len);
         continue;
       }
     }
