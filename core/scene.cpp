@@ -66,15 +66,6 @@ float srgb_to_linear(float c) {
   return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
 }
 
-const std::array<float, 256>& srgb_table() {
-  static const std::array<float, 256> table = [] {
-    std::array<float, 256> t{};
-    for (int i = 0; i < 256; ++i) t[size_t(i)] = srgb_to_linear(float(i) / 255.0f);
-    return t;
-  }();
-  return table;
-}
-
 // Alpha of an 8-bit texel, float(i) / 255.0f: looked up instead of divided per fetch.
 const std::array<float, 256>& alpha_table() {
   static const std::array<float, 256> table = [] {
@@ -86,6 +77,15 @@ const std::array<float, 256>& alpha_table() {
 }
 
 }  // namespace
+
+const std::array<float, 256>& srgb_table() {
+  static const std::array<float, 256> table = [] {
+    std::array<float, 256> t{};
+    for (int i = 0; i < 256; ++i) t[size_t(i)] = srgb_to_linear(float(i) / 255.0f);
+    return t;
+  }();
+  return table;
+}
 
 glm::mat4 Animation::at(double time_s) const {
   if (keys.empty()) fail("animation: no keys");

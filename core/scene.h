@@ -10,6 +10,7 @@
 #include <glm/glm.hpp>
 #include <glm/gtc/quaternion.hpp>
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -27,6 +28,10 @@ struct Texture {
   // the loader's flip). Returns linear RGB and alpha.
   glm::vec4 sample_bilinear(glm::vec2 uv) const;
 };
+
+// The linear value of each 8-bit sRGB code, as sample_bilinear decodes texels (the rasterizer's
+// 8-lane lookup reads it too: core/raster.cpp).
+const std::array<float, 256>& srgb_table();
 
 struct Material {
   std::string name;

@@ -20,6 +20,10 @@
 #include <filesystem>
 #include <map>
 #include <string>
+#include <tuple>
+#include <vector>
+#include <limits>
+#include <array>
 
 namespace dhr {
 namespace {
@@ -92,6 +96,102 @@ TEST(RasterBits, GBufferIsPinned) {
   });
   if (!print) {
     EXPECT_GE(checked, 6);  // the built-in scenes, at least
+  }
+}
+
+// Attributes no real scene has, pinned the same way: uvs that are NaN, infinite, huge, negative
+// or far outside [0, 1] on a texture of odd size; shading normals that are zero, NaN, infinite,
+// tiny or so large their length overflows; a sliver seen edge-on (barycentrics clamped); and a
+// previous camera turned away, so that some surface points lie behind it, on its plane or at
+// huge offsets (motion clamped). Recorded with DHR_PRINT_RASTER_HASHES=1 under DHR_MAX_ISA=avx2,
+// the scalar resolve of core/raster.cpp; the AVX-512 one must give the same bits (this test runs
+// under both: tests/CMakeLists.txt).
+Scene damaged_scene() {
+  Scene s;
+  s.name = "damaged";
+  Texture tex;
+  tex.path = "damaged-texture";
+  tex.width = 5;
+  tex.height = 3;
+  uint32_t state = 12345u;
+  for (int i = 0; i < tex.width * tex.height; ++i) {
+    state = state * 1664525u + 1013904223u;
+    tex.texels.push_back(glm::u8vec4(uint8_t(state >> 24), uint8_t(state >> 16), uint8_t(state >> 8), 255));
+  }
+  s.textures.push_back(tex);
+  s.materials.push_back(Material{"textured", glm::vec3(0.9f, 0.6f, 0.3f), 0, false, 0.5f, false});
+  s.materials.push_back(Material{"plain", glm::vec3(0.5f), -1, false, 0.5f, false});
+  const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+  const std::vector<std::array<glm::vec2, 4>> uvs = {
+      {{{0.0f, 0.0f}, {1.0f, 0.0f}, {1.0f, 1.0f}, {0.0f, 1.0f}}},
+      {{{nan, 0.2f}, {0.3f, inf}, {-inf, 0.5f}, {0.7f, 0.1f}}},
+      {{{1e30f, -1e30f}, {3.7f, -2.2f}, {-1e-30f, 1e7f}, {-5.5f, 12.25f}}},
+      {{{-0.5f, -0.5f}, {1.5f, -0.5f}, {1.5f, 1.5f}, {-0.5f, 1.5f}}},
+  };
+  const std::vector<std::array<glm::vec3, 4>> normals = {
+      {{{0, 0, 1}, {0, 0, 1}, {0, 0, 1}, {0, 0, 1}}},
+      {{{0, 0, 0}, {0, 0, 0}, {0, 0, 1}, {0, 0, -1}}},
+      {{{nan, 0, 1}, {0, inf, 0}, {1e-20f, 0, 0}, {0, 0, -1e-25f}}},
+      {{{1e30f, 1e30f, 0}, {0, 3e38f, 3e38f}, {-1, 0.5f, 0.2f}, {0, -1, 0}}},
+  };
+  uint32_t id = 1;
+  for (size_t i = 0; i < uvs.size(); ++i)
+    for (size_t j = 0; j < normals.size(); ++j) {
+      Object o;
+      o.name = "quad" + std::to_string(id);
+      o.id = id++;
+      o.material = (i + j) % 3 == 2 ? 1u : 0u;
+      const float x0 = -2.0f + float(i), y0 = -2.0f + float(j), z = -3.0f - 0.1f * float(i * 4 + j);
+      o.mesh.positions = {{x0, y0, z}, {x0 + 0.9f, y0, z - 0.2f}, {x0 + 0.9f, y0 + 0.9f, z}, {x0, y0 + 0.9f, z + 0.3f}};
+      o.mesh.normals.assign(normals[j].begin(), normals[j].end());
+      o.mesh.uvs.assign(uvs[i].begin(), uvs[i].end());
+      o.mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
+      s.objects.push_back(std::move(o));
+    }
+  // A wall seen almost edge-on (its pixels' barycentrics clamped where the snapped triangle
+  // covers a centre the exact one misses), and a floor reaching behind the camera.
+  Object wall;
+  wall.name = "wall";
+  wall.id = id++;
+  wall.mesh.positions = {{0.25f, -1.0f, -1.0f}, {0.1f, -1.0f, -40.0f}, {0.1f, 1.0f, -40.0f}, {0.25f, 1.0f, -1.0f}};
+  wall.mesh.uvs = {{0.0f, 0.0f}, {40.0f, 0.0f}, {40.0f, 1.0f}, {0.0f, 1.0f}};
+  wall.mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
+  s.objects.push_back(std::move(wall));
+  Object floor;
+  floor.name = "floor";
+  floor.id = id++;
+  floor.material = 1;
+  floor.mesh.positions = {{-50.0f, -2.5f, 10.0f}, {50.0f, -2.5f, 10.0f}, {50.0f, -2.5f, -50.0f}, {-50.0f, -2.5f, -50.0f}};
+  floor.mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
+  s.objects.push_back(std::move(floor));
+  return s;
+}
+
+TEST(RasterBits, DamagedAttributesArePinned) {
+  const Scene scene = damaged_scene();
+  const std::map<std::string, uint64_t> pins = {
+      {"damaged/64x48", 0x895c924e6b911364ull},
+      {"damaged/321x181", 0x022009f438beb248ull},
+      {"damaged/67x45", 0x17a676f2960ed374ull},
+  };
+  const bool print = std::getenv("DHR_PRINT_RASTER_HASHES") != nullptr;
+  for (const auto& [w, h, prev_fov] : {std::tuple{64, 48, 50.0f}, std::tuple{321, 181, 50.0f}, std::tuple{67, 45, 0.001f}}) {
+    const Camera cam = Camera::look_at({0.3f, 0.2f, 1.0f}, {0.0f, -0.2f, -3.0f}, {0, 1, 0}, 70.0f, w, h, 0.05f, 100.0f);
+    // The previous camera stands among the quads, turned to the side; with a very narrow field
+    // of view almost every offset is clamped.
+    const Camera prev =
+        Camera::look_at({-0.5f, -0.5f, -3.2f}, {3.0f, -0.4f, -2.0f}, {0, 1, 0}, prev_fov, w, h, 0.05f, 100.0f);
+    GBuffer g;
+    const RasterStats st = rasterize({&scene, cam, 0.0, prev, -1.0 / 30.0}, g);
+    test::Fnv1a f;
+    g.for_each_plane([&](const auto& plane) { f.plane(plane); });
+    for (uint64_t v : {st.triangles_in, st.triangles_clipped, st.triangles_culled, st.fragments}) f.bytes(&v, sizeof v);
+    const std::string key = "damaged/" + std::to_string(w) + "x" + std::to_string(h);
+    if (print) {
+      std::printf("      {\"%s\", 0x%016llxull},\n", key.c_str(), static_cast<unsigned long long>(f.h));
+      continue;
+    }
+    EXPECT_EQ(f.h, pins.at(key)) << key << ": the G-buffer's bits changed";
   }
 }
 
