@@ -269,7 +269,7 @@ struct Context {
   int width, height, tiles_x, tiles_y;
   std::vector<ObjectPrep> objects;
   View3* view = nullptr;  // camera-space vertices of all objects
-  bool wide_resolve = false;  // resolve_x8 (AVX-512) for runs of pixels sharing a fragment
+  bool wide_kernels = false;  // cover_row_x8 and resolve_x8 (AVX-512): 8 pixels of a row at a time
 };
 
 void prepare_objects(Context& ctx, const RasterFrame& frame, size_t& total_vertices) {
@@ -492,6 +492,69 @@ Setup make_setup(const Context& ctx, const CoverTri& c) {
   return s;
 }
 
+#if DHR_AVX512_KERNELS
+// (r.x * px + r.y * py) + r.z, as cover() and barycentrics() evaluate a plane
+// (1/W and the barycentrics), for 8 pixels of a row.
+DHR_AVX512_TARGET inline __m512d plane_x8(const glm::dvec3& r, __m512d px, double py) {
+  return _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(_mm512_set1_pd(r.x), px), _mm512_set1_pd(r.y * py)),
+                       _mm512_set1_pd(r.z));
+}
+
+// cover()'s loop over the pixels xa..xb of row y, 8 at a time (AVX-512), for a triangle without
+// alpha cut-out: the same edge tests on the same 64-bit values, the same 1/W in double and the
+// same depth test, whose exact ties are settled lane by lane as cover() settles them. e_a holds
+// the three edge functions at xa.
+DHR_AVX512_TARGET void cover_row_x8(const Context& ctx, const CoverTri& c, int y, int xa, int xb, const int64_t* e_a,
+                                    const int64_t* step_x, int X0, int Y0, TileScratch& s, uint32_t& sid,
+                                    uint64_t& fragments) {
+  const ObjectPrep& p = ctx.objects[c.object];
+  const double py = y + 0.5;
+  const __m512i iota = _mm512_set_epi64(7, 6, 5, 4, 3, 2, 1, 0);
+  __m512i e[3], step8[3];
+  for (int k = 0; k < 3; ++k) {
+    e[k] = _mm512_add_epi64(_mm512_set1_epi64(e_a[k]), _mm512_mullo_epi64(iota, _mm512_set1_epi64(step_x[k])));
+    step8[k] = _mm512_set1_epi64(8 * step_x[k]);
+  }
+  for (int x = xa; x <= xb; x += 8) {
+    const unsigned n = unsigned(std::min(8, xb - x + 1));
+    __mmask8 m = _mm512_mask_cmpge_epi64_mask(__mmask8((1u << n) - 1),
+                                              _mm512_or_si512(_mm512_or_si512(e[0], e[1]), e[2]), _mm512_setzero_si512());
+    for (int k = 0; k < 3; ++k) e[k] = _mm512_add_epi64(e[k], step8[k]);
+    if (!m) continue;
+    fragments += uint64_t(__builtin_popcount(m));
+    if (sid == kNoSetup) {
+      if (!s.setups.empty() && s.setups.back().object == c.object && s.setups.back().prim == c.prim) {
+        sid = uint32_t(s.setups.size() - 1);
+      } else {
+        sid = uint32_t(s.setups.size());
+        s.setups.push_back(make_setup(ctx, c));
+      }
+    }
+    const Setup& st = s.setups[sid];
+    const __m512d px = _mm512_add_pd(_mm512_set1_pd(double(x) + 0.5), _mm512_set_pd(7, 6, 5, 4, 3, 2, 1, 0));
+    __m512d iw = plane_x8(st.rs, px, py);
+    iw = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(iw, _mm512_set1_pd(st.iw_lo), _CMP_GE_OQ), _mm512_set1_pd(st.iw_lo), iw);
+    iw = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(iw, _mm512_set1_pd(st.iw_hi), _CMP_LE_OQ), _mm512_set1_pd(st.iw_hi), iw);
+    m &= _mm512_cmp_pd_mask(iw, _mm512_set1_pd(ctx.inv_far), _CMP_NLT_UQ);  // not beyond the far plane
+    const size_t k0 = size_t((y - Y0) * kTile + (x - X0));
+    const __m512d cur = _mm512_maskz_loadu_pd(m, &s.inv_w[k0]);
+    m &= _mm512_cmp_pd_mask(iw, cur, _CMP_NLT_UQ);
+    if (!m) continue;
+    __mmask8 win = m & ~_mm512_cmp_pd_mask(iw, cur, _CMP_EQ_OQ);
+    if (__mmask8 tie = __mmask8(m & ~win)) {  // exact ties: the smaller (object id, prim id) wins
+      for (unsigned i = 0; i < n; ++i)
+        if (tie & (1u << i)) {
+          const Setup& o = s.setups[s.setup[k0 + i]];
+          const uint32_t id = p.object->id, other = ctx.objects[o.object].object->id;
+          if (id < other || (id == other && st.prim < o.prim)) win = __mmask8(win | (1u << i));
+        }
+    }
+    _mm512_mask_storeu_pd(&s.inv_w[k0], win, iw);
+    _mm512_mask_storeu_epi32(&s.setup[k0], __mmask16(win), _mm512_set1_epi32(int(sid)));
+  }
+}
+#endif
+
 // Visibility pass of one coverage triangle within the tile [X0, X1] x [Y0, Y1].
 void cover(const Context& ctx, const CoverTri& c, int X0, int Y0, int X1, int Y1, TileScratch& s,
            uint64_t& fragments) {
@@ -535,6 +598,14 @@ void cover(const Context& ctx, const CoverTri& c, int X0, int Y0, int X1, int Y1
     }
     int64_t e0 = row[0] + int64_t(xa - x0) * step_x[0], e1 = row[1] + int64_t(xa - x0) * step_x[1],
             e2 = row[2] + int64_t(xa - x0) * step_x[2];
+#if DHR_AVX512_KERNELS
+    if (ctx.wide_kernels && !p.cutout) {
+      const int64_t e_a[3] = {e0, e1, e2};
+      cover_row_x8(ctx, c, y, xa, xb, e_a, step_x, X0, Y0, s, sid, fragments);
+      for (int k = 0; k < 3; ++k) row[k] += step_y[k];
+      continue;
+    }
+#endif
     for (int x = xa; x <= xb; ++x, e0 += step_x[0], e1 += step_x[1], e2 += step_x[2]) {
       if ((e0 | e1 | e2) < 0) continue;
       ++fragments;
@@ -680,12 +751,6 @@ DHR_AVX512_TARGET inline void store_vec2_x8(glm::vec2* dst, __m256 x, __m256 y, 
                         _mm512_permutexvar_ps(_mm512_load_si512(kInterleave8.v2), xy));
 }
 
-// (r.x * px + r.y * py) + r.z, as barycentrics() evaluates a plane.
-DHR_AVX512_TARGET inline __m512d plane_x8(const glm::dvec3& r, __m512d px, double py) {
-  return _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(_mm512_set1_pd(r.x), px), _mm512_set1_pd(r.y * py)),
-                       _mm512_set1_pd(r.z));
-}
-
 // (b0 a0 + b1 a1) + b2 a2 of one coordinate, in double (the position) or float (the rest).
 DHR_AVX512_TARGET inline __m512d blend3_pd(double a0, double a1, double a2, __m512d b0, __m512d b1, __m512d b2) {
   return _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(_mm512_set1_pd(a0), b0), _mm512_mul_pd(_mm512_set1_pd(a1), b1)),
@@ -789,9 +854,28 @@ DHR_AVX512_TARGET bool texture_rgb_x8(const Texture& tex, __m256 u, __m256 v, un
   return true;
 }
 
+// m * v of a glm::mat3 (m[0][r] v.x + m[1][r] v.y) + m[2][r] v.z, as glm evaluates it.
+DHR_AVX512_TARGET inline Vec3x8 mat3_x8(const glm::mat3& m, const Vec3x8& v) {
+  __m256 r[3];
+  for (int k = 0; k < 3; ++k)
+    r[k] = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(m[0][k]), v.x), _mm256_mul_ps(_mm256_set1_ps(m[1][k]), v.y)),
+                         _mm256_mul_ps(_mm256_set1_ps(m[2][k]), v.z));
+  return {r[0], r[1], r[2]};
+}
+
+// The xyz of m * vec4(v, 1) of a glm::mat4: (m[0][r] v.x + m[1][r] v.y) + (m[2][r] v.z + m[3][r] 1),
+// as glm evaluates it.
+DHR_AVX512_TARGET inline Vec3x8 point_x8(const glm::mat4& m, const Vec3x8& v) {
+  __m256 r[3];
+  for (int k = 0; k < 3; ++k)
+    r[k] = _mm256_add_ps(
+        _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(m[0][k]), v.x), _mm256_mul_ps(_mm256_set1_ps(m[1][k]), v.y)),
+        _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(m[2][k]), v.z), _mm256_mul_ps(_mm256_set1_ps(m[3][k]), _mm256_set1_ps(1.0f))));
+  return {r[0], r[1], r[2]};
+}
+
 // resolve() of pixels x .. x + n - 1 (n in 1..8) of row y, all of whose nearest fragment is
-// `st`, of an object that neither moves nor carries a normal matrix (the caller sends those to
-// resolve()).
+// `st`.
 DHR_AVX512_TARGET void resolve_x8(const Context& ctx, const Setup& st, int x, int y, unsigned n, GBuffer& out) {
   const ObjectPrep& p = ctx.objects[st.object];
   const Mesh& mesh = *p.mesh;
@@ -836,8 +920,9 @@ DHR_AVX512_TARGET void resolve_x8(const Context& ctx, const Setup& st, int x, in
   const __m256 bf0 = _mm512_cvtpd_ps(b0), bf1 = _mm512_cvtpd_ps(b1), bf2 = _mm512_cvtpd_ps(b2);
   if (!mesh.normals.empty()) {
     const glm::vec3 &n0 = mesh.normals[t.x], &n1 = mesh.normals[t.y], &n2 = mesh.normals[t.z];
-    const Vec3x8 nv{blend3_ps(n0.x, n1.x, n2.x, bf0, bf1, bf2), blend3_ps(n0.y, n1.y, n2.y, bf0, bf1, bf2),
-                    blend3_ps(n0.z, n1.z, n2.z, bf0, bf1, bf2)};
+    Vec3x8 nv{blend3_ps(n0.x, n1.x, n2.x, bf0, bf1, bf2), blend3_ps(n0.y, n1.y, n2.y, bf0, bf1, bf2),
+              blend3_ps(n0.z, n1.z, n2.z, bf0, bf1, bf2)};
+    if (p.moving) nv = mat3_x8(p.normal_matrix, nv);
     const __m256 len = _mm256_sqrt_ps(dot_x8(nv, nv));
     const __m256 ok = _mm256_and_ps(_mm256_cmp_ps(len, _mm256_set1_ps(1e-12f), _CMP_GT_OQ),
                                     _mm256_cmp_ps(len, _mm256_set1_ps(INFINITY), _CMP_LT_OQ));
@@ -866,9 +951,18 @@ DHR_AVX512_TARGET void resolve_x8(const Context& ctx, const Setup& st, int x, in
   }
 
   __m256 mx = zero_ps, my = zero_ps;
-  if (!ctx.same_cameras) {  // the caller sends objects without static_motion to resolve()
+  if (!(p.static_motion && ctx.same_cameras)) {
+    Vec3x8 prev = pos;
+    if (!p.static_motion) {  // the same surface point, placed at prev_time_s
+      const auto& o = mesh.positions;
+      const glm::vec3 &o0 = o[t.x], &o1 = o[t.y], &o2 = o[t.z];
+      const Vec3x8 obj{_mm512_cvtpd_ps(blend3_pd(o0.x, o1.x, o2.x, b0, b1, b2)),
+                       _mm512_cvtpd_ps(blend3_pd(o0.y, o1.y, o2.y, b0, b1, b2)),
+                       _mm512_cvtpd_ps(blend3_pd(o0.z, o1.z, o2.z, b0, b1, b2))};
+      prev = point_x8(p.world_from_object_prev, obj);
+    }
     const Projector& pp = ctx.prev_proj;
-    const Vec3x8 d = sub_x8(pos, broadcast_x8(pp.position));
+    const Vec3x8 d = sub_x8(prev, broadcast_x8(pp.position));
     const __m256 z = dot_x8(d, broadcast_x8(pp.forward));
     const __m256 tan_half = _mm256_set1_ps(pp.tan_half);
     const __m256 qx = _mm256_div_ps(dot_x8(d, broadcast_x8(pp.right)),
@@ -919,12 +1013,10 @@ void raster_tile(const Context& ctx, std::span<const TriangleJobOut> jobs, int t
       if (sid != kNoSetup) {
 #if DHR_AVX512_KERNELS
         // Up to 8 pixels of the row with the same nearest fragment at once.
-        const Setup& st = s.setups[sid];
-        const ObjectPrep& p = ctx.objects[st.object];
-        if (ctx.wide_resolve && !p.moving && p.static_motion) {
+        if (ctx.wide_kernels) {
           int end = x + 1;
           while (end <= X1 && end - x < 8 && row[end - X0] == sid) ++end;
-          resolve_x8(ctx, st, x, y, unsigned(end - x), out);
+          resolve_x8(ctx, s.setups[sid], x, y, unsigned(end - x), out);
           x = end - 1;
           continue;
         }
@@ -979,7 +1071,7 @@ RasterStats rasterize(const RasterFrame& frame, GBuffer& out) {
               1.0 / double(cam.near_m), 1.0 / double(cam.far_m), cam.width, cam.height,
               (cam.width + kTile - 1) / kTile, (cam.height + kTile - 1) / kTile, {}, nullptr};
 #if DHR_AVX512_KERNELS
-  ctx.wide_resolve = cpu_has_avx512dq();
+  ctx.wide_kernels = cpu_has_avx512dq();
 #endif
   size_t total_vertices = 0;
   prepare_objects(ctx, frame, total_vertices);
