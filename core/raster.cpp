@@ -492,6 +492,14 @@ Setup make_setup(const Context& ctx, const CoverTri& c) {
   return s;
 }
 
+// The index in s.setups of coverage triangle c's setup, made when it first covers a pixel of the
+// tile. Pieces of one clipped triangle follow each other: they share the setup.
+uint32_t tile_setup(const Context& ctx, const CoverTri& c, TileScratch& s) {
+  if (s.setups.empty() || s.setups.back().object != c.object || s.setups.back().prim != c.prim)
+    s.setups.push_back(make_setup(ctx, c));
+  return uint32_t(s.setups.size() - 1);
+}
+
 #if DHR_AVX512_KERNELS
 // (r.x * px + r.y * py) + r.z, as cover() and barycentrics() evaluate a plane
 // (1/W and the barycentrics), for 8 pixels of a row.
@@ -522,14 +530,7 @@ DHR_AVX512_TARGET void cover_row_x8(const Context& ctx, const CoverTri& c, int y
     for (int k = 0; k < 3; ++k) e[k] = _mm512_add_epi64(e[k], step8[k]);
     if (!m) continue;
     fragments += uint64_t(__builtin_popcount(m));
-    if (sid == kNoSetup) {
-      if (!s.setups.empty() && s.setups.back().object == c.object && s.setups.back().prim == c.prim) {
-        sid = uint32_t(s.setups.size() - 1);
-      } else {
-        sid = uint32_t(s.setups.size());
-        s.setups.push_back(make_setup(ctx, c));
-      }
-    }
+    if (sid == kNoSetup) sid = tile_setup(ctx, c, s);
     const Setup& st = s.setups[sid];
     const __m512d px = _mm512_add_pd(_mm512_set1_pd(double(x) + 0.5), _mm512_set_pd(7, 6, 5, 4, 3, 2, 1, 0));
     __m512d iw = plane_x8(st.rs, px, py);
@@ -609,15 +610,7 @@ void cover(const Context& ctx, const CoverTri& c, int X0, int Y0, int X1, int Y1
     for (int x = xa; x <= xb; ++x, e0 += step_x[0], e1 += step_x[1], e2 += step_x[2]) {
       if ((e0 | e1 | e2) < 0) continue;
       ++fragments;
-      if (sid == kNoSetup) {
-        // Pieces of one clipped triangle follow each other: they share the setup.
-        if (!s.setups.empty() && s.setups.back().object == c.object && s.setups.back().prim == c.prim) {
-          sid = uint32_t(s.setups.size() - 1);
-        } else {
-          sid = uint32_t(s.setups.size());
-          s.setups.push_back(make_setup(ctx, c));
-        }
-      }
+      if (sid == kNoSetup) sid = tile_setup(ctx, c, s);
       const Setup& st = s.setups[sid];
       const double px = x + 0.5, py = y + 0.5;
       // 1/W, kept within the triangle's own range: outside the exact triangle (snapping) the
