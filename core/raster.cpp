@@ -508,6 +508,11 @@ DHR_AVX512_TARGET inline __m512d plane_x8(const glm::dvec3& r, __m512d px, doubl
                        _mm512_set1_pd(r.z));
 }
 
+// The centres x + 0.5 .. x + 7.5 of 8 pixels of a row (exact in double).
+DHR_AVX512_TARGET inline __m512d pixel_centres_x8(int x) {
+  return _mm512_add_pd(_mm512_set1_pd(double(x) + 0.5), _mm512_set_pd(7, 6, 5, 4, 3, 2, 1, 0));
+}
+
 // cover()'s loop over the pixels xa..xb of row y, 8 at a time (AVX-512), for a triangle without
 // alpha cut-out: the same edge tests on the same 64-bit values, the same 1/W in double and the
 // same depth test, whose exact ties are settled lane by lane as cover() settles them. e_a holds
@@ -532,7 +537,7 @@ DHR_AVX512_TARGET void cover_row_x8(const Context& ctx, const CoverTri& c, int y
     fragments += uint64_t(__builtin_popcount(m));
     if (sid == kNoSetup) sid = tile_setup(ctx, c, s);
     const Setup& st = s.setups[sid];
-    const __m512d px = _mm512_add_pd(_mm512_set1_pd(double(x) + 0.5), _mm512_set_pd(7, 6, 5, 4, 3, 2, 1, 0));
+    const __m512d px = pixel_centres_x8(x);
     __m512d iw = plane_x8(st.rs, px, py);
     iw = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(iw, _mm512_set1_pd(st.iw_lo), _CMP_GE_OQ), _mm512_set1_pd(st.iw_lo), iw);
     iw = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(iw, _mm512_set1_pd(st.iw_hi), _CMP_LE_OQ), _mm512_set1_pd(st.iw_hi), iw);
@@ -792,7 +797,7 @@ DHR_AVX512_TARGET inline __m256i wrap_x8(__m256i i, __m256i size) {
 // (nothing written) where the scalar lookup must run instead: a texture it would reject, one
 // with too many texels for 32-bit indices, or a lane whose texel lies more than one texture
 // size outside the texture (the scalar wrap's modulo; a coordinate wrapped into [0, 1] never
-// does). Lanes outside `live` give 0.
+// does). Lanes n..7 give 0.
 DHR_AVX512_TARGET bool texture_rgb_x8(const Texture& tex, __m256 u, __m256 v, unsigned n, Vec3x8& rgb) {
   const int w = tex.width, h = tex.height;
   if (w <= 0 || h <= 0 || tex.texels.size() != size_t(w) * size_t(h) || tex.texels.size() > size_t(1) << 30)
@@ -875,7 +880,7 @@ DHR_AVX512_TARGET void resolve_x8(const Context& ctx, const Setup& st, int x, in
   const glm::uvec3 t = st.tri;
   const Camera& cam = *ctx.camera;
   const __mmask8 live = __mmask8((1u << n) - 1);
-  const __m512d px = _mm512_add_pd(_mm512_set1_pd(double(x) + 0.5), _mm512_set_pd(7, 6, 5, 4, 3, 2, 1, 0));
+  const __m512d px = pixel_centres_x8(x);
   const double py = y + 0.5;
 
   // barycentrics(), with its clamp taken lane by lane where a lane needs it (rare).
@@ -927,13 +932,14 @@ DHR_AVX512_TARGET void resolve_x8(const Context& ctx, const Setup& st, int x, in
   Vec3x8 albedo = broadcast_x8(p.material->albedo);
   if (p.texture) {
     const glm::vec2 &u0 = mesh.uvs[t.x], &u1 = mesh.uvs[t.y], &u2 = mesh.uvs[t.z];
-    alignas(32) float u[8], v[8], ax[8], ay[8], az[8];
-    _mm256_store_ps(u, blend3_ps(u0.x, u1.x, u2.x, bf0, bf1, bf2));
-    _mm256_store_ps(v, blend3_ps(u0.y, u1.y, u2.y, bf0, bf1, bf2));
+    const __m256 uu = blend3_ps(u0.x, u1.x, u2.x, bf0, bf1, bf2), vv = blend3_ps(u0.y, u1.y, u2.y, bf0, bf1, bf2);
     Vec3x8 rgb;
-    if (texture_rgb_x8(*p.texture, _mm256_load_ps(u), _mm256_load_ps(v), n, rgb)) {
+    if (texture_rgb_x8(*p.texture, uu, vv, n, rgb)) {
       albedo = {_mm256_mul_ps(albedo.x, rgb.x), _mm256_mul_ps(albedo.y, rgb.y), _mm256_mul_ps(albedo.z, rgb.z)};
     } else {
+      alignas(32) float u[8], v[8], ax[8], ay[8], az[8];
+      _mm256_store_ps(u, uu);
+      _mm256_store_ps(v, vv);
       const glm::vec3 base = p.material->albedo;
       for (unsigned i = 0; i < 8; ++i) {
         const glm::vec4 tex = i < n ? p.texture->sample_bilinear({u[i], v[i]}) : glm::vec4(0.0f);
