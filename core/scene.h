@@ -30,7 +30,7 @@ struct Texture {
 };
 
 // The linear value of each 8-bit sRGB code, as sample_bilinear decodes texels (the rasterizer's
-// 8-lane lookup reads it too: core/raster.cpp).
+// 8-lane lookup reads it too: core/raster_avx512.cpp).
 const std::array<float, 256>& srgb_table();
 
 struct Material {

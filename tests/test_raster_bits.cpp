@@ -3,7 +3,7 @@
 // 1280x720, the FNV-1a hash of every G-buffer plane and of the statistics must equal the values
 // recorded from the rasterizer (core/raster.cpp) of commit 9b6eb01, before the speed work of
 // docs/performance.md ("Client stages (item 5)"), with one thread and with all of them. A
-// change of core/raster.cpp that moves any pixel of any plane by one bit fails here; a
+// change of core/raster*.cpp that moves any pixel of any plane by one bit fails here; a
 // deliberate change of the output must update the table and say so.
 // Run with DHR_PRINT_RASTER_HASHES=1 to print the table's rows for the current code.
 #include "core/error.h"
@@ -104,8 +104,8 @@ TEST(RasterBits, GBufferIsPinned) {
 // tiny or so large their length overflows; a sliver seen edge-on (barycentrics clamped); and a
 // previous camera turned away, so that some surface points lie behind it, on its plane or at
 // huge offsets (motion clamped). Recorded with DHR_PRINT_RASTER_HASHES=1 under DHR_MAX_ISA=avx2,
-// the scalar resolve of core/raster.cpp; the AVX-512 one must give the same bits (this test runs
-// under both: tests/CMakeLists.txt).
+// the scalar resolve of core/raster.cpp; the AVX-512 one (core/raster_avx512.cpp) must give the
+// same bits (this test runs under both: tests/CMakeLists.txt).
 Scene damaged_scene() {
   Scene s;
   s.name = "damaged";
