@@ -31,6 +31,20 @@ namespace dhr::trace_detail {
 
 namespace {
 
+// The first `count` of 16 lanes (none for count <= 0, all for count >= 16).
+inline __mmask16 lanes_below(int count) {
+  return __mmask16(count <= 0 ? 0u : count >= 16 ? 0xffffu : (1u << count) - 1u);
+}
+
+// The bytes of v in the lanes of m, p's own bytes elsewhere (AVX-512F has no byte-masked store;
+// lanes outside m, such as a row's padding, are written back unchanged).
+DHR_AVX512_TARGET inline void store_bytes_x16(uint8_t* p, __m128i v, __mmask16 m) {
+  if (!m) return;
+  __m128i* q = reinterpret_cast<__m128i*>(p);
+  if (m != 0xffff) v = _mm_blendv_epi8(_mm_loadu_si128(q), v, _mm512_cvtepi32_epi8(_mm512_maskz_set1_epi32(m, -1)));
+  _mm_storeu_si128(q, v);
+}
+
 DHR_AVX512_TARGET inline __m512i mix64_x8(__m512i z) {  // core/rng.h's mix64, 8 lanes
   z = _mm512_add_epi64(z, _mm512_set1_epi64(int64_t(0x9E3779B97F4A7C15ull)));
   z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 30)), _mm512_set1_epi64(int64_t(0xBF58476D1CE4E5B9ull)));
@@ -294,7 +308,9 @@ DHR_AVX512_TARGET int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li
     std::copy(bytes, bytes + n, &r.code[base + size_t(x)]);
     const __m512i covered = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)])));
     const __mmask16 traced = __mmask16(~(oor | inside | facing)) & _mm512_test_epi32_mask(covered, covered) & live;
-    _mm512_mask_compressstoreu_epi32(idx + m, traced, _mm512_add_epi32(_mm512_set1_epi32(x), iota));
+    // Compressed in a register and stored whole (see list_pairs_x16); r.idx has kRowPad entries
+    // of padding past the row (m + 16 <= x + 16).
+    _mm512_storeu_si512(idx + m, _mm512_maskz_compress_epi32(traced, _mm512_add_epi32(_mm512_set1_epi32(x), iota)));
     m += popcount16(traced);
     if (!rays || traced == 0) continue;
     // The ray of every pixel of the block (stored for the traced pairs only), in float from
@@ -373,11 +389,26 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
     for (int half = 0; half < 2; ++half) {
       const size_t xh = size_t(x + 8 * half);
       const __mmask8 m8 = __mmask8(vec >> (8 * half));
-      const __m256i base = _mm256_mullo_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(&r.tri_of[xh])),
-                                              _mm256_set1_epi32(14));
+      // The row triangle's 13 values per lane. The 8 pixels mostly lie on one to three
+      // triangles: each one's values are broadcast to its lanes; beyond that the rest are
+      // gathered lane by lane (the same values either way).
+      const __m256i tri_of = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(&r.tri_of[xh]));
       __m512d c[13];
-      for (int k = 0; k < 13; ++k)
-        c[k] = _mm512_mask_i32gather_pd(zero_d, m8, _mm256_add_epi32(base, _mm256_set1_epi32(k)), tri, 8);
+      for (int k = 0; k < 13; ++k) c[k] = zero_d;
+      __mmask8 left = m8;
+      for (int distinct = 0; left && distinct < 3; ++distinct) {
+        const int t = r.tri_of[xh + size_t(__builtin_ctz(left))];
+        const __mmask8 same = __mmask8(_mm512_mask_cmpeq_epi32_mask(left, _mm512_castsi256_si512(tri_of),
+                                                                    _mm512_set1_epi32(t)));
+        const double* v = tri + 14 * size_t(t);
+        for (int k = 0; k < 13; ++k) c[k] = _mm512_mask_mov_pd(c[k], same, _mm512_set1_pd(v[k]));
+        left = __mmask8(left & ~same);
+      }
+      if (left) {
+        const __m256i base = _mm256_mullo_epi32(tri_of, _mm256_set1_epi32(14));
+        for (int k = 0; k < 13; ++k)
+          c[k] = _mm512_mask_i32gather_pd(c[k], left, _mm256_add_epi32(base, _mm256_set1_epi32(k)), tri, 8);
+      }
       // p = (1 - b1 - b2) v0 + b1 v1 + b2 v2
       const __m512d b1 = _mm512_cvtps_pd(_mm256_loadu_ps(&r.b1[xh])), b2 = _mm512_cvtps_pd(_mm256_loadu_ps(&r.b2[xh]));
       const __m512d a = _mm512_sub_pd(_mm512_sub_pd(one_d, b1), b2);
@@ -452,16 +483,122 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
     _mm512_mask_storeu_ps(&r.ox[size_t(x)], done, of[0]);
     _mm512_mask_storeu_ps(&r.oy[size_t(x)], done, of[1]);
     _mm512_mask_storeu_ps(&r.oz[size_t(x)], done, of[2]);
-    for (int k = 0; k < n; ++k) {
-      const size_t i = size_t(x + k);
-      if ((done >> k) & 1u) {
-        r.covered[i] = 1;
-        r.origin_ok[i] = uint8_t((origin_ok >> k) & 1u);
-      } else if ((degenerate >> k) & 1u) {
-        r.kind[i] = 3;
+    store_bytes_x16(&r.covered[size_t(x)], _mm_set1_epi8(1), done);
+    store_bytes_x16(&r.origin_ok[size_t(x)], _mm512_cvtepi32_epi8(_mm512_maskz_set1_epi32(origin_ok, 1)), done);
+    store_bytes_x16(&r.kind[size_t(x)], _mm_set1_epi8(3), degenerate);
+  }
+}
+
+DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, uint32_t id, uint32_t prim, int cur,
+                                         uint64_t& cov) {
+  // Element i of 16 interleaved vec2: x from float 2i, y from 2i + 1 (of two 16-float loads).
+  const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+  const __m512i odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
+  const __m512i background = _mm512_set1_epi32(int(kBackgroundId));
+  const __m512 zero = _mm512_setzero_ps();
+  for (; x < w; x += 16) {
+    const int n = std::min(16, w - x);
+    const __mmask16 live = __mmask16((1u << n) - 1u);
+    const __m512i ids = _mm512_maskz_loadu_epi32(live, io.ids + x);
+    const __mmask16 on = _mm512_mask_cmpneq_epi32_mask(live, ids, background);
+    if (on) {
+      if (cur < 0) return x;
+      const __m512i prims = _mm512_maskz_loadu_epi32(on, io.prims + x);
+      if (_mm512_mask_cmpneq_epi32_mask(on, ids, _mm512_set1_epi32(int(id))) |
+          _mm512_mask_cmpneq_epi32_mask(on, prims, _mm512_set1_epi32(int(prim))))
+        return x;
+    }
+    const __mmask16 off = live & __mmask16(~on);
+    store_bytes_x16(io.kind + x, _mm512_cvtepi32_epi8(_mm512_maskz_set1_epi32(on, 1)), live);
+    store_bytes_x16(io.covered + x, _mm_setzero_si128(), off);
+    store_bytes_x16(io.origin_ok + x, _mm_set1_epi8(1), off);
+    for (int k = 0; k < 9; ++k) _mm512_mask_storeu_ps(io.planes[k] + x, off, zero);
+    if (!on) continue;
+    cov += uint64_t(__builtin_popcount(on));
+    _mm512_mask_storeu_epi32(io.tri_of + x, on, _mm512_set1_epi32(cur));
+    // Masked loads: nothing is read past the row's last pixel.
+    const float* b = &io.bary[x].x;
+    const __m512 b_lo = _mm512_maskz_loadu_ps(lanes_below(2 * n), b),
+                 b_hi = _mm512_maskz_loadu_ps(lanes_below(2 * n - 16), b + 16);
+    _mm512_mask_storeu_ps(io.b1 + x, on, _mm512_permutex2var_ps(b_lo, even, b_hi));
+    _mm512_mask_storeu_ps(io.b2 + x, on, _mm512_permutex2var_ps(b_lo, odd, b_hi));
+    const float* gn = &io.gnorm[x].x;
+    const __m512 a = _mm512_maskz_loadu_ps(lanes_below(3 * n), gn),
+                 bb = _mm512_maskz_loadu_ps(lanes_below(3 * n - 16), gn + 16),
+                 c = _mm512_maskz_loadu_ps(lanes_below(3 * n - 32), gn + 32);
+    float* const g[3] = {io.gx, io.gy, io.gz};
+    for (int k = 0; k < 3; ++k) {
+      const __m512 ab = _mm512_permutex2var_ps(a, _mm512_load_si512(kDeinterleave3.first[k]), bb);
+      _mm512_mask_storeu_ps(g[k] + x, on, _mm512_permutex2var_ps(ab, _mm512_load_si512(kDeinterleave3.second[k]), c));
+    }
+  }
+  return w;
+}
+
+DHR_AVX512_TARGET int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts, size_t npx, PairTally& tally) {
+  const int w = r.w;
+  const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m128i zero = _mm_setzero_si128();
+  int n = 0;
+  __mmask16 listed[kListPairsMaxLights];
+  for (int x = 0; x < w; x += 16) {
+    const __mmask16 live = lanes_below(w - x);
+    // Bytes past the row (and past the last light's row) are padding: read, never used.
+    const __m128i covered = _mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)]));
+    const __mmask16 cov = live & __mmask16(~_mm_movemask_epi8(_mm_cmpeq_epi8(covered, zero)));
+    if (!cov) continue;
+    __mmask16 any = 0;
+    for (int l = 0; l < nl; ++l) {
+      const size_t i = size_t(l) * size_t(w) + size_t(x);
+      const __m512i code =
+          _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.code[i])));
+      const __mmask16 range = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairRange));
+      const __mmask16 inside = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairInside));
+      const __mmask16 facing = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairFacing));
+      const __mmask16 rays = cov & __mmask16(~(range | inside | facing));
+      const __m512i ok = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.ok[i])));
+      const __mmask16 traced = _mm512_mask_cmpneq_epi32_mask(rays, ok, _mm512_setzero_si512());
+      const __mmask16 invalid = rays & __mmask16(~traced);
+      tally.range += uint64_t(__builtin_popcount(range));
+      tally.facing += uint64_t(__builtin_popcount(facing));
+      tally.inside += uint64_t(__builtin_popcount(inside));
+      tally.invalid += uint64_t(__builtin_popcount(invalid));
+      uint16_t* c = counts + size_t(l) * npx + size_t(x);
+      for (unsigned m = inside; m; m &= m - 1) c[__builtin_ctz(m)] = 1;
+      for (unsigned m = invalid; m; m &= m - 1) ++c[__builtin_ctz(m)];
+      listed[l] = traced;
+      any |= traced;
+    }
+    if (!any) continue;
+    if (nl == 1) {
+      // Pixel order is the list's order: the lanes compressed in registers and stored whole
+      // (a compressing store to memory is microcoded and slow on AMD's Zen 4). What lies past
+      // the n-th entry is overwritten later or never read; the arrays have kRowPad entries of
+      // padding past the most a row can list (n + 16 <= x + 16 <= w + kRowPad).
+      const __m512i xs = _mm512_maskz_compress_epi32(any, _mm512_add_epi32(iota, _mm512_set1_epi32(x)));
+      _mm512_storeu_si512(&r.pair[size_t(n)], xs);
+      _mm512_storeu_si512(&r.pair_x[size_t(n)], xs);
+      const __m512i c0 = _mm512_set1_epi64(int64_t(reinterpret_cast<uintptr_t>(counts + size_t(x))));
+      const __m512i lo = _mm512_add_epi64(c0, _mm512_setr_epi64(0, 2, 4, 6, 8, 10, 12, 14));
+      const __m512i hi = _mm512_add_epi64(lo, _mm512_set1_epi64(16));
+      const int n_lo = __builtin_popcount(any & 0xffu);
+      _mm512_storeu_si512(&r.pair_count[size_t(n)], _mm512_maskz_compress_epi64(__mmask8(any), lo));
+      _mm512_storeu_si512(&r.pair_count[size_t(n + n_lo)], _mm512_maskz_compress_epi64(__mmask8(any >> 8), hi));
+      n += __builtin_popcount(any);
+      continue;
+    }
+    for (unsigned m = any; m; m &= m - 1) {
+      const int k = __builtin_ctz(m);
+      for (int l = 0; l < nl; ++l) {
+        if (!((listed[l] >> k) & 1u)) continue;
+        r.pair[size_t(n)] = l * w + x + k;
+        r.pair_x[size_t(n)] = x + k;
+        r.pair_count[size_t(n)] = counts + size_t(l) * npx + size_t(x + k);
+        ++n;
       }
     }
   }
+  return n;
 }
 
 DHR_AVX512_TARGET void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base) {

@@ -387,7 +387,7 @@ struct VisibilityRow {
     tri_of.assign(n + kRowPad, 0);
     for (auto* v : {&b1, &b2, &gx, &gy, &gz}) v->assign(n + kRowPad, 0.0f);
 
-    for (auto* v : {&code, &ok}) v->assign(nl, 0);
+    for (auto* v : {&code, &ok}) v->assign(nl + kRowPad, 0);
     for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
     for (auto* v : {&pair, &pair_x}) v->assign(nl + kRowPad, 0);
     pair_count.assign(nl + kRowPad, nullptr);
@@ -474,6 +474,40 @@ int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, boo
 // camera (a zero G-buffer normal) become kind 3. With
 // hashes, every pixel's PixelRng hash (pixel = row_start + x).
 void surfaces_x16(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes);
+// Stage 1's per-pixel inputs of one row on the vector path (visibility_rows' loop in
+// core/trace_rows.cpp): the G-buffer row it reads and the VisibilityRow arrays it writes.
+struct SurfaceInputs {
+  const uint32_t* ids;
+  const uint32_t* prims;
+  const glm::vec2* bary;
+  const glm::vec3* gnorm;
+  uint8_t* kind;
+  uint8_t* covered;
+  uint8_t* origin_ok;
+  int* tri_of;
+  float *b1, *b2, *gx, *gy, *gz;
+  float* const __restrict* planes;  // px, py, pz, nx, ny, nz, ox, oy, oz
+};
+// That loop over pixels x, x + 1, ... of a row of width w, 16 at a time, for as long as every
+// covered pixel of a block lies on the triangle (id, prim), row triangle `cur` (resolved; cur <
+// 0: blocks of background only): a background pixel gets kind 0, not covered, a zero surface
+// and a valid origin; a covered one kind 1, row triangle cur, its barycentrics and geometric
+// normal (the same values the loop writes). Returns the first pixel of the block it left to the
+// loop (w when none) and adds the covered pixels to cov.
+int surface_inputs_x16(const SurfaceInputs& io, int x, int w, uint32_t id, uint32_t prim, int cur, uint64_t& cov);
+// What stage 3 counts of the pairs that do not trace (TraceStats' fields of the same names).
+struct PairTally {
+  uint64_t range = 0, inside = 0, facing = 0, invalid = 0;
+};
+// Lights up to which list_pairs_x16 lists a row's pairs (it keeps a mask per light and block).
+constexpr int kListPairsMaxLights = 32;
+// Stage 3's listing where every light takes one ray per pixel (visibility_rows' loop): for the
+// covered pixels of a row, 16 at a time, each light's pair is counted by its code (out of
+// range, inside the light: its count set to 1, facing away), counted as invalid (its count
+// incremented) or listed in r.pair, r.pair_x and r.pair_count in pixel then light order, as
+// that loop does. counts: &VisibilityCounts::visible of light 0 at the row's first pixel;
+// light l's are npx further on. nl <= kListPairsMaxLights. Returns the number of pairs listed.
+int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts, size_t npx, PairTally& tally);
 // Stage 2 for a distant light (distant_light_row in core/trace_rows.cpp) with one sample per
 // pixel, 16 pixels at a time: codes, rays (the jittered cone for a soft light, the light's
 // direction for a hard one) and validity. Same bits.

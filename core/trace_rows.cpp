@@ -251,7 +251,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   // few rows: allocating them per block cost several percent of a pass). Every value a row
   // reads is written for that row first; the padding stays zero.
   thread_local std::unique_ptr<VisibilityRow> row_arrays;
-  if (!row_arrays || row_arrays->w != w || row_arrays->code.size() != size_t(w) * size_t(nl))
+  if (!row_arrays || row_arrays->w != w || row_arrays->code.size() != size_t(w) * size_t(nl) + VisibilityRow::kRowPad)
     row_arrays = std::make_unique<VisibilityRow>(w, nl);
   VisibilityRow& r = *row_arrays;
 #if DHR_TRACE_X86_KERNELS
@@ -275,8 +275,15 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     all_single = all_single && li.samples == 1;
   }
   uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
-  constexpr int kSeenBits = 8;
-  std::vector<TriangleCache> seen(vector_surfaces ? size_t(1) << kSeenBits : 0);
+  constexpr int kSeenBits = 10;
+  // Kept by the thread like the row arrays (zeroing the whole table on every block of rows cost
+  // a few percent of temple's pass); every slot is emptied here, so nothing from an earlier call
+  // (another scene, time or G-buffer) is reused: no pixel has the background id.
+  thread_local std::vector<TriangleCache> seen;
+  if (vector_surfaces) {
+    seen.resize(size_t(1) << kSeenBits);
+    for (TriangleCache& slot : seen) slot.id = kBackgroundId;
+  }
   alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk], tfar[kChunk];
   alignas(64) bool ok[kChunk];
   constexpr float kInf = std::numeric_limits<float>::infinity();
@@ -326,7 +333,23 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
           origin_ok[i] = origin_valid(sf.origin) ? 1 : 0;
         };
         const TriangleCache* tc = nullptr;  // the triangle of the previous covered pixel
+#if DHR_TRACE_X86_KERNELS
+        const SurfaceInputs io{ids, prims, bary, gnorm, kind, covered, origin_ok, tri_of, b1, b2, gx, gy, gz, planes};
+        int scalar_until = 0;  // the block surface_inputs_x16 left last, done here pixel by pixel
+#endif
         for (int x = 0; x < w; ++x) {
+#if DHR_TRACE_X86_KERNELS
+          // Runs of pixels on the current triangle or the background, 16 at a time.
+          if (x16 && x >= scalar_until) {
+            const bool on_tri = tc && tc->resolved && cur >= 0;
+            const uint64_t before = cov;
+            x = surface_inputs_x16(io, x, w, on_tri ? tc->id : kBackgroundId, on_tri ? tc->prim : 0, on_tri ? cur : -1,
+                                   cov);
+            any = any || cov != before;
+            scalar_until = x + 16;
+            if (x >= w) break;
+          }
+#endif
           const size_t i = size_t(x);
           const uint32_t id = ids[i];
           if (id == kBackgroundId) {  // as surface_at's Surface{}: zeros, a valid origin
@@ -412,6 +435,13 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     if (all_single && (W == 16 ? x16 : x8)) {
       // The pairs that trace, listed; trace_pairs_x16 or trace_pairs_x8 makes the packets.
       int n = 0;
+      if (W == 16 && nl <= kListPairsMaxLights) {
+        PairTally tally;
+        n = list_pairs_x16(r, nl, &out.visible[size_t(y) * size_t(w)], npx, tally);
+        range += tally.range, inside += tally.inside, facing += tally.facing, invalid += tally.invalid;
+        if constexpr (W == 16) trace_pairs_x16(r, n, batch);
+        continue;
+      }
       for (int x = 0; x < w; ++x) {
         if (!r.covered[size_t(x)]) continue;
         const size_t pixel = size_t(y) * size_t(w) + size_t(x);
