@@ -264,9 +264,10 @@ VisibilityCounts visibility_impl(RtScene& rt, const GBuffer& g, const PassPlan& 
   for (const auto& li : lights) out.samples.push_back(li.samples);
   out.visible.assign(npx * size_t(nl), 0);
   const bool wide = wide_packets(rt);
+  const uint64_t pass = new_pass_id();
   TraceStats st = trace_rows(rt, settings, w, h, [&](int y0, int y1, TraceStats& rs) {
-    if (wide) visibility_rows<16>(rt, g, settings, lights, out, rows_out, y0, y1, rs);
-    else visibility_rows<8>(rt, g, settings, lights, out, rows_out, y0, y1, rs);
+    if (wide) visibility_rows<16>(rt, g, settings, lights, pass, out, rows_out, y0, y1, rs);
+    else visibility_rows<8>(rt, g, settings, lights, pass, out, rows_out, y0, y1, rs);
   });
   stats.add(st);
   return out;

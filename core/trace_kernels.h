@@ -396,15 +396,21 @@ struct VisibilityRow {
 
 // ---- The row kernels ----
 
-// core/trace_rows.cpp, instantiated for W = 8 and 16 (Embree's packet width).
+// core/trace_rows.cpp, instantiated for W = 8 and 16 (Embree's packet width). `pass` names the
+// pass (new_pass_id(), one per call of the visibility pass): the blocks of rows one thread runs
+// for the same pass share the triangles it rebuilt (same scene, time and G-buffer).
 template <int W>
 void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& settings, const std::vector<LightInfo>& lights,
-                     VisibilityCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1,
+                     uint64_t pass, VisibilityCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1,
                      TraceStats& st);
 extern template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
-                                        VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+                                        uint64_t, VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int,
+                                        TraceStats&);
 extern template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
-                                         VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+                                         uint64_t, VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int,
+                                         TraceStats&);
+// A number no earlier call returned in this process (never 0).
+uint64_t new_pass_id();
 
 // The AO rows (core/trace_rows.cpp): the row's tracing pixels gathered into AoPixels by scalar
 // code, then rays_fn makes, traces and counts their rays: ao_rays_baseline (the baseline

@@ -26,6 +26,7 @@
 #include "core/trace_kernels.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -237,9 +238,14 @@ void distant_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool 
 
 }  // namespace
 
+uint64_t new_pass_id() {
+  static std::atomic<uint64_t> last{0};
+  return ++last;
+}
+
 template <int W>
 void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& settings, const std::vector<LightInfo>& lights,
-                     VisibilityCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1,
+                     uint64_t pass, VisibilityCounts& out, std::vector<std::vector<RTCRay>>* rows_out, int y0, int y1,
                      TraceStats& st) {
   const int w = g.width();
   const size_t npx = size_t(w) * size_t(g.height());
@@ -276,13 +282,16 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   }
   uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
   constexpr int kSeenBits = 10;
-  // Kept by the thread like the row arrays (zeroing the whole table on every block of rows cost
-  // a few percent of temple's pass); every slot is emptied here, so nothing from an earlier call
-  // (another scene, time or G-buffer) is reused: no pixel has the background id.
+  // Kept by the thread like the row arrays, and its triangles from block to block of the same
+  // pass (a block is a few rows: rebuilding the triangles for each cost temple's pass several
+  // percent). A new pass empties every slot, so nothing of another scene, time or G-buffer is
+  // reused: no pixel has the background id.
   thread_local std::vector<TriangleCache> seen;
-  if (vector_surfaces) {
+  thread_local uint64_t seen_pass = 0;
+  if (vector_surfaces && (seen_pass != pass || seen.size() != size_t(1) << kSeenBits)) {
     seen.resize(size_t(1) << kSeenBits);
     for (TriangleCache& slot : seen) slot.id = kBackgroundId;
+    seen_pass = pass;
   }
   alignas(64) float u0[kChunk], u1[kChunk], dx[kChunk], dy[kChunk], dz[kChunk], tfar[kChunk];
   alignas(64) bool ok[kChunk];
@@ -630,9 +639,9 @@ void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_
   st.covered_pixels = cov;
 }
 
-template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
+template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&, uint64_t,
                                  VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
-template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
+template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&, uint64_t,
                                   VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
 template void ao_rays_baseline<8>(const AoPixels&, int, float, Batch<8>&);
 template void ao_rays_baseline<16>(const AoPixels&, int, float, Batch<16>&);
