@@ -489,8 +489,7 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
   }
 }
 
-DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, uint32_t id, uint32_t prim, int cur,
-                                         uint64_t& cov) {
+DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, RowTriangles& t, uint64_t& cov) {
   // Element i of 16 interleaved vec2: x from float 2i, y from 2i + 1 (of two 16-float loads).
   const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
   const __m512i odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
@@ -501,12 +500,29 @@ DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, 
     const __mmask16 live = __mmask16((1u << n) - 1u);
     const __m512i ids = _mm512_maskz_loadu_epi32(live, io.ids + x);
     const __mmask16 on = _mm512_mask_cmpneq_epi32_mask(live, ids, background);
+    // Each covered pixel's row triangle: the pixels on one triangle at a time, taking the
+    // triangles in the order their first pixels come (as the loop would select them).
+    __m512i rows = _mm512_setzero_si512();
     if (on) {
-      if (cur < 0) return x;
       const __m512i prims = _mm512_maskz_loadu_epi32(on, io.prims + x);
-      if (_mm512_mask_cmpneq_epi32_mask(on, ids, _mm512_set1_epi32(int(id))) |
-          _mm512_mask_cmpneq_epi32_mask(on, prims, _mm512_set1_epi32(int(prim))))
-        return x;
+      __mmask16 left = on;
+      if (t.tc && t.tc->resolved && t.cur >= 0) {
+        const __mmask16 same = _mm512_mask_cmpeq_epi32_mask(left, ids, _mm512_set1_epi32(int(t.tc->id))) &
+                               _mm512_mask_cmpeq_epi32_mask(left, prims, _mm512_set1_epi32(int(t.tc->prim)));
+        rows = _mm512_mask_mov_epi32(rows, same, _mm512_set1_epi32(t.cur));
+        left = __mmask16(left & ~same);
+      }
+      while (left) {
+        const int k = __builtin_ctz(left);
+        const uint32_t id = io.ids[x + k], prim = io.prims[x + k];
+        select_triangle(t, id, prim);
+        if (!t.tc->resolved) return x;  // the loop does this block (its state is one it can be in)
+        add_row_triangle(t);
+        const __mmask16 same = _mm512_mask_cmpeq_epi32_mask(left, ids, _mm512_set1_epi32(int(id))) &
+                               _mm512_mask_cmpeq_epi32_mask(left, prims, _mm512_set1_epi32(int(prim)));
+        rows = _mm512_mask_mov_epi32(rows, same, _mm512_set1_epi32(t.cur));
+        left = __mmask16(left & ~same);
+      }
     }
     const __mmask16 off = live & __mmask16(~on);
     store_bytes_x16(io.kind + x, _mm512_cvtepi32_epi8(_mm512_maskz_set1_epi32(on, 1)), live);
@@ -515,7 +531,7 @@ DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, 
     for (int k = 0; k < 9; ++k) _mm512_mask_storeu_ps(io.planes[k] + x, off, zero);
     if (!on) continue;
     cov += uint64_t(__builtin_popcount(on));
-    _mm512_mask_storeu_epi32(io.tri_of + x, on, _mm512_set1_epi32(cur));
+    _mm512_mask_storeu_epi32(io.tri_of + x, on, rows);
     // Masked loads: nothing is read past the row's last pixel.
     const float* b = &io.bary[x].x;
     const __m512 b_lo = _mm512_maskz_loadu_ps(lanes_below(2 * n), b),

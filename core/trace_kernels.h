@@ -494,13 +494,43 @@ struct SurfaceInputs {
   float *b1, *b2, *gx, *gy, *gz;
   float* const __restrict* planes;  // px, py, pz, nx, ny, nz, ox, oy, oz
 };
+// The loop's triangle state (visibility_rows): the triangle of the last covered pixel (tc, a slot
+// of the thread's table `seen`, 1 << kSeenBits slots) and its row triangle (cur, -1 while none),
+// ntri row triangles so far (VisibilityRow::tris).
+constexpr int kSeenBits = 10;
+struct RowTriangles {
+  const RtScene* rt = nullptr;
+  TriangleCache* seen = nullptr;
+  VisibilityRow* r = nullptr;
+  const TriangleCache* tc = nullptr;
+  int cur = -1;
+  int ntri = 0;
+};
+// tc becomes triangle (id, prim), rebuilt unless its slot holds it; cur = -1.
+inline void select_triangle(RowTriangles& t, uint32_t id, uint32_t prim) {
+  TriangleCache& slot = t.seen[size_t(((id * 0x9E3779B1u) ^ (prim * 0x85EBCA77u)) >> (32 - kSeenBits))];
+  if (slot.id != id || slot.prim != prim) update_triangle(*t.rt, slot, id, prim);
+  t.tc = &slot;
+  t.cur = -1;
+}
+// cur becomes a new row triangle holding tc (resolved): v0, v1, v2, n and error_m or -1.
+inline void add_row_triangle(RowTriangles& t) {
+  VisibilityRow& r = *t.r;
+  const TriangleCache& c = *t.tc;
+  t.cur = t.ntri++;
+  if (r.tris.size() < 14 * size_t(t.ntri)) r.tris.resize(14 * size_t(t.ntri) * 2);
+  double* v = &r.tris[14 * size_t(t.cur)];
+  for (int k = 0; k < 3; ++k) v[k] = c.v[0][k], v[3 + k] = c.v[1][k], v[6 + k] = c.v[2][k], v[9 + k] = c.n[k];
+  v[12] = c.check_error ? c.error_m : -1.0;
+}
 // That loop over pixels x, x + 1, ... of a row of width w, 16 at a time, for as long as every
-// covered pixel of a block lies on the triangle (id, prim), row triangle `cur` (resolved; cur <
-// 0: blocks of background only): a background pixel gets kind 0, not covered, a zero surface
-// and a valid origin; a covered one kind 1, row triangle cur, its barycentrics and geometric
-// normal (the same values the loop writes). Returns the first pixel of the block it left to the
-// loop (w when none) and adds the covered pixels to cov.
-int surface_inputs_x16(const SurfaceInputs& io, int x, int w, uint32_t id, uint32_t prim, int cur, uint64_t& cov);
+// covered pixel of a block lies on a resolved triangle: a background pixel gets kind 0, not
+// covered, a zero surface and a valid origin; a covered one kind 1, its row triangle (t.cur
+// where it lies on t.tc, else one selected and added as the loop does), its barycentrics and
+// geometric normal: the same values the loop writes. Returns the first pixel of the block it
+// left to the loop (one with a triangle that is not resolved; w when none) and adds the covered
+// pixels of the blocks it did to cov.
+int surface_inputs_x16(const SurfaceInputs& io, int x, int w, RowTriangles& t, uint64_t& cov);
 // What stage 3 counts of the pairs that do not trace (TraceStats' fields of the same names).
 struct PairTally {
   uint64_t range = 0, inside = 0, facing = 0, invalid = 0;

@@ -281,7 +281,6 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     all_single = all_single && li.samples == 1;
   }
   uint64_t invalid = 0, unres = 0, facing = 0, range = 0, inside = 0, cov = 0;
-  constexpr int kSeenBits = 10;
   // Kept by the thread like the row arrays, and its triangles from block to block of the same
   // pass (a block is a few rows: rebuilding the triangles for each cost temple's pass several
   // percent). A new pass empties every slot, so nothing of another scene, time or G-buffer is
@@ -309,7 +308,6 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
       // Triangles and G-buffer values by pixel here, the points and origins in surfaces_x16 (or
       // surfaces_x8); what it cannot do (unresolved ids, triangles whose own error needs the
       // per-pixel test, normals oriented by the camera) surface_at does, with the same cache.
-      int ntri = 0, cur = -1;  // cur: the row triangle of the cache's triangle (-1: none yet)
       const auto set = [&](size_t i, const Surface& s) {
         r.covered[i] = 1;
         r.px[i] = s.p.x, r.py[i] = s.p.y, r.pz[i] = s.p.z;
@@ -341,19 +339,17 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
           for (int k = 0; k < 9; ++k) planes[k][i] = v[k];
           origin_ok[i] = origin_valid(sf.origin) ? 1 : 0;
         };
-        const TriangleCache* tc = nullptr;  // the triangle of the previous covered pixel
+        RowTriangles tri{&rt, seen.data(), &r};
 #if DHR_TRACE_X86_KERNELS
         const SurfaceInputs io{ids, prims, bary, gnorm, kind, covered, origin_ok, tri_of, b1, b2, gx, gy, gz, planes};
         int scalar_until = 0;  // the block surface_inputs_x16 left last, done here pixel by pixel
 #endif
         for (int x = 0; x < w; ++x) {
 #if DHR_TRACE_X86_KERNELS
-          // Runs of pixels on the current triangle or the background, 16 at a time.
+          // 16 pixels at a time while their triangles are resolved.
           if (x16 && x >= scalar_until) {
-            const bool on_tri = tc && tc->resolved && cur >= 0;
             const uint64_t before = cov;
-            x = surface_inputs_x16(io, x, w, on_tri ? tc->id : kBackgroundId, on_tri ? tc->prim : 0, on_tri ? cur : -1,
-                                   cov);
+            x = surface_inputs_x16(io, x, w, tri, cov);
             any = any || cov != before;
             scalar_until = x + 16;
             if (x >= w) break;
@@ -371,32 +367,20 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
           ++cov;
           any = true;
           const uint32_t prim = prims[i];
-          if (!tc || id != tc->id || prim != tc->prim) {
-            // Rebuilt triangles are kept by (id, prim) (direct-mapped): the next rows mostly
-            // see the same ones. A rebuild gives the same values, so this changes no bit.
-            TriangleCache& slot = seen[size_t(((id * 0x9E3779B1u) ^ (prim * 0x85EBCA77u)) >> (32 - kSeenBits))];
-            if (slot.id != id || slot.prim != prim) update_triangle(rt, slot, id, prim);
-            tc = &slot;
-            cur = -1;
-          }
-          if (!tc->resolved) {
+          // Rebuilt triangles are kept by (id, prim) (direct-mapped): the next rows mostly see
+          // the same ones. A rebuild gives the same values, so this changes no bit.
+          if (!tri.tc || id != tri.tc->id || prim != tri.tc->prim) select_triangle(tri, id, prim);
+          if (!tri.tc->resolved) {
             Surface s;
-            TriangleCache c = *tc;
+            TriangleCache c = *tri.tc;
             surface_at(rt, g, x, y, s, unres, c);  // c holds the triangle: no rebuild
             set_here(i, s);
             kind[i] = 2;
             continue;
           }
-          if (cur < 0) {
-            cur = ntri++;
-            if (r.tris.size() < 14 * size_t(ntri)) r.tris.resize(14 * size_t(ntri) * 2);
-            double* t = &r.tris[14 * size_t(cur)];
-            for (int k = 0; k < 3; ++k)
-              t[k] = tc->v[0][k], t[3 + k] = tc->v[1][k], t[6 + k] = tc->v[2][k], t[9 + k] = tc->n[k];
-            t[12] = tc->check_error ? tc->error_m : -1.0;
-          }
+          if (tri.cur < 0) add_row_triangle(tri);
           kind[i] = 1;
-          tri_of[i] = cur;
+          tri_of[i] = tri.cur;
           b1[i] = bary[i].x, b2[i] = bary[i].y;
           gx[i] = gnorm[i].x, gy[i] = gnorm[i].y, gz[i] = gnorm[i].z;
         }
