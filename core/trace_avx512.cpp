@@ -8,13 +8,16 @@
 // bit (tests/test_trace.cpp: TraceAo.WideKernelsGiveTheSameBits).
 //
 // The visibility pass's AVX-512 kernels (same choice at run time, TraceSettings::wide_kernels):
-// stage 1 (surfaces_x16: surface points, orientation and origins of a row, 16 pixels at a time
-// from a per-row triangle table), stage 2 (sphere_light_row_x16: classification, compaction and
-// the hard or single jittered ray; distant_light_row_x16), stage 3 (trace_pairs_x16: the
-// traced pairs gathered into packets) and soft_pair_rays_x16 (the cone loop of a soft light
-// with S > 1 samples per pixel, as the ground truth traces). Same rays and counts as
-// core/trace_rows.cpp's kernels, bit for bit (tests/test_trace_bits.cpp pins them by hash on
-// every scene with lights).
+// stage 1 (surface_inputs_x16: the G-buffer's ids, barycentrics and normals of a row into the
+// per-row triangle table's terms, 16 pixels at a time; surfaces_x16: surface points,
+// orientation and origins from that table), stage 2 (sphere_light_row_x16: classification,
+// compaction and the hard or single jittered ray; distant_light_row_x16), stage 3
+// (list_pairs_x16: the pairs that trace, listed; trace_pairs_x16: gathered into packets) and
+// soft_pair_rays_x16 (the cone loop of a soft light with S > 1 samples per pixel, as the
+// ground truth traces). Compressed lanes are stored from a register: AVX-512's compressing
+// store to memory is microcoded on AMD's Zen 4 (storing from a register took 8 % off temple's
+// pass). Same rays and counts as core/trace_rows.cpp's kernels, bit for bit
+// (tests/test_trace_bits.cpp pins them by hash on every scene with lights).
 // docs/performance.md has the measurements.
 //
 // Only the functions marked DHR_AVX512_TARGET are compiled for AVX-512 (core/avx512.h).
