@@ -439,6 +439,35 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
 }
 
 // Pixels whose surface faces away from every light trace no shadow ray.
+// A thread keeps the triangles it rebuilt (visibility_rows' table) from block to block of one
+// pass, never into the next: two scenes that differ only in where the ground plane lies (slid
+// within its own plane) give its triangles the same object and triangle ids; passes of the two
+// in turn on one thread must each give the counts of the baseline kernels, which keep no table.
+TEST(TraceShadows, PassesDoNotShareRebuiltTriangles) {
+  Scene here = occluders_scene();
+  here.lights.push_back(sphere_light({3, 4, 2}));
+  Scene moved = here;
+  ASSERT_EQ(moved.objects[0].id, 1u);
+  for (glm::vec3& p : moved.objects[0].mesh.positions) p += glm::vec3(2.0f, 0.0f, 1.5f);
+  RtScene rt_here(here), rt_moved(moved);
+  const Camera c = cam({0.5f, 3, 4}, {0, 0.5f, 0});
+  const auto pass = [&](RtScene& rt, const Scene& scene, bool wide) {
+    TraceSettings s;
+    s.threads = 1;
+    s.soft_shadows = false;
+    s.wide_kernels = wide;
+    const GBuffer g = rt.primary_gbuffer(c, 0.0);
+    TraceStats st;
+    return trace_visibility_counts(rt, g, plan_passes(scene, s), s, st).visible;
+  };
+  const std::vector<uint16_t> want_here = pass(rt_here, here, false), want_moved = pass(rt_moved, moved, false);
+  ASSERT_NE(want_here, want_moved);  // the floor's points differ, so some counts do
+  for (int round = 0; round < 2; ++round) {
+    EXPECT_EQ(pass(rt_here, here, true), want_here) << "round " << round;
+    EXPECT_EQ(pass(rt_moved, moved, true), want_moved) << "round " << round;
+  }
+}
+
 TEST(TraceShadows, FacingAwayTracesNoRay) {
   Scene s = base_scene();
   s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
