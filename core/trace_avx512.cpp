@@ -492,6 +492,13 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
   }
 }
 
+// The lanes of `left` whose (id, prim) is (id, prim).
+DHR_AVX512_TARGET inline __mmask16 on_triangle_x16(__mmask16 left, __m512i ids, __m512i prims, uint32_t id,
+                                                   uint32_t prim) {
+  return _mm512_mask_cmpeq_epi32_mask(left, ids, _mm512_set1_epi32(int(id))) &
+         _mm512_mask_cmpeq_epi32_mask(left, prims, _mm512_set1_epi32(int(prim)));
+}
+
 DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, RowTriangles& t, uint64_t& cov) {
   // Element i of 16 interleaved vec2: x from float 2i, y from 2i + 1 (of two 16-float loads).
   const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
@@ -500,7 +507,7 @@ DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, 
   const __m512 zero = _mm512_setzero_ps();
   for (; x < w; x += 16) {
     const int n = std::min(16, w - x);
-    const __mmask16 live = __mmask16((1u << n) - 1u);
+    const __mmask16 live = lanes_below(n);
     const __m512i ids = _mm512_maskz_loadu_epi32(live, io.ids + x);
     const __mmask16 on = _mm512_mask_cmpneq_epi32_mask(live, ids, background);
     // Each covered pixel's row triangle: the pixels on one triangle at a time, taking the
@@ -510,8 +517,7 @@ DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, 
       const __m512i prims = _mm512_maskz_loadu_epi32(on, io.prims + x);
       __mmask16 left = on;
       if (t.tc && t.tc->resolved && t.cur >= 0) {
-        const __mmask16 same = _mm512_mask_cmpeq_epi32_mask(left, ids, _mm512_set1_epi32(int(t.tc->id))) &
-                               _mm512_mask_cmpeq_epi32_mask(left, prims, _mm512_set1_epi32(int(t.tc->prim)));
+        const __mmask16 same = on_triangle_x16(left, ids, prims, t.tc->id, t.tc->prim);
         rows = _mm512_mask_mov_epi32(rows, same, _mm512_set1_epi32(t.cur));
         left = __mmask16(left & ~same);
       }
@@ -521,8 +527,7 @@ DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, 
         select_triangle(t, id, prim);
         if (!t.tc->resolved) return x;  // the loop does this block (its state is one it can be in)
         add_row_triangle(t);
-        const __mmask16 same = _mm512_mask_cmpeq_epi32_mask(left, ids, _mm512_set1_epi32(int(id))) &
-                               _mm512_mask_cmpeq_epi32_mask(left, prims, _mm512_set1_epi32(int(prim)));
+        const __mmask16 same = on_triangle_x16(left, ids, prims, id, prim);
         rows = _mm512_mask_mov_epi32(rows, same, _mm512_set1_epi32(t.cur));
         left = __mmask16(left & ~same);
       }

@@ -347,6 +347,7 @@ enum PairCode : uint8_t { kPairRays = 0, kPairRange = 1, kPairInside = 2, kPairF
 struct VisibilityRow {
   static constexpr size_t kRowPad = 16;
   int w = 0;
+  int lights = 0;
   std::vector<uint8_t> covered, origin_ok;
   std::vector<float> px, py, pz, nx, ny, nz, ox, oy, oz;
   std::vector<uint64_t> h;   // PixelRng hash per pixel
@@ -355,7 +356,8 @@ struct VisibilityRow {
   // lanes of padding so that 4-, 8- and 16-lane loads and stores past the end stay inside.
   std::vector<float> t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11, t12;
   std::vector<float> u0, u1;  // one sample's uniforms per pixel
-  // Per light and pixel.
+  // Per light and pixel (code and ok with kRowPad bytes of padding: list_pairs_x16 reads 16 at
+  // a time).
   std::vector<uint8_t> code, ok;
   std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
   std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
@@ -373,8 +375,8 @@ struct VisibilityRow {
   std::vector<float> b1, b2, gx, gy, gz;
   std::vector<double> tris;
 
-  VisibilityRow(int width, int lights) : w(width) {
-    const size_t n = size_t(width), nl = n * size_t(lights);
+  VisibilityRow(int width, int light_count) : w(width), lights(light_count) {
+    const size_t n = size_t(width), nl = n * size_t(light_count);
     // Per-pixel arrays padded too: the 16-lane kernels (core/trace_avx512.cpp) load whole
     // blocks; the padding stays zero (an uncovered pixel) and nothing is stored there.
     for (auto* v : {&covered, &origin_ok}) v->assign(n + kRowPad, 0);

@@ -257,7 +257,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   // few rows: allocating them per block cost several percent of a pass). Every value a row
   // reads is written for that row first; the padding stays zero.
   thread_local std::unique_ptr<VisibilityRow> row_arrays;
-  if (!row_arrays || row_arrays->w != w || row_arrays->code.size() != size_t(w) * size_t(nl) + VisibilityRow::kRowPad)
+  if (!row_arrays || row_arrays->w != w || row_arrays->lights != nl)
     row_arrays = std::make_unique<VisibilityRow>(w, nl);
   VisibilityRow& r = *row_arrays;
 #if DHR_TRACE_X86_KERNELS
@@ -428,12 +428,14 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     if (all_single && (W == 16 ? x16 : x8)) {
       // The pairs that trace, listed; trace_pairs_x16 or trace_pairs_x8 makes the packets.
       int n = 0;
-      if (W == 16 && nl <= kListPairsMaxLights) {
-        PairTally tally;
-        n = list_pairs_x16(r, nl, &out.visible[size_t(y) * size_t(w)], npx, tally);
-        range += tally.range, inside += tally.inside, facing += tally.facing, invalid += tally.invalid;
-        if constexpr (W == 16) trace_pairs_x16(r, n, batch);
-        continue;
+      if constexpr (W == 16) {
+        if (nl <= kListPairsMaxLights) {
+          PairTally tally;
+          n = list_pairs_x16(r, nl, &out.visible[size_t(y) * size_t(w)], npx, tally);
+          range += tally.range, inside += tally.inside, facing += tally.facing, invalid += tally.invalid;
+          trace_pairs_x16(r, n, batch);
+          continue;
+        }
       }
       for (int x = 0; x < w; ++x) {
         if (!r.covered[size_t(x)]) continue;

@@ -438,7 +438,6 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
   }
 }
 
-// Pixels whose surface faces away from every light trace no shadow ray.
 // A thread keeps the triangles it rebuilt (visibility_rows' table) from block to block of one
 // pass, never into the next: two scenes that differ only in where the ground plane lies (slid
 // within its own plane) give its triangles the same object and triangle ids; passes of the two
@@ -468,6 +467,7 @@ TEST(TraceShadows, PassesDoNotShareRebuiltTriangles) {
   }
 }
 
+// Pixels whose surface faces away from every light trace no shadow ray.
 TEST(TraceShadows, FacingAwayTracesNoRay) {
   Scene s = base_scene();
   s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
