@@ -559,65 +559,182 @@ DHR_AVX512_TARGET int surface_inputs_x16(const SurfaceInputs& io, int x, int w, 
   return w;
 }
 
-DHR_AVX512_TARGET int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts, size_t npx, PairTally& tally) {
+// Bit i of m at bit NL * i (i < 16): a light's pairs among a block's 16 * NL in pixel then
+// light order (the constants spread the bits in halving steps).
+template <int NL>
+constexpr uint64_t spread_bits(uint64_t x) {
+  x &= 0xffffu;
+  if constexpr (NL == 2) {
+    x = (x | x << 8) & 0x00ff00ffu;
+    x = (x | x << 4) & 0x0f0f0f0fu;
+    x = (x | x << 2) & 0x33333333u;
+    x = (x | x << 1) & 0x55555555u;
+  } else if constexpr (NL == 3) {
+    x = (x | x << 16) & 0x0000ff0000ffull;
+    x = (x | x << 8) & 0x00f00f00f00full;
+    x = (x | x << 4) & 0x0c30c30c30c3ull;
+    x = (x | x << 2) & 0x249249249249ull;
+  } else if constexpr (NL == 4) {
+    x = (x | x << 24) & 0x000000ff000000ffull;
+    x = (x | x << 12) & 0x000f000f000f000full;
+    x = (x | x << 6) & 0x0303030303030303ull;
+    x = (x | x << 3) & 0x1111111111111111ull;
+  }
+  return x;
+}
+// Each step maps a | b to the steps of a and b or-ed, so the single bits check every mask.
+template <int NL>
+constexpr bool spread_bits_checked() {
+  for (int i = 0; i < 16; ++i)
+    if (spread_bits<NL>(uint64_t(1) << i) != uint64_t(1) << (NL * i)) return false;
+  return spread_bits<NL>(0) == 0 && spread_bits<NL>(0x10000u) == 0;
+}
+static_assert(spread_bits_checked<1>() && spread_bits_checked<2>() && spread_bits_checked<3>() &&
+              spread_bits_checked<4>());
+
+// Chunk q of a block's 16 * NL pairs in pixel then light order: lane i is pair 16q + i, the
+// block's pixel (16q + i) / NL and light (16q + i) % NL.
+template <int NL>
+struct PairChunks {
+  alignas(64) int32_t pixel[NL][16];
+  alignas(64) int32_t light[NL][16];
+  constexpr PairChunks() : pixel{}, light{} {
+    for (int q = 0; q < NL; ++q)
+      for (int i = 0; i < 16; ++i) pixel[q][i] = (16 * q + i) / NL, light[q][i] = (16 * q + i) % NL;
+  }
+};
+
+// The codes of a block's 16 pixels for each light: the pairs that do not trace counted (and
+// their counters set), the ones that trace returned per light in traced. Returns their union.
+DHR_AVX512_TARGET inline __mmask16 classify_pairs_x16(const VisibilityRow& r, int nl, int x, __mmask16 cov,
+                                                       uint16_t* counts, size_t npx, PairTally& tally,
+                                                       __mmask16* traced) {
   const int w = r.w;
-  const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-  const __m128i zero = _mm_setzero_si128();
+  __mmask16 any = 0;
+  for (int l = 0; l < nl; ++l) {
+    const size_t i = size_t(l) * size_t(w) + size_t(x);
+    const __m512i code = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.code[i])));
+    const __mmask16 range = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairRange));
+    const __mmask16 inside = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairInside));
+    const __mmask16 facing = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairFacing));
+    const __mmask16 rays = cov & __mmask16(~(range | inside | facing));
+    const __m512i ok = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.ok[i])));
+    const __mmask16 t = _mm512_mask_cmpneq_epi32_mask(rays, ok, _mm512_setzero_si512());
+    const __mmask16 invalid = rays & __mmask16(~t);
+    tally.range += uint64_t(__builtin_popcount(range));
+    tally.facing += uint64_t(__builtin_popcount(facing));
+    tally.inside += uint64_t(__builtin_popcount(inside));
+    tally.invalid += uint64_t(__builtin_popcount(invalid));
+    uint16_t* c = counts + size_t(l) * npx + size_t(x);
+    for (unsigned m = inside; m; m &= m - 1) c[__builtin_ctz(m)] = 1;
+    for (unsigned m = invalid; m; m &= m - 1) ++c[__builtin_ctz(m)];
+    traced[l] = t;
+    any |= t;
+  }
+  return any;
+}
+
+// list_pairs_x16 for rows of NL <= kListPairsVectorLights lights: a block's traced pairs in
+// list order by permuting each light's values into the chunks of pixel then light order and
+// compressing each chunk by its traced lanes, in registers (a compressing store to memory is
+// microcoded and slow on AMD's Zen 4). What lies past the n-th entry is overwritten later or
+// never read; pair_ray and pair_count have kRowPad entries past the most a row can list.
+template <int NL>
+DHR_AVX512_TARGET int list_pairs_vector(VisibilityRow& r, uint16_t* counts, size_t npx, PairTally& tally) {
+  static constexpr PairChunks<NL> kChunks{};
+  const int w = r.w;
+  __m512i pixel[NL];
+  __mmask16 from[NL][NL];  // lanes of chunk q on light l
+  __m512i offset[NL][2];   // bytes from a block's light-0 counter to each lane's, 8 lanes a half
+  for (int q = 0; q < NL; ++q) {
+    pixel[q] = _mm512_load_si512(kChunks.pixel[q]);
+    const __m512i light = _mm512_load_si512(kChunks.light[q]);
+    for (int l = 0; l < NL; ++l) from[q][l] = _mm512_cmpeq_epi32_mask(light, _mm512_set1_epi32(l));
+    for (int half = 0; half < 2; ++half) {
+      const __m512i l64 = _mm512_cvtepi32_epi64(half ? _mm512_extracti64x4_epi64(light, 1) : _mm512_castsi512_si256(light));
+      const __m512i p64 = _mm512_cvtepi32_epi64(half ? _mm512_extracti64x4_epi64(pixel[q], 1) : _mm512_castsi512_si256(pixel[q]));
+      const __m512i elements = _mm512_add_epi64(_mm512_mullo_epi64(l64, _mm512_set1_epi64(int64_t(npx))), p64);
+      offset[q][half] = _mm512_slli_epi64(elements, 1);  // uint16_t counters
+    }
+  }
+  float* const out[7] = {r.pair_ray[0].data(), r.pair_ray[1].data(), r.pair_ray[2].data(), r.pair_ray[3].data(),
+                         r.pair_ray[4].data(), r.pair_ray[5].data(), r.pair_ray[6].data()};
+  const float* const dir[4] = {r.dx.data(), r.dy.data(), r.dz.data(), r.tfar.data()};
   int n = 0;
-  __mmask16 listed[kListPairsMaxLights];
   for (int x = 0; x < w; x += 16) {
     const __mmask16 live = lanes_below(w - x);
     // Bytes past the row (and past the last light's row) are padding: read, never used.
     const __m128i covered = _mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)]));
-    const __mmask16 cov = live & __mmask16(~_mm_movemask_epi8(_mm_cmpeq_epi8(covered, zero)));
+    const __mmask16 cov = live & __mmask16(~_mm_movemask_epi8(_mm_cmpeq_epi8(covered, _mm_setzero_si128())));
     if (!cov) continue;
-    __mmask16 any = 0;
-    for (int l = 0; l < nl; ++l) {
-      const size_t i = size_t(l) * size_t(w) + size_t(x);
-      const __m512i code =
-          _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.code[i])));
-      const __mmask16 range = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairRange));
-      const __mmask16 inside = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairInside));
-      const __mmask16 facing = _mm512_mask_cmpeq_epi32_mask(cov, code, _mm512_set1_epi32(kPairFacing));
-      const __mmask16 rays = cov & __mmask16(~(range | inside | facing));
-      const __m512i ok = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.ok[i])));
-      const __mmask16 traced = _mm512_mask_cmpneq_epi32_mask(rays, ok, _mm512_setzero_si512());
-      const __mmask16 invalid = rays & __mmask16(~traced);
-      tally.range += uint64_t(__builtin_popcount(range));
-      tally.facing += uint64_t(__builtin_popcount(facing));
-      tally.inside += uint64_t(__builtin_popcount(inside));
-      tally.invalid += uint64_t(__builtin_popcount(invalid));
-      uint16_t* c = counts + size_t(l) * npx + size_t(x);
-      for (unsigned m = inside; m; m &= m - 1) c[__builtin_ctz(m)] = 1;
-      for (unsigned m = invalid; m; m &= m - 1) ++c[__builtin_ctz(m)];
-      listed[l] = traced;
-      any |= traced;
+    __mmask16 traced[NL];
+    if (!classify_pairs_x16(r, NL, x, cov, counts, npx, tally, traced)) continue;
+    uint64_t listed = 0;  // bit j: pair j of the block in pixel then light order traces
+    for (int l = 0; l < NL; ++l) listed |= spread_bits<NL>(traced[l]) << l;
+    // The origins by pixel; the directions and tfar by light and pixel (the last light's
+    // arrays end with the row: masked loads).
+    const __m512 origin[3] = {_mm512_loadu_ps(&r.ox[size_t(x)]), _mm512_loadu_ps(&r.oy[size_t(x)]),
+                              _mm512_loadu_ps(&r.oz[size_t(x)])};
+    __m512 ray[4][NL];
+    for (int c = 0; c < 4; ++c)
+      for (int l = 0; l < NL; ++l) ray[c][l] = _mm512_maskz_loadu_ps(live, dir[c] + size_t(l) * size_t(w) + size_t(x));
+    const __m512i base = _mm512_set1_epi64(int64_t(reinterpret_cast<uintptr_t>(counts + size_t(x))));
+    for (int q = 0; q < NL; ++q) {
+      const __mmask16 m = __mmask16(listed >> (16 * q));
+      if (!m) continue;
+      for (int c = 0; c < 3; ++c) {
+        const __m512 v = NL == 1 ? origin[c] : _mm512_permutexvar_ps(pixel[q], origin[c]);
+        _mm512_storeu_ps(out[c] + n, _mm512_maskz_compress_ps(m, v));
+      }
+      for (int c = 0; c < 4; ++c) {
+        __m512 v = ray[c][0];
+        if constexpr (NL > 1) {
+          v = _mm512_permutexvar_ps(pixel[q], v);
+          for (int l = 1; l < NL; ++l) v = _mm512_mask_permutexvar_ps(v, from[q][l], pixel[q], ray[c][l]);
+        }
+        _mm512_storeu_ps(out[3 + c] + n, _mm512_maskz_compress_ps(m, v));
+      }
+      const int n_lo = __builtin_popcount(m & 0xffu);
+      _mm512_storeu_si512(&r.pair_count[size_t(n)],
+                          _mm512_maskz_compress_epi64(__mmask8(m), _mm512_add_epi64(base, offset[q][0])));
+      _mm512_storeu_si512(&r.pair_count[size_t(n + n_lo)],
+                          _mm512_maskz_compress_epi64(__mmask8(m >> 8), _mm512_add_epi64(base, offset[q][1])));
+      n += __builtin_popcount(m);
     }
-    if (!any) continue;
-    if (nl == 1) {
-      // Pixel order is the list's order: the lanes compressed in registers and stored whole
-      // (a compressing store to memory is microcoded and slow on AMD's Zen 4). What lies past
-      // the n-th entry is overwritten later or never read; the arrays have kRowPad entries of
-      // padding past the most a row can list (n + 16 <= x + 16 <= w + kRowPad).
-      const __m512i xs = _mm512_maskz_compress_epi32(any, _mm512_add_epi32(iota, _mm512_set1_epi32(x)));
-      _mm512_storeu_si512(&r.pair[size_t(n)], xs);
-      _mm512_storeu_si512(&r.pair_x[size_t(n)], xs);
-      const __m512i c0 = _mm512_set1_epi64(int64_t(reinterpret_cast<uintptr_t>(counts + size_t(x))));
-      const __m512i lo = _mm512_add_epi64(c0, _mm512_setr_epi64(0, 2, 4, 6, 8, 10, 12, 14));
-      const __m512i hi = _mm512_add_epi64(lo, _mm512_set1_epi64(16));
-      const int n_lo = __builtin_popcount(any & 0xffu);
-      _mm512_storeu_si512(&r.pair_count[size_t(n)], _mm512_maskz_compress_epi64(__mmask8(any), lo));
-      _mm512_storeu_si512(&r.pair_count[size_t(n + n_lo)], _mm512_maskz_compress_epi64(__mmask8(any >> 8), hi));
-      n += __builtin_popcount(any);
-      continue;
-    }
+  }
+  return n;
+}
+
+DHR_AVX512_TARGET int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts, size_t npx, PairTally& tally) {
+  static_assert(kListPairsVectorLights == 4);
+  switch (nl) {
+    case 1: return list_pairs_vector<1>(r, counts, npx, tally);
+    case 2: return list_pairs_vector<2>(r, counts, npx, tally);
+    case 3: return list_pairs_vector<3>(r, counts, npx, tally);
+    case 4: return list_pairs_vector<4>(r, counts, npx, tally);
+    default: break;
+  }
+  // More lights: the pairs copied one by one.
+  const int w = r.w;
+  int n = 0;
+  __mmask16 traced[kListPairsMaxLights];
+  for (int x = 0; x < w; x += 16) {
+    const __mmask16 live = lanes_below(w - x);
+    const __m128i covered = _mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)]));
+    const __mmask16 cov = live & __mmask16(~_mm_movemask_epi8(_mm_cmpeq_epi8(covered, _mm_setzero_si128())));
+    if (!cov) continue;
+    const __mmask16 any = classify_pairs_x16(r, nl, x, cov, counts, npx, tally, traced);
     for (unsigned m = any; m; m &= m - 1) {
       const int k = __builtin_ctz(m);
+      const size_t px = size_t(x + k);
       for (int l = 0; l < nl; ++l) {
-        if (!((listed[l] >> k) & 1u)) continue;
-        r.pair[size_t(n)] = l * w + x + k;
-        r.pair_x[size_t(n)] = x + k;
-        r.pair_count[size_t(n)] = counts + size_t(l) * npx + size_t(x + k);
+        if (!((traced[l] >> k) & 1u)) continue;
+        const size_t i = size_t(l) * size_t(w) + px;
+        const size_t j = size_t(n);
+        r.pair_ray[0][j] = r.ox[px], r.pair_ray[1][j] = r.oy[px], r.pair_ray[2][j] = r.oz[px];
+        r.pair_ray[3][j] = r.dx[i], r.pair_ray[4][j] = r.dy[i], r.pair_ray[5][j] = r.dz[i];
+        r.pair_ray[6][j] = r.tfar[i];
+        r.pair_count[j] = counts + size_t(l) * npx + px;
         ++n;
       }
     }
@@ -746,22 +863,8 @@ DHR_AVX512_TARGET void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>&
   for (int k0 = 0; k0 < n; k0 += 16) {
     const int live = std::min(16, n - k0);
     const __mmask16 lm = __mmask16((1u << live) - 1u);
-    const __m512i pi = _mm512_maskz_loadu_epi32(lm, r.pair.data() + k0);
-    const __m512i xi = _mm512_maskz_loadu_epi32(lm, r.pair_x.data() + k0);
-    const __m512 ox = _mm512_mask_i32gather_ps(zero, lm, xi, r.ox.data(), 4);
-    const __m512 oy = _mm512_mask_i32gather_ps(zero, lm, xi, r.oy.data(), 4);
-    const __m512 oz = _mm512_mask_i32gather_ps(zero, lm, xi, r.oz.data(), 4);
-    const __m512 dx = _mm512_mask_i32gather_ps(zero, lm, pi, r.dx.data(), 4);
-    const __m512 dy = _mm512_mask_i32gather_ps(zero, lm, pi, r.dy.data(), 4);
-    const __m512 dz = _mm512_mask_i32gather_ps(zero, lm, pi, r.dz.data(), 4);
-    const __m512 tfar = _mm512_mask_i32gather_ps(zero, lm, pi, r.tfar.data(), 4);
-    _mm512_store_ps(pk.org_x, ox);
-    _mm512_store_ps(pk.org_y, oy);
-    _mm512_store_ps(pk.org_z, oz);
-    _mm512_store_ps(pk.dir_x, dx);
-    _mm512_store_ps(pk.dir_y, dy);
-    _mm512_store_ps(pk.dir_z, dz);
-    _mm512_store_ps(pk.tfar, tfar);
+    float* const to[7] = {pk.org_x, pk.org_y, pk.org_z, pk.dir_x, pk.dir_y, pk.dir_z, pk.tfar};
+    for (int c = 0; c < 7; ++c) _mm512_store_ps(to[c], _mm512_maskz_loadu_ps(lm, r.pair_ray[c].data() + k0));
     if (batch.record) {  // collect_visibility_rays: push() keeps the rays, traces nothing
       for (int l = 0; l < live; ++l)
         batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l],

@@ -361,10 +361,13 @@ struct VisibilityRow {
   std::vector<uint8_t> code, ok;
   std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
   std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
-  // The row's pairs that trace one ray each (every light with one sample, the x16 path):
-  // l * w + x, x, and the counter, in pixel then light order.
+  // The row's pairs that trace one ray each (every light with one sample), in pixel then
+  // light order: their counters; on the x8 path l * w + x and x (trace_pairs_x8 gathers the
+  // rays from there), on the x16 path the rays themselves (list_pairs_x16 copies them in list
+  // order: origin x, y, z, direction x, y, z and tfar, kRowPad floats of padding each).
   std::vector<int> pair, pair_x;
   std::vector<uint16_t*> pair_count;
+  std::vector<float> pair_ray[7];
   // Stage 1 on the x16 path (surfaces_x16): per pixel, kind (0 background, 1 on a row
   // triangle, rebuilt by the kernel; 2 done by surface_at; 3 left by the kernel to
   // surface_at), the row triangle and the G-buffer's barycentrics and geometric normal; per
@@ -393,6 +396,7 @@ struct VisibilityRow {
     for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
     for (auto* v : {&pair, &pair_x}) v->assign(nl + kRowPad, 0);
     pair_count.assign(nl + kRowPad, nullptr);
+    for (auto& v : pair_ray) v.assign(nl + kRowPad, 0.0f);
   }
 };
 
@@ -539,11 +543,14 @@ struct PairTally {
 };
 // Lights up to which list_pairs_x16 lists a row's pairs (it keeps a mask per light and block).
 constexpr int kListPairsMaxLights = 32;
+// Lights up to which it puts a block's pairs in list order by permutes and compresses.
+constexpr int kListPairsVectorLights = 4;
 // Stage 3's listing where every light takes one ray per pixel (visibility_rows' loop): for the
 // covered pixels of a row, 16 at a time, each light's pair is counted by its code (out of
 // range, inside the light: its count set to 1, facing away), counted as invalid (its count
-// incremented) or listed in r.pair, r.pair_x and r.pair_count in pixel then light order, as
-// that loop does. counts: &VisibilityCounts::visible of light 0 at the row's first pixel;
+// incremented) or listed, its ray in r.pair_ray and its counter in r.pair_count, in pixel then
+// light order, as that loop does (rows of up to kListPairsVectorLights lights in registers, the
+// rest pair by pair). counts: &VisibilityCounts::visible of light 0 at the row's first pixel;
 // light l's are npx further on. nl <= kListPairsMaxLights. Returns the number of pairs listed.
 int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts, size_t npx, PairTally& tally);
 // Stage 2 for a distant light (distant_light_row in core/trace_rows.cpp) with one sample per
@@ -553,8 +560,8 @@ void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base);
 // The S rays of a soft pair 16 at a time on AVX-512 (soft_pair_rays_x8's work, below): the
 // cone loop's rays and counts bit for bit.
 void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, uint64_t& invalid);
-// Stage 3 of the visibility pass where every light takes one ray per pixel: the n pairs of
-// r.pair (pixel then light order) 16 at a time into the packet (a row's last packet may be
+// Stage 3 of the visibility pass where every light takes one ray per pixel: the n rays
+// list_pairs_x16 listed in r.pair_ray (pixel then light order) 16 at a time into the packet (a row's last packet may be
 // partial), traced, each unoccluded ray adding one to its counter; with batch.record, the rays
 // are kept instead (Batch::push).
 void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch);

@@ -438,6 +438,58 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
   }
 }
 
+// One ray per light and pixel (hard shadows, and soft ones with one sample), for every light
+// count up to past the listing's vector ones (core/trace_avx512.cpp's list_pairs_x16: 1 to 4
+// lights in registers, more pair by pair): the baseline kernels' counts, statistics and rays,
+// in their order, bit for bit. The lights lie on both sides of the plane, some out of range,
+// so that a block's pairs mix every code.
+TEST(TraceShadows, WideKernelsGiveTheSameBitsForEveryLightCount) {
+  Light candidates[] = {sphere_light({0.5f, 2.5f, -1.0f}, 0.6f), distant_light({-0.4f, 1.0f, 0.3f}, 8.0f),
+                        sphere_light({0.0f, -2.0f, 0.0f}, 0.5f), sphere_light({-2.0f, 1.5f, 1.0f}, 0.3f),
+                        sphere_light({2.5f, 0.6f, 0.5f}, 0.2f),  distant_light({0.3f, -1.0f, 0.2f}, 8.0f),
+                        sphere_light({1.0f, 3.0f, 2.0f}, 0.4f)};
+  candidates[0].range_m = 4.5f;  // some pairs out of range
+  candidates[3].range_m = 2.5f;
+  for (size_t nl = 1; nl <= std::size(candidates); ++nl) {
+    Scene s = occluders_scene();
+    for (size_t l = 0; l < nl; ++l) s.lights.push_back(candidates[l]);
+    RtScene rt(s);
+    // 61 pixels a row: the last block of 16 is partial.
+    const GBuffer g = rt.primary_gbuffer(Camera::look_at({0, 2, 4}, {0, 0.3f, 0}, {0, 1, 0}, 60.0f, 61, 37, 0.05f, 1000.0f), 0.0);
+    for (bool soft : {false, true}) {
+      SCOPED_TRACE(std::to_string(nl) + (soft ? " lights, soft" : " lights, hard"));
+      TraceSettings wide, base;
+      wide.frame = base.frame = 3;
+      wide.soft_shadows = base.soft_shadows = soft;
+      base.wide_kernels = false;
+      wide.threads = 2;
+      base.threads = 1;
+      const PassPlan plan = plan_passes(s, wide);
+      TraceStats sw, sb;
+      const VisibilityCounts cw = trace_visibility_counts(rt, g, plan, wide, sw);
+      const VisibilityCounts cb = trace_visibility_counts(rt, g, plan, base, sb);
+      EXPECT_EQ(cw.visible, cb.visible);
+      EXPECT_EQ(sw.shadow_rays, sb.shadow_rays);
+      EXPECT_EQ(sw.invalid_rays, sb.invalid_rays);
+      EXPECT_EQ(sw.shadow_skipped_facing, sb.shadow_skipped_facing);
+      EXPECT_EQ(sw.shadow_skipped_range, sb.shadow_skipped_range);
+      size_t lit = 0, dark = 0;
+      for (uint16_t v : cw.visible) lit += v > 0, dark += v == 0;
+      EXPECT_GT(lit, 0u);
+      EXPECT_GT(dark, 0u);
+      const std::vector<RTCRay> rw = collect_visibility_rays(rt, g, plan, wide);
+      const std::vector<RTCRay> rb = collect_visibility_rays(rt, g, plan, base);
+      ASSERT_EQ(rw.size(), rb.size());
+      EXPECT_GT(rw.size(), 1000u);
+      EXPECT_GT(sb.shadow_skipped_range, 0u);  // light 0's range
+      if (nl >= 3) {
+        EXPECT_GT(sb.shadow_skipped_facing, 0u);  // light 2 lies below the plane
+      }
+      EXPECT_EQ(std::memcmp(rw.data(), rb.data(), rw.size() * sizeof(RTCRay)), 0);
+    }
+  }
+}
+
 // A thread keeps the triangles it rebuilt (visibility_rows' table) from block to block of one
 // pass, never into the next: two scenes that differ only in where the ground plane lies (slid
 // within its own plane) give its triangles the same object and triangle ids; passes of the two
