@@ -365,7 +365,7 @@ DHR_TRACE_TARGET_AVX2 void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch,
 }
 
 // Stage 3 of the visibility pass where every light takes one ray per pixel (trace_pairs_x16 in
-// 8 lanes): the n pairs of r.pair (pixel then light order) 8 at a time into the packet, traced,
+// 8 lanes): the n rays of r.pair_ray (pixel then light order) 8 at a time into the packet, traced,
 // each unoccluded ray adding one to its counter; with batch.record, the rays are kept instead.
 DHR_TRACE_TARGET_AVX2 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8>& batch) {
   auto& pk = batch.packet;
@@ -375,16 +375,8 @@ DHR_TRACE_TARGET_AVX2 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8
   for (int k0 = 0; k0 < n; k0 += 8) {
     const int live = std::min(8, n - k0);
     const __m256i lm = _mm256_cmpgt_epi32(_mm256_set1_epi32(live), iota);
-    const __m256 lm_ps = _mm256_castsi256_ps(lm);
-    const __m256i pi = _mm256_maskload_epi32(r.pair.data() + k0, lm);
-    const __m256i xi = _mm256_maskload_epi32(r.pair_x.data() + k0, lm);
-    _mm256_store_ps(pk.org_x, _mm256_mask_i32gather_ps(zero, r.ox.data(), xi, lm_ps, 4));
-    _mm256_store_ps(pk.org_y, _mm256_mask_i32gather_ps(zero, r.oy.data(), xi, lm_ps, 4));
-    _mm256_store_ps(pk.org_z, _mm256_mask_i32gather_ps(zero, r.oz.data(), xi, lm_ps, 4));
-    _mm256_store_ps(pk.dir_x, _mm256_mask_i32gather_ps(zero, r.dx.data(), pi, lm_ps, 4));
-    _mm256_store_ps(pk.dir_y, _mm256_mask_i32gather_ps(zero, r.dy.data(), pi, lm_ps, 4));
-    _mm256_store_ps(pk.dir_z, _mm256_mask_i32gather_ps(zero, r.dz.data(), pi, lm_ps, 4));
-    _mm256_store_ps(pk.tfar, _mm256_mask_i32gather_ps(zero, r.tfar.data(), pi, lm_ps, 4));
+    float* const to[7] = {pk.org_x, pk.org_y, pk.org_z, pk.dir_x, pk.dir_y, pk.dir_z, pk.tfar};
+    for (int c = 0; c < 7; ++c) _mm256_store_ps(to[c], _mm256_maskload_ps(r.pair_ray[c].data() + k0, lm));
     if (batch.record) {  // collect_visibility_rays: push() keeps the rays, traces nothing
       for (int l = 0; l < live; ++l)
         batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l],

@@ -729,13 +729,7 @@ DHR_AVX512_TARGET int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts,
       const size_t px = size_t(x + k);
       for (int l = 0; l < nl; ++l) {
         if (!((traced[l] >> k) & 1u)) continue;
-        const size_t i = size_t(l) * size_t(w) + px;
-        const size_t j = size_t(n);
-        r.pair_ray[0][j] = r.ox[px], r.pair_ray[1][j] = r.oy[px], r.pair_ray[2][j] = r.oz[px];
-        r.pair_ray[3][j] = r.dx[i], r.pair_ray[4][j] = r.dy[i], r.pair_ray[5][j] = r.dz[i];
-        r.pair_ray[6][j] = r.tfar[i];
-        r.pair_count[j] = counts + size_t(l) * npx + px;
-        ++n;
+        list_pair(r, n++, px, size_t(l) * size_t(w) + px, counts + size_t(l) * npx + px);
       }
     }
   }

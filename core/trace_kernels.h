@@ -362,10 +362,9 @@ struct VisibilityRow {
   std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
   std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
   // The row's pairs that trace one ray each (every light with one sample), in pixel then
-  // light order: their counters; on the x8 path l * w + x and x (trace_pairs_x8 gathers the
-  // rays from there), on the x16 path the rays themselves (list_pairs_x16 copies them in list
-  // order: origin x, y, z, direction x, y, z and tfar, kRowPad floats of padding each).
-  std::vector<int> pair, pair_x;
+  // light order: their counters and their rays, copied in that order (list_pair, or
+  // list_pairs_x16 16 pixels at a time): origin x, y, z, direction x, y, z and tfar, with
+  // kRowPad entries of padding each.
   std::vector<uint16_t*> pair_count;
   std::vector<float> pair_ray[7];
   // Stage 1 on the x16 path (surfaces_x16): per pixel, kind (0 background, 1 on a row
@@ -394,13 +393,22 @@ struct VisibilityRow {
 
     for (auto* v : {&code, &ok}) v->assign(nl + kRowPad, 0);
     for (auto* v : {&dx, &dy, &dz, &tfar, &wx, &wy, &wz, &ocx, &ocy, &ocz, &omc}) v->assign(nl, 0.0f);
-    for (auto* v : {&pair, &pair_x}) v->assign(nl + kRowPad, 0);
     pair_count.assign(nl + kRowPad, nullptr);
     for (auto& v : pair_ray) v.assign(nl + kRowPad, 0.0f);
   }
 };
 
 // ---- The row kernels ----
+
+// Lists pair n: pixel x's ray for the light whose arrays start at l * w (i = l * w + x), and its
+// counter.
+inline void list_pair(VisibilityRow& r, int n, size_t x, size_t i, uint16_t* count) {
+  const size_t j = size_t(n);
+  r.pair_ray[0][j] = r.ox[x], r.pair_ray[1][j] = r.oy[x], r.pair_ray[2][j] = r.oz[x];
+  r.pair_ray[3][j] = r.dx[i], r.pair_ray[4][j] = r.dy[i], r.pair_ray[5][j] = r.dz[i];
+  r.pair_ray[6][j] = r.tfar[i];
+  r.pair_count[j] = count;
+}
 
 // core/trace_rows.cpp, instantiated for W = 8 and 16 (Embree's packet width). `pass` names the
 // pass (new_pass_id(), one per call of the visibility pass): the blocks of rows one thread runs
@@ -465,7 +473,7 @@ struct SoftPair {
 // loop's rays and counts bit for bit.
 void soft_pair_rays_x8(const SoftPair& p, Batch<8>& batch, uint64_t& invalid);
 // Stage 3 where every light takes one ray per pixel, 8 pairs per packet (trace_pairs_x16's
-// work on AVX2, below).
+// work on AVX2, below): the n rays listed in r.pair_ray.
 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8>& batch);
 // Stage 1 for the pixels of kind 1, 8 at a time (surfaces_x16's work on AVX2, below).
 void surfaces_x8(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes);

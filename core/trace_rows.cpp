@@ -450,10 +450,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
             default: break;
           }
           if (r.ok[i]) {
-            r.pair[size_t(n)] = int(i);
-            r.pair_x[size_t(n)] = x;
-            r.pair_count[size_t(n)] = count;
-            ++n;
+            list_pair(r, n++, size_t(x), i, count);
           } else {
             ++invalid;
             ++*count;

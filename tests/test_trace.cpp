@@ -440,9 +440,10 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
 
 // One ray per light and pixel (hard shadows, and soft ones with one sample), for every light
 // count up to past the listing's vector ones (core/trace_avx512.cpp's list_pairs_x16: 1 to 4
-// lights in registers, more pair by pair): the baseline kernels' counts, statistics and rays,
-// in their order, bit for bit. The lights lie on both sides of the plane, some out of range,
-// so that a block's pairs mix every code.
+// lights in registers, more pair by pair, and past kListPairsMaxLights visibility_rows' own
+// loop): the baseline kernels' counts, statistics and rays, in their order, bit for bit. The
+// lights lie on both sides of the plane, some out of range, so that a block's pairs mix every
+// code.
 TEST(TraceShadows, WideKernelsGiveTheSameBitsForEveryLightCount) {
   Light candidates[] = {sphere_light({0.5f, 2.5f, -1.0f}, 0.6f), distant_light({-0.4f, 1.0f, 0.3f}, 8.0f),
                         sphere_light({0.0f, -2.0f, 0.0f}, 0.5f), sphere_light({-2.0f, 1.5f, 1.0f}, 0.3f),
@@ -450,9 +451,12 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsForEveryLightCount) {
                         sphere_light({1.0f, 3.0f, 2.0f}, 0.4f)};
   candidates[0].range_m = 4.5f;  // some pairs out of range
   candidates[3].range_m = 2.5f;
-  for (size_t nl = 1; nl <= std::size(candidates); ++nl) {
+  for (size_t nl : {1, 2, 3, 4, 5, 6, 7, 34}) {
     Scene s = occluders_scene();
-    for (size_t l = 0; l < nl; ++l) s.lights.push_back(candidates[l]);
+    for (size_t l = 0; l < nl; ++l) {  // past 7, the same lights again, moved
+      s.lights.push_back(candidates[l % std::size(candidates)]);
+      s.lights.back().position += 0.05f * float(l / std::size(candidates)) * glm::vec3(1.0f, 0.5f, -0.3f);
+    }
     RtScene rt(s);
     // 61 pixels a row: the last block of 16 is partial.
     const GBuffer g = rt.primary_gbuffer(Camera::look_at({0, 2, 4}, {0, 0.3f, 0}, {0, 1, 0}, 60.0f, 61, 37, 0.05f, 1000.0f), 0.0);
