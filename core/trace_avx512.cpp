@@ -593,14 +593,23 @@ static_assert(spread_bits_checked<1>() && spread_bits_checked<2>() && spread_bit
               spread_bits_checked<4>());
 
 // Chunk q of a block's 16 * NL pairs in pixel then light order: lane i is pair 16q + i, the
-// block's pixel (16q + i) / NL and light (16q + i) % NL.
+// block's pixel (16q + i) / NL and its light (16q + i) % NL (also as two halves of 64-bit
+// lanes, the pixel in bytes of 16-bit counters); from[q][l]: the lanes of chunk q on light l.
 template <int NL>
 struct PairChunks {
   alignas(64) int32_t pixel[NL][16];
-  alignas(64) int32_t light[NL][16];
-  constexpr PairChunks() : pixel{}, light{} {
+  alignas(64) int64_t light64[NL][2][8];
+  alignas(64) int64_t pixel_bytes[NL][2][8];
+  uint16_t from[NL][NL];
+  constexpr PairChunks() : pixel{}, light64{}, pixel_bytes{}, from{} {
     for (int q = 0; q < NL; ++q)
-      for (int i = 0; i < 16; ++i) pixel[q][i] = (16 * q + i) / NL, light[q][i] = (16 * q + i) % NL;
+      for (int i = 0; i < 16; ++i) {
+        const int j = 16 * q + i;
+        pixel[q][i] = j / NL;
+        light64[q][i / 8][i % 8] = j % NL;
+        pixel_bytes[q][i / 8][i % 8] = 2 * (j / NL);
+        from[q][j % NL] = uint16_t(from[q][j % NL] | (1u << i));
+      }
   }
 };
 
@@ -634,102 +643,95 @@ DHR_AVX512_TARGET inline __mmask16 classify_pairs_x16(const VisibilityRow& r, in
   return any;
 }
 
-// list_pairs_x16 for rows of NL <= kListPairsVectorLights lights: a block's traced pairs in
-// list order by permuting each light's values into the chunks of pixel then light order and
-// compressing each chunk by its traced lanes, in registers (a compressing store to memory is
-// microcoded and slow on AMD's Zen 4). What lies past the n-th entry is overwritten later or
-// never read; pair_ray and pair_count have kRowPad entries past the most a row can list.
-template <int NL>
-DHR_AVX512_TARGET int list_pairs_vector(VisibilityRow& r, uint16_t* counts, size_t npx, PairTally& tally) {
-  static constexpr PairChunks<NL> kChunks{};
-  const int w = r.w;
-  __m512i pixel[NL];
-  __mmask16 from[NL][NL];  // lanes of chunk q on light l
-  __m512i offset[NL][2];   // bytes from a block's light-0 counter to each lane's, 8 lanes a half
-  for (int q = 0; q < NL; ++q) {
-    pixel[q] = _mm512_load_si512(kChunks.pixel[q]);
-    const __m512i light = _mm512_load_si512(kChunks.light[q]);
-    for (int l = 0; l < NL; ++l) from[q][l] = _mm512_cmpeq_epi32_mask(light, _mm512_set1_epi32(l));
-    for (int half = 0; half < 2; ++half) {
-      const __m512i l64 = _mm512_cvtepi32_epi64(half ? _mm512_extracti64x4_epi64(light, 1) : _mm512_castsi512_si256(light));
-      const __m512i p64 = _mm512_cvtepi32_epi64(half ? _mm512_extracti64x4_epi64(pixel[q], 1) : _mm512_castsi512_si256(pixel[q]));
-      const __m512i elements = _mm512_add_epi64(_mm512_mullo_epi64(l64, _mm512_set1_epi64(int64_t(npx))), p64);
-      offset[q][half] = _mm512_slli_epi64(elements, 1);  // uint16_t counters
-    }
+// Lists the traced pairs of a block of 16 pixels (from pixel x) whose traced lanes lie on NA
+// <= kListPairsVectorLights lights, active[0] < active[1] < ...: in pixel then light order, the
+// list's order (the other lights add no pair). Each of the NA chunks of 16 lanes is permuted
+// from the lights' registers (one permute for the origins, NA for each direction plane),
+// compressed by its traced lanes in a register and stored whole (a compressing store to memory
+// is microcoded and slow on AMD's Zen 4); the counters' addresses likewise. What lies past the
+// n-th entry is overwritten later or never read: pair_ray and pair_count have kRowPad entries
+// past the most a row can list. Returns the new n.
+template <int NA>
+DHR_AVX512_TARGET int list_block_x16(VisibilityRow& r, int x, const int* active, const __mmask16* traced,
+                                     uint16_t* counts, size_t npx, int n) {
+  static constexpr PairChunks<NA> kChunks{};
+  const size_t w = size_t(r.w);
+  const __mmask16 live = lanes_below(r.w - x);
+  uint64_t listed = 0;  // bit j: the block's pair j in pixel then light order traces
+  for (int a = 0; a < NA; ++a) listed |= spread_bits<NA>(traced[active[a]]) << a;
+  // The origins by pixel; the directions and tfar by light and pixel (the last light's arrays
+  // end with the row: masked loads).
+  const __m512 origin[3] = {_mm512_loadu_ps(&r.ox[size_t(x)]), _mm512_loadu_ps(&r.oy[size_t(x)]),
+                            _mm512_loadu_ps(&r.oz[size_t(x)])};
+  const float* const dir[4] = {r.dx.data(), r.dy.data(), r.dz.data(), r.tfar.data()};
+  __m512 ray[4][NA];
+  alignas(64) int64_t first_counter[8] = {};  // active light a's counter of pixel x
+  for (int a = 0; a < NA; ++a) {
+    const size_t l = size_t(active[a]);
+    for (int c = 0; c < 4; ++c) ray[c][a] = _mm512_maskz_loadu_ps(live, dir[c] + l * w + size_t(x));
+    first_counter[a] = int64_t(reinterpret_cast<uintptr_t>(counts + l * npx + size_t(x)));
   }
+  const __m512i counter0 = _mm512_load_si512(first_counter);
   float* const out[7] = {r.pair_ray[0].data(), r.pair_ray[1].data(), r.pair_ray[2].data(), r.pair_ray[3].data(),
                          r.pair_ray[4].data(), r.pair_ray[5].data(), r.pair_ray[6].data()};
-  const float* const dir[4] = {r.dx.data(), r.dy.data(), r.dz.data(), r.tfar.data()};
-  int n = 0;
-  for (int x = 0; x < w; x += 16) {
-    const __mmask16 live = lanes_below(w - x);
-    // Bytes past the row (and past the last light's row) are padding: read, never used.
-    const __m128i covered = _mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)]));
-    const __mmask16 cov = live & __mmask16(~_mm_movemask_epi8(_mm_cmpeq_epi8(covered, _mm_setzero_si128())));
-    if (!cov) continue;
-    __mmask16 traced[NL];
-    if (!classify_pairs_x16(r, NL, x, cov, counts, npx, tally, traced)) continue;
-    uint64_t listed = 0;  // bit j: pair j of the block in pixel then light order traces
-    for (int l = 0; l < NL; ++l) listed |= spread_bits<NL>(traced[l]) << l;
-    // The origins by pixel; the directions and tfar by light and pixel (the last light's
-    // arrays end with the row: masked loads).
-    const __m512 origin[3] = {_mm512_loadu_ps(&r.ox[size_t(x)]), _mm512_loadu_ps(&r.oy[size_t(x)]),
-                              _mm512_loadu_ps(&r.oz[size_t(x)])};
-    __m512 ray[4][NL];
-    for (int c = 0; c < 4; ++c)
-      for (int l = 0; l < NL; ++l) ray[c][l] = _mm512_maskz_loadu_ps(live, dir[c] + size_t(l) * size_t(w) + size_t(x));
-    const __m512i base = _mm512_set1_epi64(int64_t(reinterpret_cast<uintptr_t>(counts + size_t(x))));
-    for (int q = 0; q < NL; ++q) {
-      const __mmask16 m = __mmask16(listed >> (16 * q));
-      if (!m) continue;
-      for (int c = 0; c < 3; ++c) {
-        const __m512 v = NL == 1 ? origin[c] : _mm512_permutexvar_ps(pixel[q], origin[c]);
-        _mm512_storeu_ps(out[c] + n, _mm512_maskz_compress_ps(m, v));
-      }
-      for (int c = 0; c < 4; ++c) {
-        __m512 v = ray[c][0];
-        if constexpr (NL > 1) {
-          v = _mm512_permutexvar_ps(pixel[q], v);
-          for (int l = 1; l < NL; ++l) v = _mm512_mask_permutexvar_ps(v, from[q][l], pixel[q], ray[c][l]);
-        }
-        _mm512_storeu_ps(out[3 + c] + n, _mm512_maskz_compress_ps(m, v));
-      }
-      const int n_lo = __builtin_popcount(m & 0xffu);
-      _mm512_storeu_si512(&r.pair_count[size_t(n)],
-                          _mm512_maskz_compress_epi64(__mmask8(m), _mm512_add_epi64(base, offset[q][0])));
-      _mm512_storeu_si512(&r.pair_count[size_t(n + n_lo)],
-                          _mm512_maskz_compress_epi64(__mmask8(m >> 8), _mm512_add_epi64(base, offset[q][1])));
-      n += __builtin_popcount(m);
+  for (int q = 0; q < NA; ++q) {
+    const __mmask16 m = __mmask16(listed >> (16 * q));
+    if (!m) continue;
+    const __m512i pixel = _mm512_load_si512(kChunks.pixel[q]);
+    for (int c = 0; c < 3; ++c) {
+      const __m512 v = NA == 1 ? origin[c] : _mm512_permutexvar_ps(pixel, origin[c]);
+      _mm512_storeu_ps(out[c] + n, _mm512_maskz_compress_ps(m, v));
     }
+    for (int c = 0; c < 4; ++c) {
+      __m512 v = ray[c][0];
+      if constexpr (NA > 1) {
+        v = _mm512_permutexvar_ps(pixel, v);
+        for (int a = 1; a < NA; ++a) v = _mm512_mask_permutexvar_ps(v, kChunks.from[q][a], pixel, ray[c][a]);
+      }
+      _mm512_storeu_ps(out[3 + c] + n, _mm512_maskz_compress_ps(m, v));
+    }
+    __m512i counter[2];
+    for (int half = 0; half < 2; ++half)
+      counter[half] = _mm512_add_epi64(_mm512_permutexvar_epi64(_mm512_load_si512(kChunks.light64[q][half]), counter0),
+                                       _mm512_load_si512(kChunks.pixel_bytes[q][half]));
+    const int n_lo = __builtin_popcount(m & 0xffu);
+    _mm512_storeu_si512(&r.pair_count[size_t(n)], _mm512_maskz_compress_epi64(__mmask8(m), counter[0]));
+    _mm512_storeu_si512(&r.pair_count[size_t(n + n_lo)], _mm512_maskz_compress_epi64(__mmask8(m >> 8), counter[1]));
+    n += __builtin_popcount(m);
   }
   return n;
 }
 
 DHR_AVX512_TARGET int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts, size_t npx, PairTally& tally) {
   static_assert(kListPairsVectorLights == 4);
-  switch (nl) {
-    case 1: return list_pairs_vector<1>(r, counts, npx, tally);
-    case 2: return list_pairs_vector<2>(r, counts, npx, tally);
-    case 3: return list_pairs_vector<3>(r, counts, npx, tally);
-    case 4: return list_pairs_vector<4>(r, counts, npx, tally);
-    default: break;
-  }
-  // More lights: the pairs copied one by one.
   const int w = r.w;
   int n = 0;
   __mmask16 traced[kListPairsMaxLights];
+  int active[kListPairsMaxLights];
   for (int x = 0; x < w; x += 16) {
     const __mmask16 live = lanes_below(w - x);
+    // Bytes past the row (and past the last light's row) are padding: read, never used.
     const __m128i covered = _mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)]));
     const __mmask16 cov = live & __mmask16(~_mm_movemask_epi8(_mm_cmpeq_epi8(covered, _mm_setzero_si128())));
     if (!cov) continue;
     const __mmask16 any = classify_pairs_x16(r, nl, x, cov, counts, npx, tally, traced);
-    for (unsigned m = any; m; m &= m - 1) {
+    if (!any) continue;
+    int na = 0;  // the lights with a traced lane in this block
+    for (int l = 0; l < nl; ++l)
+      if (traced[l]) active[na++] = l;
+    switch (na) {
+      case 1: n = list_block_x16<1>(r, x, active, traced, counts, npx, n); continue;
+      case 2: n = list_block_x16<2>(r, x, active, traced, counts, npx, n); continue;
+      case 3: n = list_block_x16<3>(r, x, active, traced, counts, npx, n); continue;
+      case 4: n = list_block_x16<4>(r, x, active, traced, counts, npx, n); continue;
+      default: break;
+    }
+    for (unsigned m = any; m; m &= m - 1) {  // more lights: pair by pair
       const int k = __builtin_ctz(m);
       const size_t px = size_t(x + k);
-      for (int l = 0; l < nl; ++l) {
-        if (!((traced[l] >> k) & 1u)) continue;
-        list_pair(r, n++, px, size_t(l) * size_t(w) + px, counts + size_t(l) * npx + px);
+      for (int a = 0; a < na; ++a) {
+        const int l = active[a];
+        if ((traced[l] >> k) & 1u) list_pair(r, n++, px, size_t(l) * size_t(w) + px, counts + size_t(l) * npx + px);
       }
     }
   }

@@ -551,14 +551,15 @@ struct PairTally {
 };
 // Lights up to which list_pairs_x16 lists a row's pairs (it keeps a mask per light and block).
 constexpr int kListPairsMaxLights = 32;
-// Lights up to which it puts a block's pairs in list order by permutes and compresses.
+// A block of 16 pixels whose traced pairs lie on up to this many lights has them put in list
+// order by permutes and compresses in registers; one with more, pair by pair.
 constexpr int kListPairsVectorLights = 4;
 // Stage 3's listing where every light takes one ray per pixel (visibility_rows' loop): for the
 // covered pixels of a row, 16 at a time, each light's pair is counted by its code (out of
 // range, inside the light: its count set to 1, facing away), counted as invalid (its count
 // incremented) or listed, its ray in r.pair_ray and its counter in r.pair_count, in pixel then
-// light order, as that loop does (rows of up to kListPairsVectorLights lights in registers, the
-// rest pair by pair). counts: &VisibilityCounts::visible of light 0 at the row's first pixel;
+// light order, as that loop does (per block of 16 pixels, in registers where its traced pairs
+// lie on up to kListPairsVectorLights lights). counts: &VisibilityCounts::visible of light 0 at the row's first pixel;
 // light l's are npx further on. nl <= kListPairsMaxLights. Returns the number of pairs listed.
 int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts, size_t npx, PairTally& tally);
 // Stage 2 for a distant light (distant_light_row in core/trace_rows.cpp) with one sample per

@@ -456,9 +456,9 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
 }
 
 // One ray per light and pixel (hard shadows, and soft ones with one sample), for every light
-// count up to past the listing's vector ones (core/trace_avx512.cpp's list_pairs_x16: 1 to 4
-// lights in registers, more pair by pair, and past kListPairsMaxLights visibility_rows' own
-// loop): the baseline kernels' counts, statistics and rays, in their order, bit for bit. The
+// count up to past the listing's vector ones (core/trace_avx512.cpp's list_pairs_x16: a block
+// whose traced pairs lie on 1 to 4 lights in registers, on more pair by pair, and past
+// kListPairsMaxLights visibility_rows' own loop): the baseline kernels' counts, statistics and rays, in their order, bit for bit. The
 // lights lie on both sides of the plane, some out of range, so that a block's pairs mix every
 // code.
 TEST(TraceShadows, WideKernelsGiveTheSameBitsForEveryLightCount) {
