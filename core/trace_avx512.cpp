@@ -12,7 +12,8 @@
 // per-row triangle table's terms, 16 pixels at a time; surfaces_x16: surface points,
 // orientation and origins from that table), stage 2 (sphere_light_row_x16: classification,
 // compaction and the hard or single jittered ray; distant_light_row_x16), stage 3
-// (list_pairs_x16: the pairs that trace, listed; trace_pairs_x16: gathered into packets) and
+// (list_pairs_x16: the pairs that trace, their rays copied in list order; trace_pairs_x16:
+// loaded into packets) and
 // soft_pair_rays_x16 (the cone loop of a soft light with S > 1 samples per pixel, as the
 // ground truth traces). Compressed lanes are stored from a register: AVX-512's compressing
 // store to memory is microcoded on AMD's Zen 4 (storing from a register took 8 % off temple's
