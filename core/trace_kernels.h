@@ -559,8 +559,9 @@ constexpr int kListPairsVectorLights = 4;
 // range, inside the light: its count set to 1, facing away), counted as invalid (its count
 // incremented) or listed, its ray in r.pair_ray and its counter in r.pair_count, in pixel then
 // light order, as that loop does (per block of 16 pixels, in registers where its traced pairs
-// lie on up to kListPairsVectorLights lights). counts: &VisibilityCounts::visible of light 0 at the row's first pixel;
-// light l's are npx further on. nl <= kListPairsMaxLights. Returns the number of pairs listed.
+// lie on up to kListPairsVectorLights lights). counts: &VisibilityCounts::visible of light 0 at
+// the row's first pixel; light l's are npx further on. nl <= kListPairsMaxLights. Returns the
+// number of pairs listed.
 int list_pairs_x16(VisibilityRow& r, int nl, uint16_t* counts, size_t npx, PairTally& tally);
 // Stage 2 for a distant light (distant_light_row in core/trace_rows.cpp) with one sample per
 // pixel, 16 pixels at a time: codes, rays (the jittered cone for a soft light, the light's
@@ -570,9 +571,9 @@ void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base);
 // cone loop's rays and counts bit for bit.
 void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, uint64_t& invalid);
 // Stage 3 of the visibility pass where every light takes one ray per pixel: the n rays
-// list_pairs_x16 listed in r.pair_ray (pixel then light order) 16 at a time into the packet (a row's last packet may be
-// partial), traced, each unoccluded ray adding one to its counter; with batch.record, the rays
-// are kept instead (Batch::push).
+// list_pairs_x16 listed in r.pair_ray (pixel then light order) 16 at a time into the packet (a
+// row's last packet may be partial), traced, each unoccluded ray adding one to its counter;
+// with batch.record, the rays are kept instead (Batch::push).
 void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch);
 #endif
 
