@@ -566,29 +566,43 @@ std::vector<PassBuffer> pass_layouts(const GBuffer& src, uint64_t seed) {
           make_random(src, PassKind::SoftVisibility, 3, 64, seed + 3), make_random(src, PassKind::Ao, 1, 255, seed + 4)};
 }
 
+// A camera turned about its view axis by `deg` degrees, its field of view scaled by `zoom`.
+Camera rolled(Camera c, float deg, float zoom) {
+  c.up = glm::normalize(glm::rotate(c.up, glm::radians(deg), c.forward));
+  c.vfov_deg *= zoom;
+  return c;
+}
+
 // The 16-lane path against the scalar one on every pass layout it writes or leaves to the
 // lane-by-lane writes: bitmasks of one and two bytes, soft visibility of three planes, AO, each
-// filter, predicted together. (On a CPU without AVX-512 both runs take the scalar path.)
+// filter, predicted together. The dst cameras give each way the kernel reads a block's taps
+// (plan_x16): moved (mostly side by side, or within one row of 32 columns), turned by 2 degrees
+// (a block's taps on two rows) and by 20 with a wider view (over more than 32 columns or two
+// rows: gathered). (On a CPU without AVX-512 both runs take the scalar path.)
 TEST(Reprojection, SameBytesOnTheVectorAndScalarPaths) {
   const Scene scene;
-  const GBuffer src = render(scene, oblique()), dst = render(scene, translated(oblique(), {0.9f, -0.1f, 0.3f}));
+  const GBuffer src = render(scene, oblique());
   const std::vector<PassBuffer> passes = pass_layouts(src, 60);
-  for (const char* filter : {"bilinear", "nearest"}) {
-    std::vector<PassBuffer> outs[2];
-    for (int scalar = 0; scalar < 2; ++scalar) {
-      predict::force_scalar_reprojection(scalar == 1);
-      outs[scalar].resize(passes.size());
-      std::vector<const PassBuffer*> received;
-      std::vector<PassBuffer*> out;
-      for (size_t k = 0; k < passes.size(); ++k) {
-        received.push_back(&passes[k]);
-        out.push_back(&outs[scalar][k]);
+  for (const Camera& cam : {translated(oblique(), {0.9f, -0.1f, 0.3f}), rolled(oblique(), 2.0f, 1.0f),
+                            rolled(oblique(), 20.0f, 1.6f)}) {
+    const GBuffer dst = render(scene, cam);
+    for (const char* filter : {"bilinear", "nearest"}) {
+      std::vector<PassBuffer> outs[2];
+      for (int scalar = 0; scalar < 2; ++scalar) {
+        predict::force_scalar_reprojection(scalar == 1);
+        outs[scalar].resize(passes.size());
+        std::vector<const PassBuffer*> received;
+        std::vector<PassBuffer*> out;
+        for (size_t k = 0; k < passes.size(); ++k) {
+          received.push_back(&passes[k]);
+          out.push_back(&outs[scalar][k]);
+        }
+        make("reprojection", {{"filter", filter}})->predict_passes(src, dst, received, out);
       }
-      make("reprojection", {{"filter", filter}})->predict_passes(src, dst, received, out);
+      predict::force_scalar_reprojection(false);
+      for (size_t k = 0; k < passes.size(); ++k)
+        EXPECT_TRUE(outs[0][k].bytes == outs[1][k].bytes) << filter << " pass " << k << " camera up " << cam.up.x;
     }
-    predict::force_scalar_reprojection(false);
-    for (size_t k = 0; k < passes.size(); ++k)
-      EXPECT_TRUE(outs[0][k].bytes == outs[1][k].bytes) << filter << " pass " << k;
   }
 }
 

@@ -36,10 +36,12 @@
 // uses rotation_warp). Sizes of received, src and dst must agree. Rows run in parallel with
 // TBB; every pixel is computed on its own, so the result is bit-identical at any thread count.
 // Where the CPU has AVX-512, 16 pixels at a time find their taps and write the passes
-// (plan_x16, write_x16: the scalar code's operations in the same order, lane by lane, and
-// contiguous loads where the taps lie side by side); the pixels they do not resolve take the
-// scalar path. Same bytes (tests/test_predictors.cpp: Reprojection.HardTapTestsKeepTheirBits,
-// both paths); docs/performance.md has the measurements.
+// (plan_x16, write_x16: the scalar code's operations in the same order, lane by lane; the taps'
+// values loaded where they lie side by side, picked by permutes from 32 columns of the rows
+// they lie on, or else gathered), and write the background lanes; the pixels they do not
+// resolve take the scalar path. Same bytes (tests/test_predictors.cpp:
+// Reprojection.HardTapTestsKeepTheirBits, both paths; SameBytesOnTheVectorAndScalarPaths, each
+// way of reading the taps); docs/performance.md has the measurements.
 //
 // Parameters: filter (nearest|bilinear, default bilinear), fill (nearest_valid|local, default
 // nearest_valid), fill_radius_px (1..16, default 3), depth_tolerance (0.0001..1, default
@@ -109,6 +111,12 @@ struct PlanInputs {
 struct Plan16 {
   int32_t j0[16], valid[16], nearest[16];
   float weight[4][16];
+  // Where the taps were read through a window (plan_x16): the index of its first pixel (row
+  // y_lo, column xs) and each lane's tap 0 as a row (0 or 1) and column (0 .. 30) from there.
+  bool window = false;
+  size_t window_first = 0;
+  int32_t window_row[16], window_col[16];
+  uint32_t background = 0;  // the lanes whose dst pixel is background
 };
 
 std::atomic<bool> g_scalar_only{false};
@@ -150,6 +158,86 @@ DHR_AVX512_TARGET inline Xyz16 gather_xyz16(__mmask16 m, __m512i j, const glm::v
           gather16(m, _mm512_add_epi32(j3, _mm512_set1_epi32(2)), f)};
 }
 
+// The dst side of 16 lanes that a tap is tested against: object id, point, shading normal
+// with its squared length, and the point's view depth in the src camera.
+struct DstLanes {
+  __m512i id;
+  __m512 px, py, pz, nx, ny, nz, ln, z;
+};
+
+// One tap's source values in 16 lanes: object id, shading normal, geometric normal, position
+// and depth.
+struct TapValues16 {
+  __m512i id;
+  Xyz16 n, g, p;
+  __m512 depth;
+};
+
+// valid_tap's tests of one tap in 16 lanes, in its order (so the same answers): lanes outside t
+// (not in play, or the tap without weight) fail, whatever their values.
+DHR_AVX512_TARGET inline __mmask16 tap_tests16(const TapValues16& s, __mmask16 t, const DstLanes& d, const PlanInputs& a) {
+  t &= _mm512_cmpeq_epi32_mask(s.id, d.id);
+  const __m512 ls = dot16(s.n.x, s.n.y, s.n.z, s.n.x, s.n.y, s.n.z);
+  t &= ge16(ls, 0.25f) & le16(ls, 4.0f);
+  const __m512 dn = dot16(s.n.x, s.n.y, s.n.z, d.nx, d.ny, d.nz);
+  const __m512 bound = _mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.thr2), ls), d.ln);
+  const __m512 d2 = _mm512_mul_ps(dn, dn);
+  const __mmask16 d_nonneg = ge16(dn, 0.0f);
+  t &= a.thr_nonneg ? __mmask16(d_nonneg & _mm512_cmp_ps_mask(d2, bound, _CMP_GE_OQ))
+                    : __mmask16(d_nonneg | _mm512_cmp_ps_mask(d2, bound, _CMP_LE_OQ));
+  const __m512 lg = dot16(s.g.x, s.g.y, s.g.z, s.g.x, s.g.y, s.g.z);
+  const __mmask16 has_plane = ge16(lg, 0.25f) & le16(lg, 4.0f);
+  const __m512 ex = _mm512_sub_ps(d.px, s.p.x), ey = _mm512_sub_ps(d.py, s.p.y), ez = _mm512_sub_ps(d.pz, s.p.z);
+  const __m512 e = dot16(ex, ey, ez, s.g.x, s.g.y, s.g.z);
+  const __mmask16 plane = _mm512_cmp_ps_mask(
+      _mm512_mul_ps(e, e), _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.tol2), d.z), d.z), lg), _CMP_LE_OQ);
+  const __m512 adz = _mm512_abs_ps(_mm512_sub_ps(s.depth, d.z));
+  const __mmask16 depth = _mm512_cmp_ps_mask(adz, _mm512_mul_ps(_mm512_set1_ps(a.tol), d.z), _CMP_LE_OQ);
+  return t & ((has_plane & plane) | (~has_plane & depth));
+}
+
+// The values of 16 consecutive source pixels from index j.
+DHR_AVX512_TARGET inline TapValues16 load_taps16(const PlanInputs& a, size_t j) {
+  return {_mm512_loadu_si512(a.sid + j), load_xyz16(a.snrm + j), load_xyz16(a.sgeo + j), load_xyz16(a.spos + j),
+          _mm512_loadu_ps(a.sdep + j)};
+}
+
+// The values of the source pixels at indices j, for the lanes in m (the others hold 0).
+DHR_AVX512_TARGET inline TapValues16 gather_taps16(const PlanInputs& a, __mmask16 m, __m512i j) {
+  return {_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, j, a.sid, 4), gather_xyz16(m, j, a.snrm),
+          gather_xyz16(m, j, a.sgeo), gather_xyz16(m, j, a.spos), gather16(m, j, a.sdep)};
+}
+
+// 32 consecutive source pixels (from index j): each value as two registers of 16.
+struct Window32 {
+  TapValues16 lo, hi;
+};
+DHR_AVX512_TARGET inline Window32 load_window32(const PlanInputs& a, size_t j) {
+  return {load_taps16(a, j), load_taps16(a, j + 16)};
+}
+
+// Lane l takes the window's pixel idx[l] (0 .. 31).
+DHR_AVX512_TARGET inline __m512 pick16(__m512 lo, __m512 hi, __m512i idx) { return _mm512_permutex2var_ps(lo, idx, hi); }
+DHR_AVX512_TARGET inline Xyz16 pick_xyz16(const Xyz16& lo, const Xyz16& hi, __m512i idx) {
+  return {pick16(lo.x, hi.x, idx), pick16(lo.y, hi.y, idx), pick16(lo.z, hi.z, idx)};
+}
+DHR_AVX512_TARGET inline TapValues16 pick_taps16(const Window32& w, __m512i idx) {
+  return {_mm512_permutex2var_epi32(w.lo.id, idx, w.hi.id), pick_xyz16(w.lo.n, w.hi.n, idx),
+          pick_xyz16(w.lo.g, w.hi.g, idx), pick_xyz16(w.lo.p, w.hi.p, idx), pick16(w.lo.depth, w.hi.depth, idx)};
+}
+
+// v takes b's values in the lanes of m.
+DHR_AVX512_TARGET inline void blend_xyz16(Xyz16& v, __mmask16 m, const Xyz16& b) {
+  v = {_mm512_mask_mov_ps(v.x, m, b.x), _mm512_mask_mov_ps(v.y, m, b.y), _mm512_mask_mov_ps(v.z, m, b.z)};
+}
+DHR_AVX512_TARGET inline void blend_taps16(TapValues16& v, __mmask16 m, const TapValues16& b) {
+  v.id = _mm512_mask_mov_epi32(v.id, m, b.id);
+  blend_xyz16(v.n, m, b.n);
+  blend_xyz16(v.g, m, b.g);
+  blend_xyz16(v.p, m, b.p);
+  v.depth = _mm512_mask_mov_ps(v.depth, m, b.depth);
+}
+
 // Reprojection::run's per-pixel work for dst pixels x .. x + 15 of row y, up to the taps: the
 // same operations in the same order, lane by lane (so the same taps, tests and weights). A lane
 // is resolved (bit set in the result) where the pixel is covered, its point and normal usable,
@@ -162,6 +250,8 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
   const __m512i one = _mm512_set1_epi32(1), two = _mm512_set1_epi32(2);
   const __m512i id = _mm512_loadu_si512(a.did + i0);
   __mmask16 m = _mm512_cmpneq_epi32_mask(id, _mm512_set1_epi32(int(kBackgroundId)));
+  out.background = uint16_t(~m);
+  out.window = false;
   const Xyz16 dp = load_xyz16(a.dpos + i0), dn = load_xyz16(a.dnrm + i0);
   const __m512 px = dp.x, py = dp.y, pz = dp.z, nx = dn.x, ny = dn.y, nz = dn.z;
   const __m512 ln = dot16(nx, ny, nz, nx, ny, nz);
@@ -195,46 +285,51 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
   const __m512 bw[4] = {_mm512_mul_ps(bx, by), _mm512_mul_ps(ax, by), _mm512_mul_ps(bx, ay), _mm512_mul_ps(ax, ay)};
   const __m512i j0 = _mm512_add_epi32(_mm512_mullo_epi32(y0, _mm512_set1_epi32(a.w)), x0);
 
-  // valid_tap for each tap k, in 16 lanes. Where every lane is in play and the taps lie side
-  // by side (tap 0 of lane l at j0 of lane 0 plus l, as under smooth motion), each tap's source
-  // values are 16 consecutive pixels, loaded as such; else they are gathered.
+  // valid_tap for each tap k, in 16 lanes, on its source values read by one of three routes:
+  // - loads: every lane is in play and the taps lie side by side (tap 0 of lane l at j0 of
+  //   lane 0 plus l, as under smooth motion): each tap's values are 16 consecutive pixels;
+  // - a window: the lanes' taps lie in 32 columns of one or two row pairs (the source image is
+  //   scaled or turned a little against dst): each row's 32 values are loaded once and each
+  //   lane's picked from them by a permute;
+  // - gathers: anything else.
+  const DstLanes dst{id, px, py, pz, nx, ny, nz, ln, z};
+  __mmask16 weighted[4];  // the lanes in play where tap k has weight
+  for (int k = 0; k < 4; ++k) weighted[k] = m & _mm512_cmp_ps_mask(bw[k], _mm512_setzero_ps(), _CMP_GT_OQ);
   int32_t lane0 = 0;
-  const bool side_by_side = m == 0xFFFF && side_by_side16(j0, lane0);
-  const size_t first = side_by_side ? size_t(lane0) : 0;
   __mmask16 ok[4];
-  for (int k = 0; k < 4; ++k) {
-    const int offset = tap_offset(k, a.w);
-    const __m512i jk = _mm512_add_epi32(j0, _mm512_set1_epi32(offset));
-    const size_t fk = first + size_t(offset);
-    __mmask16 t = m & _mm512_cmp_ps_mask(bw[k], _mm512_setzero_ps(), _CMP_GT_OQ);
-    const __m512i sid = side_by_side ? _mm512_loadu_si512(a.sid + fk)
-                                     : _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), t, jk, a.sid, 4);
-    t &= _mm512_cmpeq_epi32_mask(sid, id);
-    const Xyz16 sn = side_by_side ? load_xyz16(a.snrm + fk) : gather_xyz16(t, jk, a.snrm);
-    const __m512 sx = sn.x, sy = sn.y, sz = sn.z;
-    const __m512 ls = dot16(sx, sy, sz, sx, sy, sz);
-    t &= ge16(ls, 0.25f) & le16(ls, 4.0f);
-    const __m512 d = dot16(sx, sy, sz, nx, ny, nz);
-    const __m512 bound = _mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.thr2), ls), ln);
-    const __m512 d2 = _mm512_mul_ps(d, d);
-    const __mmask16 d_nonneg = ge16(d, 0.0f);
-    t &= a.thr_nonneg ? __mmask16(d_nonneg & _mm512_cmp_ps_mask(d2, bound, _CMP_GE_OQ))
-                      : __mmask16(d_nonneg | _mm512_cmp_ps_mask(d2, bound, _CMP_LE_OQ));
-    const Xyz16 sg = side_by_side ? load_xyz16(a.sgeo + fk) : gather_xyz16(t, jk, a.sgeo);
-    const __m512 gx = sg.x, gy = sg.y, gz = sg.z;
-    const __m512 lg = dot16(gx, gy, gz, gx, gy, gz);
-    const __mmask16 has_plane = ge16(lg, 0.25f) & le16(lg, 4.0f);
-    const Xyz16 sp = side_by_side ? load_xyz16(a.spos + fk) : gather_xyz16(t & has_plane, jk, a.spos);
-    const __m512 ex = _mm512_sub_ps(px, sp.x), ey = _mm512_sub_ps(py, sp.y), ez = _mm512_sub_ps(pz, sp.z);
-    const __m512 e = dot16(ex, ey, ez, gx, gy, gz);
-    const __mmask16 plane = _mm512_cmp_ps_mask(
-        _mm512_mul_ps(e, e), _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.tol2), z), z), lg), _CMP_LE_OQ);
-    const __m512 sd = side_by_side ? _mm512_loadu_ps(a.sdep + fk)
-                                   : _mm512_mask_i32gather_ps(_mm512_setzero_ps(), t & ~has_plane, jk, a.sdep, 4);
-    const __m512 adz = _mm512_abs_ps(_mm512_sub_ps(sd, z));
-    const __mmask16 depth = _mm512_cmp_ps_mask(adz, _mm512_mul_ps(_mm512_set1_ps(a.tol), z), _CMP_LE_OQ);
-    t &= (has_plane & plane) | (~has_plane & depth);
-    ok[k] = t;
+  if (m == 0xFFFF && side_by_side16(j0, lane0)) {
+    for (int k = 0; k < 4; ++k) ok[k] = tap_tests16(load_taps16(a, size_t(lane0) + size_t(tap_offset(k, a.w))), weighted[k], dst, a);
+  } else {
+    const int x_lo = _mm512_mask_reduce_min_epi32(m, x0), x_hi = _mm512_mask_reduce_max_epi32(m, x0);
+    const int y_lo = _mm512_mask_reduce_min_epi32(m, y0), y_hi = _mm512_mask_reduce_max_epi32(m, y0);
+    if (a.w >= 32 && x_hi + 1 - x_lo < 32 && y_hi - y_lo <= 1) {
+      // Columns xs .. xs + 31 hold every lane's taps (x0 and x0 + 1 < w). Lanes whose tap 0
+      // lies a row lower (`lower`) take their taps from the next row's window.
+      const int xs = std::min(x_lo, a.w - 32);
+      const __m512i idx = _mm512_sub_epi32(x0, _mm512_set1_epi32(xs));
+      const __m512i idx1 = _mm512_add_epi32(idx, one);
+      const __mmask16 lower = m & _mm512_cmpneq_epi32_mask(y0, _mm512_set1_epi32(y_lo));
+      out.window = true;
+      out.window_first = size_t(y_lo) * size_t(a.w) + size_t(xs);
+      _mm512_storeu_si512(out.window_row, _mm512_maskz_mov_epi32(lower, one));
+      _mm512_storeu_si512(out.window_col, idx);
+      for (int pair = 0; pair < 2; ++pair) {
+        const Window32 top = load_window32(a, size_t(y_lo + pair) * size_t(a.w) + size_t(xs));
+        TapValues16 left = pick_taps16(top, idx), right = pick_taps16(top, idx1);
+        if (lower) {
+          const Window32 next = load_window32(a, size_t(y_lo + pair + 1) * size_t(a.w) + size_t(xs));
+          blend_taps16(left, lower, pick_taps16(next, idx));
+          blend_taps16(right, lower, pick_taps16(next, idx1));
+        }
+        ok[2 * pair] = tap_tests16(left, weighted[2 * pair], dst, a);
+        ok[2 * pair + 1] = tap_tests16(right, weighted[2 * pair + 1], dst, a);
+      }
+    } else {
+      for (int k = 0; k < 4; ++k) {
+        const __m512i jk = _mm512_add_epi32(j0, _mm512_set1_epi32(tap_offset(k, a.w)));
+        ok[k] = tap_tests16(gather_taps16(a, weighted[k], jk), weighted[k], dst, a);
+      }
+    }
   }
 
   const __mmask16 any = ok[0] | ok[1] | ok[2] | ok[3];
@@ -251,10 +346,13 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
   _mm512_storeu_si512(out.j0, j0);
   _mm512_storeu_si512(out.valid, valid);
   _mm512_storeu_si512(out.nearest, kn);
-  // The scalar code's sum of the valid taps' weights, in tap order from 0, then each divided.
-  __m512 sum = _mm512_setzero_ps();
-  for (int k = 0; k < 4; ++k) sum = _mm512_mask_add_ps(sum, ok[k], sum, bw[k]);
-  for (int k = 0; k < 4; ++k) _mm512_storeu_ps(out.weight[k], _mm512_maskz_div_ps(ok[k] & resolved, bw[k], sum));
+  // The scalar code's sum of the valid taps' weights, in tap order from 0, then each divided
+  // (only the bilinear passes read them).
+  if (a.any_bilinear) {
+    __m512 sum = _mm512_setzero_ps();
+    for (int k = 0; k < 4; ++k) sum = _mm512_mask_add_ps(sum, ok[k], sum, bw[k]);
+    for (int k = 0; k < 4; ++k) _mm512_storeu_ps(out.weight[k], _mm512_maskz_div_ps(ok[k] & resolved, bw[k], sum));
+  }
   return resolved;
 }
 #endif
@@ -277,6 +375,35 @@ struct PassIo {
 DHR_AVX512_TARGET inline __m512i tap_index16(__m512i j0, __m512i k, int w) {
   return _mm512_add_epi32(_mm512_add_epi32(j0, _mm512_and_si512(k, _mm512_set1_epi32(1))),
                           _mm512_mullo_epi32(_mm512_srli_epi32(k, 1), _mm512_set1_epi32(w)));
+}
+
+// The bytes of a window (plan_x16's) for the lanes of m: lane l's at row row[l] (0 .. 2) and
+// column col[l] (0 .. 31) from index `first` of the plane `in` (rows w bytes apart); 0 in the
+// other lanes. Only the rows some lane of m takes are read.
+DHR_AVX512_TARGET inline __m512i window_bytes16(const uint8_t* in, size_t first, int w, __m512i row, __m512i col, __mmask16 m) {
+  __m512i v = _mm512_setzero_si512();
+  for (int r = 0; r < 3; ++r) {
+    const __mmask16 mr = m & _mm512_cmpeq_epi32_mask(row, _mm512_set1_epi32(r));
+    if (!mr) continue;
+    const uint8_t* p = in + first + size_t(r) * size_t(w);
+    const __m512i lo = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
+    const __m512i hi = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p + 16)));
+    v = _mm512_mask_mov_epi32(v, mr, _mm512_permutex2var_epi32(lo, col, hi));
+  }
+  return v;
+}
+
+// Lit values (every light's bit, or full_scale) in the lanes of m of dst pixels i0 .. i0 + 15,
+// as write_lit: false (nothing written) for bitmasks of more than one byte per pixel.
+DHR_AVX512_TARGET inline bool write_lit_x16(const PassIo& p, uint32_t m, size_t i0) {
+  if (p.bitmask) {
+    if (p.bpp != 1) return false;
+    _mm512_mask_cvtepi32_storeu_epi8(p.out + i0, __mmask16(m), _mm512_set1_epi32(p.lit[0]));
+  } else {
+    for (int c = 0; c < p.lay.planes; ++c)
+      _mm512_mask_cvtepi32_storeu_epi8(p.out + i0 + size_t(c) * p.lay.plane_stride, __mmask16(m), _mm512_set1_epi32(p.full));
+  }
+  return true;
 }
 
 // Pass p's values of the resolved lanes of a plan (dst pixels i0 .. i0 + 15), as the scalar
@@ -302,6 +429,8 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
   const bool side_by_side = side_by_side16(j0, lane0) &&
                             size_t(lane0) + 16 + size_t(tap_offset(3, w)) + size_t(planes - 1) * stride <= p.in_bytes;  // tap 3's last byte, last plane
   const __m512i nearest = _mm512_loadu_si512(plan.nearest);
+  const __m512i row = _mm512_loadu_si512(plan.window_row), col = _mm512_loadu_si512(plan.window_col);
+  const __m512i one = _mm512_set1_epi32(1);
   const int first_nearest = plan.nearest[std::countr_zero(resolved) & 15];  // the first resolved lane's (resolved != 0)
   const bool one_nearest = side_by_side && p.nearest &&
                            _mm512_mask_cmpneq_epi32_mask(m, nearest, _mm512_set1_epi32(first_nearest)) == 0;
@@ -312,6 +441,9 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
     if (one_nearest) {  // every resolved lane takes the same tap: 16 consecutive bytes
       const size_t jk = size_t(lane0) + size_t(tap_offset(first_nearest, w));
       result = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + jk)));
+    } else if (p.nearest && plan.window) {
+      result = window_bytes16(in, plan.window_first, w, _mm512_add_epi32(row, _mm512_srli_epi32(nearest, 1)),
+                              _mm512_add_epi32(col, _mm512_and_si512(nearest, one)), m);
     } else if (p.nearest) {
       const __m512i jn = tap_index16(j0, nearest, w);
       result = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, jn, in, 1), byte);
@@ -323,6 +455,9 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
         if (side_by_side) {
           const size_t jk = size_t(lane0) + size_t(tap_offset(k, w));
           b = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + jk)));
+        } else if (plan.window) {
+          b = window_bytes16(in, plan.window_first, w, _mm512_add_epi32(row, _mm512_set1_epi32(k >> 1)),
+                             _mm512_add_epi32(col, _mm512_set1_epi32(k & 1)), mk);
         } else {
           const __m512i jk = tap_index16(j0, _mm512_set1_epi32(k), w);
           b = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, jk, in, 1), byte);
@@ -602,6 +737,8 @@ class Reprojection final : public Predictor {
     const bool x16 = cpu_has_avx512dq() && !g_scalar_only.load(std::memory_order_relaxed);
     const PlanInputs plan_in{sid, snrm, sgeo, spos, sdep, dst.object_id.data(), dst.position.data(),
                              dst.normal.data(), w, h, proj, thr2_, tol, tol2, thr_nonneg, any_bilinear, any_nearest};
+    // Whether write_lit_x16 writes the background lanes of every pass (no bitmask of more than a byte).
+    const bool lit_x16 = std::none_of(io.begin(), io.end(), [](const PassIo& p) { return p.bitmask && p.bpp != 1; });
 #endif
     predict::parallel_rows(h, [&](int y) {
       uint32_t row_covered = 0, row_disoccluded = 0;
@@ -630,8 +767,13 @@ class Reprojection final : public Predictor {
             }
             for (const PassIo* pass : rest) write_pass(*pass, i0 + size_t(l), t, int64_t(tap_index(plan.nearest[l])));
           }
+          uint32_t done = resolved;  // and the background lanes, where every pass writes them here
+          if (plan.background && lit_x16) {
+            for (const PassIo& pass : io) write_lit_x16(pass, plan.background, i0);
+            done |= plan.background;
+          }
           for (int l = 0; l < 16; ++l)
-            if (!((resolved >> l) & 1u)) pixel(y, x + l, row_covered, row_disoccluded);
+            if (!((done >> l) & 1u)) pixel(y, x + l, row_covered, row_disoccluded);
         }
       }
 #endif
