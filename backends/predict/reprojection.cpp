@@ -115,7 +115,7 @@ struct Plan16 {
   // y_lo, column xs) and each lane's tap 0 as a row (0 or 1) and column (0 .. 30) from there.
   bool window = false;
   size_t window_first = 0;
-  int32_t window_row[16], window_col[16];
+  int32_t window_row[16] = {}, window_col[16] = {};
   uint32_t background = 0;  // the lanes whose dst pixel is background
 };
 
@@ -313,13 +313,18 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
       out.window_first = size_t(y_lo) * size_t(a.w) + size_t(xs);
       _mm512_storeu_si512(out.window_row, _mm512_maskz_mov_epi32(lower, one));
       _mm512_storeu_si512(out.window_col, idx);
+      // Taps 0 and 1 (pair 0) lie on row y_lo, 2 and 3 on the next (the lower lanes': a row
+      // further down); each row's window is loaded once.
+      Window32 top = load_window32(a, size_t(y_lo) * size_t(a.w) + size_t(xs));
       for (int pair = 0; pair < 2; ++pair) {
-        const Window32 top = load_window32(a, size_t(y_lo + pair) * size_t(a.w) + size_t(xs));
         TapValues16 left = pick_taps16(top, idx), right = pick_taps16(top, idx1);
-        if (lower) {
+        if (lower || pair == 0) {
           const Window32 next = load_window32(a, size_t(y_lo + pair + 1) * size_t(a.w) + size_t(xs));
-          blend_taps16(left, lower, pick_taps16(next, idx));
-          blend_taps16(right, lower, pick_taps16(next, idx1));
+          if (lower) {
+            blend_taps16(left, lower, pick_taps16(next, idx));
+            blend_taps16(right, lower, pick_taps16(next, idx1));
+          }
+          top = next;
         }
         ok[2 * pair] = tap_tests16(left, weighted[2 * pair], dst, a);
         ok[2 * pair + 1] = tap_tests16(right, weighted[2 * pair + 1], dst, a);
@@ -434,6 +439,15 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
   const int first_nearest = plan.nearest[std::countr_zero(resolved) & 15];  // the first resolved lane's (resolved != 0)
   const bool one_nearest = side_by_side && p.nearest &&
                            _mm512_mask_cmpneq_epi32_mask(m, nearest, _mm512_set1_epi32(first_nearest)) == 0;
+  // The bilinear passes' taps: lanes and weights (the same for every plane).
+  __mmask16 mk[4];
+  __m512 wk[4];
+  for (int k = 0; k < 4; ++k) {
+    mk[k] = m & _mm512_test_epi32_mask(valid, _mm512_set1_epi32(1 << k));
+    wk[k] = _mm512_loadu_ps(plan.weight[k]);
+  }
+  const __mmask16 lower = _mm512_test_epi32_mask(row, row);  // window: lanes whose tap 0 is a row lower
+  const __m512i col1 = _mm512_add_epi32(col, one);
   for (int c = 0; c < planes; ++c) {
     const uint8_t* in = p.in + size_t(c) * stride;
     uint8_t* out = p.out + i0 + size_t(c) * stride;
@@ -448,22 +462,31 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
       const __m512i jn = tap_index16(j0, nearest, w);
       result = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), m, jn, in, 1), byte);
     } else {
-      __m512 v = _mm512_setzero_ps();
-      for (int k = 0; k < 4; ++k) {
-        const __mmask16 mk = m & _mm512_test_epi32_mask(valid, _mm512_set1_epi32(1 << k));
-        __m512i b;
-        if (side_by_side) {
-          const size_t jk = size_t(lane0) + size_t(tap_offset(k, w));
-          b = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + jk)));
-        } else if (plan.window) {
-          b = window_bytes16(in, plan.window_first, w, _mm512_add_epi32(row, _mm512_set1_epi32(k >> 1)),
-                             _mm512_add_epi32(col, _mm512_set1_epi32(k & 1)), mk);
-        } else {
-          const __m512i jk = tap_index16(j0, _mm512_set1_epi32(k), w);
-          b = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk, jk, in, 1), byte);
+      // Tap k's bytes: loaded (side by side), picked from the window's rows (each row's 32
+      // bytes read once: rows 0 and 1, and 2 where some lane's tap 0 is a row lower), or gathered.
+      __m512i b[4];
+      if (side_by_side) {
+        for (int k = 0; k < 4; ++k)
+          b[k] = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + size_t(lane0) + size_t(tap_offset(k, w)))));
+      } else if (plan.window) {
+        __m512i lo[3], hi[3];
+        for (int r = 0; r < (lower ? 3 : 2); ++r) {
+          const uint8_t* q = in + plan.window_first + size_t(r) * size_t(w);
+          lo[r] = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(q)));
+          hi[r] = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(q + 16)));
         }
-        v = _mm512_mask_add_ps(v, mk, v, _mm512_mul_ps(_mm512_loadu_ps(plan.weight[k]), _mm512_cvtepi32_ps(b)));
+        for (int k = 0; k < 4; ++k) {
+          const int r = k >> 1;
+          const __m512i ck = (k & 1) ? col1 : col;
+          b[k] = _mm512_permutex2var_epi32(lo[r], ck, hi[r]);
+          if (lower) b[k] = _mm512_mask_mov_epi32(b[k], lower, _mm512_permutex2var_epi32(lo[r + 1], ck, hi[r + 1]));
+        }
+      } else {
+        for (int k = 0; k < 4; ++k)
+          b[k] = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk[k], tap_index16(j0, _mm512_set1_epi32(k), w), in, 1), byte);
       }
+      __m512 v = _mm512_setzero_ps();
+      for (int k = 0; k < 4; ++k) v = _mm512_mask_add_ps(v, mk[k], v, _mm512_mul_ps(wk[k], _mm512_cvtepi32_ps(b[k])));
       // round_u8: r = v + 0.5, 0 below 0 and for NaN, 255 from 255 on, then truncated.
       __m512 r = _mm512_add_ps(v, _mm512_set1_ps(0.5f));
       r = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(r, _mm512_set1_ps(255.0f), _CMP_LT_OQ), _mm512_set1_ps(255.0f), r);
