@@ -175,7 +175,8 @@ struct TapValues16 {
 
 // valid_tap's tests of one tap in 16 lanes, in its order (so the same answers): lanes outside t
 // (not in play, or the tap without weight) fail, whatever their values.
-DHR_AVX512_TARGET inline __mmask16 tap_tests16(const TapValues16& s, __mmask16 t, const DstLanes& d, const PlanInputs& a) {
+DHR_AVX512_TARGET inline __mmask16 tap_tests16(const TapValues16& s, __mmask16 t, const DstLanes& d,
+                                               const PlanInputs& a) {
   t &= _mm512_cmpeq_epi32_mask(s.id, d.id);
   const __m512 ls = dot16(s.n.x, s.n.y, s.n.z, s.n.x, s.n.y, s.n.z);
   t &= ge16(ls, 0.25f) & le16(ls, 4.0f);
@@ -298,7 +299,8 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
   int32_t lane0 = 0;
   __mmask16 ok[4];
   if (m == 0xFFFF && side_by_side16(j0, lane0)) {
-    for (int k = 0; k < 4; ++k) ok[k] = tap_tests16(load_taps16(a, size_t(lane0) + size_t(tap_offset(k, a.w))), weighted[k], dst, a);
+    for (int k = 0; k < 4; ++k)
+      ok[k] = tap_tests16(load_taps16(a, size_t(lane0) + size_t(tap_offset(k, a.w))), weighted[k], dst, a);
   } else {
     const int x_lo = _mm512_mask_reduce_min_epi32(m, x0), x_hi = _mm512_mask_reduce_max_epi32(m, x0);
     const int y_lo = _mm512_mask_reduce_min_epi32(m, y0), y_hi = _mm512_mask_reduce_max_epi32(m, y0);
@@ -385,7 +387,8 @@ DHR_AVX512_TARGET inline __m512i tap_index16(__m512i j0, __m512i k, int w) {
 // The bytes of a window (plan_x16's) for the lanes of m: lane l's at row row[l] (0 .. 2) and
 // column col[l] (0 .. 31) from index `first` of the plane `in` (rows w bytes apart); 0 in the
 // other lanes. Only the rows some lane of m takes are read.
-DHR_AVX512_TARGET inline __m512i window_bytes16(const uint8_t* in, size_t first, int w, __m512i row, __m512i col, __mmask16 m) {
+DHR_AVX512_TARGET inline __m512i window_bytes16(const uint8_t* in, size_t first, int w, __m512i row, __m512i col,
+                                                __mmask16 m) {
   __m512i v = _mm512_setzero_si512();
   for (int r = 0; r < 3; ++r) {
     const __mmask16 mr = m & _mm512_cmpeq_epi32_mask(row, _mm512_set1_epi32(r));
@@ -406,7 +409,8 @@ DHR_AVX512_TARGET inline bool write_lit_x16(const PassIo& p, uint32_t m, size_t 
     _mm512_mask_cvtepi32_storeu_epi8(p.out + i0, __mmask16(m), _mm512_set1_epi32(p.lit[0]));
   } else {
     for (int c = 0; c < p.lay.planes; ++c)
-      _mm512_mask_cvtepi32_storeu_epi8(p.out + i0 + size_t(c) * p.lay.plane_stride, __mmask16(m), _mm512_set1_epi32(p.full));
+      _mm512_mask_cvtepi32_storeu_epi8(p.out + i0 + size_t(c) * p.lay.plane_stride, __mmask16(m),
+                                       _mm512_set1_epi32(p.full));
   }
   return true;
 }
@@ -467,7 +471,8 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
       __m512i b[4];
       if (side_by_side) {
         for (int k = 0; k < 4; ++k)
-          b[k] = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(in + size_t(lane0) + size_t(tap_offset(k, w)))));
+          b[k] = _mm512_cvtepu8_epi32(
+              _mm_loadu_si128(reinterpret_cast<const __m128i*>(in + size_t(lane0) + size_t(tap_offset(k, w)))));
       } else if (plan.window) {
         __m512i lo[3], hi[3];
         for (int r = 0; r < (lower ? 3 : 2); ++r) {
@@ -483,7 +488,9 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
         }
       } else {
         for (int k = 0; k < 4; ++k)
-          b[k] = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk[k], tap_index16(j0, _mm512_set1_epi32(k), w), in, 1), byte);
+          b[k] = _mm512_and_si512(
+              _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk[k], tap_index16(j0, _mm512_set1_epi32(k), w), in, 1),
+              byte);
       }
       __m512 v = _mm512_setzero_ps();
       for (int k = 0; k < 4; ++k) v = _mm512_mask_add_ps(v, mk[k], v, _mm512_mul_ps(wk[k], _mm512_cvtepi32_ps(b[k])));
@@ -760,7 +767,8 @@ class Reprojection final : public Predictor {
     const bool x16 = cpu_has_avx512dq() && !g_scalar_only.load(std::memory_order_relaxed);
     const PlanInputs plan_in{sid, snrm, sgeo, spos, sdep, dst.object_id.data(), dst.position.data(),
                              dst.normal.data(), w, h, proj, thr2_, tol, tol2, thr_nonneg, any_bilinear, any_nearest};
-    // Whether write_lit_x16 writes the background lanes of every pass (no bitmask of more than a byte).
+    // Whether write_lit_x16 writes the background lanes of every pass (no bitmask of more than
+    // a byte per pixel).
     const bool lit_x16 = std::none_of(io.begin(), io.end(), [](const PassIo& p) { return p.bitmask && p.bpp != 1; });
 #endif
     predict::parallel_rows(h, [&](int y) {
