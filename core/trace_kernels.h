@@ -570,10 +570,11 @@ void distant_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base);
 // The S rays of a soft pair 16 at a time on AVX-512 (soft_pair_rays_x8's work, below): the
 // cone loop's rays and counts bit for bit.
 void soft_pair_rays_x16(const SoftPair& p, Batch<16>& batch, uint64_t& invalid);
-// Stage 3 of the visibility pass where every light takes one ray per pixel: the n rays
-// list_pairs_x16 listed in r.pair_ray (pixel then light order) 16 at a time into the packet (a
-// row's last packet may be partial), traced, each unoccluded ray adding one to its counter;
-// with batch.record, the rays are kept instead (Batch::push).
+// Stage 3 of the visibility pass where every light takes one ray per pixel: the n rays listed
+// in r.pair_ray (pixel then light order; by list_pairs_x16, or by list_pair past
+// kListPairsMaxLights lights) 16 at a time into the packet (a row's last packet may be
+// partial), traced, each unoccluded ray adding one to its counter; with batch.record, the rays
+// are kept instead (Batch::push).
 void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>& batch);
 #endif
 

@@ -24,6 +24,7 @@
 #include <limits>
 #include <set>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace dhr {
@@ -566,10 +567,11 @@ std::vector<PassBuffer> pass_layouts(const GBuffer& src, uint64_t seed) {
           make_random(src, PassKind::SoftVisibility, 3, 64, seed + 3), make_random(src, PassKind::Ao, 1, 255, seed + 4)};
 }
 
-// A camera turned about its view axis by `deg` degrees, its field of view scaled by `zoom`.
-Camera rolled(Camera c, float deg, float zoom) {
+// A camera turned about its view axis by `deg` degrees, its vertical field of view scaled by
+// `fov_scale`.
+Camera rolled(Camera c, float deg, float fov_scale) {
   c.up = glm::normalize(glm::rotate(c.up, glm::radians(deg), c.forward));
-  c.vfov_deg *= zoom;
+  c.vfov_deg *= fov_scale;
   return c;
 }
 
@@ -583,8 +585,10 @@ TEST(Reprojection, SameBytesOnTheVectorAndScalarPaths) {
   const Scene scene;
   const GBuffer src = render(scene, oblique());
   const std::vector<PassBuffer> passes = pass_layouts(src, 60);
-  for (const Camera& cam : {translated(oblique(), {0.9f, -0.1f, 0.3f}), rolled(oblique(), 2.0f, 1.0f),
-                            rolled(oblique(), 20.0f, 1.6f)}) {
+  const std::pair<const char*, Camera> cameras[] = {{"moved", translated(oblique(), {0.9f, -0.1f, 0.3f})},
+                                                    {"rolled 2 degrees", rolled(oblique(), 2.0f, 1.0f)},
+                                                    {"rolled 20 degrees, wider", rolled(oblique(), 20.0f, 1.6f)}};
+  for (const auto& [camera, cam] : cameras) {
     const GBuffer dst = render(scene, cam);
     for (const char* filter : {"bilinear", "nearest"}) {
       std::vector<PassBuffer> outs[2];
@@ -601,7 +605,7 @@ TEST(Reprojection, SameBytesOnTheVectorAndScalarPaths) {
       }
       predict::force_scalar_reprojection(false);
       for (size_t k = 0; k < passes.size(); ++k)
-        EXPECT_TRUE(outs[0][k].bytes == outs[1][k].bytes) << filter << " pass " << k << " camera up " << cam.up.x;
+        EXPECT_TRUE(outs[0][k].bytes == outs[1][k].bytes) << filter << " pass " << k << ", dst camera " << camera;
     }
   }
 }

@@ -384,6 +384,12 @@ DHR_AVX512_TARGET inline __m512i tap_index16(__m512i j0, __m512i k, int w) {
                           _mm512_mullo_epi32(_mm512_srli_epi32(k, 1), _mm512_set1_epi32(w)));
 }
 
+// The 32 bytes from p, widened to two registers of 16 lanes.
+DHR_AVX512_TARGET inline void load_bytes32(const uint8_t* p, __m512i& lo, __m512i& hi) {
+  lo = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
+  hi = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p + 16)));
+}
+
 // The bytes of a window (plan_x16's) for the lanes of m: lane l's at row row[l] (0 .. 2) and
 // column col[l] (0 .. 31) from index `first` of the plane `in` (rows w bytes apart); 0 in the
 // other lanes. Only the rows some lane of m takes are read.
@@ -393,26 +399,24 @@ DHR_AVX512_TARGET inline __m512i window_bytes16(const uint8_t* in, size_t first,
   for (int r = 0; r < 3; ++r) {
     const __mmask16 mr = m & _mm512_cmpeq_epi32_mask(row, _mm512_set1_epi32(r));
     if (!mr) continue;
-    const uint8_t* p = in + first + size_t(r) * size_t(w);
-    const __m512i lo = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
-    const __m512i hi = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p + 16)));
+    __m512i lo, hi;
+    load_bytes32(in + first + size_t(r) * size_t(w), lo, hi);
     v = _mm512_mask_mov_epi32(v, mr, _mm512_permutex2var_epi32(lo, col, hi));
   }
   return v;
 }
 
 // Lit values (every light's bit, or full_scale) in the lanes of m of dst pixels i0 .. i0 + 15,
-// as write_lit: false (nothing written) for bitmasks of more than one byte per pixel.
-DHR_AVX512_TARGET inline bool write_lit_x16(const PassIo& p, uint32_t m, size_t i0) {
+// as write_lit, for a pass of one byte per pixel and plane (not a bitmask of more than 8
+// lights: the caller leaves those passes' background to write_lit).
+DHR_AVX512_TARGET inline void write_lit_x16(const PassIo& p, uint32_t m, size_t i0) {
   if (p.bitmask) {
-    if (p.bpp != 1) return false;
     _mm512_mask_cvtepi32_storeu_epi8(p.out + i0, __mmask16(m), _mm512_set1_epi32(p.lit[0]));
   } else {
     for (int c = 0; c < p.lay.planes; ++c)
       _mm512_mask_cvtepi32_storeu_epi8(p.out + i0 + size_t(c) * p.lay.plane_stride, __mmask16(m),
                                        _mm512_set1_epi32(p.full));
   }
-  return true;
 }
 
 // Pass p's values of the resolved lanes of a plan (dst pixels i0 .. i0 + 15), as the scalar
@@ -443,12 +447,14 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
   const int first_nearest = plan.nearest[std::countr_zero(resolved) & 15];  // the first resolved lane's (resolved != 0)
   const bool one_nearest = side_by_side && p.nearest &&
                            _mm512_mask_cmpneq_epi32_mask(m, nearest, _mm512_set1_epi32(first_nearest)) == 0;
-  // The bilinear passes' taps: lanes and weights (the same for every plane).
-  __mmask16 mk[4];
-  __m512 wk[4];
-  for (int k = 0; k < 4; ++k) {
-    mk[k] = m & _mm512_test_epi32_mask(valid, _mm512_set1_epi32(1 << k));
-    wk[k] = _mm512_loadu_ps(plan.weight[k]);
+  // A bilinear pass's taps: lanes and weights (the same for every plane).
+  __mmask16 mk[4] = {};
+  __m512 wk[4] = {};
+  if (!p.nearest) {
+    for (int k = 0; k < 4; ++k) {
+      mk[k] = m & _mm512_test_epi32_mask(valid, _mm512_set1_epi32(1 << k));
+      wk[k] = _mm512_loadu_ps(plan.weight[k]);
+    }
   }
   const __mmask16 lower = _mm512_test_epi32_mask(row, row);  // window: lanes whose tap 0 is a row lower
   const __m512i col1 = _mm512_add_epi32(col, one);
@@ -475,11 +481,7 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
               _mm_loadu_si128(reinterpret_cast<const __m128i*>(in + size_t(lane0) + size_t(tap_offset(k, w)))));
       } else if (plan.window) {
         __m512i lo[3], hi[3];
-        for (int r = 0; r < (lower ? 3 : 2); ++r) {
-          const uint8_t* q = in + plan.window_first + size_t(r) * size_t(w);
-          lo[r] = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(q)));
-          hi[r] = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(q + 16)));
-        }
+        for (int r = 0; r < (lower ? 3 : 2); ++r) load_bytes32(in + plan.window_first + size_t(r) * size_t(w), lo[r], hi[r]);
         for (int k = 0; k < 4; ++k) {
           const int r = k >> 1;
           const __m512i ck = (k & 1) ? col1 : col;
@@ -767,8 +769,8 @@ class Reprojection final : public Predictor {
     const bool x16 = cpu_has_avx512dq() && !g_scalar_only.load(std::memory_order_relaxed);
     const PlanInputs plan_in{sid, snrm, sgeo, spos, sdep, dst.object_id.data(), dst.position.data(),
                              dst.normal.data(), w, h, proj, thr2_, tol, tol2, thr_nonneg, any_bilinear, any_nearest};
-    // Whether write_lit_x16 writes the background lanes of every pass (no bitmask of more than
-    // a byte per pixel).
+    // Whether write_lit_x16 can write the background lanes of every pass (no bitmask of more
+    // than a byte per pixel); else they are left to write_lit.
     const bool lit_x16 = std::none_of(io.begin(), io.end(), [](const PassIo& p) { return p.bitmask && p.bpp != 1; });
 #endif
     predict::parallel_rows(h, [&](int y) {
