@@ -27,6 +27,9 @@
 #include <iterator>
 #include <limits>
 #include <numbers>
+#include <string>
+
+#include <unistd.h>
 
 namespace dhr {
 namespace {
@@ -1165,7 +1168,9 @@ TEST(Reference, GroundTruthIsCachedAndKeyed) {
   s.ao = AoSettings{1.0f, 8};
   RtScene rt(s);
   const GBuffer g = rt.primary_gbuffer(cam({0, 3, 4}, {0, 0.3f, 0}), 0.0);
-  const auto dir = std::filesystem::temp_directory_path() / "dhr_test_reference_cache";
+  // Per process: ctest runs this binary twice at once (as itself and under DHR_MAX_ISA=avx2),
+  // and a shared folder would be emptied by one run while the other writes to it.
+  const auto dir = std::filesystem::temp_directory_path() / ("dhr_test_reference_cache_" + std::to_string(::getpid()));
   std::filesystem::remove_all(dir);
   ReferenceSettings rs;
   rs.ao_rays = 64;
