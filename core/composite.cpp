@@ -297,10 +297,11 @@ DHR_AVX512_TARGET inline __m512 fractions_x16(const uint8_t* bytes, float scale)
   return _mm512_maskz_min_ps(kAll, v, _mm512_set1_ps(1.0f));
 }
 
-// srgb8_code of 16 values: the same comparisons, the buckets' entries gathered.
-DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
-  const __mmask16 ge = _mm512_cmp_ps_mask(v, _mm512_set1_ps(0x1p-13f), _CMP_GE_OQ);  // false for NaN
-  const __mmask16 top = _mm512_cmp_ps_mask(v, _mm512_set1_ps(1.0f), _CMP_GE_OQ);
+// srgb8_code of 16 values for the lanes of `lanes` (the others 0): the same comparisons, the
+// buckets' entries gathered.
+DHR_AVX512_TARGET inline __m512i srgb8_gather_x16(const SrgbCodes& t, __m512 v, __mmask16 lanes) {
+  const __mmask16 ge = _mm512_mask_cmp_ps_mask(lanes, v, _mm512_set1_ps(0x1p-13f), _CMP_GE_OQ);  // false for NaN
+  const __mmask16 top = _mm512_mask_cmp_ps_mask(lanes, v, _mm512_set1_ps(1.0f), _CMP_GE_OQ);
   const __mmask16 mid = ge & __mmask16(~top);
   const __m512i bits = _mm512_castps_si512(v);
   const __m512i bucket = _mm512_sub_epi32(_mm512_maskz_srli_epi32(kAll, bits, kLowBits),
@@ -311,6 +312,49 @@ DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
   const __m512i code = _mm512_mask_add_epi32(_mm512_maskz_srli_epi32(mid, e, kLowBits + 1), mid & past,
                                              _mm512_maskz_srli_epi32(mid, e, kLowBits + 1), _mm512_set1_epi32(1));
   return _mm512_mask_mov_epi32(code, top, _mm512_set1_epi32(255));
+}
+
+// srgb8_code of 16 values without a lookup where it can: y = 255 sRGB(v) + 0.5 evaluated in
+// float, the code floor(y), except within kSlack of an integer, where a boundary may lie, and
+// those lanes (a fraction of a percent) are looked up (srgb8_gather_x16). Below the sRGB curve's
+// linear end y = 255 * 12.92 v + 0.5; above it v^(5/12) = 2^(5e/12) m^(5/12) with v = 2^e m,
+// m in [1, 2): the first factor from a table by e, the second a degree-6 polynomial in m - 1.5
+// (the Chebyshev interpolant on [1, 2] in the power basis, coefficients rounded to float; its
+// relative error 6.3e-7, so y is within about 2e-4 of 255 sRGB(v) + 0.5). The FMAs round once
+// where a product and a sum would round twice; nothing here needs the scalar code's roundings,
+// only its codes. That every float gets srgb8_code's code is checked for every float of
+// [2^-14, 2] and the special values (Composite.ToneMapManyMatchesOneAtATime,
+// tests/test_trace.cpp; it fails with kSlack = 1e-5 or a coefficient off by 5e-5).
+DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
+  constexpr float kSlack = 1e-3f;
+  alignas(64) static constexpr float kScale[16] = {  // 255 * 1.055 * 2^(5 (k - 13) / 12)
+      6.298157215e+00f, 8.407031059e+00f, 1.122204018e+01f, 1.497962666e+01f, 1.999540329e+01f, 2.669066048e+01f,
+      3.562775803e+01f, 4.755735016e+01f, 6.348144531e+01f, 8.473756409e+01f, 1.131110764e+02f, 1.509851837e+02f,
+      2.015410309e+02f, 2.690249939e+02f, 3.591052856e+02f, 4.793480530e+02f};
+  const __mmask16 ge = _mm512_cmp_ps_mask(v, _mm512_set1_ps(0x1p-13f), _CMP_GE_OQ);  // false for NaN
+  const __mmask16 top = _mm512_cmp_ps_mask(v, _mm512_set1_ps(1.0f), _CMP_GE_OQ);
+  const __mmask16 mid = ge & __mmask16(~top);
+  const __m512 e = _mm512_maskz_getexp_ps(kAll, v);
+  const __m512 m = _mm512_sub_ps(_mm512_maskz_getmant_ps(kAll, v, _MM_MANT_NORM_1_2, _MM_MANT_SIGN_zero),
+                                 _mm512_set1_ps(1.5f));
+  __m512 p = _mm512_set1_ps(-2.716104267e-03f);
+  p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(5.186546128e-03f));
+  p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(-9.634766728e-03f));
+  p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(2.243675478e-02f));
+  p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(-6.395599246e-02f));
+  p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(3.289056122e-01f));
+  p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(1.184053659e+00f));
+  const __m512i k = _mm512_add_epi32(_mm512_maskz_cvttps_epi32(kAll, e), _mm512_set1_epi32(13));
+  const __m512 scale = _mm512_maskz_permutexvar_ps(kAll, k, _mm512_load_ps(kScale));
+  const __m512 y_pow = _mm512_fmsub_ps(scale, p, _mm512_set1_ps(255.0f * 0.055f - 0.5f));
+  const __m512 y_lin = _mm512_fmadd_ps(v, _mm512_set1_ps(255.0f * 12.92f), _mm512_set1_ps(0.5f));
+  const __m512 y = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(v, _mm512_set1_ps(0.0031308f), _CMP_LT_OQ), y_pow, y_lin);
+  const __m512 near = _mm512_sub_ps(y, _mm512_maskz_roundscale_ps(kAll, y, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+  const __mmask16 unsure = mid & _mm512_cmp_ps_mask(_mm512_abs_ps(near), _mm512_set1_ps(kSlack), _CMP_LT_OQ);
+  __m512i code = _mm512_maskz_cvt_roundps_epi32(mid, y, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+  code = _mm512_mask_mov_epi32(code, top, _mm512_set1_epi32(255));
+  if (unsure) code = _mm512_mask_mov_epi32(code, unsure, srgb8_gather_x16(t, v, unsure));
+  return code;
 }
 
 // Codes 0-255 of 16 pixels' three channels as 48 interleaved RGB bytes at out.
@@ -334,29 +378,95 @@ DHR_AVX512_TARGET size_t tonemap_x16(const SrgbCodes& t, const float* linear, si
   return i;
 }
 
-// V_l of the 16 pixels from pixel i on.
-DHR_AVX512_TARGET inline __m512 visibility_x16(const PassBytes& pb, size_t l, size_t i) {
-  if (!pb.vis) return _mm512_set1_ps(1.0f);
-  if (!pb.bitmask) return fractions_x16(pb.vis + l * pb.plane + i, pb.vis_scale);
-  if (pb.bpp == 1) {  // a light's bit of 16 consecutive bytes
-    const __m128i b = _mm_loadu_si128(reinterpret_cast<const __m128i*>(pb.vis + i));
-    const __m512i bits = _mm512_and_si512(_mm512_maskz_srli_epi32(kAll, _mm512_maskz_cvtepu8_epi32(kAll, b), unsigned(l & 7)), _mm512_set1_epi32(1));
-    return _mm512_maskz_cvtepi32_ps(kAll, bits);
-  }
-  alignas(64) float v[16];
+// V_l of the 16 pixels from pixel i on where it is a fraction (8-bit planes); where it is 0 or
+// 1 (a bitmask, or no pass: fully lit) its lanes of 1 instead, as `on`, and v = 1 there (so
+// that v * intensity is intensity, the scalar kernel's product). `bits`: a one-byte-per-pixel
+// bitmask's 16 bytes, widened once per block.
+struct Visibility16 {
+  __mmask16 on;
+  __m512 v;
+  bool fraction;
+};
+DHR_AVX512_TARGET inline Visibility16 visibility_x16(const PassBytes& pb, size_t l, size_t i, __m512i bits) {
+  const __m512 one = _mm512_set1_ps(1.0f);
+  if (!pb.vis) return {0xffff, one, false};
+  if (!pb.bitmask) return {0, fractions_x16(pb.vis + l * pb.plane + i, pb.vis_scale), true};
+  if (pb.bpp == 1) return {_mm512_test_epi32_mask(bits, _mm512_set1_epi32(int32_t(1u << (l & 7)))), one, false};
+  __mmask16 on = 0;
   const uint8_t* src = pb.vis + i * pb.bpp + (l >> 3);
-  for (size_t k = 0; k < 16; ++k) v[k] = float((src[k * pb.bpp] >> (l & 7)) & 1u);
-  return _mm512_load_ps(v);
+  for (unsigned k = 0; k < 16; ++k) on |= __mmask16(((src[k * pb.bpp] >> (l & 7)) & 1u) << k);
+  return {on, one, false};
 }
 
-// Pixels [0, w - w % 16) of row y of the composite, 16 at a time: gbuffer_row, fraction_row,
-// shade_row and srgb8_code's values by the same IEEE operations in the same order (no FMA:
-// DHR_AVX512_TARGET), so the same bits as the row path. Returns where it ended.
+// What a light's term reads of 16 pixels: point, normal, the passes, the first pixel's index
+// and a one-byte bitmask's bytes (visibility_x16).
+struct LightLanes16 {
+  const __m512* p;
+  const __m512* n;
+  const PassBytes& pb;
+  size_t i;
+  __m512i vis_bits;
+};
+
+// shade_row's term of a light it does not skip in 16 lanes, up to the visibility: the lanes it
+// may light, and n . l and the falloff there.
+struct LightGeometry16 {
+  __mmask16 ok;
+  __m512 n_dot_l, falloff;
+};
+DHR_AVX512_TARGET inline LightGeometry16 light_geometry_x16(const LightTerm& L, const LightLanes16& in) {
+  constexpr float kMinDistance2 = 1e-6f;
+  const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f);
+  const Light& light = *L.light;
+  const __m512* p = in.p;
+  const __m512* n = in.n;
+  if (!L.sphere) {
+    const __m512 dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], _mm512_set1_ps(light.direction.x)),
+                                                   _mm512_mul_ps(n[1], _mm512_set1_ps(light.direction.y))),
+                                     _mm512_mul_ps(n[2], _mm512_set1_ps(light.direction.z)));
+    return {0xffff, _mm512_div_ps(dot, _mm512_set1_ps(L.length)), one};
+  }
+  const __m512 tx = _mm512_sub_ps(_mm512_set1_ps(light.position.x), p[0]);
+  const __m512 ty = _mm512_sub_ps(_mm512_set1_ps(light.position.y), p[1]);
+  const __m512 tz = _mm512_sub_ps(_mm512_set1_ps(light.position.z), p[2]);
+  const __m512 d2 = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(tx, tx), _mm512_mul_ps(ty, ty)), _mm512_mul_ps(tz, tz));
+  __mmask16 ok = 0xffff;
+  if (L.ranged) ok &= _mm512_cmp_ps_mask(d2, _mm512_set1_ps(L.range2), _CMP_NGT_UQ);
+  const __m512 d = _mm512_maskz_sqrt_ps(kAll, d2);
+  ok &= _mm512_cmp_ps_mask(d, zero, _CMP_GT_OQ);
+  const __m512 dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], tx), _mm512_mul_ps(n[1], ty)), _mm512_mul_ps(n[2], tz));
+  // std::max({d2, radius^2, kMinDistance2}), the first largest: max(b, m) is m unless b > m
+  // (equal values have the same bits: none is -0; a NaN d2 stays NaN, and its lane fails d > 0).
+  const __m512 m = _mm512_maskz_max_ps(kAll, _mm512_set1_ps(kMinDistance2),
+                                       _mm512_maskz_max_ps(kAll, _mm512_set1_ps(L.radius2), d2));
+  return {ok, _mm512_div_ps(dot, d), _mm512_div_ps(one, m)};
+}
+
+// Light l's term added to (lx, ly, lz), as shade_row adds it.
+DHR_AVX512_TARGET inline void add_light_x16(const LightTerm& L, int l, const LightLanes16& in, __m512& lx, __m512& ly,
+                                            __m512& lz) {
+  if (L.skip) return;
+  const Light& light = *L.light;
+  const __m512 zero = _mm512_setzero_ps();
+  const LightGeometry16 geo = light_geometry_x16(L, in);
+  const Visibility16 vis = visibility_x16(in.pb, size_t(l), in.i, in.vis_bits);
+  __mmask16 ok = geo.ok & _mm512_cmp_ps_mask(geo.n_dot_l, zero, _CMP_GT_OQ);
+  ok &= vis.fraction ? _mm512_cmp_ps_mask(vis.v, zero, _CMP_GT_OQ) : vis.on;
+  const __m512 vi = vis.fraction ? _mm512_mul_ps(vis.v, _mm512_set1_ps(light.intensity)) : _mm512_set1_ps(light.intensity);
+  const __m512 s = _mm512_mul_ps(_mm512_mul_ps(vi, geo.n_dot_l), geo.falloff);
+  lx = _mm512_mask_add_ps(lx, ok, lx, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.x)));
+  ly = _mm512_mask_add_ps(ly, ok, ly, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.y)));
+  lz = _mm512_mask_add_ps(lz, ok, lz, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.z)));
+}
+
+// Pixels [0, w - w % 16) of row y of the composite, 16 at a time: gbuffer_row's, fraction_row's
+// and shade_row's values by the same IEEE operations in the same order (no FMA:
+// DHR_AVX512_TARGET), and srgb8_code's codes (srgb8_x16), so the same bits as the row path.
+// Returns where it ended.
 DHR_AVX512_TARGET int composite_row16(const GBuffer& g, int y, const PassBytes& pb, const LightTerm* lights, int nl,
                                       glm::vec3 ambient, float exposure, const SrgbCodes& t, Rgb8 background,
                                       Rgb8* out) {
   static_assert(sizeof(Rgb8) == 3 && sizeof(glm::vec3) == 3 * sizeof(float));
-  constexpr float kMinDistance2 = 1e-6f;
   const int w = g.width();
   const size_t first = size_t(y) * size_t(w);
   const float* pos = &g.position(0, y).x;
@@ -390,45 +500,14 @@ DHR_AVX512_TARGET int composite_row16(const GBuffer& g, int y, const PassBytes& 
     const Xyz16 av = load_xyz16(alb + 3 * size_t(x));
     const __m512 a[3] = {av.x, av.y, av.z};
     const __m512 ao = pb.ao ? fractions_x16(pb.ao + i, pb.ao_scale) : one;
+    const __m512i vis_bits = pb.vis && pb.bitmask && pb.bpp == 1
+                                 ? _mm512_maskz_cvtepu8_epi32(kAll, _mm_loadu_si128(reinterpret_cast<const __m128i*>(pb.vis + i)))
+                                 : _mm512_setzero_si512();
     __m512 lx = _mm512_mul_ps(_mm512_set1_ps(ambient.x), ao);
     __m512 ly = _mm512_mul_ps(_mm512_set1_ps(ambient.y), ao);
     __m512 lz = _mm512_mul_ps(_mm512_set1_ps(ambient.z), ao);
-    for (int l = 0; l < nl; ++l) {
-      const LightTerm& L = lights[l];
-      if (L.skip) continue;
-      const Light& light = *L.light;
-      __mmask16 ok = 0xffff;
-      __m512 n_dot_l, falloff;
-      if (L.sphere) {
-        const __m512 tx = _mm512_sub_ps(_mm512_set1_ps(light.position.x), p[0]);
-        const __m512 ty = _mm512_sub_ps(_mm512_set1_ps(light.position.y), p[1]);
-        const __m512 tz = _mm512_sub_ps(_mm512_set1_ps(light.position.z), p[2]);
-        const __m512 d2 = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(tx, tx), _mm512_mul_ps(ty, ty)), _mm512_mul_ps(tz, tz));
-        if (L.ranged) ok &= _mm512_cmp_ps_mask(d2, _mm512_set1_ps(L.range2), _CMP_NGT_UQ);
-        const __m512 d = _mm512_maskz_sqrt_ps(kAll, d2);
-        ok &= _mm512_cmp_ps_mask(d, zero, _CMP_GT_OQ);
-        const __m512 dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], tx), _mm512_mul_ps(n[1], ty)), _mm512_mul_ps(n[2], tz));
-        n_dot_l = _mm512_div_ps(dot, d);
-        __m512 m = d2;  // std::max({d2, radius^2, kMinDistance2}): the first largest
-        m = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(m, _mm512_set1_ps(L.radius2), _CMP_LT_OQ), m, _mm512_set1_ps(L.radius2));
-        m = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(m, _mm512_set1_ps(kMinDistance2), _CMP_LT_OQ), m,
-                                 _mm512_set1_ps(kMinDistance2));
-        falloff = _mm512_div_ps(one, m);
-      } else {
-        const __m512 dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], _mm512_set1_ps(light.direction.x)),
-                                                       _mm512_mul_ps(n[1], _mm512_set1_ps(light.direction.y))),
-                                         _mm512_mul_ps(n[2], _mm512_set1_ps(light.direction.z)));
-        n_dot_l = _mm512_div_ps(dot, _mm512_set1_ps(L.length));
-        falloff = one;
-      }
-      const __m512 v = visibility_x16(pb, size_t(l), i);
-      ok &= _mm512_cmp_ps_mask(n_dot_l, zero, _CMP_GT_OQ);
-      ok &= _mm512_cmp_ps_mask(v, zero, _CMP_GT_OQ);
-      const __m512 s = _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(v, _mm512_set1_ps(light.intensity)), n_dot_l), falloff);
-      lx = _mm512_mask_add_ps(lx, ok, lx, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.x)));
-      ly = _mm512_mask_add_ps(ly, ok, ly, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.y)));
-      lz = _mm512_mask_add_ps(lz, ok, lz, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.z)));
-    }
+    const LightLanes16 in{p, n, pb, i, vis_bits};
+    for (int l = 0; l < nl; ++l) add_light_x16(lights[l], l, in, lx, ly, lz);
     const __m512 ex = _mm512_set1_ps(exposure);
     const __m512i r = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[0], lx), ex)), bg, bg_r);
     const __m512i gg = _mm512_mask_mov_epi32(srgb8_x16(t, _mm512_mul_ps(_mm512_mul_ps(a[1], ly), ex)), bg, bg_g);

@@ -28,6 +28,7 @@
 #include <limits>
 #include <numbers>
 #include <string>
+#include <vector>
 
 #include <unistd.h>
 
@@ -1069,14 +1070,15 @@ TEST(Composite, RowKernelMatchesShadeLambert) {
   composite_row_path_only(false);
 }
 
-// The tone map of many values (16 at a time where the CPU has AVX-512) gives each value's code
-// one at a time: every float from 2^-14 to 1, and the values outside it. (On a CPU without
-// AVX-512 both sides are the one-at-a-time code.)
+// The tone map of many values (16 at a time where the CPU has AVX-512, by arithmetic and a
+// lookup only near a code boundary) gives each value's code one at a time: every float from
+// 2^-14 to 2, and the values outside it. (On a CPU without AVX-512 both sides are the
+// one-at-a-time code.)
 TEST(Composite, ToneMapManyMatchesOneAtATime) {
   std::vector<float> v;
   for (float x : {0.0f, -0.0f, -1.0f, 1e-30f, 0x1p-13f, std::nextafter(0x1p-13f, 0.0f), 1.0f, std::nextafter(1.0f, 0.0f),
                   1e30f, std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(), std::nanf(""),
-                  -std::nanf(""), std::numeric_limits<float>::denorm_min()})
+                  -std::nanf(""), std::numeric_limits<float>::denorm_min(), 0.0031308f, std::nextafter(0.0031308f, 0.0f)})
     v.push_back(x);
   std::vector<uint8_t> codes;
   auto check = [&](const char* what) {
@@ -1091,7 +1093,7 @@ TEST(Composite, ToneMapManyMatchesOneAtATime) {
     return true;
   };
   ASSERT_TRUE(check("special values"));
-  const uint32_t last = std::bit_cast<uint32_t>(1.0f);
+  const uint32_t last = std::bit_cast<uint32_t>(2.0f);
   for (uint32_t bits = std::bit_cast<uint32_t>(0x1p-14f); bits <= last;) {
     v.clear();
     for (; bits <= last && v.size() < (1u << 20) + 5; ++bits) v.push_back(std::bit_cast<float>(bits));  // not a multiple of 16
