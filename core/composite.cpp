@@ -32,7 +32,7 @@ double srgb_to_linear(double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v 
 // top 16 bits, so comparing the low 16 bits as integers compares the floats (all positive).
 // A bucket's entry packs its first float's code (bits 17-24) and the low 16 bits of its
 // boundary, or 0x10000, above any low bits, when it has none: one lookup and one integer
-// comparison per value (srgb8_code, and srgb8_x16 with one gather per 16 values).
+// comparison per value (srgb8_code; srgb8_x16 looks up only the values near a boundary).
 constexpr int kBucketBits = 7;
 constexpr int kLowBits = 23 - kBucketBits;
 constexpr uint32_t kLowMask = (1u << kLowBits) - 1u;
@@ -40,6 +40,7 @@ constexpr uint32_t kFirstBucketExponent = 127 - 13;  // biased exponent of 2^-13
 struct SrgbCodes {
   std::array<float, 255> boundary{};
   std::array<uint32_t, 13u << kBucketBits> bucket{};  // code << 17 | boundary's low bits (or 0x10000)
+  alignas(64) std::array<float, 16> scale{};  // srgb8_x16's 255 * 1.055 * 2^(5 (k - 13) / 12)
 };
 
 const SrgbCodes& srgb_codes() {
@@ -57,6 +58,7 @@ const SrgbCodes& srgb_codes() {
       const uint32_t low = inside ? std::bit_cast<uint32_t>(t.boundary[size_t(start)]) & kLowMask : kLowMask + 1u;
       t.bucket[i] = uint32_t(start) << (kLowBits + 1) | low;
     }
+    for (int k = 0; k < 16; ++k) t.scale[size_t(k)] = float(255.0 * 1.055 * std::exp2(5.0 * (k - 13) / 12.0));
     return t;
   }();
   return table;
@@ -297,28 +299,24 @@ DHR_AVX512_TARGET inline __m512 fractions_x16(const uint8_t* bytes, float scale)
   return _mm512_maskz_min_ps(kAll, v, _mm512_set1_ps(1.0f));
 }
 
-// srgb8_code of 16 values for the lanes of `lanes` (the others 0): the same comparisons, the
-// buckets' entries gathered.
-DHR_AVX512_TARGET inline __m512i srgb8_gather_x16(const SrgbCodes& t, __m512 v, __mmask16 lanes) {
-  const __mmask16 ge = _mm512_mask_cmp_ps_mask(lanes, v, _mm512_set1_ps(0x1p-13f), _CMP_GE_OQ);  // false for NaN
-  const __mmask16 top = _mm512_mask_cmp_ps_mask(lanes, v, _mm512_set1_ps(1.0f), _CMP_GE_OQ);
-  const __mmask16 mid = ge & __mmask16(~top);
+// srgb8_code of the lanes of `mid`, whose values lie in [2^-13, 1) (the others 0): the bucket
+// table's entries gathered and compared as srgb8_code compares them.
+DHR_AVX512_TARGET inline __m512i srgb8_lookup_x16(const SrgbCodes& t, __m512 v, __mmask16 mid) {
   const __m512i bits = _mm512_castps_si512(v);
   const __m512i bucket = _mm512_sub_epi32(_mm512_maskz_srli_epi32(kAll, bits, kLowBits),
                                           _mm512_set1_epi32(int32_t(kFirstBucketExponent << kBucketBits)));
   const __m512i e = _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mid, bucket, t.bucket.data(), 4);
   const __mmask16 past = _mm512_cmpge_epu32_mask(_mm512_and_si512(bits, _mm512_set1_epi32(int32_t(kLowMask))),
                                                  _mm512_and_si512(e, _mm512_set1_epi32(int32_t(2u * kLowMask + 1u))));
-  const __m512i code = _mm512_mask_add_epi32(_mm512_maskz_srli_epi32(mid, e, kLowBits + 1), mid & past,
-                                             _mm512_maskz_srli_epi32(mid, e, kLowBits + 1), _mm512_set1_epi32(1));
-  return _mm512_mask_mov_epi32(code, top, _mm512_set1_epi32(255));
+  return _mm512_mask_add_epi32(_mm512_maskz_srli_epi32(mid, e, kLowBits + 1), mid & past,
+                               _mm512_maskz_srli_epi32(mid, e, kLowBits + 1), _mm512_set1_epi32(1));
 }
 
 // srgb8_code of 16 values without a lookup where it can: y = 255 sRGB(v) + 0.5 evaluated in
 // float, the code floor(y), except within kSlack of an integer, where a boundary may lie, and
-// those lanes (a fraction of a percent) are looked up (srgb8_gather_x16). Below the sRGB curve's
+// those lanes (a fraction of a percent) are looked up (srgb8_lookup_x16). Below the sRGB curve's
 // linear end y = 255 * 12.92 v + 0.5; above it v^(5/12) = 2^(5e/12) m^(5/12) with v = 2^e m,
-// m in [1, 2): the first factor from a table by e, the second a degree-6 polynomial in m - 1.5
+// m in [1, 2): the first factor from a table by e (SrgbCodes::scale), the second a degree-6 polynomial in m - 1.5
 // (the Chebyshev interpolant on [1, 2] in the power basis, coefficients rounded to float; its
 // relative error 6.3e-7, so y is within about 2e-4 of 255 sRGB(v) + 0.5). The FMAs round once
 // where a product and a sum would round twice; nothing here needs the scalar code's roundings,
@@ -327,10 +325,6 @@ DHR_AVX512_TARGET inline __m512i srgb8_gather_x16(const SrgbCodes& t, __m512 v, 
 // tests/test_trace.cpp; it fails with kSlack = 1e-5 or a coefficient off by 5e-5).
 DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
   constexpr float kSlack = 1e-3f;
-  alignas(64) static constexpr float kScale[16] = {  // 255 * 1.055 * 2^(5 (k - 13) / 12)
-      6.298157215e+00f, 8.407031059e+00f, 1.122204018e+01f, 1.497962666e+01f, 1.999540329e+01f, 2.669066048e+01f,
-      3.562775803e+01f, 4.755735016e+01f, 6.348144531e+01f, 8.473756409e+01f, 1.131110764e+02f, 1.509851837e+02f,
-      2.015410309e+02f, 2.690249939e+02f, 3.591052856e+02f, 4.793480530e+02f};
   const __mmask16 ge = _mm512_cmp_ps_mask(v, _mm512_set1_ps(0x1p-13f), _CMP_GE_OQ);  // false for NaN
   const __mmask16 top = _mm512_cmp_ps_mask(v, _mm512_set1_ps(1.0f), _CMP_GE_OQ);
   const __mmask16 mid = ge & __mmask16(~top);
@@ -345,7 +339,7 @@ DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
   p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(3.289056122e-01f));
   p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(1.184053659e+00f));
   const __m512i k = _mm512_add_epi32(_mm512_maskz_cvttps_epi32(kAll, e), _mm512_set1_epi32(13));
-  const __m512 scale = _mm512_maskz_permutexvar_ps(kAll, k, _mm512_load_ps(kScale));
+  const __m512 scale = _mm512_maskz_permutexvar_ps(kAll, k, _mm512_load_ps(t.scale.data()));
   const __m512 y_pow = _mm512_fmsub_ps(scale, p, _mm512_set1_ps(255.0f * 0.055f - 0.5f));
   const __m512 y_lin = _mm512_fmadd_ps(v, _mm512_set1_ps(255.0f * 12.92f), _mm512_set1_ps(0.5f));
   const __m512 y = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(v, _mm512_set1_ps(0.0031308f), _CMP_LT_OQ), y_pow, y_lin);
@@ -353,7 +347,7 @@ DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
   const __mmask16 unsure = mid & _mm512_cmp_ps_mask(_mm512_abs_ps(near), _mm512_set1_ps(kSlack), _CMP_LT_OQ);
   __m512i code = _mm512_maskz_cvt_roundps_epi32(mid, y, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
   code = _mm512_mask_mov_epi32(code, top, _mm512_set1_epi32(255));
-  if (unsure) code = _mm512_mask_mov_epi32(code, unsure, srgb8_gather_x16(t, v, unsure));
+  if (unsure) code = _mm512_mask_mov_epi32(code, unsure, srgb8_lookup_x16(t, v, unsure));
   return code;
 }
 
@@ -378,24 +372,27 @@ DHR_AVX512_TARGET size_t tonemap_x16(const SrgbCodes& t, const float* linear, si
   return i;
 }
 
-// V_l of the 16 pixels from pixel i on where it is a fraction (8-bit planes); where it is 0 or
-// 1 (a bitmask, or no pass: fully lit) its lanes of 1 instead, as `on`, and v = 1 there (so
-// that v * intensity is intensity, the scalar kernel's product). `bits`: a one-byte-per-pixel
-// bitmask's 16 bytes, widened once per block.
+// Light l's visibility in the 16 pixels from pixel i on: the lanes where V_l > 0, and there
+// V_l * intensity as the scalar kernel makes it (where V_l is 0 or 1, a bitmask or no pass, that
+// product is intensity itself). `bits`: a one-byte-per-pixel bitmask's 16 bytes, widened once
+// per block.
 struct Visibility16 {
   __mmask16 on;
-  __m512 v;
-  bool fraction;
+  __m512 v_intensity;
 };
-DHR_AVX512_TARGET inline Visibility16 visibility_x16(const PassBytes& pb, size_t l, size_t i, __m512i bits) {
-  const __m512 one = _mm512_set1_ps(1.0f);
-  if (!pb.vis) return {0xffff, one, false};
-  if (!pb.bitmask) return {0, fractions_x16(pb.vis + l * pb.plane + i, pb.vis_scale), true};
-  if (pb.bpp == 1) return {_mm512_test_epi32_mask(bits, _mm512_set1_epi32(int32_t(1u << (l & 7)))), one, false};
+DHR_AVX512_TARGET inline Visibility16 visibility_x16(const PassBytes& pb, size_t l, size_t i, __m512i bits,
+                                                     float intensity) {
+  const __m512 full = _mm512_set1_ps(intensity);
+  if (!pb.vis) return {0xffff, full};
+  if (!pb.bitmask) {
+    const __m512 v = fractions_x16(pb.vis + l * pb.plane + i, pb.vis_scale);
+    return {_mm512_cmp_ps_mask(v, _mm512_setzero_ps(), _CMP_GT_OQ), _mm512_mul_ps(v, full)};
+  }
+  if (pb.bpp == 1) return {_mm512_test_epi32_mask(bits, _mm512_set1_epi32(int32_t(1u << (l & 7)))), full};
   __mmask16 on = 0;
   const uint8_t* src = pb.vis + i * pb.bpp + (l >> 3);
   for (unsigned k = 0; k < 16; ++k) on |= __mmask16(((src[k * pb.bpp] >> (l & 7)) & 1u) << k);
-  return {on, one, false};
+  return {on, full};
 }
 
 // What a light's term reads of 16 pixels: point, normal, the passes, the first pixel's index
@@ -449,11 +446,9 @@ DHR_AVX512_TARGET inline void add_light_x16(const LightTerm& L, int l, const Lig
   const Light& light = *L.light;
   const __m512 zero = _mm512_setzero_ps();
   const LightGeometry16 geo = light_geometry_x16(L, in);
-  const Visibility16 vis = visibility_x16(in.pb, size_t(l), in.i, in.vis_bits);
-  __mmask16 ok = geo.ok & _mm512_cmp_ps_mask(geo.n_dot_l, zero, _CMP_GT_OQ);
-  ok &= vis.fraction ? _mm512_cmp_ps_mask(vis.v, zero, _CMP_GT_OQ) : vis.on;
-  const __m512 vi = vis.fraction ? _mm512_mul_ps(vis.v, _mm512_set1_ps(light.intensity)) : _mm512_set1_ps(light.intensity);
-  const __m512 s = _mm512_mul_ps(_mm512_mul_ps(vi, geo.n_dot_l), geo.falloff);
+  const Visibility16 vis = visibility_x16(in.pb, size_t(l), in.i, in.vis_bits, light.intensity);
+  const __mmask16 ok = geo.ok & _mm512_cmp_ps_mask(geo.n_dot_l, zero, _CMP_GT_OQ) & vis.on;
+  const __m512 s = _mm512_mul_ps(_mm512_mul_ps(vis.v_intensity, geo.n_dot_l), geo.falloff);
   lx = _mm512_mask_add_ps(lx, ok, lx, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.x)));
   ly = _mm512_mask_add_ps(ly, ok, ly, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.y)));
   lz = _mm512_mask_add_ps(lz, ok, lz, _mm512_mul_ps(s, _mm512_set1_ps(light.colour.z)));
