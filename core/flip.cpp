@@ -745,6 +745,19 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
 float flip_detail::lab_f_value(float t) { return lab_f(t); }
 void flip_detail::lab_f_values(float* v, size_t n) { lab_f_row(v, n); }
 
+int flip_detail::test_half_taps(double ppd) {
+  check_ppd(ppd);
+  const Filters fl = make_filters(ppd);
+  auto taps = [](const Kernel& k) { return 2 * k.radius + 1; };
+  // horizontal_pass: Yy, Cx, Cz (both Gaussians) and the luminance by g, d1 and d2;
+  const int across = taps(fl.y.g1) + taps(fl.cx.g1) + taps(fl.cz.g1) + taps(fl.cz.g2) + taps(fl.f.g) +
+                     taps(fl.f.d1) + taps(fl.f.d2);
+  // vertical_rows: the four colour planes by their own kernels, then g, d1, g and d2 down.
+  const int down = taps(fl.y.g1) + taps(fl.cx.g1) + taps(fl.cz.g1) + taps(fl.cz.g2) + 2 * taps(fl.f.g) +
+                   taps(fl.f.d1) + taps(fl.f.d2);
+  return across + down;
+}
+
 ImageRGB8 flip_colour_map(const ImageF& flip_map) {
   ImageRGB8 out(flip_map.width(), flip_map.height());
   for (size_t i = 0; i < flip_map.size(); ++i) {

@@ -8,11 +8,14 @@
 //    runner scores every frame of a run against one reference);
 //  - FLIP's powers (core/pow_row.h) against the library's powf called per element, and FLIP's
 //    test half with each;
-//  - the temporal stability scores of one frame step against their previous sequential loop.
+//  - the temporal stability scores of one frame step against their previous sequential loop;
+//  - the metrics' multiply-adds alone at this CPU's peak rate (BM_Metrics_taps_floor): the least
+//    time any implementation of SSIM's and FLIP's filters as specified needs per frame.
 // After the runs a table prints the fastest repetition of each and the ratios, twice: wall ms
 // (the metrics use all cores through TBB) and process CPU ms per iteration summed over all
 // threads (on a shared, loaded machine the wall time mostly measures the neighbours; the CPU
 // time a metric consumes varies much less).
+#include "core/avx512.h"
 #include "core/flip.h"
 #include "core/metrics.h"
 #include "core/pow_row.h"
@@ -188,6 +191,94 @@ void BM_Flip_floor(benchmark::State& state) {
 }
 BENCHMARK(BM_Flip_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+// The metrics' filter taps alone, per 1280x720 frame, at this CPU's peak multiply-add rate: each
+// tap of SSIM (luma; five moments x 11 taps across, in float, and down, in double, as
+// core/metrics.cpp sums them) and of FLIP's test half (flip_detail::test_half_taps: 301 at the
+// default 67 pixels per degree) taken as one fused multiply-add (the metrics themselves round
+// each product and sum on their own: two operations), on inputs held in L1, eight independent
+// 16-lane sums in registers. Nothing else is counted: not the colour conversions, powers,
+// square roots and quotients, nor the reads and writes of the planes. No implementation of these
+// filters as specified takes less time on this CPU; docs/performance.md compares it with a
+// client frame (issue 16, item 5).
+constexpr int kFloorW = 1280, kFloorH = 720;
+
+int64_t ssim_taps_per_pixel() { return 5 * int64_t(dhr::kSsimWindow); }  // each direction
+
+#if DHR_AVX512_KERNELS
+// `blocks` x 8 x 16 float multiply-adds into eight sums; returns their total (kept live).
+DHR_AVX512_TARGET float fma_blocks_f32(const float* in, int64_t blocks) {
+  __m512 acc[8];
+  for (auto& a : acc) a = _mm512_setzero_ps();
+  const __m512 w0 = _mm512_set1_ps(0.25f), w1 = _mm512_set1_ps(-0.125f);
+  for (int64_t b = 0; b < blocks; ++b) {
+    const float* p = in + 32 * (b & 7);  // 512 floats, 2 KB: in L1
+    const __m512 x0 = _mm512_loadu_ps(p), x1 = _mm512_loadu_ps(p + 16);
+    acc[0] = _mm512_fmadd_ps(w0, x0, acc[0]);
+    acc[1] = _mm512_fmadd_ps(w1, x0, acc[1]);
+    acc[2] = _mm512_fmadd_ps(w0, x1, acc[2]);
+    acc[3] = _mm512_fmadd_ps(w1, x1, acc[3]);
+    acc[4] = _mm512_fmadd_ps(w1, x0, acc[4]);
+    acc[5] = _mm512_fmadd_ps(w0, x0, acc[5]);
+    acc[6] = _mm512_fmadd_ps(w1, x1, acc[6]);
+    acc[7] = _mm512_fmadd_ps(w0, x1, acc[7]);
+  }
+  __m512 s = acc[0];
+  for (int j = 1; j < 8; ++j) s = _mm512_add_ps(s, acc[j]);
+  return _mm512_reduce_add_ps(s);
+}
+
+// The same with `blocks` x 8 x 8 double multiply-adds.
+DHR_AVX512_TARGET double fma_blocks_f64(const double* in, int64_t blocks) {
+  __m512d acc[8];
+  for (auto& a : acc) a = _mm512_setzero_pd();
+  const __m512d w0 = _mm512_set1_pd(0.25), w1 = _mm512_set1_pd(-0.125);
+  for (int64_t b = 0; b < blocks; ++b) {
+    const double* p = in + 16 * (b & 7);
+    const __m512d x0 = _mm512_loadu_pd(p), x1 = _mm512_loadu_pd(p + 8);
+    acc[0] = _mm512_fmadd_pd(w0, x0, acc[0]);
+    acc[1] = _mm512_fmadd_pd(w1, x0, acc[1]);
+    acc[2] = _mm512_fmadd_pd(w0, x1, acc[2]);
+    acc[3] = _mm512_fmadd_pd(w1, x1, acc[3]);
+    acc[4] = _mm512_fmadd_pd(w1, x0, acc[4]);
+    acc[5] = _mm512_fmadd_pd(w0, x0, acc[5]);
+    acc[6] = _mm512_fmadd_pd(w1, x1, acc[6]);
+    acc[7] = _mm512_fmadd_pd(w0, x1, acc[7]);
+  }
+  __m512d s = acc[0];
+  for (int j = 1; j < 8; ++j) s = _mm512_add_pd(s, acc[j]);
+  return _mm512_reduce_add_pd(s);
+}
+#endif
+
+// One thread, as the CPU ms of the metrics above count all threads' time.
+void BM_Metrics_taps_floor(benchmark::State& state) {
+#if DHR_AVX512_KERNELS
+  if (!dhr::cpu_has_avx512dq()) {
+    state.SkipWithError("the taps floor is written for AVX-512 (this CPU has none, or DHR_MAX_ISA forbids it)");
+    return;
+  }
+  const int64_t pixels = int64_t(kFloorW) * kFloorH;
+  const int64_t flip_taps = dhr::flip_detail::test_half_taps(dhr::kFlipDefaultPpd);
+  const int64_t float_taps = pixels * (flip_taps + ssim_taps_per_pixel());  // FLIP, SSIM across
+  const int64_t double_taps = pixels * ssim_taps_per_pixel();               // SSIM down
+  const int64_t float_blocks = (float_taps + 127) / 128, double_blocks = (double_taps + 63) / 64;
+  std::vector<float> in_f(512);
+  std::vector<double> in_d(256);
+  for (size_t i = 0; i < in_f.size(); ++i) in_f[i] = float(i % 7) * 0.01f;
+  for (size_t i = 0; i < in_d.size(); ++i) in_d[i] = double(i % 5) * 0.01;
+  CpuCounter cpu{state};
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(fma_blocks_f32(in_f.data(), float_blocks));
+    benchmark::DoNotOptimize(fma_blocks_f64(in_d.data(), double_blocks));
+  }
+  state.counters["flip_taps_per_px"] = double(flip_taps);
+  state.counters["ssim_taps_per_px"] = double(2 * ssim_taps_per_pixel());
+#else
+  state.SkipWithError("the taps floor is written for AVX-512 (not built for this compiler or CPU)");
+#endif
+}
+BENCHMARK(BM_Metrics_taps_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
+
 // Temporal stability of one frame step (core/temporal.h) against the sequential loop it was
 // until its per-pixel terms ran in vectorized chunks (tests/support.h; the same bits:
 // Temporal.SameBitsAsOneSequentialLoop).
@@ -236,6 +327,12 @@ class Summary : public benchmark::ConsoleReporter {
       row("FLIP test half / with libm's pow per pixel", "BM_Flip_test_half", "BM_Flip_test_half_libm_pow");
       row("pow_row / libm's powf per element", "BM_PowRow", "BM_PowLibm");
       row("temporal scores / the sequential loop before", "BM_Temporal", "BM_Temporal_one_loop");
+      const auto ssim = table->find("BM_SsimLuma_valid"), flip = table->find("BM_Flip_test_half"),
+                 floor = table->find("BM_Metrics_taps_floor");
+      // CPU time only: the floor runs on one thread, the metrics on all.
+      if (table == &cpu_ms_ && ssim != table->end() && flip != table->end() && floor != table->end())
+        std::printf("%-48s %10.2f %10.2f %9.2fx\n", "SSIM valid + FLIP test half / their taps floor",
+                    ssim->second + flip->second, floor->second, (ssim->second + flip->second) / floor->second);
     }
   }
 

@@ -366,6 +366,17 @@ TEST(Flip, PixelsPerDegreeOfThePapersSetup) {
   EXPECT_NEAR(pixels_per_degree({1.4, 0.7, 3840}), 2 * 67.0206, 2e-4);
 }
 
+TEST(Flip, TestHalfTapsCountTheKernelsBuilt) {
+  // At 67 pixels per degree (docs/metrics.md) the four CSF kernels share the largest radius,
+  // ceil(3 sqrt(0.04 / (2 pi^2)) 67) = 10 (21 taps), and the feature kernels' sigma is
+  // 0.5 * 0.082 * 67 = 2.747 (radius ceil(3 sigma) = 9, 19 taps): 4 * 21 + 3 * 19 across and
+  // 4 * 21 + 4 * 19 down.
+  EXPECT_EQ(flip_detail::test_half_taps(67.0), 4 * 21 + 3 * 19 + 4 * 21 + 4 * 19);
+  // At 10 pixels per degree: CSF radius ceil(1.35) = 2 (5 taps), features ceil(1.23) = 2 (5).
+  EXPECT_EQ(flip_detail::test_half_taps(10.0), 15 * 5);
+  EXPECT_THROW(flip_detail::test_half_taps(0.0), Error);
+}
+
 TEST(Flip, ColourMapIsMagma) {
   ImageF m(4, 1);
   m[0] = 0.0f;
