@@ -9,7 +9,7 @@
 //  - FLIP's powers (core/pow_row.h) against the library's powf called per element, and FLIP's
 //    test half with each;
 //  - the temporal stability scores of one frame step against their previous sequential loop;
-//  - the metrics' multiply-adds alone at this CPU's peak rate (BM_Metrics_taps_floor): the least
+//  - the metrics' filter taps alone at this CPU's peak rate (BM_Metrics_taps_floor): the least
 //    time any implementation of SSIM's and FLIP's filters as specified needs per frame.
 // After the runs a table prints the fastest repetition of each and the ratios, twice: wall ms
 // (the metrics use all cores through TBB) and process CPU ms per iteration summed over all
@@ -191,58 +191,64 @@ void BM_Flip_floor(benchmark::State& state) {
 }
 BENCHMARK(BM_Flip_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// The metrics' filter taps alone, per 1280x720 frame, at this CPU's peak multiply-add rate: each
-// tap of SSIM (luma; five moments x 11 taps across, in float, and down, in double, as
-// core/metrics.cpp sums them) and of FLIP's test half (flip_detail::test_half_taps: 301 at the
-// default 67 pixels per degree) taken as one fused multiply-add (the metrics themselves round
-// each product and sum on their own: two operations), on inputs held in L1, eight independent
-// 16-lane sums in registers. Nothing else is counted: not the colour conversions, powers,
-// square roots and quotients, nor the reads and writes of the planes. No implementation of these
-// filters as specified takes less time on this CPU; docs/performance.md compares it with a
-// client frame (issue 16, item 5).
+// The metrics' filter taps alone, per 1280x720 frame, at this CPU's peak rate: the taps of SSIM
+// (luma; five moments x 11 taps across, in float, and down, in double, as core/metrics.cpp sums
+// them) and of FLIP's test half (flip_detail::test_half_taps: 301 at the default 67 pixels per
+// degree). Every kernel is symmetric or antisymmetric, so two taps can share one product: each
+// pair of taps is taken as one sum (or difference) of the two inputs and one fused multiply-add
+// into the output (the metrics themselves take a product and a sum per tap, each rounded on its
+// own: four operations a pair, not two), on inputs held in L1, eight independent 16-lane sums in
+// registers; on a CPU whose adders and multipliers are separate units (Zen 4) the pair costs
+// one slot of each. Nothing else is counted: not the colour conversions, powers, square roots
+// and quotients, nor the reads and writes of the planes. No implementation of these filters as
+// specified (direct, separable, in these precisions) takes less time on this CPU;
+// docs/performance.md compares it with a client frame (issue 16, item 5).
 constexpr int kFloorW = 1280, kFloorH = 720;
 
 int64_t ssim_taps_per_pixel() { return 5 * int64_t(dhr::kSsimWindow); }  // each direction
 
 #if DHR_AVX512_KERNELS
-// `blocks` x 8 x 16 float multiply-adds into eight sums; returns their total (kept live).
-DHR_AVX512_TARGET float fma_blocks_f32(const float* in, int64_t blocks) {
+// `blocks` x 8 x 16 float tap pairs (a sum of two of five inputs, then a multiply-add) into
+// eight sums; returns their total (kept live).
+DHR_AVX512_TARGET float tap_pairs_f32(const float* in, int64_t blocks) {
   __m512 acc[8];
   for (auto& a : acc) a = _mm512_setzero_ps();
   const __m512 w0 = _mm512_set1_ps(0.25f), w1 = _mm512_set1_ps(-0.125f);
   for (int64_t b = 0; b < blocks; ++b) {
-    const float* p = in + 32 * (b & 7);  // 512 floats, 2 KB: in L1
-    const __m512 x0 = _mm512_loadu_ps(p), x1 = _mm512_loadu_ps(p + 16);
-    acc[0] = _mm512_fmadd_ps(w0, x0, acc[0]);
-    acc[1] = _mm512_fmadd_ps(w1, x0, acc[1]);
-    acc[2] = _mm512_fmadd_ps(w0, x1, acc[2]);
-    acc[3] = _mm512_fmadd_ps(w1, x1, acc[3]);
-    acc[4] = _mm512_fmadd_ps(w1, x0, acc[4]);
-    acc[5] = _mm512_fmadd_ps(w0, x0, acc[5]);
-    acc[6] = _mm512_fmadd_ps(w1, x1, acc[6]);
-    acc[7] = _mm512_fmadd_ps(w0, x1, acc[7]);
+    const float* p = in + 32 * (b & 7);  // within 320 floats: in L1
+    const __m512 x0 = _mm512_loadu_ps(p), x1 = _mm512_loadu_ps(p + 16), x2 = _mm512_loadu_ps(p + 32);
+    const __m512 x3 = _mm512_loadu_ps(p + 48), x4 = _mm512_loadu_ps(p + 64);
+    acc[0] = _mm512_fmadd_ps(w0, _mm512_add_ps(x0, x1), acc[0]);
+    acc[1] = _mm512_fmadd_ps(w1, _mm512_add_ps(x0, x2), acc[1]);
+    acc[2] = _mm512_fmadd_ps(w0, _mm512_add_ps(x0, x3), acc[2]);
+    acc[3] = _mm512_fmadd_ps(w1, _mm512_add_ps(x0, x4), acc[3]);
+    acc[4] = _mm512_fmadd_ps(w1, _mm512_add_ps(x1, x2), acc[4]);
+    acc[5] = _mm512_fmadd_ps(w0, _mm512_add_ps(x1, x3), acc[5]);
+    acc[6] = _mm512_fmadd_ps(w1, _mm512_add_ps(x2, x4), acc[6]);
+    acc[7] = _mm512_fmadd_ps(w0, _mm512_add_ps(x3, x4), acc[7]);
   }
   __m512 s = acc[0];
   for (int j = 1; j < 8; ++j) s = _mm512_add_ps(s, acc[j]);
   return _mm512_reduce_add_ps(s);
 }
 
-// The same with `blocks` x 8 x 8 double multiply-adds.
-DHR_AVX512_TARGET double fma_blocks_f64(const double* in, int64_t blocks) {
+// The same with `blocks` x 8 x 8 double tap pairs.
+DHR_AVX512_TARGET double tap_pairs_f64(const double* in, int64_t blocks) {
   __m512d acc[8];
   for (auto& a : acc) a = _mm512_setzero_pd();
   const __m512d w0 = _mm512_set1_pd(0.25), w1 = _mm512_set1_pd(-0.125);
   for (int64_t b = 0; b < blocks; ++b) {
-    const double* p = in + 16 * (b & 7);
-    const __m512d x0 = _mm512_loadu_pd(p), x1 = _mm512_loadu_pd(p + 8);
-    acc[0] = _mm512_fmadd_pd(w0, x0, acc[0]);
-    acc[1] = _mm512_fmadd_pd(w1, x0, acc[1]);
-    acc[2] = _mm512_fmadd_pd(w0, x1, acc[2]);
-    acc[3] = _mm512_fmadd_pd(w1, x1, acc[3]);
-    acc[4] = _mm512_fmadd_pd(w1, x0, acc[4]);
-    acc[5] = _mm512_fmadd_pd(w0, x0, acc[5]);
-    acc[6] = _mm512_fmadd_pd(w1, x1, acc[6]);
-    acc[7] = _mm512_fmadd_pd(w0, x1, acc[7]);
+    const double* p = in + 16 * (b & 7);  // within 160 doubles
+    const __m512d x0 = _mm512_loadu_pd(p), x1 = _mm512_loadu_pd(p + 8), x2 = _mm512_loadu_pd(p + 16);
+    const __m512d x3 = _mm512_loadu_pd(p + 24), x4 = _mm512_loadu_pd(p + 32);
+    acc[0] = _mm512_fmadd_pd(w0, _mm512_add_pd(x0, x1), acc[0]);
+    acc[1] = _mm512_fmadd_pd(w1, _mm512_add_pd(x0, x2), acc[1]);
+    acc[2] = _mm512_fmadd_pd(w0, _mm512_add_pd(x0, x3), acc[2]);
+    acc[3] = _mm512_fmadd_pd(w1, _mm512_add_pd(x0, x4), acc[3]);
+    acc[4] = _mm512_fmadd_pd(w1, _mm512_add_pd(x1, x2), acc[4]);
+    acc[5] = _mm512_fmadd_pd(w0, _mm512_add_pd(x1, x3), acc[5]);
+    acc[6] = _mm512_fmadd_pd(w1, _mm512_add_pd(x2, x4), acc[6]);
+    acc[7] = _mm512_fmadd_pd(w0, _mm512_add_pd(x3, x4), acc[7]);
   }
   __m512d s = acc[0];
   for (int j = 1; j < 8; ++j) s = _mm512_add_pd(s, acc[j]);
@@ -259,17 +265,21 @@ void BM_Metrics_taps_floor(benchmark::State& state) {
   }
   const int64_t pixels = int64_t(kFloorW) * kFloorH;
   const int64_t flip_taps = dhr::flip_detail::test_half_taps(dhr::kFlipDefaultPpd);
-  const int64_t float_taps = pixels * (flip_taps + ssim_taps_per_pixel());  // FLIP, SSIM across
-  const int64_t double_taps = pixels * ssim_taps_per_pixel();               // SSIM down
-  const int64_t float_blocks = (float_taps + 127) / 128, double_blocks = (double_taps + 63) / 64;
+  // SSIM over the valid interior (SsimBorder::Valid, no map): its columns on every row across,
+  // its pixels down.
+  const int64_t r = dhr::kSsimWindow / 2, ssim_cols = kFloorW - 2 * r, ssim_rows = kFloorH - 2 * r;
+  const int64_t float_taps = pixels * flip_taps + ssim_cols * kFloorH * ssim_taps_per_pixel();
+  const int64_t double_taps = ssim_cols * ssim_rows * ssim_taps_per_pixel();
+  // Two taps a pair (an odd kernel's middle tap counted as half a pair: a little under the count).
+  const int64_t float_blocks = float_taps / 2 / 128, double_blocks = double_taps / 2 / 64;
   std::vector<float> in_f(512);
   std::vector<double> in_d(256);
   for (size_t i = 0; i < in_f.size(); ++i) in_f[i] = float(i % 7) * 0.01f;
   for (size_t i = 0; i < in_d.size(); ++i) in_d[i] = double(i % 5) * 0.01;
   CpuCounter cpu{state};
   for (auto _ : state) {
-    benchmark::DoNotOptimize(fma_blocks_f32(in_f.data(), float_blocks));
-    benchmark::DoNotOptimize(fma_blocks_f64(in_d.data(), double_blocks));
+    benchmark::DoNotOptimize(tap_pairs_f32(in_f.data(), float_blocks));
+    benchmark::DoNotOptimize(tap_pairs_f64(in_d.data(), double_blocks));
   }
   state.counters["flip_taps_per_px"] = double(flip_taps);
   state.counters["ssim_taps_per_px"] = double(2 * ssim_taps_per_pixel());
