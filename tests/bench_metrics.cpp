@@ -209,51 +209,43 @@ constexpr int kFloorW = 1280, kFloorH = 720;
 int64_t ssim_taps_per_pixel() { return 5 * int64_t(dhr::kSsimWindow); }  // each direction
 
 #if DHR_AVX512_KERNELS
-// `blocks` x 8 x 16 float tap pairs (a sum of two of five inputs, then a multiply-add) into
-// eight sums; returns their total (kept live).
-DHR_AVX512_TARGET float tap_pairs_f32(const float* in, int64_t blocks) {
-  __m512 acc[8];
-  for (auto& a : acc) a = _mm512_setzero_ps();
-  const __m512 w0 = _mm512_set1_ps(0.25f), w1 = _mm512_set1_ps(-0.125f);
-  for (int64_t b = 0; b < blocks; ++b) {
-    const float* p = in + 32 * (b & 7);  // within 320 floats: in L1
-    const __m512 x0 = _mm512_loadu_ps(p), x1 = _mm512_loadu_ps(p + 16), x2 = _mm512_loadu_ps(p + 32);
-    const __m512 x3 = _mm512_loadu_ps(p + 48), x4 = _mm512_loadu_ps(p + 64);
-    acc[0] = _mm512_fmadd_ps(w0, _mm512_add_ps(x0, x1), acc[0]);
-    acc[1] = _mm512_fmadd_ps(w1, _mm512_add_ps(x0, x2), acc[1]);
-    acc[2] = _mm512_fmadd_ps(w0, _mm512_add_ps(x0, x3), acc[2]);
-    acc[3] = _mm512_fmadd_ps(w1, _mm512_add_ps(x0, x4), acc[3]);
-    acc[4] = _mm512_fmadd_ps(w1, _mm512_add_ps(x1, x2), acc[4]);
-    acc[5] = _mm512_fmadd_ps(w0, _mm512_add_ps(x1, x3), acc[5]);
-    acc[6] = _mm512_fmadd_ps(w1, _mm512_add_ps(x2, x4), acc[6]);
-    acc[7] = _mm512_fmadd_ps(w0, _mm512_add_ps(x3, x4), acc[7]);
-  }
-  __m512 s = acc[0];
-  for (int j = 1; j < 8; ++j) s = _mm512_add_ps(s, acc[j]);
-  return _mm512_reduce_add_ps(s);
-}
+// 16 floats or 8 doubles: one 512-bit register's loads, sums and fused multiply-adds.
+DHR_AVX512_TARGET inline __m512 load_lanes(const float* p) { return _mm512_loadu_ps(p); }
+DHR_AVX512_TARGET inline __m512d load_lanes(const double* p) { return _mm512_loadu_pd(p); }
+DHR_AVX512_TARGET inline __m512 add_lanes(__m512 a, __m512 b) { return _mm512_add_ps(a, b); }
+DHR_AVX512_TARGET inline __m512d add_lanes(__m512d a, __m512d b) { return _mm512_add_pd(a, b); }
+DHR_AVX512_TARGET inline __m512 fmadd_lanes(__m512 w, __m512 x, __m512 a) { return _mm512_fmadd_ps(w, x, a); }
+DHR_AVX512_TARGET inline __m512d fmadd_lanes(__m512d w, __m512d x, __m512d a) { return _mm512_fmadd_pd(w, x, a); }
+DHR_AVX512_TARGET inline __m512 splat_lanes(float v) { return _mm512_set1_ps(v); }
+DHR_AVX512_TARGET inline __m512d splat_lanes(double v) { return _mm512_set1_pd(v); }
+DHR_AVX512_TARGET inline float reduce_lanes(__m512 v) { return _mm512_reduce_add_ps(v); }
+DHR_AVX512_TARGET inline double reduce_lanes(__m512d v) { return _mm512_reduce_add_pd(v); }
 
-// The same with `blocks` x 8 x 8 double tap pairs.
-DHR_AVX512_TARGET double tap_pairs_f64(const double* in, int64_t blocks) {
-  __m512d acc[8];
-  for (auto& a : acc) a = _mm512_setzero_pd();
-  const __m512d w0 = _mm512_set1_pd(0.25), w1 = _mm512_set1_pd(-0.125);
+// `blocks` x 8 register-wide tap pairs (a sum of two of five inputs, then a multiply-add) into
+// eight sums; returns their total (kept live). T is float or double.
+template <class T>
+DHR_AVX512_TARGET T tap_pairs(const T* in, int64_t blocks) {
+  constexpr int kLanes = 64 / int(sizeof(T));
+  using V = decltype(load_lanes(in));
+  V acc[8];
+  for (auto& a : acc) a = splat_lanes(T(0));
+  const V w0 = splat_lanes(T(0.25)), w1 = splat_lanes(T(-0.125));
   for (int64_t b = 0; b < blocks; ++b) {
-    const double* p = in + 16 * (b & 7);  // within 160 doubles
-    const __m512d x0 = _mm512_loadu_pd(p), x1 = _mm512_loadu_pd(p + 8), x2 = _mm512_loadu_pd(p + 16);
-    const __m512d x3 = _mm512_loadu_pd(p + 24), x4 = _mm512_loadu_pd(p + 32);
-    acc[0] = _mm512_fmadd_pd(w0, _mm512_add_pd(x0, x1), acc[0]);
-    acc[1] = _mm512_fmadd_pd(w1, _mm512_add_pd(x0, x2), acc[1]);
-    acc[2] = _mm512_fmadd_pd(w0, _mm512_add_pd(x0, x3), acc[2]);
-    acc[3] = _mm512_fmadd_pd(w1, _mm512_add_pd(x0, x4), acc[3]);
-    acc[4] = _mm512_fmadd_pd(w1, _mm512_add_pd(x1, x2), acc[4]);
-    acc[5] = _mm512_fmadd_pd(w0, _mm512_add_pd(x1, x3), acc[5]);
-    acc[6] = _mm512_fmadd_pd(w1, _mm512_add_pd(x2, x4), acc[6]);
-    acc[7] = _mm512_fmadd_pd(w0, _mm512_add_pd(x3, x4), acc[7]);
+    const T* p = in + 2 * kLanes * (b & 7);  // within the first 19 registers' worth: in L1
+    const V x0 = load_lanes(p), x1 = load_lanes(p + kLanes), x2 = load_lanes(p + 2 * kLanes);
+    const V x3 = load_lanes(p + 3 * kLanes), x4 = load_lanes(p + 4 * kLanes);
+    acc[0] = fmadd_lanes(w0, add_lanes(x0, x1), acc[0]);
+    acc[1] = fmadd_lanes(w1, add_lanes(x0, x2), acc[1]);
+    acc[2] = fmadd_lanes(w0, add_lanes(x0, x3), acc[2]);
+    acc[3] = fmadd_lanes(w1, add_lanes(x0, x4), acc[3]);
+    acc[4] = fmadd_lanes(w1, add_lanes(x1, x2), acc[4]);
+    acc[5] = fmadd_lanes(w0, add_lanes(x1, x3), acc[5]);
+    acc[6] = fmadd_lanes(w1, add_lanes(x2, x4), acc[6]);
+    acc[7] = fmadd_lanes(w0, add_lanes(x3, x4), acc[7]);
   }
-  __m512d s = acc[0];
-  for (int j = 1; j < 8; ++j) s = _mm512_add_pd(s, acc[j]);
-  return _mm512_reduce_add_pd(s);
+  V sum = acc[0];
+  for (int j = 1; j < 8; ++j) sum = add_lanes(sum, acc[j]);
+  return reduce_lanes(sum);
 }
 #endif
 
@@ -272,15 +264,15 @@ void BM_Metrics_taps_floor(benchmark::State& state) {
   const int64_t float_taps = pixels * flip_taps + ssim_cols * kFloorH * ssim_taps_per_pixel();
   const int64_t double_taps = ssim_cols * ssim_rows * ssim_taps_per_pixel();
   // Two taps a pair (an odd kernel's middle tap counted as half a pair: a little under the count).
-  const int64_t float_blocks = float_taps / 2 / 128, double_blocks = double_taps / 2 / 64;
+  const int64_t float_blocks = float_taps / 2 / (8 * 16), double_blocks = double_taps / 2 / (8 * 8);
   std::vector<float> in_f(512);
   std::vector<double> in_d(256);
   for (size_t i = 0; i < in_f.size(); ++i) in_f[i] = float(i % 7) * 0.01f;
   for (size_t i = 0; i < in_d.size(); ++i) in_d[i] = double(i % 5) * 0.01;
   CpuCounter cpu{state};
   for (auto _ : state) {
-    benchmark::DoNotOptimize(tap_pairs_f32(in_f.data(), float_blocks));
-    benchmark::DoNotOptimize(tap_pairs_f64(in_d.data(), double_blocks));
+    benchmark::DoNotOptimize(tap_pairs(in_f.data(), float_blocks));
+    benchmark::DoNotOptimize(tap_pairs(in_d.data(), double_blocks));
   }
   state.counters["flip_taps_per_px"] = double(flip_taps);
   state.counters["ssim_taps_per_px"] = double(2 * ssim_taps_per_pixel());
