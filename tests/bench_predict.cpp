@@ -484,11 +484,19 @@ void BM_Composite(benchmark::State& state) {
 BENCHMARK(BM_Composite)->ArgName("row_path_only")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 #if DHR_AVX512_KERNELS
-// `blocks` times a sphere light's square root and two divisions in 16 lanes, on 16 KB of
-// inputs; no block's divisions wait on another's (only the sum that keeps them live does).
-DHR_AVX512_TARGET void composite_divisions_x16(size_t blocks) {
-  alignas(64) static float d2[1024], dot[1024];
-  for (size_t i = 0; i < 1024; ++i) d2[i] = 1.0f + float(i) * 1e-3f, dot[i] = 0.5f + float(i) * 1e-4f;
+// The inputs of composite_divisions_x16: d^2 and n . l for 1024 lanes (8 KB, in L1).
+struct DivisionInputs {
+  alignas(64) float d2[1024], dot[1024];
+  DivisionInputs() {
+    for (size_t i = 0; i < 1024; ++i) d2[i] = 1.0f + float(i) * 1e-3f, dot[i] = 0.5f + float(i) * 1e-4f;
+  }
+};
+
+// `blocks` times a sphere light's square root and two divisions in 16 lanes, on `in`; no
+// block's divisions wait on another's (only the sum that keeps them live does).
+DHR_AVX512_TARGET void composite_divisions_x16(const DivisionInputs& in, size_t blocks) {
+  const float* d2 = in.d2;
+  const float* dot = in.dot;
   __m512 acc = _mm512_setzero_ps();
   for (size_t k = 0; k < blocks; ++k) {
     const size_t j = (k * 16) % 1024;
@@ -504,7 +512,8 @@ DHR_AVX512_TARGET void composite_divisions_x16(size_t blocks) {
 // written, within L2) composited 90 times, CPU ms per 720 rows: what the kernel's arithmetic
 // takes without waiting on memory. Beside it, the arithmetic the same bits cannot do without:
 // each sphere light's square root and two IEEE divisions (n . l / d and 1 / max(d^2, r^2, ...))
-// for every 16 pixels of a 1280x720 frame, independent of each other, on data in L1
+// for every 16 pixels of a 1280x720 frame and light (room's three lights are all spheres),
+// independent of each other, on data in L1
 // (`divisions_cpu_ms`; where the CPU has AVX-512, the composite's 16-lane kernel's case).
 void BM_Composite_InCache(benchmark::State& state) {
   CompositeBench b;
@@ -528,10 +537,11 @@ void BM_Composite_InCache(benchmark::State& state) {
   state.counters["cpu_ms"] = cpu_ms;
 #if DHR_AVX512_KERNELS
   if (cpu_has_avx512dq()) {
+    const DivisionInputs inputs;
     double div_ms = 1e30;
     for (int round = 0; round < 5; ++round) {
       const double t0 = process_cpu_ms();
-      composite_divisions_x16(size_t(kW) * kH / 16 * b.scene.lights.size());
+      composite_divisions_x16(inputs, size_t(kW) * kH / 16 * b.scene.lights.size());
       div_ms = std::min(div_ms, process_cpu_ms() - t0);
     }
     state.counters["divisions_cpu_ms"] = div_ms;
