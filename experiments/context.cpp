@@ -2,6 +2,7 @@
 // result (after Google Benchmark's context): the code, the build, the machine, the libraries.
 #include "experiments/context.h"
 
+#include "core/process.h"
 #include "core/rt_scene.h"
 
 #include <OpenImageIO/imageio.h>
@@ -19,22 +20,21 @@ extern "C" {
 
 #include <dlfcn.h>
 
-#include <array>
 #include <cstdio>
 #include <fstream>
 #include <thread>
+#include <vector>
 
 namespace dhr::cli {
 
 namespace {
 
-std::string run_command(const std::string& cmd) {
-  std::string out;
-  if (FILE* p = popen(cmd.c_str(), "r")) {
-    std::array<char, 256> buf{};
-    while (fgets(buf.data(), int(buf.size()), p)) out += buf.data();
-    pclose(p);
-  }
+// A command's standard output without its trailing newlines; empty when it fails. Run from an
+// argument vector (core/process.h), never a shell: the source folder may hold any character.
+std::string run_command(const std::vector<std::string>& argv) {
+  ProcessResult r = run_process(argv, {.capture_out = true, .err = ProcessOptions::Err::Discard, .max_out = 1 << 16});
+  if (!r.ok()) return "";
+  std::string out = std::move(r.out);
   while (!out.empty() && (out.back() == '\n' || out.back() == '\r')) out.pop_back();
   return out;
 }
@@ -66,10 +66,10 @@ nlohmann::json run_context(const std::string& build_type) {
   c["schema_version"] = kResultsSchemaVersion;
   c["dhrbench_version"] = "0.1.0";
   const std::string src = DHR_SOURCE_DIR;
-  const std::string commit = run_command("git -C '" + src + "' rev-parse HEAD 2>/dev/null");
+  const std::string commit = run_command({"git", "-C", src, "rev-parse", "HEAD"});
   c["git_commit"] = commit.empty() ? nlohmann::json(nullptr) : nlohmann::json(commit);
   c["git_dirty"] = commit.empty() ? nlohmann::json(nullptr)
-                                  : nlohmann::json(!run_command("git -C '" + src + "' status --porcelain --untracked-files=no 2>/dev/null").empty());
+                                  : nlohmann::json(!run_command({"git", "-C", src, "status", "--porcelain", "--untracked-files=no"}).empty());
   c["compiler"] = fmt::format("{} {}", __GNUC__ ? (
 #ifdef __clang__
       "clang"
