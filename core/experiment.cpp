@@ -102,10 +102,11 @@ void set_dotted(nlohmann::json& target, const std::string& dotted, const nlohman
   }
 }
 
-void apply_override(nlohmann::json& experiment, const std::string& assignment) {
+void apply_override(nlohmann::json& experiment, const std::string& assignment, const std::string& under) {
   const size_t eq = assignment.find('=');
   if (eq == std::string::npos || eq == 0)
-    fail("--set '{}': expected key=value, e.g. run.frames=10 or run.ao_codec.name=zstd", text_excerpt(assignment));
+    fail("--set '{}': expected key=value, e.g. {}", text_excerpt(assignment),
+         under.empty() ? "run.frames=10 or run.passes.ao.codec.name=zstd" : "frames=10 or passes.ao.codec.name=zstd");
   const std::string key = assignment.substr(0, eq), text = assignment.substr(eq + 1);
   // A value nested too deeply is refused, not taken as a string: it was meant as JSON.
   if (json_depth(text) > kMaxJsonDepth)
@@ -114,10 +115,24 @@ void apply_override(nlohmann::json& experiment, const std::string& assignment) {
   nlohmann::json value = nlohmann::json::parse(text, nullptr, false);
   if (value.is_discarded()) value = text;  // a bare word: a string
   try {
-    set_dotted(experiment, key, value);
+    if (under.empty()) {
+      set_dotted(experiment, key, value);
+    } else {
+      if (!experiment.contains(under) || !experiment.at(under).is_object()) experiment[under] = nlohmann::json::object();
+      set_dotted(experiment.at(under), key, value);
+    }
   } catch (const Error& e) {
     fail("--set {}", e.what());
   }
+}
+
+bool is_plain_name(const std::string& name) {
+  if (name.empty() || name.size() > 64) return false;
+  auto alnum = [](char c) { return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9'); };
+  if (!alnum(name[0]) && name[0] != '_') return false;
+  for (char c : name)
+    if (!alnum(c) && c != '_' && c != '-' && c != '.' && c != '+') return false;
+  return true;
 }
 
 Experiment load_experiment(const std::string& path, const std::vector<std::string>& overrides) {
@@ -145,7 +160,13 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   if (version == 1) e.hints = v1_key_hints(j);
   top.string("name", e.name);
   top.string("description", e.description);
-  if (e.name.empty()) e.name = std::filesystem::path(path).stem().string();
+  const bool named = !e.name.empty();
+  if (!named) e.name = std::filesystem::path(path).stem().string();
+  // The name becomes a folder (out/<name>) and part of file names: a plain name only.
+  if (!is_plain_name(e.name))
+    problems.push_back(fmt::format("{}: {} '{}' is not a plain name: {} (it names the output folder out/<name>)", path,
+                                   named ? "\"name\"" : "the file's stem (no \"name\" given)", text_excerpt(e.name),
+                                   kPlainNameRule));
   if (!j.contains("scenes") || !j.at("scenes").is_array() || j.at("scenes").empty()) {
     problems.push_back(fmt::format("{}.scenes: must be a non-empty list of scene files or built-in names", path));
   } else {
@@ -191,6 +212,11 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
                 only.push_back(x.get<std::string>());
             }
         }
+        for (const auto& c : configs)
+          if (c.name == name)
+            problems.push_back(fmt::format("{}.configurations[{}]: the name '{}' is given twice: configurations are told "
+                                           "apart by name (in the tables and the report's curves)",
+                                           path, i, text_excerpt(name)));
         configs.push_back({name, family, set.is_object() ? set : nlohmann::json::object(), only});
       }
     }
@@ -208,10 +234,24 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
         else axes.emplace_back(k, std::vector<nlohmann::json>(v.begin(), v.end()));
       }
   }
-  size_t product = configs.size();
-  for (const auto& a : axes) product *= a.second.size();
-  if (product * std::max<size_t>(1, e.scenes.size()) > 10000)
-    problems.push_back(fmt::format("{}: {} runs: more than 10000, split the experiment", path, product * e.scenes.size()));
+  // Configurations x sweep values x scenes, counted without overflow: the count stops growing
+  // once it passes the limit (8 keys of 256 values would wrap a 64-bit product to 0).
+  size_t product = std::max<size_t>(1, e.scenes.size());
+  bool over = false;
+  for (size_t factor : [&] {
+         std::vector<size_t> f{configs.size()};
+         for (const auto& a : axes) f.push_back(a.second.size());
+         return f;
+       }()) {
+    if (factor != 0 && product > kMaxRuns / factor) over = true;
+    else product *= factor;
+  }
+  if (over || product > kMaxRuns) {
+    std::string sizes = fmt::format("{} scene(s) x {} configuration(s)", e.scenes.size(), configs.size());
+    for (const auto& a : axes) sizes += fmt::format(" x {} ({} values)", text_excerpt(a.first), a.second.size());
+    problems.push_back(fmt::format("{}: more than {} runs ({}): split the experiment", path, kMaxRuns, sizes));
+    axes.clear();  // never expanded
+  }
 
   // Rate-quality curves: "vary" names keys that are swept or set by configurations; the anchor is
   // a family.

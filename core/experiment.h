@@ -44,6 +44,15 @@ namespace dhr {
 // The newest version; every version from 1 is read.
 constexpr int kExperimentVersion = 2;
 
+// The most runs one experiment may expand to (scenes x configurations x sweep values).
+constexpr size_t kMaxRuns = 10000;
+
+// A plain name (an experiment's "name", which names its output folder out/<name>): 1 to 64 of
+// the characters below, starting with a letter, a digit or '_'.
+constexpr const char* kPlainNameRule =
+    "1 to 64 letters, digits, '_', '-', '.' or '+', starting with a letter, a digit or '_'";
+bool is_plain_name(const std::string& name);
+
 struct RunSpec {
   std::string id;          // r000, r001, ...
   std::string scene;       // as written in the experiment
@@ -71,8 +80,10 @@ struct Experiment {
 void set_dotted(nlohmann::json& target, const std::string& dotted, const nlohmann::json& value);
 
 // Parses "key=value" (value as JSON, or a plain string when it is not valid JSON) and applies
-// it to the experiment's JSON (a dotted path from the top: "run.frames=10", "scenes=[\"room\"]").
-void apply_override(nlohmann::json& experiment, const std::string& assignment);
+// it to the experiment's JSON (a dotted path from the top: "run.frames=10", "scenes=[\"room\"]"),
+// or with `under` to that top-level object (live mode: under "run", "frames=10"); errors name the
+// assignment as the user typed it.
+void apply_override(nlohmann::json& experiment, const std::string& assignment, const std::string& under = "");
 
 // Loads, applies overrides and expands. Throws dhr::Error listing every problem of the file
 // (scenes and backends are checked by validate_experiment).
