@@ -2,6 +2,7 @@
 
 #include "core/error.h"
 
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 
@@ -82,6 +83,24 @@ std::string json_excerpt(const nlohmann::json& value, size_t max_chars) {
   std::string s = value.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
   if (s.size() > max_chars) s = s.substr(0, max_chars) + "...";
   return s;
+}
+
+void make_output_dir(const std::string& dir, const std::string& option) {
+  namespace fs = std::filesystem;
+  if (dir.empty()) fail("{}: an empty folder name", option);
+  std::error_code ec;
+  // The first part of the path that exists must be a folder (or a link to one).
+  for (fs::path p = fs::path(dir).lexically_normal(); !p.empty(); p = p.parent_path()) {
+    if (fs::exists(p, ec)) {
+      if (!fs::is_directory(p, ec))
+        fail("{} {}: {} is a file, not a folder: give a folder's name", option, text_excerpt(dir, 200),
+             text_excerpt(p.string(), 200));
+      break;
+    }
+    if (p == p.parent_path()) break;
+  }
+  fs::create_directories(dir, ec);
+  if (ec) fail("{} {}: cannot create the folder: {}", option, text_excerpt(dir, 200), ec.message());
 }
 
 }  // namespace dhr

@@ -36,4 +36,9 @@ std::string json_excerpt(const nlohmann::json& value, size_t max_chars = 60);
 // A string from a file for an error message (a key, a name): cut to `max_chars` with "..." when longer.
 std::string text_excerpt(std::string_view text, size_t max_chars = 60);
 
+// Creates the output folder `dir` (and its parents) for the command-line option `option`
+// ("--out"). Throws dhr::Error naming both when a file of that name is in the way or the
+// folder cannot be created, instead of a raw filesystem exception.
+void make_output_dir(const std::string& dir, const std::string& option);
+
 }  // namespace dhr

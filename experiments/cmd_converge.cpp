@@ -5,6 +5,7 @@
 // plus the larger one's (1 + 1/factor times the N estimate's own), so these figures bound the
 // ground truth's own error from above (docs/architecture.md, "The references").
 #include "core/error.h"
+#include "core/json_io.h"
 #include "core/image_io.h"
 #include "core/metrics.h"
 #include "core/raster.h"
@@ -125,7 +126,7 @@ Runner add_converge_command(CLI::App& app) {
         fmt::print(" {:>14.1f}\n", max_d);
         rows.push_back(row);
         if (!o->out.empty()) {
-          fs::create_directories(o->out);
+          make_output_dir(o->out, "--out");
           write_png((fs::path(o->out) / fmt::format("{}_t{:.3f}_x{}.png", fs::path(name).stem().string(), t, o->factor)).string(), b);
         }
       }

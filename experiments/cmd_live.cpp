@@ -67,7 +67,7 @@ std::unique_ptr<Loaded> load(const Common& c, const char* who) {
     if (!run.is_object()) fail("{}: --config '{}' must hold a JSON object (the run settings)", who, c.config);
   }
   nlohmann::json wrapper{{"run", run}};
-  for (const std::string& s : c.sets) apply_override(wrapper, "run." + s);
+  for (const std::string& s : c.sets) apply_override(wrapper, s, "run");  // errors name what was typed
   std::vector<std::string> problems;
   auto out = std::make_unique<Loaded>();
   out->config = sim_config_from_json(wrapper["run"], c.config.empty() ? "settings" : c.config, problems);

@@ -8,6 +8,7 @@
 #include "core/error.h"
 #include "core/experiment.h"
 #include "core/json_io.h"
+#include "core/results_check.h"
 #include "core/shard.h"
 #include "experiments/commands.h"
 
@@ -15,6 +16,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <algorithm>
 #include <map>
 #include <set>
 #include <sstream>
@@ -31,23 +33,6 @@ std::string read_text(const fs::path& path) {
   std::stringstream s;
   s << in.rdbuf();
   return s.str();
-}
-
-// Splits CSV text into records (RFC 4180: a newline inside double quotes belongs to the field).
-// Each record keeps its terminating newline.
-std::vector<std::string> csv_records(const std::string& text) {
-  std::vector<std::string> out;
-  bool quoted = false;
-  size_t start = 0;
-  for (size_t i = 0; i < text.size(); ++i) {
-    if (text[i] == '"') quoted = !quoted;
-    else if (text[i] == '\n' && !quoted) {
-      out.push_back(text.substr(start, i + 1 - start));
-      start = i + 1;
-    }
-  }
-  if (start < text.size()) out.push_back(text.substr(start) + "\n");
-  return out;
 }
 
 std::string join(const std::vector<std::string>& v, size_t max_items = 40) {
@@ -102,6 +87,23 @@ Runner add_merge_command(CLI::App& app) {
   return [o] {
     std::vector<std::string> problems;
     std::vector<Shard> shards;
+    // OUT must not be, or lie inside, a shard's folder: writing it would overwrite that shard.
+    auto resolved = [](const std::string& dir) {  // absolute, links resolved, no trailing '/'
+      std::error_code ec;
+      fs::path p = fs::weakly_canonical(fs::absolute(dir), ec);
+      if (ec) p = fs::absolute(dir).lexically_normal();
+      return p.has_filename() ? p : p.parent_path();
+    };
+    const fs::path out_abs = resolved(o->out);
+    for (const auto& dir : o->shards) {
+      const fs::path shard_abs = resolved(dir);
+      const auto [end, at] = std::mismatch(shard_abs.begin(), shard_abs.end(), out_abs.begin(), out_abs.end());
+      if (end == shard_abs.end())
+        problems.push_back(fmt::format("OUT {} {} the shard folder {}: merge into a new folder outside every shard",
+                                       o->out, at == out_abs.end() ? "is" : "lies inside", dir));
+    }
+    if (fs::exists(o->out) && !fs::is_directory(o->out))
+      problems.push_back(fmt::format("OUT {} is a file, not a folder", o->out));
     for (const auto& dir : o->shards) {
       try {
         shards.push_back({dir, read_shard_manifest(dir), {}, {}, {}});
@@ -152,17 +154,15 @@ Runner add_merge_command(CLI::App& app) {
         const fs::path results_path = fs::path(s.dir) / "results.json";
         if (!fs::exists(results_path)) fail("{}: missing, though shard.json says complete", results_path.string());
         s.results = read_json_file(results_path.string());
-        if (!s.results.is_object() || !s.results.contains("runs") || !s.results.at("runs").is_array() ||
-            !s.results.contains("experiment") || !s.results.contains("context") || !s.results.at("context").is_object())
-          fail("{}: must be a JSON object with context, experiment and runs", results_path.string());
+        check_results_json(s.results, results_path.string());
         std::vector<std::string> ids;
-        for (const auto& r : s.results.at("runs")) {
-          if (!r.is_object() || !r.contains("id") || !r.at("id").is_string())
-            fail("{}: a run record without a string \"id\": {}", results_path.string(), json_excerpt(r));
-          ids.push_back(r.at("id").get<std::string>());
-        }
+        for (const auto& r : s.results.at("runs")) ids.push_back(r.at("id").get<std::string>());
         if (ids != m.run_ids)
           fail("{}: holds runs {}, its shard.json {}", results_path.string(), join(ids), join(m.run_ids));
+        const nlohmann::json commit = s.results.at("context").value("git_commit", nlohmann::json());
+        if (commit != m.git_commit)
+          fail("{}: written at commit {}, but its shard.json says {}: the folder mixes two runs", results_path.string(),
+               commit.dump(), m.git_commit.dump());
         if (first->results.is_object() && &s != first && s.results.at("experiment") != first->results.at("experiment"))
           fail("{}: its experiment differs from {}'s", results_path.string(), first->dir);
         // Embree's kernels of two ISAs can answer a ray on an edge differently: one result, one ISA.
@@ -176,16 +176,10 @@ Runner add_merge_command(CLI::App& app) {
                  results_path.string(), isa.dump(), first->dir, first_isa.dump());
         }
         const fs::path frames_path = fs::path(s.dir) / "frames.csv";
-        std::vector<std::string> records = csv_records(read_text(frames_path));
-        if (records.empty()) fail("{}: empty (a header is expected)", frames_path.string());
-        s.frames_header = records.front();
-        const std::set<std::string> mine(m.run_ids.begin(), m.run_ids.end());
-        for (size_t i = 1; i < records.size(); ++i) {
-          const std::string id = records[i].substr(0, records[i].find(','));
-          if (!mine.count(id))
-            fail("{}: line {} is of run '{}', not one of this shard's", frames_path.string(), i + 1, text_excerpt(id));
-          s.frames[id].push_back(records[i]);
-        }
+        if (!fs::exists(frames_path)) fail("{}: missing, though shard.json says complete", frames_path.string());
+        FramesCsv frames = check_frames_csv(read_text(frames_path), s.results, frames_path.string());
+        s.frames_header = std::move(frames.header);
+        s.frames = std::move(frames.rows);
         if (s.frames_header != first->frames_header && !first->frames_header.empty())
           fail("{}: its header differs from {}'s", frames_path.string(), first->dir);
       } catch (const Error& err) {
@@ -238,7 +232,7 @@ Runner add_merge_command(CLI::App& app) {
                                   {"wall_s", w}, {"context", s->results.at("context")}});
     }
     merged["wall_s"] = wall;  // the sum over the shards (each shard's own is under "shards")
-    fs::create_directories(fs::path(o->out) / "images");
+    make_output_dir((fs::path(o->out) / "images").string(), "OUT");
     std::ofstream csv(fs::path(o->out) / "frames.csv", std::ios::binary);
     csv << by_index.front()->frames_header;
     for (const auto& id : first->manifest.all_runs) {

@@ -2,6 +2,7 @@
 // passes, the composite and the references -- with each stage's wall time.
 #include "core/composite.h"
 #include "core/error.h"
+#include "core/json_io.h"
 #include "core/image_io.h"
 #include "core/raster.h"
 #include "core/reference.h"
@@ -103,7 +104,7 @@ Runner add_render_command(CLI::App& app) {
     std::set<std::string> want(o->passes.begin(), o->passes.end());
     auto wants = [&](const char* p) { return want.count(p) || want.count("all"); };
     namespace fs = std::filesystem;
-    fs::create_directories(o->out);
+    make_output_dir(o->out, "--out");
     const std::string prefix = (fs::path(o->out) / fmt::format("f{:05d}_", o->frame)).string();
 
     auto t0 = std::chrono::steady_clock::now();

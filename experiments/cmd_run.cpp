@@ -10,8 +10,10 @@
 #include "core/json_io.h"
 #include "core/metrics.h"
 #include "core/passes.h"
+#include "core/process.h"
 #include "core/reference.h"
 #include "core/results.h"
+#include "core/results_check.h"
 #include "core/scene_load.h"
 #include "core/shard.h"
 #include "experiments/commands.h"
@@ -19,7 +21,6 @@
 
 #include <fmt/format.h>
 #include <tbb/global_control.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -28,6 +29,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <memory>
 #include <optional>
@@ -138,42 +140,49 @@ ImageRGB8 downscale(const ImageRGB8& img, int max_width) {
 int write_report(const std::string& dir) {
   const std::string script = std::string(DHR_SOURCE_DIR) + "/experiments/report.py";
   const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
-  const std::string cmd = python + " '" + script + "' '" + dir + "'";
-  const int rc = std::system(cmd.c_str());
-  if (rc == 0) return 0;
+  // An argument vector, never a shell: the folder's name reaches the script as it is.
+  const ProcessResult r = run_process({python, script, dir});
+  if (r.ok()) return 0;
+  if (!r.started) {
+    std::fprintf(stderr, "dhrbench: cannot start %s to write the report (install python3: scripts/setup.sh)\n",
+                 python.c_str());
+    return 3;
+  }
   // Exit 2: the script found the results damaged and has said what is wrong, naming the file.
-  if (WIFEXITED(rc) && WEXITSTATUS(rc) == 2) return 2;
+  if (r.exit_code == 2) return 2;
   // Exit 3: no matplotlib (checked by the script once the results are found sound).
-  if (WIFEXITED(rc) && WEXITSTATUS(rc) == 3) {
+  if (r.exit_code == 3) {
     std::fprintf(stderr,
                  "dhrbench: the results in %s are complete; rebuild the report once matplotlib is installed with "
                  "'dhrbench report %s'\n",
                  dir.c_str(), dir.c_str());
     return 3;
   }
-  std::fprintf(stderr, "dhrbench: the report script failed (exit %d): %s\n", WIFEXITED(rc) ? WEXITSTATUS(rc) : rc,
-               cmd.c_str());
+  std::fprintf(stderr, "dhrbench: the report script %s failed (%s %d) on %s\n", script.c_str(),
+               r.signal ? "signal" : "exit", r.signal ? r.signal : r.exit_code, dir.c_str());
   return 3;
 }
 
 namespace {
 
 // Reads DIR/results.json the way every JSON is read (depth-bounded, errors naming the file) and
-// checks the shape the report relies on at the top; report.py checks every field it reads.
-void check_results_file(const std::string& dir) {
-  const std::string path = (fs::path(dir) / "results.json").string();
+// checks it and DIR/frames.csv against each other (core/results_check.h); report.py checks every
+// field it reads besides. A published report may hold frames.csv.gz instead (report.py reads it).
+void check_results_folder(const std::string& dir) {
+  const fs::path path = fs::path(dir) / "results.json";
   if (!fs::exists(path)) fail("{}: no results.json here (was it written by 'dhrbench run'?)", dir);
-  const nlohmann::json r = read_json_file(path);
-  if (!r.is_object()) fail("{}: must be a JSON object (context, experiment, runs), got {}", path, json_excerpt(r));
-  for (const char* key : {"context", "experiment"})
-    if (!r.contains(key) || !r.at(key).is_object())
-      fail("{}: \"{}\" must be a JSON object, got {}", path, key, r.contains(key) ? json_excerpt(r.at(key)) : "nothing");
-  if (!r.contains("runs") || !r.at("runs").is_array())
-    fail("{}: \"runs\" must be a list of run records, got {}", path,
-         r.contains("runs") ? json_excerpt(r.at("runs")) : "nothing");
-  for (size_t i = 0; i < r.at("runs").size(); ++i)
-    if (!r.at("runs")[i].is_object())
-      fail("{}: runs[{}] must be a JSON object (a run record), got {}", path, i, json_excerpt(r.at("runs")[i]));
+  const nlohmann::json r = read_json_file(path.string());
+  check_results_json(r, path.string());
+  const fs::path frames = fs::path(dir) / "frames.csv";
+  if (fs::exists(frames)) {
+    std::ifstream in(frames, std::ios::binary);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (!in && !in.eof()) fail("{}: cannot read", frames.string());
+    check_frames_csv(text, r, frames.string());
+  } else if (!fs::exists(fs::path(dir) / "frames.csv.gz")) {
+    fail("{}: missing: the report needs the frames of every run (results.json names {} run(s))", frames.string(),
+         r.at("runs").size());
+  }
 }
 
 }  // namespace
@@ -220,10 +229,11 @@ Runner add_run_command(CLI::App& app) {
     const auto wall_start = Clock::now();
     Experiment e = load_experiment(o->experiment, o->sets);
     const std::string dir = o->out.empty() ? "out/" + e.name : o->out;
+    make_output_dir(dir, o->out.empty() ? "the output folder out/<experiment name>" : "--out");
     if (!o->shard.empty())
       o->shard_run = ShardRun::start(e, parse_shard(o->shard), dir, run_context(DHR_BUILD_TYPE).at("git_commit"));
     LoadedScenes loaded = validate_all(e, o->scene_path);
-    fs::create_directories(fs::path(dir) / "images");
+    make_output_dir((fs::path(dir) / "images").string(), "--out");
     fmt::print(stderr, "{}: {} runs ({} scenes); writing {}\n", e.name, e.runs.size(), loaded.scenes.size(), dir);
 
     nlohmann::json results;
@@ -385,7 +395,7 @@ Runner add_report_command(CLI::App& app) {
   cmd->add_option("dir", *dir, "A folder written by 'dhrbench run'")->required()->check(CLI::ExistingDirectory);
   return [dir] {
     try {
-      check_results_file(*dir);
+      check_results_folder(*dir);
     } catch (const Error& e) {
       // Exit 2 for damaged results, as report.py does for what it finds.
       std::fprintf(stderr, "dhrbench: error: %s\n", e.what());

@@ -10,10 +10,12 @@ and its error map, all error maps on one fixed colour scale with its colour bar.
 """
 import csv
 import gzip
+import io
 import json
 import math
 import os
 import sys
+import zlib
 
 # matplotlib is imported once results.json and frames.csv have been checked (load_matplotlib):
 # a damaged file is reported without the second it takes to import.
@@ -199,8 +201,14 @@ class Checker:
             if key in r:
                 self.obj(r[key], f"{where}.{key}")
         if "metrics" not in r:
+            if "error" not in r:
+                raise BadResults(f"{self.path}: {where} ({r['id']}) has neither \"metrics\" nor \"error\": the record "
+                                 "is incomplete (a run always records one of them)")
             return
         m = self.obj(r["metrics"], f"{where}.metrics")
+        if "frames_displayed" in m and (not isinstance(m["frames_displayed"], int) or isinstance(
+                m["frames_displayed"], bool) or m["frames_displayed"] < 0):
+            self.fail(f"{where}.metrics.frames_displayed", "a whole number >= 0", m["frames_displayed"])
         w = f"{where}.metrics"
         for key in ("bandwidth_mbps", "server_fps_virtual", "client_fps_wall"):
             if key not in m:
@@ -245,12 +253,20 @@ def load_frames(path, column):
     try:
         opener = gzip.open if path.endswith(".gz") else open
         with opener(path, "rt", encoding="utf-8", newline="") as f:
-            rows = list(csv.DictReader(f))
+            text = f.read()
+        if text and not text.endswith("\n"):
+            raise BadResults(f"{path}: the file ends inside its last row (cut short): a complete row ends with a newline")
+        rows = list(csv.DictReader(io.StringIO(text, newline="")))
     except OSError as e:
         raise BadResults(f"{path}: cannot read the file: {e.strerror}")
-    except (UnicodeDecodeError, csv.Error) as e:
+    except (UnicodeDecodeError, csv.Error, EOFError, zlib.error) as e:
         raise BadResults(f"{path}: not a CSV file as 'dhrbench run' writes it: {str(e)[:120]}")
     for n, row in enumerate(rows, start=2):
+        extra, missing = len(row.get(None) or []), sum(v is None for k, v in row.items() if k is not None)
+        if extra or missing:
+            header = len(row) - (None in row)
+            raise BadResults(f"{path}: line {n}: {header + extra - missing} fields where the header has {header} "
+                             "(a row cut short, or a damaged file)")
         for key in ("run", "frame", column):
             if row.get(key) is None:
                 raise BadResults(f"{path}: line {n}: the column \"{key}\" is missing")
@@ -263,6 +279,24 @@ def load_frames(path, column):
             raise BadResults(f"{path}: line {n}: frame must be an integer and {column} a number or empty, got "
                              f"{excerpt(row['frame'])} and {excerpt(row[column])}")
     return rows
+
+
+def check_frames_against_runs(frames, runs, path):
+    """Every row of a run of results.json, and per run as many rows as it displayed frames."""
+    count = {}
+    for row in frames:
+        count[row["run"]] = count.get(row["run"], 0) + 1
+    ids = {r["id"] for r in runs}
+    for run_id in count:
+        if run_id not in ids:
+            raise BadResults(f"{path}: rows of run {excerpt(run_id)}, which results.json does not hold")
+    for r in runs:
+        want = r["metrics"].get("frames_displayed") if "metrics" in r else 0
+        if want is None:
+            continue  # results written before frames_displayed was recorded
+        if count.get(r["id"], 0) != want:
+            raise BadResults(f"{path}: run {r['id']} has {count.get(r['id'], 0)} row(s), but results.json says it "
+                             f"displayed {want} frame(s)")
 
 
 def read_image(path):
@@ -511,6 +545,9 @@ def main(d):
         if os.path.exists(os.path.join(d, name)):
             frames = load_frames(os.path.join(d, name), headline_column)
             break
+    else:
+        raise BadResults(f"{os.path.join(d, 'frames.csv')}: missing: the report needs the frames of every run")
+    check_frames_against_runs(frames, res["runs"], os.path.join(d, "frames.csv"))
     load_matplotlib()
     os.makedirs(os.path.join(d, "plots"), exist_ok=True)
     os.makedirs(os.path.join(d, "grids"), exist_ok=True)
