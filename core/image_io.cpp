@@ -1,11 +1,14 @@
 #include "core/image_io.h"
 
 #include "core/error.h"
+#include "core/visualize.h"
 
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
@@ -88,6 +91,72 @@ void write_exr(const std::string& path, const ImageVec3& image) {
   write_image(path, image.width(), image.height(), 3, OIIO::TypeDesc::FLOAT, image.data());
 }
 
+namespace {
+
+// Decodes the image `open_name` (a file name, or a name with the format's extension when read
+// from `proxy`); `path` names it in errors.
+Rgba8Image decode_rgba8(const std::string& path, const std::string& open_name, OIIO::Filesystem::IOProxy* proxy) {
+  // Alpha as the file stores it (unassociated in PNG, TIFF, ...): OpenImageIO premultiplies the
+  // colour by alpha unless told not to, which darkened every partly transparent texel.
+  OIIO::ImageSpec config;
+  config.attribute("oiio:UnassociatedAlpha", 1);
+  // With a configuration, OpenImageIO's readers take the proxy from it (else they open the name).
+  if (proxy) config.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &proxy);
+  auto in = OIIO::ImageInput::open(open_name, &config, proxy);
+  if (!in) fail("{}: cannot read image: {}", path, OIIO::geterror());
+  const OIIO::ImageSpec& spec = in->spec();
+  if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth != 1)
+    fail("{}: unsupported image shape {}x{}x{} with {} channels", path, spec.width, spec.height,
+         spec.depth, spec.nchannels);
+  check_image_size(spec.width, spec.height);
+  const int nc = spec.nchannels;
+  if (nc > 64) fail("{}: {} channels (at most 64 are read: colour, alpha and a few more)", path, nc);
+  const size_t n = size_t(spec.width) * spec.height;
+  const int alpha = spec.alpha_channel >= 0 && spec.alpha_channel < nc ? spec.alpha_channel : nc == 4 || nc == 2 ? nc - 1 : -1;
+  Rgba8Image img;
+  img.width = spec.width;
+  img.height = spec.height;
+  img.has_alpha = alpha >= 0;
+  img.rgba.resize(n * 4);
+  // Which source channel feeds R, G, B (grey replicated).
+  const int src[3] = {0, nc >= 3 ? 1 : 0, nc >= 3 ? 2 : 0};
+  if (spec.format.is_floating_point()) {
+    // Float images (OpenEXR, float TIFF, HDR) hold linear light; OpenEXR's colour is associated
+    // with alpha (premultiplied). Colour is divided by alpha where alpha > 0, clamped to [0, 1]
+    // and encoded with the sRGB curve, as an 8-bit image of the same scene would be; alpha is
+    // clamped and scaled. A NaN or infinite value has no such meaning: it is refused.
+    std::vector<float> raw(n * size_t(nc));
+    if (!in->read_image(0, 0, 0, nc, OIIO::TypeDesc::FLOAT, raw.data()))
+      fail("{}: read failed: {}", path, in->geterror());
+    in->close();
+    for (size_t i = 0; i < n; ++i) {
+      const float* s = &raw[i * size_t(nc)];
+      for (int c = 0; c < nc; ++c)
+        if (!std::isfinite(s[c]))
+          fail("{}: pixel ({}, {}) channel {} is {}: an image must hold finite values", path, i % size_t(spec.width),
+               i / size_t(spec.width), c, s[c]);
+      const float a = alpha >= 0 ? std::clamp(s[alpha], 0.0f, 1.0f) : 1.0f;
+      uint8_t* d = &img.rgba[i * 4];
+      for (int c = 0; c < 3; ++c) d[c] = linear_to_srgb8(a > 0.0f && alpha >= 0 ? s[src[c]] / a : s[src[c]]);
+      d[3] = uint8_t(std::lround(a * 255.0f));
+    }
+    return img;
+  }
+  std::vector<uint8_t> raw(n * size_t(nc));
+  if (!in->read_image(0, 0, 0, nc, OIIO::TypeDesc::UINT8, raw.data()))
+    fail("{}: read failed: {}", path, in->geterror());
+  in->close();
+  for (size_t i = 0; i < n; ++i) {
+    const uint8_t* s = &raw[i * size_t(nc)];
+    uint8_t* d = &img.rgba[i * 4];
+    for (int c = 0; c < 3; ++c) d[c] = s[src[c]];
+    d[3] = alpha >= 0 ? s[alpha] : 255;
+  }
+  return img;
+}
+
+}  // namespace
+
 Rgba8Image read_rgba8(const std::string& path) {
   if (!std::filesystem::is_regular_file(path)) fail("{}: image file not found", path);
   // A PNG is read once: checked (png_damage), then decoded from those bytes.
@@ -99,36 +168,15 @@ Rgba8Image read_rgba8(const std::string& path) {
     if (const std::string damage = png_damage(png); !damage.empty()) fail("{}: damaged PNG: {}", path, damage);
     memory = std::make_unique<OIIO::Filesystem::IOMemReader>(png.data(), png.size());
   }
-  auto in = OIIO::ImageInput::open(path, nullptr, memory.get());
-  if (!in) fail("{}: cannot read image: {}", path, OIIO::geterror());
-  const OIIO::ImageSpec& spec = in->spec();
-  if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth != 1)
-    fail("{}: unsupported image shape {}x{}x{} with {} channels", path, spec.width, spec.height,
-         spec.depth, spec.nchannels);
-  check_image_size(spec.width, spec.height);
-  const int nc = spec.nchannels;
-  std::vector<uint8_t> raw(size_t(spec.width) * spec.height * nc);
-  if (!in->read_image(0, 0, 0, nc, OIIO::TypeDesc::UINT8, raw.data()))
-    fail("{}: read failed: {}", path, in->geterror());
-  in->close();
-  Rgba8Image img;
-  img.width = spec.width;
-  img.height = spec.height;
-  img.has_alpha = spec.alpha_channel >= 0 || nc == 4 || nc == 2;
-  img.rgba.resize(size_t(img.width) * img.height * 4);
-  const size_t n = size_t(img.width) * img.height;
-  for (size_t i = 0; i < n; ++i) {
-    const uint8_t* s = &raw[i * nc];
-    uint8_t* d = &img.rgba[i * 4];
-    if (nc >= 3) {
-      d[0] = s[0]; d[1] = s[1]; d[2] = s[2];
-      d[3] = nc >= 4 ? s[3] : 255;
-    } else {
-      d[0] = d[1] = d[2] = s[0];
-      d[3] = nc == 2 ? s[1] : 255;
-    }
-  }
-  return img;
+  return decode_rgba8(path, path, memory.get());
+}
+
+Rgba8Image read_rgba8_memory(const std::string& name, const std::string& format, const uint8_t* data, size_t size) {
+  std::vector<uint8_t> bytes(data, data + size);
+  if (size >= 8 && std::equal(data, data + 8, kPngSignature))
+    if (const std::string damage = png_damage(bytes); !damage.empty()) fail("{}: damaged PNG: {}", name, damage);
+  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
+  return decode_rgba8(name, "embedded." + format, &reader);
 }
 
 ImageRGB8 read_rgb8(const std::string& path) {

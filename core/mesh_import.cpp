@@ -4,9 +4,8 @@
 #include "core/error.h"
 #include "core/image.h"
 #include "core/image_io.h"
+#include "core/json_io.h"
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
 #include <assimp/DefaultLogger.hpp>
 #include <assimp/GltfMaterial.h>
 #include <assimp/Importer.hpp>
@@ -16,6 +15,7 @@
 #include <assimp/scene.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -23,6 +23,7 @@
 #include <map>
 #include <mutex>
 #include <sstream>
+#include <string_view>
 
 namespace dhr {
 
@@ -125,6 +126,129 @@ void prescan_ply(const std::string& path, uint64_t bytes) {
   }
 }
 
+// OBJ: every index of a face, line or point refers to a vertex, texture coordinate or normal
+// defined before it (1..count, or -count..-1 counted back), and every mtllib file exists. The
+// importer drops a mesh's texture coordinates or normals in silence when one index is out of
+// range, and renders without materials when the MTL file is missing: both are errors naming
+// the line.
+void prescan_obj(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  uint64_t count[3] = {0, 0, 0};  // v, vt, vn
+  const char* names[3] = {"vertex (v)", "texture coordinate (vt)", "normal (vn)"};
+  std::string line;
+  for (uint64_t number = 1; std::getline(in, line); ++number) {
+    size_t at = line.find_first_not_of(" \t");
+    if (at == std::string::npos) continue;
+    const size_t end = line.find_first_of(" \t\r", at);
+    const std::string_view key(line.data() + at, (end == std::string::npos ? line.size() : end) - at);
+    if (key == "v") ++count[0];
+    else if (key == "vt") ++count[1];
+    else if (key == "vn") ++count[2];
+    else if (key == "mtllib") {
+      std::string rest = line.substr(std::min(line.size(), at + 6));
+      while (!rest.empty() && std::isspace(static_cast<unsigned char>(rest.back()))) rest.pop_back();
+      rest.erase(0, std::min(rest.size(), rest.find_first_not_of(" \t")));
+      std::error_code ec;
+      if (rest.empty() || !fs::is_regular_file(fs::path(path).parent_path() / rest, ec))
+        fail("{}:{}: mtllib '{}': no such material file beside the model (its materials would be lost)", path,
+             number, text_excerpt(rest));
+    } else if (key == "f" || key == "l" || key == "p") {
+      std::istringstream tokens(line.substr(at + key.size()));
+      for (std::string token; tokens >> token;) {
+        size_t start = 0;
+        for (int k = 0; k < 3 && start <= token.size(); ++k) {
+          const size_t slash = token.find('/', start);
+          const std::string part = token.substr(start, slash == std::string::npos ? std::string::npos : slash - start);
+          start = slash == std::string::npos ? token.size() + 1 : slash + 1;
+          if (part.empty()) continue;
+          long long index = 0;
+          try {
+            size_t used = 0;
+            index = std::stoll(part, &used);
+            if (used != part.size()) throw std::invalid_argument(part);
+          } catch (const std::logic_error&) {
+            fail("{}:{}: '{}' is not an index", path, number, text_excerpt(part));
+          }
+          const long long n = (long long)count[k];
+          if (index == 0 || index > n || index < -n)
+            fail("{}:{}: {} index {} is out of range: the file defines {} before this line (valid: 1..{} or -{}..-1)",
+                 path, number, names[k], index, n, n, n);
+        }
+      }
+    }
+  }
+}
+
+// glTF's buffers: each "byteLength" must fit what it refers to: a GLB's BIN chunk (a buffer
+// without "uri" in a GLB), a local file (its size) or a data: URI (its base64 length x 3 / 4),
+// since the importer allocates byteLength bytes before it reads them.
+void check_gltf_buffers(const std::string& path, const nlohmann::json& j, uint64_t bin_chunk_bytes) {
+  if (!j.is_object() || !j.contains("buffers")) return;
+  const auto& buffers = j.at("buffers");
+  if (!buffers.is_array()) fail("{}: glTF \"buffers\" must be a list", path);
+  for (size_t i = 0; i < buffers.size(); ++i) {
+    const auto& b = buffers[i];
+    if (!b.is_object() || !b.contains("byteLength") || !b.at("byteLength").is_number_unsigned())
+      fail("{}: glTF buffers[{}].byteLength must be a whole number >= 0", path, i);
+    const uint64_t length = b.at("byteLength").get<uint64_t>();
+    uint64_t available = bin_chunk_bytes;
+    std::string what = "the GLB's BIN chunk";
+    if (b.contains("uri")) {
+      if (!b.at("uri").is_string()) fail("{}: glTF buffers[{}].uri must be a string", path, i);
+      const std::string uri = b.at("uri").get<std::string>();
+      if (uri.rfind("data:", 0) == 0) {
+        available = (uri.size() - std::min(uri.size(), uri.find(',') + 1)) / 4 * 3 + 3;
+        what = "its data: URI";
+      } else {
+        std::error_code ec;
+        const fs::path file = fs::path(path).parent_path() / uri;
+        available = fs::is_regular_file(file, ec) ? fs::file_size(file, ec) : 0;
+        if (ec) available = 0;
+        what = "its file " + text_excerpt(uri);
+      }
+    }
+    if (length > available)
+      fail("{}: glTF buffers[{}] claims {} bytes, more than {} holds ({} bytes)", path, i, length, what, available);
+  }
+}
+
+// GLB: a 12-byte header ("glTF", version, length) and chunks of (length, type, data); every
+// length must lie within the file. The JSON chunk's buffers are checked as for .gltf.
+void prescan_glb(const std::string& path, uint64_t bytes) {
+  std::ifstream in(path, std::ios::binary);
+  auto u32 = [&](uint64_t at) {
+    uint8_t b[4] = {};
+    in.seekg(std::streamoff(at));
+    if (!in.read(reinterpret_cast<char*>(b), 4)) fail("{}: GLB cut short at byte {}", path, at);
+    return uint32_t(b[0]) | uint32_t(b[1]) << 8 | uint32_t(b[2]) << 16 | uint32_t(b[3]) << 24;
+  };
+  if (bytes < 12 || u32(0) != 0x46546C67u) return;  // not a binary glTF: let the importer say what it is
+  const uint64_t total = u32(8);
+  if (total != bytes) fail("{}: the GLB header says {} bytes, the file has {}", path, total, bytes);
+  nlohmann::json gltf;
+  uint64_t bin = 0;
+  for (uint64_t at = 12; at + 8 <= bytes;) {
+    const uint64_t length = u32(at), type = u32(at + 4);
+    if (length > bytes - at - 8)
+      fail("{}: the GLB chunk at byte {} claims {} bytes, more than the {} left in the file", path, at, length,
+           bytes - at - 8);
+    if (type == 0x4E4F534Au && gltf.is_null()) {  // "JSON"
+      std::string text(size_t(length), '\0');
+      in.seekg(std::streamoff(at + 8));
+      in.read(text.data(), std::streamsize(length));
+      gltf = parse_json(text, path + " (JSON chunk)");
+    } else if (type == 0x004E4942u && bin == 0) {  // "BIN\0"
+      bin = length;
+    }
+    at += 8 + length;
+  }
+  check_gltf_buffers(path, gltf, bin);
+}
+
+void prescan_gltf(const std::string& path) {
+  check_gltf_buffers(path, read_json_file(path), 0);
+}
+
 // --- geometry -----------------------------------------------------------------------------------
 
 bool finite3(const glm::vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
@@ -153,30 +277,8 @@ Texture embedded_texture(const std::string& model, const std::string& ref, const
   const std::string name = model + ":" + ref;
   if (tex.mHeight == 0) {
     const std::string hint = tex.achFormatHint[0] ? std::string(tex.achFormatHint) : std::string("png");
-    OIIO::Filesystem::IOMemReader reader(tex.pcData, tex.mWidth);
-    auto in = OIIO::ImageInput::open("embedded." + hint, nullptr, &reader);
-    if (!in) fail("{}: cannot decode embedded texture {} ({})", model, ref, OIIO::geterror());
-    const OIIO::ImageSpec& spec = in->spec();
-    if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth != 1)
-      fail("{}: embedded texture {} has unsupported shape", model, ref);
-    check_image_size(spec.width, spec.height);
-    const int nc = spec.nchannels;
-    std::vector<uint8_t> raw(size_t(spec.width) * size_t(spec.height) * size_t(nc));
-    if (!in->read_image(0, 0, 0, nc, OIIO::TypeDesc::UINT8, raw.data()))
-      fail("{}: cannot decode embedded texture {} ({})", model, ref, in->geterror());
-    Rgba8Image img;
-    img.width = spec.width;
-    img.height = spec.height;
-    img.has_alpha = nc == 2 || nc >= 4;
-    img.rgba.resize(size_t(img.width) * size_t(img.height) * 4);
-    for (size_t i = 0, n = size_t(img.width) * size_t(img.height); i < n; ++i) {
-      const uint8_t* s = &raw[i * size_t(nc)];
-      uint8_t* d = &img.rgba[i * 4];
-      d[0] = s[0];
-      d[1] = nc >= 3 ? s[1] : s[0];
-      d[2] = nc >= 3 ? s[2] : s[0];
-      d[3] = nc >= 4 ? s[3] : (nc == 2 ? s[1] : 255);
-    }
+    const Rgba8Image img =
+        read_rgba8_memory(name, hint, reinterpret_cast<const uint8_t*>(tex.pcData), size_t(tex.mWidth));
     return texture_from_rgba8(name, img);
   }
   check_image_size(int(tex.mWidth), int(tex.mHeight));
@@ -368,6 +470,9 @@ ImportedModel import_model(const std::string& path, const ModelLimits& limits) {
   const std::string ext = lower_extension(path);
   if (ext == ".off") prescan_off(path, bytes);
   if (ext == ".ply") prescan_ply(path, bytes);
+  if (ext == ".obj") prescan_obj(path);
+  if (ext == ".glb") prescan_glb(path, bytes);
+  if (ext == ".gltf") prescan_gltf(path);
 
   install_logger_once();
   std::vector<std::string> log;

@@ -5,7 +5,10 @@
 // silently):
 //   - the file exists, is not larger than ModelLimits::max_file_bytes, and for formats whose
 //     header declares element counts (OFF, PLY) those counts fit the file size (a lying header
-//     would otherwise make assimp try to allocate terabytes);
+//     would otherwise make assimp try to allocate terabytes); a GLB's chunks lie within the
+//     file and every glTF buffer's byteLength within what it refers to (BIN chunk, file, URI);
+//   - OBJ: every face index within the vertices, texture coordinates and normals defined
+//     before it, and every mtllib file present (the importer drops either in silence);
 //   - assimp's own warnings that it dropped faces or vertices (out-of-range indices, vertex
 //     counts that do not fit the primitive mode) reject the file: the model is broken;
 //   - the node hierarchy is at most max_node_depth deep (recursive node graphs);
