@@ -1,6 +1,8 @@
 // The experiment runner end to end: a tiny experiment through the dhrbench command, then the
 // results schema, the CSV and the report files; and its validation of bad experiments.
 #include "core/experiment.h"
+#include "core/process.h"
+#include "tests/support.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -268,6 +270,90 @@ TEST(Runner, DeepNestingInAnExperimentOrASetValueIsAClearError) {
   fs::remove_all(dir);
 }
 
+// Issue 51: an experiment's name reached a shell ("name": "x'$(touch PWNED)'" ran the command
+// when the report was written) and "../../escaped" wrote outside out/. Names are now plain names
+// or refused; folders with any character reach the report script as one argument.
+TEST(Runner, NamesAndFoldersNeverReachAShell) {
+  const fs::path base = fs::temp_directory_path() / ("dhr_runner_names." + std::to_string(getpid()));
+  fs::remove_all(base);
+  fs::create_directories(base);
+  std::string log;
+  auto cli = [&](const std::vector<std::string>& args) {
+    std::vector<std::string> argv{DHR_CLI};
+    argv.insert(argv.end(), args.begin(), args.end());
+    const ProcessResult r = run_process(argv, {.err = ProcessOptions::Err::WithOut});
+    log = r.out;
+    return r.exit_code;
+  };
+  nlohmann::json e = nlohmann::json::parse(std::ifstream(std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json"),
+                                           nullptr, true, true);
+  e["configurations"] = nlohmann::json::array({e["configurations"][0]});
+  for (const std::string& name : std::vector<std::string>{"x'$(touch PWNED)'", "../../escaped", "a b", "`touch PWNED`", "x\ny", ".hidden",
+                                 std::string(65, 'a')}) {
+    SCOPED_TRACE(name);
+    e["name"] = name;
+    const fs::path file = base / "named.json";
+    std::ofstream(file) << e.dump();
+    for (const char* cmd : {"validate", "run"}) {
+      EXPECT_EQ(cli({cmd, file.string()}), 1) << log;
+      EXPECT_NE(log.find("is not a plain name: 1 to 64 letters, digits"), std::string::npos) << log;
+    }
+  }
+  // A file stem that is no plain name, without "name": the same rule, saying where the name came from.
+  e.erase("name");
+  std::ofstream(base / "it's.json") << e.dump();
+  EXPECT_EQ(cli({"validate", (base / "it's.json").string()}), 1) << log;
+  EXPECT_NE(log.find("the file's stem (no \"name\" given) 'it's' is not a plain name"), std::string::npos) << log;
+  // Output folders with quotes, $(...), backticks, spaces and a newline: run and report work.
+  e["name"] = "odd_folders";
+  std::ofstream(base / "odd.json") << e.dump();
+  const fs::path out = base / "it's $(touch PWNED) `touch PWNED` \n\"x\"";
+  ASSERT_EQ(cli({"run", (base / "odd.json").string(), "--out", out.string()}), 0) << log;
+  EXPECT_TRUE(fs::exists(out / "results.json"));
+  if (std::system("/usr/bin/python3 -c 'import matplotlib' >/dev/null 2>&1") == 0) {
+    EXPECT_TRUE(fs::exists(out / "report.md")) << log;
+    fs::remove(out / "report.md");
+    EXPECT_EQ(cli({"report", out.string()}), 0) << log;
+    EXPECT_TRUE(fs::exists(out / "report.md")) << log;
+  }
+  EXPECT_FALSE(fs::exists("PWNED"));
+  EXPECT_FALSE(fs::exists(base / "PWNED"));
+  // --out naming a file: one clear message, not a filesystem exception.
+  std::ofstream(base / "afile.txt") << "x";
+  EXPECT_EQ(cli({"run", (base / "odd.json").string(), "--out", (base / "afile.txt").string()}), 1) << log;
+  EXPECT_NE(log.find("afile.txt is a file, not a folder"), std::string::npos) << log;
+  EXPECT_EQ(log.find("filesystem error"), std::string::npos) << log;
+  // Live mode's --set names what was typed, not a "run." prefix the user never wrote.
+  EXPECT_EQ(cli({"serve", "--scene", "room", "--set", "nonsense"}), 1) << log;
+  EXPECT_NE(log.find("--set 'nonsense': expected key=value, e.g. frames=10"), std::string::npos) << log;
+  EXPECT_EQ(log.find("run.nonsense"), std::string::npos) << log;
+  fs::remove_all(base);
+}
+
+// Issue 51: 8 keys x 256 values wrapped the run count to 0 in size_t and expanded until memory
+// ran out; two configurations of one name were accepted.
+TEST(Experiment, HugeSweepsAndRepeatedNamesAreRefusedBeforeExpanding) {
+  const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json";
+  nlohmann::json sweep = nlohmann::json::object();
+  for (int k = 0; k < 8; ++k) {
+    nlohmann::json values = nlohmann::json::array();
+    for (int v = 0; v < 256; ++v) values.push_back(v);
+    sweep[fmt::format("trace.ao_rays{}", k)] = values;
+  }
+  const std::string e1 = test::error_of([&] { load_experiment(exp, {"sweep=" + sweep.dump()}); });
+  EXPECT_NE(e1.find("more than 10000 runs (1 scene(s) x 2 configuration(s) x trace.ao_rays0 (256 values)"),
+            std::string::npos) << e1;
+  // Just past the limit (5001 seeds x 2 configurations).
+  nlohmann::json seeds = nlohmann::json::array();
+  for (int i = 0; i < 5001; ++i) seeds.push_back(i);
+  const std::string over = nlohmann::json{{"seed", seeds}}.dump();
+  EXPECT_NE(test::error_of([&] { load_experiment(exp, {"sweep=" + over}); }).find("more than 10000 runs"), std::string::npos);
+  const std::string e2 = test::error_of([&] {
+    load_experiment(exp, {R"(configurations=[{"name": "a", "set": {}}, {"name": "b", "set": {}}, {"name": "a", "set": {}}])"});
+  });
+  EXPECT_NE(e2.find("configurations[2]: the name 'a' is given twice"), std::string::npos) << e2;
+}
+
 // 'dhrbench report' on a damaged results.json (or frames.csv): one message naming the file and
 // what is wrong, exit 2, no Python traceback, no report written.
 TEST(Runner, ReportOnDamagedResultsIsAClearError) {
@@ -306,8 +392,12 @@ TEST(Runner, ReportOnDamagedResultsIsAClearError) {
        "results.json: runs[0].metrics.bandwidth_mbps: must be a finite number, got \"fast\""},
       {"metrics_missing_key", with([](auto& r) { r["runs"][0]["metrics"].erase("passes"); }), "",
        "results.json: runs[0].metrics.passes is missing"},
-      {"id_path", with([](auto& r) { r["runs"][0]["id"] = "../../x"; }), "", "results.json: runs[0].id: must be"},
-      {"frames_csv", text, "run,scene,label,frame,ssim_local\nr000,room,x,abc,0.5\n", "frames.csv: line 2: frame must be"},
+      {"id_path", with([](auto& r) { r["runs"][0]["id"] = "../../x"; }), "", "results.json: runs[0].id \"../../x\" cannot name a run"},
+      {"frames_csv", with([](auto& r) {
+         r["runs"] = nlohmann::json::array({r["runs"][0]});
+         r["runs"][0]["metrics"]["frames_displayed"] = 1;
+       }),
+       "run,scene,label,frame,ssim_local\nr000,room,x,abc,0.5\n", "frames.csv: line 2: frame must be"},
   };
   const fs::path base = fs::temp_directory_path() / "dhr_runner_damaged";
   for (const auto& c : cases) {
@@ -316,7 +406,9 @@ TEST(Runner, ReportOnDamagedResultsIsAClearError) {
     fs::remove_all(dir);
     fs::create_directories(dir);
     std::ofstream(dir / "results.json") << c.results;
+    // The report's frames, so that each case fails on its own damage only.
     if (!c.frames_csv.empty()) std::ofstream(dir / "frames.csv") << c.frames_csv;
+    else fs::copy_file(fs::path(DHR_SOURCE_DIR) / "reports/quick/frames.csv", dir / "frames.csv");
     std::string log;
     const int rc = run("report " + dir.string(), &log);
     ASSERT_TRUE(WIFEXITED(rc)) << "killed by a signal: " << rc;

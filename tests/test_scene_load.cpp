@@ -2,12 +2,14 @@
 // animation and camera-path interpolation, texture lookup, the built-in scenes, model import
 // (good models load, every broken model in assimp's test set is rejected) and the real scenes.
 #include "core/error.h"
+#include "core/image_io.h"
 #include "core/mesh_import.h"
 #include "core/scene.h"
 #include "core/scene_load.h"
 #include "core/shapes.h"
 #include "tests/support.h"
 
+#include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -485,7 +487,7 @@ TEST(ModelImport, EveryBrokenModelIsRejectedNamingTheFile) {
       continue;
     }
     const std::string e = error_of([&] { import_model(path); });
-    EXPECT_EQ(e.rfind(path + ": ", 0), 0u) << rel << ": " << (e.empty() ? "accepted" : e);
+    EXPECT_EQ(e.rfind(path + ":", 0), 0u) << rel << ": " << (e.empty() ? "accepted" : e);  // "FILE: " or "FILE:LINE: "
   }
 }
 
@@ -517,6 +519,102 @@ TEST(ModelImport, LyingOffHeaderIsRefusedBeforeAllocating) {
   EXPECT_NE(error_of([&] { import_model(f); }).find(f + ": OFF header declares"), std::string::npos);
   const std::string good = dir.write("tri.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
   EXPECT_EQ(import_model(good).triangle_count(), 1u);
+}
+
+// Issue 51: the importer dropped a mesh's uvs (or normals) in silence when one index was out of
+// range, and rendered without materials when the MTL file was missing; each is now an error
+// naming the file and line.
+TEST(ModelImport, ObjIndicesOutOfRangeAndMissingMtlAreErrorsNamingTheLine) {
+  TempDir dir;
+  const std::string tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n";
+  EXPECT_EQ(import_model(dir.write("good.obj", tri + "f 1/1/1 2/2/1 3/3/1\n")).triangle_count(), 1u);
+  EXPECT_EQ(import_model(dir.write("relative.obj", tri + "f -3/-3/-1 -2/-2/-1 -1/-1/-1\n")).triangle_count(), 1u);
+  const std::string uv = dir.write("uv.obj", tri + "f 1/1/1 2/5/1 3/3/1\n");
+  EXPECT_NE(error_of([&] { import_model(uv); }).find(uv + ":8: texture coordinate (vt) index 5 is out of range"),
+            std::string::npos) << error_of([&] { import_model(uv); });
+  const std::string vn = dir.write("vn.obj", tri + "f 1/1/1 2/2/9 3/3/1\n");
+  EXPECT_NE(error_of([&] { import_model(vn); }).find(vn + ":8: normal (vn) index 9"), std::string::npos);
+  const std::string v0 = dir.write("v0.obj", tri + "f 0 2 3\n");
+  EXPECT_NE(error_of([&] { import_model(v0); }).find(v0 + ":8: vertex (v) index 0"), std::string::npos);
+  const std::string back = dir.write("back.obj", tri + "f -4 2 3\n");
+  EXPECT_NE(error_of([&] { import_model(back); }).find("index -4 is out of range"), std::string::npos);
+  const std::string mtl = dir.write("mtl.obj", "mtllib missing.mtl\n" + tri + "f 1 2 3\n");
+  EXPECT_NE(error_of([&] { import_model(mtl); }).find(mtl + ":1: mtllib 'missing.mtl': no such material file"),
+            std::string::npos) << error_of([&] { import_model(mtl); });
+  dir.write("has.mtl", "newmtl m\nKd 1 0 0\n");
+  EXPECT_EQ(import_model(dir.write("has.obj", "mtllib has.mtl\nusemtl m\n" + tri + "f 1 2 3\n")).triangle_count(), 1u);
+}
+
+// A 200-byte GLB whose JSON claims a 4 GB buffer, or whose chunk claims 4 GB, is refused before
+// the importer allocates it.
+TEST(ModelImport, GlbThatClaimsMoreThanItHoldsIsRefusedBeforeAllocating) {
+  TempDir dir;
+  auto glb = [&](const std::string& name, const std::string& json, uint32_t claimed_chunk) {
+    std::string j = json;
+    while (j.size() % 4) j += ' ';
+    std::string bytes = "glTF";
+    auto u32 = [&](uint32_t v) { for (int k = 0; k < 4; ++k) bytes += char((v >> (8 * k)) & 255); };
+    u32(2);
+    u32(uint32_t(12 + 8 + j.size()));
+    u32(claimed_chunk ? claimed_chunk : uint32_t(j.size()));
+    u32(0x4E4F534Au);
+    bytes += j;
+    const std::string path = dir.path() + "/" + name;
+    std::ofstream(path, std::ios::binary) << bytes;
+    return path;
+  };
+  const std::string buffer = glb("buffer.glb", R"({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4294967295}]})", 0);
+  EXPECT_NE(error_of([&] { import_model(buffer); }).find(buffer + ": glTF buffers[0] claims 4294967295 bytes, more than the GLB's BIN chunk"),
+            std::string::npos) << error_of([&] { import_model(buffer); });
+  const std::string chunk = glb("chunk.glb", R"({"asset": {"version": "2.0"}})", 0xFFFFFFF0u);
+  EXPECT_NE(error_of([&] { import_model(chunk); }).find(chunk + ": the GLB chunk at byte 12 claims 4294967280 bytes"),
+            std::string::npos) << error_of([&] { import_model(chunk); });
+  const std::string gltf = dir.write("big.gltf", R"({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4000000000, "uri": "none.bin"}]})");
+  EXPECT_NE(error_of([&] { import_model(gltf); }).find("claims 4000000000 bytes, more than its file"), std::string::npos);
+}
+
+// Issue 51: OpenImageIO premultiplied alpha by default (RGB 200 with alpha 128 read as 100), and
+// an EXR's linear floats were read as if sRGB-encoded; NaN/inf became 0/255 in silence.
+TEST(ImageRead, AlphaIsUnassociatedFloatsAreLinearNonFiniteIsRefused) {
+  TempDir dir;
+  const std::string rgba = dir.path() + "/rgba.png";
+  {
+    auto out = OIIO::ImageOutput::create(rgba);
+    ASSERT_TRUE(out);
+    OIIO::ImageSpec spec(2, 1, 4, OIIO::TypeDesc::UINT8);
+    spec.attribute("oiio:UnassociatedAlpha", 1);
+    const uint8_t px[8] = {200, 100, 50, 128, 10, 20, 30, 0};
+    ASSERT_TRUE(out->open(rgba, spec));
+    ASSERT_TRUE(out->write_image(OIIO::TypeDesc::UINT8, px));
+    out->close();
+  }
+  const Rgba8Image a = read_rgba8(rgba);
+  ASSERT_TRUE(a.has_alpha);
+  EXPECT_EQ(std::vector<uint8_t>(a.rgba.begin(), a.rgba.end()), (std::vector<uint8_t>{200, 100, 50, 128, 10, 20, 30, 0}));
+  const ImageRGB8 rgb = read_rgb8(rgba);
+  EXPECT_EQ(rgb(0, 0).r, 200);
+  EXPECT_EQ(rgb(1, 0).b, 30);
+  // EXR: linear 0.5 is sRGB code 188; 0.2 / alpha 0.5 (OpenEXR premultiplies) is linear 0.4 -> 170.
+  auto write_exr4 = [&](const std::string& name, std::vector<float> px) {
+    const std::string path = dir.path() + "/" + name;
+    auto out = OIIO::ImageOutput::create(path);
+    OIIO::ImageSpec spec(int(px.size() / 4), 1, 4, OIIO::TypeDesc::FLOAT);
+    EXPECT_TRUE(out->open(path, spec));
+    EXPECT_TRUE(out->write_image(OIIO::TypeDesc::FLOAT, px.data()));
+    out->close();
+    return path;
+  };
+  const Rgba8Image e = read_rgba8(write_exr4("lin.exr", {0.5f, 0.5f, 0.5f, 1.0f, 0.2f, 0.0f, 2.0f, 0.5f}));
+  EXPECT_EQ(e.rgba[0], 188);
+  EXPECT_EQ(e.rgba[3], 255);
+  EXPECT_EQ(e.rgba[4], 170);
+  EXPECT_EQ(e.rgba[6], 255);  // 4.0 linear clamps to white
+  EXPECT_EQ(e.rgba[7], 128);
+  const std::string nan = write_exr4("nan.exr", {0.5f, 0.5f, 0.5f, 1.0f, 0.1f, std::nanf(""), 0.1f, 1.0f});
+  EXPECT_NE(error_of([&] { read_rgba8(nan); }).find(nan + ": pixel (1, 0) channel 1 is nan"), std::string::npos)
+      << error_of([&] { read_rgba8(nan); });
+  const std::string inf = write_exr4("inf.exr", {INFINITY, 0.5f, 0.5f, 1.0f});
+  EXPECT_NE(error_of([&] { read_rgba8(inf); }).find(inf + ": pixel (0, 0) channel 0 is inf"), std::string::npos);
 }
 
 // --- real scenes --------------------------------------------------------------------------------

@@ -6,6 +6,7 @@
 #include "core/experiment.h"
 #include "core/frame_loop.h"
 #include "core/json_io.h"
+#include "core/process.h"
 #include "core/results.h"
 #include "core/rt_scene.h"
 #include "core/shard.h"
@@ -277,6 +278,97 @@ TEST(Shard, AFailedShardIsReportedAndRerunAlone) {
     EXPECT_NE(log.find((base / "s2" / "shard.json").string()), std::string::npos) << log;
     EXPECT_NE(log.find(expected), std::string::npos) << log;
   }
+  fs::remove_all(base);
+}
+
+// Issue 51: 'merge sh2 sh1 sh2' (OUT one of the shards) damaged shard sh2 before it failed, and
+// a frames.csv with rows removed or cut mid-row merged with exit 0. Everything is now checked
+// before anything is written; folder names reach the report script as they are (no shell).
+TEST(Shard, MergeRefusesOutInsideAShardAndDamagedShardsBeforeWriting) {
+  const fs::path base = fs::temp_directory_path() / fmt::format("dhr_shard_refuse.{}", ::getpid());
+  fs::remove_all(base);
+  fs::create_directories(base);
+  // Folder names a shell would take apart: quotes, $(...), backticks, spaces, a newline.
+  const fs::path s1 = base / "s1 it's $(touch PWNED)", s2 = base / "s2 `touch PWNED`\nx";
+  std::string log;
+  auto run = [&](const std::vector<std::string>& args) {
+    std::vector<std::string> argv{DHR_CLI};
+    argv.insert(argv.end(), args.begin(), args.end());
+    const ProcessResult r = run_process(argv, {.err = ProcessOptions::Err::WithOut});
+    log = r.out;
+    return r.exit_code;
+  };
+  ASSERT_EQ(run({"run", kExperiment, "--shard", "1/2", "--out", s1.string()}), 0) << log;
+  ASSERT_EQ(run({"run", kExperiment, "--shard", "2/2", "--out", s2.string()}), 0) << log;
+  const std::string s2_results = read_text(s2 / "results.json"), s2_frames = read_text(s2 / "frames.csv");
+  // OUT is a shard, or lies inside one: refused, the shard untouched.
+  for (const fs::path& out : {s2, s2 / "merged", base / "s2 `touch PWNED`\nx/"}) {
+    EXPECT_EQ(run({"merge", out.string(), s1.string(), s2.string()}), 1) << out;
+    EXPECT_NE(log.find("the shard folder"), std::string::npos) << log;
+    EXPECT_NE(log.find("nothing was written"), std::string::npos) << log;
+    EXPECT_EQ(read_text(s2 / "results.json"), s2_results);
+    EXPECT_EQ(read_text(s2 / "frames.csv"), s2_frames);
+    EXPECT_FALSE(fs::exists(s2 / "merged"));
+  }
+  // A good merge into an odd name writes the report there.
+  const fs::path merged = base / "merged 'q' $(touch PWNED)";
+  ASSERT_EQ(run({"merge", merged.string(), s1.string(), s2.string()}), 0) << log;
+  EXPECT_TRUE(fs::exists(merged / "report.md") || log.find("matplotlib") != std::string::npos) << log;
+  // Damaged shards: each refused naming the file and what is wrong, nothing written.
+  const std::string frames = read_text(s1 / "frames.csv");
+  std::vector<std::string> lines;
+  for (size_t at = 0; at < frames.size();) {
+    const size_t nl = frames.find('\n', at);
+    lines.push_back(frames.substr(at, nl + 1 - at));
+    at = nl + 1;
+  }
+  ASSERT_GT(lines.size(), 8u);
+  auto join = [](const std::vector<std::string>& v, size_t from, size_t to) {
+    std::string out;
+    for (size_t i = from; i < to; ++i) out += v[i];
+    return out;
+  };
+  const nlohmann::json results = nlohmann::json::parse(read_text(s1 / "results.json"));
+  nlohmann::json other_commit = results;
+  other_commit["context"]["git_commit"] = "0123456789abcdef0123456789abcdef01234567";
+  nlohmann::json no_metrics = results;
+  no_metrics["runs"][0].erase("metrics");
+  std::string short_row = lines[3];
+  short_row = short_row.substr(0, short_row.rfind(',')) + "\n";
+  struct Case {
+    const char* name;
+    std::string frames, results, expected;
+    bool report_refuses = true;  // 'dhrbench report' knows no shard.json: it cannot see another commit
+  };
+  const std::vector<Case> cases = {
+      {"seven_rows_removed", join(lines, 0, lines.size() - 7), "", "row(s), but results.json says it displayed"},
+      {"cut_mid_row", frames.substr(0, frames.size() - 5), "", "the file ends inside this record (cut short"},
+      {"row_short_of_fields", join(lines, 0, 3) + short_row + join(lines, 4, lines.size()), "", "line 4: "},
+      {"row_of_unknown_run", frames + "r999" + lines[1].substr(lines[1].find(',')), "", "a row of run 'r999'"},
+      {"other_commit", frames, other_commit.dump(1), "but its shard.json says", false},
+      {"run_without_metrics", frames, no_metrics.dump(1), "has neither \"metrics\" nor \"error\""},
+      {"no_frames_csv", "", "", "frames.csv: missing"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const fs::path d = base / c.name;
+    fs::copy(s1, d, fs::copy_options::recursive);
+    if (c.frames.empty()) fs::remove(d / "frames.csv");
+    else std::ofstream(d / "frames.csv", std::ios::binary) << c.frames;
+    if (!c.results.empty()) std::ofstream(d / "results.json") << c.results;
+    const fs::path out = base / ("out_" + std::string(c.name));
+    EXPECT_EQ(run({"merge", out.string(), d.string(), s2.string()}), 1) << log;
+    EXPECT_NE(log.find(c.expected), std::string::npos) << log;
+    EXPECT_NE(log.find(d.string()), std::string::npos) << log;
+    EXPECT_FALSE(fs::exists(out));
+    // 'dhrbench report' refuses the same folder (exit 2), naming the file.
+    if (!c.report_refuses) continue;
+    EXPECT_EQ(run({"report", d.string()}), 2) << log;
+    EXPECT_NE(log.find(c.expected), std::string::npos) << log;
+    EXPECT_FALSE(fs::exists(d / "report.md"));
+  }
+  EXPECT_FALSE(fs::exists("PWNED"));
+  EXPECT_FALSE(fs::exists(base / "PWNED"));
   fs::remove_all(base);
 }
 
