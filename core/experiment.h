@@ -2,7 +2,7 @@
 //
 // {
 //   "version": 2,
-//   "name": "quick",
+//   "name": "quick",           a plain name (kPlainNameRule below; default: the file's stem)
 //   "description": "what this experiment shows",
 //   "scenes": ["room", "scenes/real/living-room.json"],
 //   "run": { the settings of core/run_config.h (`dhrbench settings` lists them): width, height,

@@ -15,7 +15,7 @@
 #                      scene and experiment readers (~20 s each on 2 cores); 0 only replays)
 #   DHR_FUZZ_SEED      libFuzzer seed in the default mode (default 1)
 #   DHR_FUZZ_TARGETS   targets to run (default: fuzz_packet_header fuzz_assembler fuzz_decoders
-#                      fuzz_scene_load fuzz_experiment fuzz_live_control)
+#                      fuzz_scene_load fuzz_experiment fuzz_live_control fuzz_results fuzz_image)
 #   DHR_FUZZ_JOBS      build parallelism (default: nproc)
 #   DHR_FUZZ_WERROR    ON (default): clang's warnings are errors, as gcc's are in the main build
 # New inputs found while fuzzing go to build-fuzz/corpus/<target>/, never into the repository.
@@ -24,7 +24,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 seconds=${DHR_FUZZ_SECONDS:-0}
 seed=${DHR_FUZZ_SEED:-1}
-targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders fuzz_scene_load fuzz_experiment fuzz_live_control"}
+targets=${DHR_FUZZ_TARGETS:-"fuzz_packet_header fuzz_assembler fuzz_decoders fuzz_scene_load fuzz_experiment fuzz_live_control fuzz_results fuzz_image"}
 jobs=${DHR_FUZZ_JOBS:-$(nproc 2>/dev/null || echo 2)}
 werror=${DHR_FUZZ_WERROR:-ON}
 build=$root/build-fuzz
@@ -63,7 +63,8 @@ for t in $targets; do
   # inputs a second): 4000 keep each near 20 s on 2 cores; live control messages carry JSON
   # bodies: 6000 are about 25 s.
   case $t in
-    fuzz_decoders | fuzz_scene_load | fuzz_experiment) runs=${DHR_FUZZ_RUNS:-4000} ;;
+    fuzz_decoders | fuzz_scene_load | fuzz_experiment | fuzz_image) runs=${DHR_FUZZ_RUNS:-4000} ;;
+    fuzz_results) runs=${DHR_FUZZ_RUNS:-20000} ;;
     fuzz_live_control) runs=${DHR_FUZZ_RUNS:-6000} ;;
     *) runs=${DHR_FUZZ_RUNS:-50000} ;;
   esac
