@@ -54,7 +54,7 @@ struct RtSceneOptions {
   int threads = 0;  // Embree's build threads and the TBB arena used for tracing; 0 = all cores
   // RTC_SCENE_FLAG_ROBUST: watertight traversal (no rays slipping through shared edges) at a
   // cost in speed. Default off: bench_trace measures the cost (see the report of this module)
-  // and the Waechter-Binder origin offset already removes self-intersection.
+  // and the ray origin offset (core/trace.h) already removes self-intersection.
   bool robust = false;
   RTCBuildQuality quality = RTC_BUILD_QUALITY_HIGH;  // static and object-space BVHs (built once)
   // The layout of a scene with moving objects. By default every static geometry is attached to

@@ -8,13 +8,15 @@
 // sphere), a point beyond the light's range_m. Every ray traced is counted (TraceStats).
 //
 // Surface points are rebuilt from the G-buffer's object id, prim id and barycentrics with the
-// scene's vertices at the G-buffer's time (in double precision), and ray origins are offset
-// along the geometric normal (oriented like the G-buffer's, i.e. towards the camera) with
-// Waechter & Binder's integer-ULP method (Ray Tracing Gems, ch. 6); there is no global epsilon.
-// Where the hit triangle's own float error in Embree is larger than that offset (a triangle
-// large against the hit point's coordinates, e.g. a big plane through the world origin), the
-// point first moves that error off the plane (triangle_error_m in core/trace_kernels.h).
-//
+// scene's vertices at the G-buffer's time (in double precision). Ray origins are that point
+// moved along the geometric normal (oriented like the G-buffer's, i.e. towards the camera) by a
+// distance d that bounds the floating-point error of everything between the double-precision
+// point and Embree's float intersection test (origin_offset_m below; the error model follows
+// pbrt-v4's OffsetRayOrigin with error bounds, applied to Embree's Moeller-Trumbore test), in
+// double, then rounded to float once. There is no global epsilon and no floor near the world
+// origin: d scales with the triangle's coordinates and with its own float error, so it is small
+// for tiny scenes, for long axis-aligned slivers and near the world origin, and large where
+// the float geometry is coarse (far from the origin, big tilted triangles).
 // Rays are validated before Embree sees them (ray_is_valid in core/rt_scene.h). An invalid
 // ray is counted in TraceStats::invalid_rays and never traced; its answer is "unoccluded":
 // a shadow ray counts as reaching its light (a missing shadow is the milder error, and a
@@ -42,7 +44,9 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
 #include <bit>
+#include <cmath>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -205,23 +209,98 @@ PassBuffer pack_ao(const AoCounts& counts);
 
 // ---- Building blocks, exposed for tests and benchmarks ----
 
-// Waechter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing
-// Gems, 2019, ch. 6): move p along n by 256 ULPs per unit of n (in integer space, so the step
-// scales with |p|), or by n / 65536 for coordinates within 1/32 of the origin, where ULP steps
-// are too small.
-inline glm::vec3 offset_ray_origin(const glm::vec3& p, const glm::vec3& n) {
-  constexpr float kOrigin = 1.0f / 32.0f;
-  constexpr float kFloatScale = 1.0f / 65536.0f;
-  constexpr float kIntScale = 256.0f;
-  glm::vec3 out;
+// ---- Ray origins ----
+//
+// A shadow or AO ray leaves the surface point p (on the hit triangle, in double) from
+//   o = float(p + d n)      (n: the unit normal on the ray's side; computed in double)
+// and must not hit the triangle it starts on. Embree 3 tests a ray against a triangle in float
+// (its Moeller-Trumbore intersector): with the float vertices v0, v1, v2, the edges
+// e1 = v0 - v1, e2 = v2 - v0 and Ng = cross(e2, e1) are rounded to float, then C = v0 - O and
+// T = dot(Ng, C) (and den = dot(Ng, D)); a hit needs T / den > tnear = 0, i.e. T of the sign
+// of den. The exact T is -|Ng| times O's distance above the plane, so the ray cannot hit its
+// own triangle while that distance exceeds the error of the computed T over |Ng|. d bounds, as
+// a distance along n:
+//  (a) rounding o to float: half an ULP per component, at most 2^-24 |o_i|, i.e. along n
+//      2^-24 sum_i |n_i| |o_i| <= 2^-24 (sum_i |n_i| M_i + d), M_i = max_k |v_k,i| (p lies
+//      in the triangle);
+//  (b) the vertices Embree holds against the double ones: none for a static object (Embree
+//      gets the very float positions); for a moving object Embree moves the ray into object
+//      space with the float inverse of its float transform, off by up to about
+//      gamma(8) (|O| + |t|) per component (t: the translation; bounded by moving_offset_m);
+//  (c) Embree's evaluation of T (embree_plane_error): Ng_i is off by up to
+//      gamma(4) (|e2_j e1_k| + |e2_k e1_j|) (two products and a difference of float edges,
+//      each edge rounded once; with or without FMA), C_i by one rounding and the dot product
+//      by gamma(3) (pbrt-v4's gamma(n) = n u / (1 - n u), u = 2^-24, as in its triangle
+//      pError bounds). |C_i| <= ext_i + |n_i| d with ext_i the triangle's extent along axis
+//      i, so the error over |Ng| is fixed_m + slope d. For an axis-aligned sliver the
+//      off-axis edge components are exactly 0 and so is fixed_m: a 40 m x 3 cm wall strip
+//      gets an offset of a few ULPs of its coordinates, a tilted one what it really needs.
+// So d (1 - slope - u) >= 2^-24 sum_i |n_i| M_i + (b) + fixed_m, and
+//   d = kOriginSafety * (2^-24 sum_i |n_i| M_i + (b) + fixed_m) / (1 - slope - 2^-24)
+// with kOriginSafety = 2 for what the first-order bounds leave out (the double-precision
+// rebuild of p, barycentrics a rounding outside the triangle). The denominator is held at
+// >= 1/2: a triangle whose float normal is that wrong has no useful bound.
+// Everything but the rounding of o is per triangle (TriangleCache in core/trace_kernels.h),
+// so d is one number per triangle and every kernel computes o = float(p + n d) alike.
+constexpr double kUnitRoundoff = 0x1p-24;
+constexpr double kOriginSafety = 2.0;
+constexpr double float_gamma(int n) { return n * kUnitRoundoff / (1.0 - n * kUnitRoundoff); }
+
+// (c): Embree's error in T = dot(Ng, v0 - O) over |Ng|, for the float vertices w Embree holds
+// (in the space it intersects in): fixed_m + slope * (O's distance from the plane).
+struct PlaneError {
+  double fixed_m = 0.0;
+  double slope = 0.0;
+};
+inline PlaneError embree_plane_error(const glm::dvec3 w[3]) {
+  const glm::dvec3 e1 = w[0] - w[1], e2 = w[2] - w[0];
+  const glm::dvec3 ng = glm::cross(e2, e1);
+  const double len = glm::length(ng);
+  PlaneError e;
+  if (!(len > 0.0)) return e;
   for (int i = 0; i < 3; ++i) {
-    const int32_t of_i = int32_t(kIntScale * n[i]);
-    const int32_t bits = std::bit_cast<int32_t>(p[i]);
-    // Unsigned arithmetic: no signed-overflow UB; for finite |p| < 1e18 it never wraps.
-    const float p_i = std::bit_cast<float>(int32_t(uint32_t(bits) + uint32_t(p[i] < 0.0f ? -of_i : of_i)));
-    out[i] = std::abs(p[i]) < kOrigin ? p[i] + kFloatScale * n[i] : p_i;
+    const int j = (i + 1) % 3, k = (i + 2) % 3;
+    const double err = float_gamma(4) * (std::abs(e2[j] * e1[k]) + std::abs(e2[k] * e1[j]));
+    const double wi = err * (1.0 + float_gamma(4)) + float_gamma(4) * std::abs(ng[i]);
+    const double ext = std::max({w[0][i], w[1][i], w[2][i]}) - std::min({w[0][i], w[1][i], w[2][i]});
+    e.fixed_m += wi * ext;
+    e.slope += wi * std::abs(ng[i]);  // |n_i| = |Ng_i| / |Ng|
   }
-  return out;
+  e.fixed_m /= len;
+  e.slope /= len * len;
+  return e;
+}
+
+// The offset d along unit n (above) for a triangle with world vertices v (double), given the
+// terms (b) (vertex_m: 0 for a static object) and (c) (e, as a world distance).
+inline double origin_offset_m(const glm::dvec3 v[3], const glm::dvec3& n, double vertex_m, const PlaneError& e) {
+  double coords = 0.0;
+  for (int i = 0; i < 3; ++i)
+    coords += std::abs(n[i]) * std::max({std::abs(v[0][i]), std::abs(v[1][i]), std::abs(v[2][i])});
+  const double denominator = std::max(0.5, 1.0 - e.slope - kUnitRoundoff);
+  return kOriginSafety * (kUnitRoundoff * coords + vertex_m + e.fixed_m) / denominator;
+}
+
+// (b) for a moving object: Embree's float transform of the origin into object space, about
+// gamma(8) (|O| + |t|) per component (O <= the vertices' largest |coordinate|, t the
+// translation), times 3 components (a rigid or mildly scaled transform).
+inline double moving_offset_m(const glm::dvec3 v[3], const glm::dvec3& translation) {
+  double m = 0.0;
+  for (int k = 0; k < 3; ++k) m = std::max({m, std::abs(v[k].x), std::abs(v[k].y), std::abs(v[k].z)});
+  const double t = std::max({std::abs(translation.x), std::abs(translation.y), std::abs(translation.z)});
+  return 3.0 * float_gamma(8) * (m + t);
+}
+
+// A point with no known triangle (a G-buffer position whose triangle cannot be rebuilt): term
+// (a) with the point's own coordinates, times kOriginSafety and 4 for the unknown rest.
+inline double point_offset_m(const glm::dvec3& p, const glm::dvec3& n) {
+  return 4.0 * kOriginSafety * kUnitRoundoff *
+         (std::abs(n.x) * std::abs(p.x) + std::abs(n.y) * std::abs(p.y) + std::abs(n.z) * std::abs(p.z));
+}
+
+// o = float(p + n d), in double, rounded once (every kernel: the same operations, no FMA).
+inline glm::vec3 offset_ray_origin(const glm::dvec3& p, const glm::dvec3& n, double d) {
+  return glm::vec3(p + n * d);
 }
 
 // Duff, Burgess, Christensen, Hery, Kensler, Liani, Villemin, "Building an Orthonormal Basis,

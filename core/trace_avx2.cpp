@@ -175,7 +175,7 @@ DHR_TRACE_TARGET_AVX2 inline __m256 join(__m128 lo, __m128 hi) {
 }
 
 
-// The 13 values (v0, v1, v2, n, error_m) of the row triangles of 4 pixels, value k of lane l in
+// The 13 values (v0, v1, v2, n, offset_m) of the row triangles of 4 pixels, value k of lane l in
 // c[k][l] (surfaces_x8). AVX2's gathers are slow on the CPUs at hand, so: one broadcast per
 // value where the 4 pixels share a triangle (most of a row), else the 4 triangles' values read
 // in blocks of 4 and transposed. A lane outside live reads the first live lane's triangle.
@@ -399,14 +399,13 @@ DHR_TRACE_TARGET_AVX2 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8
 
 // Stage 1 of the visibility pass for the pixels of kind 1 (surfaces_x16 in 8 lanes, doubles 4
 // at a time): the point on the row triangle from the barycentrics, the normal oriented like the
-// G-buffer's, the Waechter-Binder origin and its validity; pixels whose orientation needs the
+// G-buffer's, the origin float(p + n offset_m) and its validity; pixels whose orientation needs the
 // camera become kind 3. With hashes, every pixel's PixelRng hash. The same operations in the
 // same order as surface_at and surfaces_x16: the same bits.
 DHR_TRACE_TARGET_AVX2 void surfaces_x8(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes) {
   const int w = r.w;
   const double* tri = r.tris.data();
   const __m256d zero_d = _mm256_setzero_pd(), one_d = _mm256_set1_pd(1.0);
-  const __m256 zero = _mm256_setzero_ps();
   const __m256 abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
   const __m256d abs_mask_d = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffll));
   const __m256i iota64 = _mm256_setr_epi64x(0, 1, 2, 3);
@@ -431,8 +430,7 @@ DHR_TRACE_TARGET_AVX2 void surfaces_x8(VisibilityRow& r, const TraceSettings& se
     const uint32_t vec =
         uint32_t(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(kind, _mm256_set1_epi32(1))))) & live;
     if (vec == 0) continue;
-    __m128 ph[2][3], nh[2][3], qh[2][3];
-    __m256d error_m[2];
+    __m128 ph[2][3], nh[2][3], oh[2][3];
     uint32_t degenerate = 0;
     for (int half = 0; half < 2; ++half) {
       const size_t xh = size_t(x + 4 * half);
@@ -459,52 +457,16 @@ DHR_TRACE_TARGET_AVX2 void surfaces_x8(VisibilityRow& r, const TraceSettings& se
       for (int k = 0; k < 3; ++k) {
         const __m256d nk = _mm256_xor_pd(c[9 + k], flip);
         nh[half][k] = _mm256_cvtpd_ps(nk);
-        // The point moved error_m off the plane (used where the error exceeds the offset).
-        qh[half][k] = _mm256_cvtpd_ps(_mm256_add_pd(pd[k], _mm256_mul_pd(nk, c[12])));
+        // offset_ray_origin (core/trace.h): float(p + n offset_m), in double.
+        oh[half][k] = _mm256_cvtpd_ps(_mm256_add_pd(pd[k], _mm256_mul_pd(nk, c[12])));
       }
-      error_m[half] = c[12];
     }
-    __m256 pf[3], nf[3];
+    __m256 pf[3], nf[3], of[3];
+    __m256 origin_ok = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
     for (int k = 0; k < 3; ++k) {
       pf[k] = join(ph[0][k], ph[1][k]);
       nf[k] = join(nh[0][k], nh[1][k]);
-    }
-    // The triangle's own error against offset_lower_bound_m(p, n) (core/trace_kernels.h):
-    // where it is larger, surface_at moves the point off the plane first. error_m is -1 for
-    // triangles that never need it.
-    __m256 bound = zero;
-    for (int k = 0; k < 3; ++k) {
-      const __m256 a = _mm256_and_ps(pf[k], abs_mask), m = _mm256_and_ps(nf[k], abs_mask);
-      const __m256 near = _mm256_mul_ps(_mm256_mul_ps(m, m), _mm256_set1_ps(1.0f / 65536.0f));
-      const __m256 far = _mm256_mul_ps(
-          _mm256_mul_ps(_mm256_max_ps(_mm256_mul_ps(m, _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(256.0f), m),
-                                                                     _mm256_set1_ps(1.0f))),
-                                      zero),
-                        _mm256_set1_ps(0x1p-25f)),
-          a);
-      bound = _mm256_add_ps(bound, _mm256_blendv_ps(far, near, _mm256_cmp_ps(a, _mm256_set1_ps(1.0f / 32.0f), _CMP_LT_OQ)));
-    }
-    const uint32_t too_small_bits =
-        uint32_t(_mm256_movemask_pd(
-            _mm256_cmp_pd(error_m[0], _mm256_cvtps_pd(_mm256_castps256_ps128(bound)), _CMP_GT_OQ))) |
-        uint32_t(_mm256_movemask_pd(
-            _mm256_cmp_pd(error_m[1], _mm256_cvtps_pd(_mm256_extractf128_ps(bound, 1)), _CMP_GT_OQ)))
-            << 4;
-    const __m256 too_small = _mm256_castsi256_ps(lanes_of(too_small_bits));
-    // offset_ray_origin (core/trace.h): 256 ULPs per unit of n in integer space, or n / 65536
-    // within 1/32 of the origin; from the moved point where the triangle's error is larger.
-    __m256 of[3];
-    __m256 origin_ok = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
-    for (int k = 0; k < 3; ++k) {
-      const __m256 qf = join(qh[0][k], qh[1][k]);
-      const __m256 p0 = _mm256_blendv_ps(pf[k], qf, too_small);
-      const __m256i step = _mm256_cvttps_epi32(_mm256_mul_ps(_mm256_set1_ps(256.0f), nf[k]));
-      const __m256 neg = _mm256_cmp_ps(p0, zero, _CMP_LT_OQ);
-      const __m256i signed_step = _mm256_castps_si256(_mm256_blendv_ps(
-          _mm256_castsi256_ps(step), _mm256_castsi256_ps(_mm256_sub_epi32(_mm256_setzero_si256(), step)), neg));
-      const __m256 moved = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(p0), signed_step));
-      const __m256 small = _mm256_cmp_ps(_mm256_and_ps(p0, abs_mask), _mm256_set1_ps(1.0f / 32.0f), _CMP_LT_OQ);
-      of[k] = _mm256_blendv_ps(moved, _mm256_add_ps(p0, _mm256_mul_ps(_mm256_set1_ps(1.0f / 65536.0f), nf[k])), small);
+      of[k] = join(oh[0][k], oh[1][k]);
       origin_ok = _mm256_and_ps(
           origin_ok, _mm256_cmp_ps(_mm256_and_ps(of[k], abs_mask), _mm256_set1_ps(kMaxCoordinate), _CMP_LT_OQ));
     }

@@ -365,7 +365,6 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
   const int w = r.w;
   const double* tri = r.tris.data();
   const __m512d zero_d = _mm512_setzero_pd(), one_d = _mm512_set1_pd(1.0);
-  const __m512 zero = _mm512_setzero_ps();
   const __m512i iota64 = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
   const __m512i seed = _mm512_set1_epi64(int64_t(mix64(settings.seed)));
   const __m512i frame = _mm512_set1_epi64(int64_t(settings.frame));
@@ -386,8 +385,7 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
     const __mmask16 vec = _mm512_cmpeq_epi32_mask(kind, _mm512_set1_epi32(1)) & live;
     if (vec == 0) continue;
     __m512 pf[3], nf[3];
-    __m256 ph[2][3], nh[2][3], qh[2][3];
-    __m512d error_m[2];
+    __m256 ph[2][3], nh[2][3], oh[2][3];
     __mmask16 degenerate = 0;
     for (int half = 0; half < 2; ++half) {
       const size_t xh = size_t(x + 8 * half);
@@ -432,48 +430,18 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
         const __m512d nk = _mm512_castsi512_pd(
             _mm512_mask_xor_epi64(_mm512_castpd_si512(c[9 + k]), flip, _mm512_castpd_si512(c[9 + k]), dsign));
         nh[half][k] = _mm512_cvtpd_ps(nk);
-        // The point moved error_m off the plane (used where the error exceeds the offset).
-        qh[half][k] = _mm512_cvtpd_ps(_mm512_add_pd(pd[k], _mm512_mul_pd(nk, c[12])));
+        // offset_ray_origin (core/trace.h): float(p + n offset_m), in double.
+        oh[half][k] = _mm512_cvtpd_ps(_mm512_add_pd(pd[k], _mm512_mul_pd(nk, c[12])));
       }
-      error_m[half] = c[12];
     }
     for (int k = 0; k < 3; ++k) {
       pf[k] = _mm512_insertf32x8(_mm512_castps256_ps512(ph[0][k]), ph[1][k], 1);
       nf[k] = _mm512_insertf32x8(_mm512_castps256_ps512(nh[0][k]), nh[1][k], 1);
     }
-    // The triangle's own error against offset_lower_bound_m(p, n) (core/trace_kernels.h):
-    // where it is larger, surface_at moves the point off the plane first (kind 3). error_m is
-    // -1 for triangles that never need it.
-    __m512 bound = zero;
-    for (int k = 0; k < 3; ++k) {
-      const __m512 a = _mm512_abs_ps(pf[k]), m = _mm512_abs_ps(nf[k]);
-      const __m512 near = _mm512_mul_ps(_mm512_mul_ps(m, m), _mm512_set1_ps(1.0f / 65536.0f));
-      const __m512 far = _mm512_mul_ps(
-          _mm512_mul_ps(_mm512_max_ps(_mm512_mul_ps(m, _mm512_sub_ps(_mm512_mul_ps(_mm512_set1_ps(256.0f), m),
-                                                                     _mm512_set1_ps(1.0f))),
-                                      zero),
-                        _mm512_set1_ps(0x1p-25f)),
-          a);
-      bound = _mm512_add_ps(bound, _mm512_mask_blend_ps(_mm512_cmp_ps_mask(a, _mm512_set1_ps(1.0f / 32.0f), _CMP_LT_OQ),
-                                                        far, near));
-    }
-    const __mmask16 too_small =
-        __mmask16(_mm512_cmp_pd_mask(error_m[0], _mm512_cvtps_pd(_mm512_castps512_ps256(bound)), _CMP_GT_OQ)) |
-        __mmask16(__mmask16(_mm512_cmp_pd_mask(error_m[1], _mm512_cvtps_pd(_mm512_extractf32x8_ps(bound, 1)), _CMP_GT_OQ))
-                  << 8);
-    // offset_ray_origin (core/trace.h): 256 ULPs per unit of n in integer space, or n / 65536
-    // within 1/32 of the origin; from the moved point where the triangle's error is larger.
     __m512 of[3];
     __mmask16 origin_ok = 0xffff;
     for (int k = 0; k < 3; ++k) {
-      const __m512 qf = _mm512_insertf32x8(_mm512_castps256_ps512(qh[0][k]), qh[1][k], 1);
-      const __m512 p0 = _mm512_mask_blend_ps(too_small, pf[k], qf);
-      const __m512i step = _mm512_cvttps_epi32(_mm512_mul_ps(_mm512_set1_ps(256.0f), nf[k]));
-      const __mmask16 neg = _mm512_cmp_ps_mask(p0, zero, _CMP_LT_OQ);
-      const __m512i signed_step = _mm512_mask_sub_epi32(step, neg, _mm512_setzero_si512(), step);
-      const __m512 moved = _mm512_castsi512_ps(_mm512_add_epi32(_mm512_castps_si512(p0), signed_step));
-      const __mmask16 small = _mm512_cmp_ps_mask(_mm512_abs_ps(p0), _mm512_set1_ps(1.0f / 32.0f), _CMP_LT_OQ);
-      of[k] = _mm512_mask_blend_ps(small, moved, _mm512_add_ps(p0, _mm512_mul_ps(_mm512_set1_ps(1.0f / 65536.0f), nf[k])));
+      of[k] = _mm512_insertf32x8(_mm512_castps256_ps512(oh[0][k]), oh[1][k], 1);
       origin_ok &= _mm512_cmp_ps_mask(_mm512_abs_ps(of[k]), _mm512_set1_ps(kMaxCoordinate), _CMP_LT_OQ);
     }
     const __mmask16 done = vec & __mmask16(~degenerate);

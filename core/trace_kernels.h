@@ -32,7 +32,7 @@ namespace dhr::trace_detail {
 struct Surface {
   glm::vec3 p{0.0f};       // on the triangle
   glm::vec3 n{0.0f};       // unit geometric normal, oriented like the G-buffer's (camera side)
-  glm::vec3 origin{0.0f};  // p offset along n (Waechter-Binder; see surface_at)
+  glm::vec3 origin{0.0f};  // p offset along n (offset_ray_origin in core/trace.h; see surface_at)
   glm::vec3 t{0.0f}, b{0.0f};  // orthonormal basis around n (AO only)
 };
 
@@ -45,57 +45,27 @@ struct TriangleCache {
   bool resolved = false;
   glm::dvec3 v[3];
   glm::dvec3 n{0.0};
-  double error_m = 0.0;  // triangle_error_m: how far off the plane a ray origin must start
-  bool check_error = false;  // error_m may exceed the offset somewhere on the triangle
+  double offset_m = 0.0;  // origin_offset_m (core/trace.h): how far along n ray origins start
 };
 
-// Embree intersects a ray with a triangle in float (Moeller-Trumbore: the distance along the
-// ray is Ng . (v0 - o) / Ng . d, with the edges and Ng = e1 x e2 rounded to float). The offset
-// origin o is meant to lie on the far side of the plane, so the ray leaves it; rounding can put
-// it back on the near side (a self-hit) when the error of Ng . (v0 - o) exceeds the offset. That
-// error grows with the triangle, not with o: Ng's direction is off by about 2^-24 emax^2 / |Ng|
-// radians (emax: the longest edge; the ratio is 1 / sin of the angle between the edges,
-// >= 1), and |v0 - o| <= emax. So the origin must start at least
-//   triangle_error_m = kTriangleErrorUlps * 2^-24 * emax * emax^2 / |Ng|
-// off the plane, with kTriangleErrorUlps covering the few roundings of each term and a margin:
-// tests/test_trace_hard_cases.cpp (LargeTiltedPlane, 1 m to 100 km) self-hits below 0.5 and
-// passes from there, so 16 leaves a factor of 32 where the planes need it.
-// The Waechter-Binder offset (core/trace.h) scales with the hit point's coordinates instead:
-// big triangles near the world origin (a 1 km plane through it) got far too little.
-inline double triangle_error_m(const glm::dvec3 v[3], double cross_length) {
-  constexpr double kTriangleErrorUlps = 16.0;
-  const double e2 = std::max({glm::dot(v[1] - v[0], v[1] - v[0]), glm::dot(v[2] - v[1], v[2] - v[1]),
-                              glm::dot(v[0] - v[2], v[0] - v[2])});
-  return kTriangleErrorUlps * 0x1p-24 * std::sqrt(e2) * e2 / cross_length;
-}
-
-// A lower bound on how far offset_ray_origin(p, n) moves p along unit n: per component
-// n_i * 2^-16 within 1/32 of the origin, else int(256 n_i) ULPs of p_i, and one ULP of p_i is at
-// least 2^-25 |p_i| (2^-24 |p_i| rounded down to a power of two, on the smaller side of a
-// binade's edge).
-inline float offset_lower_bound_axis_m(float a, float m) {  // a = |p_i|, m = |n_i|
-  return a < 1.0f / 32.0f ? m * m * (1.0f / 65536.0f) : std::max(0.0f, m * (256.0f * m - 1.0f)) * 0x1p-25f * a;
-}
-inline float offset_lower_bound_m(const glm::vec3& p, const glm::vec3& n) {
-  float d = 0.0f;
-  for (int i = 0; i < 3; ++i) d += offset_lower_bound_axis_m(std::abs(p[i]), std::abs(n[i]));
-  return d;
-}
-
-// Whether error_m can exceed offset_lower_bound_m anywhere on the triangle (else no pixel of it
-// needs the per-pixel test): a bound from the normal's dominant axis alone, at the triangle's
-// smallest |coordinate| on that axis (0 where it spans 0; the axis bound is smallest just above
-// 1/32 or at its least |coordinate|).
-inline bool triangle_needs_check(const glm::dvec3 v[3], const glm::dvec3& n, double error_m) {
-  int k = 0;
-  for (int i = 1; i < 3; ++i) k = std::abs(n[i]) > std::abs(n[k]) ? i : k;
-  const double lo = std::min({v[0][k], v[1][k], v[2][k]}), hi = std::max({v[0][k], v[1][k], v[2][k]});
-  // The float hit point may round past a vertex of a moving object (vertices in double).
-  const float a = lo <= 0.0 && hi >= 0.0 ? 0.0f : float(std::min(std::abs(lo), std::abs(hi)) * (1.0 - 0x1p-20));
-  const float m = float(std::abs(n[k]));
-  float least = offset_lower_bound_axis_m(a, m);
-  if (a < 1.0f / 32.0f) least = std::min(least, offset_lower_bound_axis_m(1.0f / 32.0f, m));
-  return error_m > double(least);
+// origin_offset_m (core/trace.h) of triangle `prim` of object oi, with world vertices v and unit
+// normal n. Embree intersects a static object's triangles in world space with the very float
+// positions; a moving object's in object space (its float mesh positions), through an instance
+// whose transform stretches object-space distances by at most its 3x3 part's Frobenius norm.
+inline double triangle_offset_m(const RtScene& rt, int oi, uint32_t prim, const glm::dvec3 v[3], const glm::dvec3& n) {
+  const Object& o = rt.scene().objects[size_t(oi)];
+  if (!o.moving()) return origin_offset_m(v, n, 0.0, embree_plane_error(v));
+  const glm::uvec3 tri = o.mesh.triangles[prim];
+  glm::dvec3 w[3];
+  for (int k = 0; k < 3; ++k) w[k] = glm::dvec3(o.mesh.positions[tri[k]]);
+  const glm::dmat4 m(rt.world_from_object(oi));
+  double frob = 0.0;
+  for (int c = 0; c < 3; ++c)
+    for (int r = 0; r < 3; ++r) frob += m[c][r] * m[c][r];
+  frob = std::sqrt(frob);
+  PlaneError e = embree_plane_error(w);
+  e.fixed_m *= frob;
+  return origin_offset_m(v, n, frob * moving_offset_m(v, glm::dvec3(m[3])), e);
 }
 
 // Rebuilds the cache for the triangle (id, prim).
@@ -110,8 +80,7 @@ inline void update_triangle(const RtScene& rt, TriangleCache& cache, uint32_t id
     const double len = glm::length(n);
     n /= len;  // non-degenerate: degenerate triangles were skipped at build
     cache.n = n;
-    cache.error_m = triangle_error_m(v, len);
-    cache.check_error = triangle_needs_check(v, n, cache.error_m);
+    cache.offset_m = triangle_offset_m(rt, oi, prim, v, n);
   }
 }
 
@@ -136,19 +105,15 @@ inline bool surface_at(const RtScene& rt, const GBuffer& g, int x, int y, Surfac
     if (side < 0.0) n = -n;
     s.p = glm::vec3(p);
     s.n = glm::vec3(n);
-    // Where the triangle's own error is larger than the Waechter-Binder offset, the point first
-    // moves that far off the plane (in double), then gets the offset for its own rounding.
-    if (cache.check_error && cache.error_m > double(offset_lower_bound_m(s.p, s.n))) {
-      s.origin = offset_ray_origin(glm::vec3(p + n * cache.error_m), s.n);
-      return true;
-    }
+    s.origin = offset_ray_origin(p, n, cache.offset_m);
   } else {
     ++unresolved;
     s.p = g.position(x, y);
     const float len = glm::length(gn);
     s.n = gn / len;  // NaN for a zero normal: the rays then fail validation (counted)
+    const glm::dvec3 p(s.p), n(s.n);
+    s.origin = offset_ray_origin(p, n, point_offset_m(p, n));
   }
-  s.origin = offset_ray_origin(s.p, s.n);
   return true;
 }
 
@@ -370,8 +335,7 @@ struct VisibilityRow {
   // Stage 1 on the x16 path (surfaces_x16): per pixel, kind (0 background, 1 on a row
   // triangle, rebuilt by the kernel; 2 done by surface_at; 3 left by the kernel to
   // surface_at), the row triangle and the G-buffer's barycentrics and geometric normal; per
-  // row triangle, v0, v1, v2, n and, where the triangle's own error may exceed the offset
-  // (TriangleCache::check_error), its error_m, else -1 (14 doubles, tris; grown as needed).
+  // row triangle, v0, v1, v2, n and offset_m (13 of 14 doubles, tris; grown as needed).
   std::vector<uint8_t> kind;
   std::vector<int> tri_of;
   std::vector<float> b1, b2, gx, gy, gz;
@@ -488,9 +452,8 @@ void ao_rays_x16(const AoPixels& px, int rays, float radius_m, Batch<16>& batch)
 int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample);
 // Stage 1 of the visibility pass for the pixels of kind 1 (see VisibilityRow), 16 at a time:
 // the point on the row triangle from the barycentrics (double), the normal oriented like the
-// G-buffer's, the Waechter-Binder origin and its validity, as surface_at does (same bits).
-// Where the triangle's own error exceeds the offset's lower bound (offset_lower_bound_m) the
-// point first moves that far off the plane, as there. Pixels whose orientation needs the
+// G-buffer's, the origin float(p + n offset_m) and its validity, as surface_at does (same
+// bits). Pixels whose orientation needs the
 // camera (a zero G-buffer normal) become kind 3. With
 // hashes, every pixel's PixelRng hash (pixel = row_start + x).
 void surfaces_x16(VisibilityRow& r, const TraceSettings& settings, size_t row_start, bool hashes);
@@ -527,7 +490,7 @@ inline void select_triangle(RowTriangles& t, uint32_t id, uint32_t prim) {
   t.tc = &slot;
   t.cur = -1;
 }
-// cur becomes a new row triangle holding tc (resolved): v0, v1, v2, n and error_m or -1.
+// cur becomes a new row triangle holding tc (resolved): v0, v1, v2, n and offset_m.
 inline void add_row_triangle(RowTriangles& t) {
   VisibilityRow& r = *t.r;
   const TriangleCache& c = *t.tc;
@@ -535,7 +498,8 @@ inline void add_row_triangle(RowTriangles& t) {
   if (r.tris.size() < 14 * size_t(t.ntri)) r.tris.resize(14 * size_t(t.ntri) * 2);
   double* v = &r.tris[14 * size_t(t.cur)];
   for (int k = 0; k < 3; ++k) v[k] = c.v[0][k], v[3 + k] = c.v[1][k], v[6 + k] = c.v[2][k], v[9 + k] = c.n[k];
-  v[12] = c.check_error ? c.error_m : -1.0;
+  v[12] = c.offset_m;
+  v[13] = 0.0;
 }
 // That loop over pixels x, x + 1, ... of a row of width w, 16 at a time, for as long as every
 // covered pixel of a block lies on a resolved triangle: a background pixel gets kind 0, not
