@@ -149,19 +149,70 @@ TEST(TraceBlocks, OrthonormalBasis) {
   }
 }
 
-TEST(TraceBlocks, OffsetMovesToTheNormalSide) {
-  const glm::vec3 points[] = {{0, 0, 0}, {1e-3f, -2e-2f, 0.5f}, {3, -4, 5}, {1e5f, -1e5f, 1e5f}, {-1e6f, 2e6f, 7}};
-  const glm::vec3 normals[] = {{0, 1, 0}, {0, -1, 0}, glm::normalize(glm::vec3(1, 1, -1)), {-1, 0, 0}};
-  for (const auto& p : points)
-    for (const auto& n : normals) {
-      const glm::vec3 o = offset_ray_origin(p, n);
-      EXPECT_GT(glm::dot(glm::dvec3(o) - glm::dvec3(p), glm::dvec3(n)), 0.0) << p.x << " " << n.x;
-      for (int i = 0; i < 3; ++i)
-        if (n[i] == 0.0f) { EXPECT_EQ(o[i], p[i]); }
+// origin_offset_m (core/trace.h): every term scales with the triangle's coordinates (no floor
+// near the world origin), an axis-aligned sliver gets a few ULPs of its coordinates and a
+// tilted one its float normal's error, and the rounded origin lies on the normal's side.
+TEST(TraceBlocks, OriginOffsetFollowsTheErrorBound) {
+  auto offset = [](const glm::dvec3 v[3]) {
+    const glm::dvec3 n = glm::normalize(glm::cross(v[1] - v[0], v[2] - v[0]));
+    return origin_offset_m(v, n, 0.0, embree_plane_error(v));
+  };
+  // classroom's 40.56 m x 3 cm wall strip in the plane z = 5 (float vertices, as Embree holds).
+  const glm::dvec3 wall[3] = {glm::dvec3(glm::vec3(-20.28f, 1.0f, 5.0f)), glm::dvec3(glm::vec3(20.28f, 1.0f, 5.0f)),
+                              glm::dvec3(glm::vec3(20.28f, 1.03f, 5.0f))};
+  EXPECT_EQ(embree_plane_error(wall).fixed_m, 0.0);  // the off-axis edge components are 0
+  EXPECT_LT(offset(wall), 4.0 * 0x1p-24 * 5.0);      // (a) alone, and its safety factor
+  EXPECT_GT(offset(wall), 0.0);
+  // The same strip turned about y: its long edges have two non-zero components, the normal's
+  // y component cancels (error ~2^-24 emax^2 against |Ng| = emax x 3 cm) and the offset grows to
+  // some 10 um (tilted about x, the long edge keeps one non-zero component: no such error).
+  glm::dvec3 tilted[3];
+  for (int k = 0; k < 3; ++k)
+    tilted[k] = glm::dvec3(glm::vec3(float(0.6 * wall[k].x + 0.8 * wall[k].z), float(wall[k].y),
+                                     float(-0.8 * wall[k].x + 0.6 * wall[k].z)));
+  EXPECT_GT(offset(tilted), 10.0 * offset(wall));
+  EXPECT_LT(offset(tilted), 1e-3);  // the old emax^3 / |Ng| bound gave 52 mm
+  // Scaling by a power of two scales every term by it (tiny and huge scenes alike).
+  for (const double scale : {0x1p-14, 0x1p+17}) {
+    for (const glm::dvec3* t : {wall, static_cast<const glm::dvec3*>(tilted)}) {
+      const glm::dvec3 v[3] = {t[0] * scale, t[1] * scale, t[2] * scale};
+      EXPECT_NEAR(offset(v), offset(t) * scale, 1e-9 * offset(t) * scale) << scale;
     }
-  // Near the origin the step is n / 65536, far away it is 256 ULPs per unit of n.
-  EXPECT_FLOAT_EQ(offset_ray_origin({0, 0, 0}, {0, 1, 0}).y, 1.0f / 65536.0f);
-  EXPECT_FLOAT_EQ(offset_ray_origin({0, 1024, 0}, {0, 1, 0}).y, 1024.0f + 256.0f * std::ldexp(1.0f, 10 - 23));
+  }
+  // Embree's test in float (Moeller-Trumbore: e1 = v0 - v1, e2 = v2 - v0, Ng = e2 x e1,
+  // T = Ng . (v0 - o)) never finds the rounded origin on the triangle's front side: a ray into
+  // n's hemisphere needs T of the sign of Ng . n to hit (T = 0 misses: t > tnear = 0).
+  const glm::dvec3 points[] = {{0, 0, 0}, {1e-3, -2e-2, 0.5}, {3, -4, 5}, {1e5, -1e5, 1e5}, {-1e6, 2e6, 7}};
+  const glm::dvec3 normals[] = {{0, 1, 0}, {0, -1, 0}, glm::normalize(glm::dvec3(1, 1, -1)), {-1, 0, 0},
+                                glm::normalize(glm::dvec3(0.3, 1, 0.01))};
+  for (const auto& p : points)
+    for (const auto& n : normals)
+      for (const double size : {1e-4, 1.0, 1e3}) {
+        const glm::dvec3 t = std::abs(n.y) < 0.9 ? glm::normalize(glm::cross(n, glm::dvec3(0, 1, 0)))
+                                                 : glm::normalize(glm::cross(n, glm::dvec3(1, 0, 0)));
+        const glm::dvec3 b = glm::cross(n, t);
+        glm::dvec3 v[3] = {p - size * (t + b), p + size * (2.0 * t - b), p + size * 2.0 * b};
+        for (auto& q : v) q = glm::dvec3(glm::vec3(q));  // float vertices
+        const glm::dvec3 cr = glm::cross(v[1] - v[0], v[2] - v[0]);
+        if (!(glm::length(cr) > 0.0)) continue;  // 0.1 mm at 1000 km: collapsed in float
+        const glm::dvec3 nv = glm::normalize(cr);
+        const double d = origin_offset_m(v, nv, 0.0, embree_plane_error(v));
+        // Some ULPs of the coordinates and of the size (the old bound grew as emax^3 / |Ng|).
+        EXPECT_LT(d, 64.0 * 0x1p-24 * (std::abs(p.x) + std::abs(p.y) + std::abs(p.z) + 3.0 * size));
+        const glm::vec3 f[3] = {glm::vec3(v[0]), glm::vec3(v[1]), glm::vec3(v[2])};
+        const glm::vec3 ng = glm::cross(f[2] - f[0], f[0] - f[1]);
+        for (int i = 0; i < 64; ++i) {
+          const double b1 = (i % 8) / 8.0, b2 = (i / 8) / 8.0 * (1.0 - b1);
+          const glm::dvec3 pv = (1.0 - b1 - b2) * v[0] + b1 * v[1] + b2 * v[2];
+          const glm::vec3 o = offset_ray_origin(pv, nv, d);
+          const glm::vec3 c = f[0] - o;
+          const float tv = ng.x * c.x + ng.y * c.y + ng.z * c.z;
+          EXPECT_LE(double(tv) * glm::dot(glm::dvec3(ng), nv), 0.0) << p.x << " " << n.x << " " << size << " " << i;
+        }
+      }
+  // With no known triangle, a few ULPs of the point's own coordinates.
+  EXPECT_EQ(point_offset_m({0, 0, 0}, {0, 1, 0}), 0.0);
+  EXPECT_EQ(point_offset_m({0, 1024, 0}, {0, 1, 0}), 8.0 * 0x1p-24 * 1024.0);
 }
 
 // ---- pass plans ----

@@ -14,8 +14,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <tuple>
+#include <utility>
 
 namespace dhr {
 namespace {
@@ -161,6 +163,139 @@ TEST_P(LargeTiltedPlane, UnoccludedPlaneIsNeverShadowed) {
 INSTANTIATE_TEST_SUITE_P(SizesAndPlaces, LargeTiltedPlane,
                          ::testing::Combine(::testing::Values(1.0f, 100.0f, 300.0f, 1e3f, 1e4f, 1e5f),
                                             ::testing::Values(0.0f, 1e5f)));
+
+// A horizontal quad mesh over x in [x0, x1], z in [z0, z1] at height y, facing +y, cut into
+// `segments` quads along x (1: two long triangles).
+Mesh strip_mesh(float x0, float x1, float z0, float z1, float y, int segments) {
+  Mesh m;
+  for (int i = 0; i <= segments; ++i) {
+    const float x = i == segments ? x1 : x0 + (x1 - x0) * float(i) / float(segments);
+    m.positions.push_back({x, y, z1});
+    m.positions.push_back({x, y, z0});
+  }
+  for (int i = 0; i < segments; ++i) {
+    const unsigned a = unsigned(2 * i);
+    m.triangles.push_back({a, a + 2, a + 3});
+    m.triangles.push_back({a, a + 3, a + 1});
+  }
+  return m;
+}
+
+// A 40 m x 3 cm strip (like classroom's wall strips) beside and under a 4 cm high ledge: the
+// ledge (a quad at y = 4 cm over z in [-0.5, 0]) occludes part of the strip's AO hemisphere and
+// shadows the part of it with z < 1.2 cm from the light. Its two long triangles must give what
+// the same strip cut into 3 cm squares gives (Embree's error is tiny for both: the strip is
+// axis-aligned). An offset grown with emax^3 / |Ng| (52 mm here) started the rays above the
+// ledge: AO near 1 and no shadow (issue 51, item 6).
+TEST(TraceHardCases, LongStripUnderLedge) {
+  struct Answer {
+    double ao = 0.0;
+    size_t shadowed = 0, pixels = 0;
+  };
+  auto trace = [](int segments) {
+    Scene s = base_scene();
+    s.objects.push_back(make_object(1, strip_mesh(-20.0f, 20.0f, 0.0f, 0.03f, 0.0f, segments), glm::vec3(0.0f)));
+    s.objects.push_back(make_object(2, strip_mesh(-20.0f, 20.0f, -0.5f, 0.0f, 0.04f, 1), glm::vec3(0.0f)));
+    s.lights.push_back(point_light({0.0f, 1.0f, -0.3f}));
+    s.ao = AoSettings{0.2f, 64};
+    RtScene rt(s);
+    const GBuffer g = rt.primary_gbuffer(
+        Camera::look_at({0.0f, 0.3f, 0.5f}, {0.0f, 0.0f, 0.015f}, {0, 1, 0}, 8.0f, kW, kH, 0.01f, 10.0f), 0.0);
+    const TraceResult r = trace_passes(rt, g, TraceSettings{});
+    EXPECT_TRUE(r.find("visibility") && r.find("ao"));
+    EXPECT_EQ(r.stats.invalid_rays, 0u);
+    Answer a;
+    for (size_t i = 0; i < g.depth.size(); ++i) {
+      if (g.object_id[i] != 1) continue;
+      ++a.pixels;
+      a.ao += r.find("ao")->bytes[i] / 64.0;
+      a.shadowed += !bit(*r.find("visibility"), 0, i);
+    }
+    a.ao /= double(std::max<size_t>(a.pixels, 1));
+    return a;
+  };
+  const Answer slivers = trace(1), squares = trace(1333);
+  std::printf("strip: AO %.3f, %zu of %zu px shadowed (1333 squares: AO %.3f, %zu of %zu)\n", slivers.ao,
+              slivers.shadowed, slivers.pixels, squares.ao, squares.shadowed, squares.pixels);
+  ASSERT_GT(squares.pixels, 150u);
+  EXPECT_NEAR(double(slivers.pixels), double(squares.pixels), 0.02 * double(squares.pixels));
+  // The ledge hides a good part of the hemisphere and shadows about 40 % of the strip.
+  EXPECT_LT(squares.ao, 0.9);
+  EXPECT_GT(squares.shadowed, squares.pixels / 5);
+  EXPECT_NEAR(slivers.ao, squares.ao, 0.02) << "two long triangles vs 1333 squares";
+  EXPECT_NEAR(double(slivers.shadowed), double(squares.shadowed), 0.02 * double(squares.pixels) + 2.0);
+}
+
+// A scene of a 20 m plane (id 1) and an occluder box (id 2) of `box` metres centred `height`
+// above it, a point light at `light`, scaled by `scale` and moved by `offset`: the plane's
+// shadowed pixels (hard shadows) and its covered ones.
+std::pair<size_t, size_t> box_shadow(glm::vec3 offset, float scale, glm::vec3 box, float height, glm::vec3 light) {
+  Scene s = base_scene();
+  auto place = [&](Mesh m, glm::vec3 at) {
+    for (auto& p : m.positions) p = (p + at) * scale + offset;
+    return m;
+  };
+  s.objects.push_back(make_object(1, place(make_plane(20.0f, 20.0f), glm::vec3(0.0f)), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, place(make_box(box), {0.25f, height, 0.0f}), glm::vec3(0.0f)));
+  s.lights.push_back(point_light(light * scale + offset));
+  RtScene rt(s);
+  const GBuffer g = rt.primary_gbuffer(Camera::look_at(glm::vec3(0.0f, 4.0f, 6.0f) * scale + offset,
+                                                       glm::vec3(1.0f, 0.0f, 0.0f) * scale + offset, {0, 1, 0}, 40.0f,
+                                                       160, 120, 0.05f * scale, 1000.0f * scale),
+                                       0.0);
+  const TraceResult r = trace_passes(rt, g, TraceSettings{});
+  EXPECT_EQ(r.stats.invalid_rays, 0u);
+  size_t shadowed = 0, plane = 0;
+  for (size_t i = 0; i < g.depth.size(); ++i) {
+    if (g.object_id[i] != 1) continue;
+    ++plane;
+    shadowed += !bit(*r.find("visibility"), 0, i);
+  }
+  return {shadowed, plane};
+}
+
+// A 1 m box 0.25 m above a plane, far from the world origin along the plane's normal and
+// along every axis: its shadow on the plane must match the origin-placed scene's. Every
+// coordinate of the scene is a multiple of 1/16 m, so it is exactly representable up to
+// 1000 km (float spacing 6.25 cm there; at 100 km 7.8 mm) and the G-buffers match the
+// origin-placed one; what differs is the origin's rounding: it must start at least one float
+// spacing above the plane, and starts at most a few (origin_offset_m, core/trace.h), which moves
+// the shadow's outline by a fraction of that. Tolerance: 2 % of the shadow plus 2 pixels up to
+// 100 km; 15 % at 1000 km, where the origins start two float spacings (12.5 cm) up, half the
+// box's 25 cm gap, and the shadow measured 11-13 % smaller (one spacing is the least any float
+// origin can rise). The old 256-ULP offset (2 m at 100 km) lost every shadowed pixel at
+// 100 km and 30 % of them at 10 km.
+TEST(TraceHardCases, BoxShadowFarFromOrigin) {
+  const glm::vec3 box(1.0f), up(0, 1, 0), all(1, 1, -1), light(-4.0f, 3.0f, 0.0f);
+  const auto [reference, plane] = box_shadow(glm::vec3(0.0f), 1.0f, box, 0.75f, light);
+  ASSERT_GT(reference, 500u);
+  ASSERT_GT(plane, size_t(160 * 120 / 3));
+  for (const glm::vec3 dir : {up, all})
+    for (const float d : {1e3f, 1e4f, 1e5f, 1e6f}) {
+      const auto [shadowed, covered_px] = box_shadow(dir * d, 1.0f, box, 0.75f, light);
+      const double tol = d < 1e6f ? 0.02 * double(reference) + 2.0 : 0.15 * double(reference);
+      EXPECT_NEAR(double(covered_px), double(plane), 0.01 * double(plane)) << d;
+      std::printf("box shadow at %g m along (%g, %g, %g): %zu px (origin-placed: %zu)\n", double(d), double(dir.x),
+                  double(dir.y), double(dir.z), shadowed, reference);
+      EXPECT_NEAR(double(shadowed), double(reference), tol) << "offset " << d << " along (" << dir.x << ", " << dir.y
+                                                            << ", " << dir.z << ")";
+    }
+}
+
+// A thin slab (1 m x 5 cm x 1 m, 5 cm above the plane) scaled down to 1e-4 (and 2^-13, where
+// every float of the scene scales exactly): its shadow matches the unit-scale scene's. The old
+// fixed n / 65536 (15 um) near the world origin started the rays above the 1e-4 slab.
+TEST(TraceHardCases, TinySceneCastsItsShadow) {
+  const glm::vec3 slab(1.0f, 0.05f, 1.0f), light(-4.0f, 0.5f, 0.0f);
+  const auto [reference, plane] = box_shadow(glm::vec3(0.0f), 1.0f, slab, 0.075f, light);
+  ASSERT_GT(reference, 300u);
+  for (const float scale : {1e-4f, 0x1p-13f, 1e-5f}) {
+    const auto [shadowed, covered_px] = box_shadow(glm::vec3(0.0f), scale, slab, 0.075f, light);
+    EXPECT_NEAR(double(covered_px), double(plane), 0.01 * double(plane)) << scale;
+    std::printf("slab shadow at scale %g: %zu px (unit scale: %zu)\n", double(scale), shadowed, reference);
+    EXPECT_NEAR(double(shadowed), double(reference), 0.02 * double(reference) + 2.0) << "scale " << scale;
+  }
+}
 
 // Lights nearly in the plane: every pixel with n.l > 0 stays lit.
 TEST(TraceHardCases, GrazingLightsStayLit) {
