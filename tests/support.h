@@ -58,6 +58,11 @@ TemporalScores temporal_scores_one_loop(const ImageRGB8& reference_prev, const I
 // The message of the dhr::Error that `f` throws; "" when it throws none.
 std::string error_of(const std::function<void()>& f);
 
+// Runs `program` with `args` from an argument vector (no shell: any character in an argument
+// reaches it as written); its standard output and error together in `log`. Returns the exit
+// code (-1 when it did not exit normally).
+int run_program(const std::string& program, const std::vector<std::string>& args, std::string& log);
+
 // Sets an environment variable for a scope (setenv), then restores its earlier value or
 // absence. Tests run one at a time in their process.
 class ScopedEnv {

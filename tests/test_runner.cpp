@@ -1,7 +1,6 @@
 // The experiment runner end to end: a tiny experiment through the dhrbench command, then the
 // results schema, the CSV and the report files; and its validation of bad experiments.
 #include "core/experiment.h"
-#include "core/process.h"
 #include "tests/support.h"
 
 #include <gtest/gtest.h>
@@ -278,13 +277,7 @@ TEST(Runner, NamesAndFoldersNeverReachAShell) {
   fs::remove_all(base);
   fs::create_directories(base);
   std::string log;
-  auto cli = [&](const std::vector<std::string>& args) {
-    std::vector<std::string> argv{DHR_CLI};
-    argv.insert(argv.end(), args.begin(), args.end());
-    const ProcessResult r = run_process(argv, {.err = ProcessOptions::Err::WithOut});
-    log = r.out;
-    return r.exit_code;
-  };
+  auto cli = [&](const std::vector<std::string>& args) { return test::run_program(DHR_CLI, args, log); };
   nlohmann::json e = nlohmann::json::parse(std::ifstream(std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json"),
                                            nullptr, true, true);
   e["configurations"] = nlohmann::json::array({e["configurations"][0]});

@@ -6,7 +6,6 @@
 #include "core/experiment.h"
 #include "core/frame_loop.h"
 #include "core/json_io.h"
-#include "core/process.h"
 #include "core/results.h"
 #include "core/rt_scene.h"
 #include "core/shard.h"
@@ -291,13 +290,7 @@ TEST(Shard, MergeRefusesOutInsideAShardAndDamagedShardsBeforeWriting) {
   // Folder names a shell would take apart: quotes, $(...), backticks, spaces, a newline.
   const fs::path s1 = base / "s1 it's $(touch PWNED)", s2 = base / "s2 `touch PWNED`\nx";
   std::string log;
-  auto run = [&](const std::vector<std::string>& args) {
-    std::vector<std::string> argv{DHR_CLI};
-    argv.insert(argv.end(), args.begin(), args.end());
-    const ProcessResult r = run_process(argv, {.err = ProcessOptions::Err::WithOut});
-    log = r.out;
-    return r.exit_code;
-  };
+  auto run = [&](const std::vector<std::string>& args) { return test::run_program(DHR_CLI, args, log); };
   ASSERT_EQ(run({"run", kExperiment, "--shard", "1/2", "--out", s1.string()}), 0) << log;
   ASSERT_EQ(run({"run", kExperiment, "--shard", "2/2", "--out", s2.string()}), 0) << log;
   const std::string s2_results = read_text(s2 / "results.json"), s2_frames = read_text(s2 / "frames.csv");

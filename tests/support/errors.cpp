@@ -1,4 +1,5 @@
 #include "core/error.h"
+#include "core/process.h"
 #include "tests/support.h"
 
 namespace dhr::test {
@@ -10,6 +11,14 @@ std::string error_of(const std::function<void()>& f) {
     return e.what();
   }
   return "";
+}
+
+int run_program(const std::string& program, const std::vector<std::string>& args, std::string& log) {
+  std::vector<std::string> argv{program};
+  argv.insert(argv.end(), args.begin(), args.end());
+  ProcessResult r = run_process(argv, {.err = ProcessOptions::Err::WithOut});
+  log = std::move(r.out);
+  return r.exit_code;
 }
 
 }  // namespace dhr::test
