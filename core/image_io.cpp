@@ -32,8 +32,8 @@ bool starts_as_png(const std::string& path) {
   return in.read(reinterpret_cast<char*>(head), 8) && std::equal(head, head + 8, kPngSignature);
 }
 
-// `b`: a whole PNG file. Empty when intact, else what is wrong.
-std::string png_damage(const std::vector<uint8_t>& b) {
+// `b`: a whole PNG file of `size` bytes. Empty when intact, else what is wrong.
+std::string png_damage(const uint8_t* b, size_t size) {
   static const std::array<uint32_t, 256> table = [] {
     std::array<uint32_t, 256> t{};
     for (uint32_t n = 0; n < 256; ++n) {
@@ -45,9 +45,9 @@ std::string png_damage(const std::vector<uint8_t>& b) {
   }();
   auto be32 = [&](size_t at) { return uint32_t(b[at]) << 24 | uint32_t(b[at + 1]) << 16 | uint32_t(b[at + 2]) << 8 | b[at + 3]; };
   size_t at = 8;
-  while (at + 12 <= b.size()) {
+  while (at + 12 <= size) {
     const uint64_t length = be32(at);
-    if (length > b.size() - at - 12) return fmt::format("a chunk at byte {} runs past the end of the file", at);
+    if (length > size - at - 12) return fmt::format("a chunk at byte {} runs past the end of the file", at);
     uint32_t crc = 0xffffffffu;
     for (size_t i = at + 4; i < at + 8 + length; ++i) crc = table[(crc ^ b[i]) & 0xff] ^ (crc >> 8);
     if ((crc ^ 0xffffffffu) != be32(at + 8 + size_t(length))) return fmt::format("the CRC of the chunk at byte {} does not match", at);
@@ -93,6 +93,15 @@ void write_exr(const std::string& path, const ImageVec3& image) {
 
 namespace {
 
+// Every channel of every pixel of the open image, as `type`.
+template <class T>
+std::vector<T> read_pixels(OIIO::ImageInput& in, const std::string& path, size_t count, OIIO::TypeDesc type) {
+  std::vector<T> raw(count);
+  if (!in.read_image(0, 0, 0, in.spec().nchannels, type, raw.data())) fail("{}: read failed: {}", path, in.geterror());
+  in.close();
+  return raw;
+}
+
 // Decodes the image `open_name` (a file name, or a name with the format's extension when read
 // from `proxy`); `path` names it in errors.
 Rgba8Image decode_rgba8(const std::string& path, const std::string& open_name, OIIO::Filesystem::IOProxy* proxy) {
@@ -125,10 +134,7 @@ Rgba8Image decode_rgba8(const std::string& path, const std::string& open_name, O
     // with alpha (premultiplied). Colour is divided by alpha where alpha > 0, clamped to [0, 1]
     // and encoded with the sRGB curve, as an 8-bit image of the same scene would be; alpha is
     // clamped and scaled. A NaN or infinite value has no such meaning: it is refused.
-    std::vector<float> raw(n * size_t(nc));
-    if (!in->read_image(0, 0, 0, nc, OIIO::TypeDesc::FLOAT, raw.data()))
-      fail("{}: read failed: {}", path, in->geterror());
-    in->close();
+    const std::vector<float> raw = read_pixels<float>(*in, path, n * size_t(nc), OIIO::TypeDesc::FLOAT);
     for (size_t i = 0; i < n; ++i) {
       const float* s = &raw[i * size_t(nc)];
       for (int c = 0; c < nc; ++c)
@@ -142,10 +148,7 @@ Rgba8Image decode_rgba8(const std::string& path, const std::string& open_name, O
     }
     return img;
   }
-  std::vector<uint8_t> raw(n * size_t(nc));
-  if (!in->read_image(0, 0, 0, nc, OIIO::TypeDesc::UINT8, raw.data()))
-    fail("{}: read failed: {}", path, in->geterror());
-  in->close();
+  const std::vector<uint8_t> raw = read_pixels<uint8_t>(*in, path, n * size_t(nc), OIIO::TypeDesc::UINT8);
   for (size_t i = 0; i < n; ++i) {
     const uint8_t* s = &raw[i * size_t(nc)];
     uint8_t* d = &img.rgba[i * 4];
@@ -165,17 +168,17 @@ Rgba8Image read_rgba8(const std::string& path) {
   if (starts_as_png(path)) {
     std::ifstream file(path, std::ios::binary);
     png.assign(std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>());
-    if (const std::string damage = png_damage(png); !damage.empty()) fail("{}: damaged PNG: {}", path, damage);
+    if (const std::string damage = png_damage(png.data(), png.size()); !damage.empty())
+      fail("{}: damaged PNG: {}", path, damage);
     memory = std::make_unique<OIIO::Filesystem::IOMemReader>(png.data(), png.size());
   }
   return decode_rgba8(path, path, memory.get());
 }
 
 Rgba8Image read_rgba8_memory(const std::string& name, const std::string& format, const uint8_t* data, size_t size) {
-  std::vector<uint8_t> bytes(data, data + size);
   if (size >= 8 && std::equal(data, data + 8, kPngSignature))
-    if (const std::string damage = png_damage(bytes); !damage.empty()) fail("{}: damaged PNG: {}", name, damage);
-  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
+    if (const std::string damage = png_damage(data, size); !damage.empty()) fail("{}: damaged PNG: {}", name, damage);
+  OIIO::Filesystem::IOMemReader reader(data, size);
   return decode_rgba8(name, "embedded." + format, &reader);
 }
 

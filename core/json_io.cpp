@@ -66,13 +66,17 @@ nlohmann::json parse_json(std::string_view text, const std::string& source, bool
   }
 }
 
-nlohmann::json read_json_file(const std::string& path, bool allow_comments, int max_depth) {
+std::string read_text_file(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) fail("{}: cannot open the file", path);
   std::ostringstream ss;
   ss << in.rdbuf();
   if (in.bad()) fail("{}: cannot read the file", path);
-  return parse_json(ss.str(), path, allow_comments, max_depth);
+  return ss.str();
+}
+
+nlohmann::json read_json_file(const std::string& path, bool allow_comments, int max_depth) {
+  return parse_json(read_text_file(path), path, allow_comments, max_depth);
 }
 
 std::string text_excerpt(std::string_view text, size_t max_chars) {

@@ -24,6 +24,9 @@ nlohmann::json parse_json(std::string_view text, const std::string& source, bool
                           int max_depth = kMaxJsonDepth);
 
 // Reads and parses the file at `path` (errors name the path; a missing or unreadable file too).
+// A whole file's bytes; throws dhr::Error naming the file when it cannot be opened or read.
+std::string read_text_file(const std::string& path);
+
 nlohmann::json read_json_file(const std::string& path, bool allow_comments = false, int max_depth = kMaxJsonDepth);
 
 // The nesting depth of `text` (arrays and objects, outside strings and // or /* */ comments),

@@ -7,23 +7,6 @@
 
 namespace dhr {
 
-namespace {
-
-// The fields of one CSV record (without its newline), RFC 4180. Sets `closed` false when a
-// quoted field is not closed.
-size_t count_fields(std::string_view record, bool& closed) {
-  size_t fields = 1;
-  bool quoted = false;
-  for (char c : record) {
-    if (c == '"') quoted = !quoted;
-    else if (c == ',' && !quoted) ++fields;
-  }
-  closed = !quoted;
-  return fields;
-}
-
-}  // namespace
-
 void check_results_json(const nlohmann::json& r, const std::string& path) {
   if (!r.is_object()) fail("{}: must be a JSON object (context, experiment, runs), got {}", path, json_excerpt(r));
   for (const char* key : {"context", "experiment"})
@@ -66,23 +49,19 @@ FramesCsv check_frames_csv(std::string_view text, const nlohmann::json& results,
   for (const auto& run : results.at("runs"))
     expected[run.at("id").get<std::string>()] =
         run.contains("metrics") ? run.at("metrics").at("frames_displayed").get<uint64_t>() : 0;
-  size_t header_fields = 0;
+  // One pass, RFC 4180: a comma or newline inside double quotes belongs to the field.
+  size_t header_fields = 0, fields = 1, quoted_newlines = 0;
   size_t line = 1;  // of the record's first line
   bool quoted = false;
   size_t start = 0;
-  for (size_t i = 0; i <= text.size(); ++i) {
-    if (i == text.size()) {
-      if (start < text.size())
-        fail("{}: line {}: the file ends inside this record (cut short{}): a complete record ends with a newline", path,
-             line, quoted ? ", with a quoted field open" : "");
-      break;
-    }
-    if (text[i] == '"') quoted = !quoted;
-    if (text[i] != '\n' || quoted) continue;
+  for (size_t i = 0; i < text.size(); ++i) {
+    const char c = text[i];
+    if (c == '"') quoted = !quoted;
+    else if (quoted) quoted_newlines += c == '\n';
+    else if (c == ',') ++fields;
+    if (c != '\n' || quoted) continue;
     std::string_view record = text.substr(start, i - start);
     if (!record.empty() && record.back() == '\r') record.remove_suffix(1);
-    bool closed = true;
-    const size_t fields = count_fields(record, closed);
     if (start == 0) {
       if (record.substr(0, 4) != "run," && record != "run")
         fail("{}: line 1: the header must start with the column \"run\", got {}", path, text_excerpt(record));
@@ -92,15 +71,18 @@ FramesCsv check_frames_csv(std::string_view text, const nlohmann::json& results,
       if (fields != header_fields)
         fail("{}: line {}: {} fields where the header has {}", path, line, fields, header_fields);
       const std::string id(record.substr(0, record.find(',')));
-      auto it = expected.find(id);
-      if (it == expected.end())
+      if (!expected.count(id))
         fail("{}: line {}: a row of run '{}', which results.json does not hold", path, line, text_excerpt(id));
       out.rows[id].emplace_back(text.substr(start, i + 1 - start));
     }
-    for (size_t k = start; k < i; ++k) line += text[k] == '\n';
-    ++line;
+    line += quoted_newlines + 1;
+    fields = 1;
+    quoted_newlines = 0;
     start = i + 1;
   }
+  if (start < text.size())
+    fail("{}: line {}: the file ends inside this record (cut short{}): a complete record ends with a newline", path,
+         line, quoted ? ", with a quoted field open" : "");
   if (out.header.empty()) fail("{}: empty (a header is expected)", path);
   for (const auto& [id, rows] : expected) {
     const auto it = out.rows.find(id);

@@ -14,26 +14,17 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
-#include <algorithm>
 #include <map>
 #include <set>
-#include <sstream>
 
 namespace dhr::cli {
 
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail("{}: cannot read", path.string());
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
 
 std::string join(const std::vector<std::string>& v, size_t max_items = 40) {
   std::string s;
@@ -177,7 +168,7 @@ Runner add_merge_command(CLI::App& app) {
         }
         const fs::path frames_path = fs::path(s.dir) / "frames.csv";
         if (!fs::exists(frames_path)) fail("{}: missing, though shard.json says complete", frames_path.string());
-        FramesCsv frames = check_frames_csv(read_text(frames_path), s.results, frames_path.string());
+        FramesCsv frames = check_frames_csv(read_text_file(frames_path.string()), s.results, frames_path.string());
         s.frames_header = std::move(frames.header);
         s.frames = std::move(frames.rows);
         if (s.frames_header != first->frames_header && !first->frames_header.empty())

@@ -29,7 +29,6 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <iterator>
 #include <map>
 #include <memory>
 #include <optional>
@@ -175,10 +174,7 @@ void check_results_folder(const std::string& dir) {
   check_results_json(r, path.string());
   const fs::path frames = fs::path(dir) / "frames.csv";
   if (fs::exists(frames)) {
-    std::ifstream in(frames, std::ios::binary);
-    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    if (!in && !in.eof()) fail("{}: cannot read", frames.string());
-    check_frames_csv(text, r, frames.string());
+    check_frames_csv(read_text_file(frames.string()), r, frames.string());
   } else if (!fs::exists(fs::path(dir) / "frames.csv.gz")) {
     fail("{}: missing: the report needs the frames of every run (results.json names {} run(s))", frames.string(),
          r.at("runs").size());
@@ -229,11 +225,11 @@ Runner add_run_command(CLI::App& app) {
     const auto wall_start = Clock::now();
     Experiment e = load_experiment(o->experiment, o->sets);
     const std::string dir = o->out.empty() ? "out/" + e.name : o->out;
-    make_output_dir(dir, o->out.empty() ? "the output folder out/<experiment name>" : "--out");
+    make_output_dir((fs::path(dir) / "images").string(),
+                    o->out.empty() ? "the output folder out/<experiment name>" : "--out");
     if (!o->shard.empty())
       o->shard_run = ShardRun::start(e, parse_shard(o->shard), dir, run_context(DHR_BUILD_TYPE).at("git_commit"));
     LoadedScenes loaded = validate_all(e, o->scene_path);
-    make_output_dir((fs::path(dir) / "images").string(), "--out");
     fmt::print(stderr, "{}: {} runs ({} scenes); writing {}\n", e.name, e.runs.size(), loaded.scenes.size(), dir);
 
     nlohmann::json results;
