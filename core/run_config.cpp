@@ -127,6 +127,11 @@ std::vector<RunSetting> make_settings() {
                                   "shadow rays per area light and pixel (1: a bitmask, more: 8-bit soft visibility)",
                                   [](auto& c) -> auto& { return c.trace.samples_per_light; }),
                            kTraced), "visibility"));
+  v.push_back(of_pass(with(field("trace.visibility_fraction", SettingType::Boolean,
+                                 "send the visibility pass as 8 bits per light even with one ray per light (for a "
+                                 "denoiser and lossy video codecs); false: a bitmask, 1 bit per light (the paper's)",
+                                 [](auto& c) -> auto& { return c.trace.visibility_fraction; }),
+                           kTraced), "visibility"));
   v.push_back(of_pass(with(field("trace.visibility_pass", SettingType::Boolean, "trace the visibility pass (when the scene has lights)",
                                  [](auto& c) -> auto& { return c.trace.visibility_pass; }),
                            kTraced), "visibility"));

@@ -176,6 +176,10 @@ PassPlan plan_passes(const Scene& scene, const TraceSettings& s) {
       plan.reasons.push_back(fmt::format("area light(s): soft shadows, {} rays per light (8-bit fraction)",
                                          s.samples_per_light));
     }
+    if (s.visibility_fraction && plan.shadow != ShadowMode::SoftFraction) {
+      plan.shadow = ShadowMode::SoftFraction;  // one ray per light, sent as 8 bits (0 or 1 of 1)
+      plan.reasons.push_back("visibility_fraction: 8 bits per light (0 or 1 of 1 ray) for a denoiser or a lossy codec");
+    }
   }
   if (!scene.ao) {
     plan.reasons.push_back("no ao block: no AO pass");

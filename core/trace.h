@@ -67,6 +67,11 @@ struct TraceSettings {
   // (Visibility pass, the paper's bitmask). 2..1024: the visible fraction per light in 8 bits
   // (SoftVisibility pass, full_scale = S, or 255 when S > 255).
   int samples_per_light = 1;
+  // How the visibility pass is sent with one ray per light: false, a bitmask (the paper's, one bit
+  // per light); true, 8 bits per light (the SoftVisibility pass, full_scale 1), which a denoiser
+  // can smooth into a soft fraction and a lossy video codec can code. With S > 1 rays per light
+  // the pass is a fraction either way.
+  bool visibility_fraction = false;
   int threads = 0;            // 0 = the RtScene's arena; else a dedicated arena of this size
   // Tests: split the image into blocks of exactly this many rows (TBB's simple_partitioner)
   // instead of TBB's own blocks, whose bounds depend on the threads' timing. The counts must not

@@ -723,6 +723,46 @@ TEST(TraceShadows, SoftPenumbraMatchesAnalyticFraction) {
   for (size_t i = 0; i < 64; ++i) EXPECT_EQ(pb.bytes[i], vc.visible[i]);
 }
 
+// visibility_fraction with one ray per light sends the same rays' results as the
+// bitmask, 8 bits per light (0 or 1 of full scale 1): a penumbra of the half-plane occluder of
+// SoftPenumbraMatchesAnalyticFraction, with a point light beside the sphere light.
+TEST(TraceShadows, FractionFormatCarriesTheBitmaskBits) {
+  Scene s = base_scene();
+  const float L = 50.0f;
+  s.objects.push_back(make_object(1, make_quad({-L, 0, L}, {L, 0, L}, {L, 0, -L}, {-L, 0, -L}), glm::vec3(0.0f)));
+  s.objects.push_back(make_object(2, make_quad({-L, 1, L}, {0.1f, 1, L}, {0.1f, 1, -L}, {-L, 1, -L}), glm::vec3(0.0f)));
+  s.lights.push_back(sphere_light({0, 4, 0}, 1.0f));
+  s.lights.push_back(sphere_light({-0.5f, 3, 0}));  // a point light: hard, one ray to its centre
+  RtScene rt(s);
+  const int n = 97;
+  const GBuffer g = point_gbuffer(s, 1, {0.0f, 0.0f, 0.0f}, {0, 1, 0}, n);
+  TraceSettings bits, frac;
+  frac.visibility_fraction = true;
+  const PassPlan pb = plan_passes(s, bits), pf = plan_passes(s, frac);
+  ASSERT_EQ(pb.shadow, ShadowMode::SoftBit);
+  ASSERT_EQ(pf.shadow, ShadowMode::SoftFraction);
+  EXPECT_EQ(pf.samples_per_light, 1);
+  EXPECT_EQ(pf.visibility_desc(n, 1).kind, PassKind::SoftVisibility);
+  EXPECT_EQ(pf.visibility_full_scale(), 1);
+  TraceStats sb, sf;
+  const PassBuffer b = trace_visibility(rt, g, pb, bits, sb);
+  const PassBuffer f = trace_visibility(rt, g, pf, frac, sf);
+  EXPECT_EQ(sb.shadow_rays, sf.shadow_rays);
+  ASSERT_EQ(f.bytes.size(), size_t(n) * 2);
+  int lit = 0;
+  for (int i = 0; i < n; ++i)
+    for (int l = 0; l < 2; ++l) {
+      const int bit = (b.bytes[size_t(i)] >> l) & 1;
+      EXPECT_EQ(f.bytes[size_t(l) * size_t(n) + size_t(i)], bit) << "pixel " << i << " light " << l;
+      lit += l == 0 ? bit : 0;
+    }
+  EXPECT_GT(lit, 0);  // a penumbra: some rays of the sphere light pass, some do not
+  EXPECT_LT(lit, n);
+  // Hard shadows are sent as fractions too.
+  frac.soft_shadows = false;
+  EXPECT_EQ(plan_passes(s, frac).visibility_kind(), PassKind::SoftVisibility);
+}
+
 // The jittered rays are the cone sampling of core/trace.h, ray by ray: sample k of light l at
 // pixel p draws (u0, u1) from the key (seed, p, frame, k, kStreamLightBase + l) and goes
 // 1 - cos = u0 (1 - cos theta_max) off the light's direction at angle 2 pi u1 in the basis of
