@@ -475,29 +475,57 @@ def size_line(runs):
 
 def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
     """The BD-rate table (equal quality) or, with `equal_bandwidth`, the BD-quality table of every
-    family against `anchor` on image metric `im`."""
-    table = rq.bd_table(cm, anchor, rq.bd_quality if equal_bandwidth else rq.bd_rate)
+    family against `anchor` on image metric `im` (rate_quality.bd_checked: PCHIP, its flags marked
+    in the cells and explained below the table)."""
+    higher = im.get("higher_is_better", True)
+    table = rq.bd_table(cm, anchor, "quality" if equal_bandwidth else "rate", "pchip", higher)
     if not table:
         return
     fams = sorted({f for row in table.values() for f in row})
     name = im["name"].upper()
+    results = [((scene, cond), f, row[f]) for (scene, cond), row in sorted(table.items()) for f in fams if f in row]
+    valued = [res for _, _, res in results if res.value is not None]
+    # Fewer than 4 points: marked per cell unless every number has it (then said once).
+    few_everywhere = bool(valued) and all("few_points" in res.flags for res in valued)
+    marks = {"methods_disagree": "†", "few_points": "" if few_everywhere else "‡"}
     if equal_bandwidth:
-        better = "higher" if im.get("higher_is_better", True) else "lower"
+        better = "higher" if higher else "lower"
         out.append(f"At equal bandwidth: BD-{name} against **{anchor}** (VCEG-M33's BD-PSNR on {name}: the mean "
-                   f"{name} difference, family minus anchor, over the bitrate range both curves share; {better} is "
-                   "better; – : no shared bitrate range or too few points):\n")
+                   f"{name} difference, family minus anchor, over the bitrate range both curves share, {name} "
+                   f"interpolated by PCHIP in log-bitrate as the JCT-VC common test conditions do; {better} is "
+                   "better; – : no number, the reasons below):\n")
     else:
-        out.append(f"BD-rate against **{anchor}** on {name} (VCEG-M33; negative: the family needs that much "
-                   "less bitrate at equal quality; – : no shared quality range or too few points):\n")
+        out.append(f"BD-rate against **{anchor}** on {name} (VCEG-M33 with PCHIP interpolation of log-bitrate in "
+                   f"{name}, as the JCT-VC common test conditions; negative: the family needs that much less "
+                   "bitrate at equal quality; – : no number, the reasons below):\n")
     out.append("| scene | conditions | " + " | ".join(fams) + " |")
     out.append("|---|---|" + "---|" * len(fams))
     for (scene, cond), row in sorted(table.items()):
-        cells = [(f"{row[f]:+.4f}" if equal_bandwidth else f"{row[f]:+.1f} %") if isinstance(row.get(f), float) else "–"
-                 for f in fams]
+        cells = []
+        for f in fams:
+            res = row.get(f)
+            if res is None or res.value is None:
+                cells.append("–")
+                continue
+            text = f"{res.value:+.4f}" if equal_bandwidth else f"{res.value:+.1f} %"
+            cells.append(text + "".join(marks[k] for k in ("methods_disagree", "few_points") if k in res.flags))
         out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in cond) or '–'} | " + " | ".join(cells) + " |")
     out.append("")
-    reasons = [f"- {scene}, {', '.join(f'{k}={v}' for k, v in cond) or 'all runs'}, {f}: {row[f]}"
-               for (scene, cond), row in sorted(table.items()) for f in fams if isinstance(row.get(f), str)]
+    where = lambda key, f: f"{key[0]}, {', '.join(f'{k}={v}' for k, v in key[1]) or 'all runs'}, {f}"  # noqa: E731
+    disagree = [f"- {where(key, f)}: {res.flags['methods_disagree']}"
+                for key, f, res in results if "methods_disagree" in res.flags]
+    if disagree:
+        out.append("† The PCHIP, Akima and polynomial (VCEG-M33's cubic) fits disagree in sign or by more than "
+                   + ("5 % of the curves' quality span" if equal_bandwidth else "5 percentage points")
+                   + ": the number depends on how the points are joined:\n")
+        out.extend(disagree)
+        out.append("")
+    if few_everywhere:
+        out.append("Every number above comes from curves of fewer than 4 points (VCEG-M33 and the common test "
+                   "conditions use 4): read them as indications.\n")
+    elif any("few_points" in res.flags for res in valued):
+        out.append("‡ A curve of fewer than 4 points (VCEG-M33 and the common test conditions use 4).\n")
+    reasons = [f"- {where(key, f)}: {res.reason}" for key, f, res in results if res.value is None]
     if reasons:
         out.append(f"Why a cell has no {'BD-' + name if equal_bandwidth else 'BD-rate'}:\n")
         out.extend(reasons)
