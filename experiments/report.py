@@ -299,6 +299,34 @@ def check_frames_against_runs(frames, runs, path):
                              f"displayed {want} frame(s)")
 
 
+def frame_intervals(frames, metrics):
+    """{(run, frames.csv column): (half-width, block length)}: the 95 % interval
+    (experiments/intervals.py, mean_interval) of each run's mean of each declared image metric over its scored
+    frames, in frame order. +inf (PSNR of identical frames) counts as 100 dB, as in the means."""
+    import intervals
+    series = {}
+    cols = [(im["columns"][ref], im.get("unit") == "db") for im in metrics for ref in ("local", "ground_truth")]
+    for row in sorted(frames, key=lambda f: (f["run"], int(f["frame"]))):
+        for col, db in cols:
+            v = row.get(col)
+            if not v:
+                continue
+            try:
+                x = float(v)
+            except ValueError:
+                continue
+            if math.isinf(x) and db and x > 0:
+                x = 100.0
+            if math.isfinite(x):
+                series.setdefault((row["run"], col), []).append(x)
+    out = {}
+    for key, xs in series.items():
+        ci = intervals.mean_interval(xs)
+        if ci is not None:
+            out[key] = ci
+    return out
+
+
 def read_image(path):
     try:
         return mpimg.imread(path)
@@ -610,10 +638,17 @@ def main(d):
     # One column per declared image metric and reference (means over the scored frames).
     quality_columns = [(f"{im['name'].upper()}{' ' + UNIT_NAMES.get(im['unit'], im['unit']) if im['unit'] else ''} "
                         f"{'local' if ref == 'local' else 'truth'}", im["aggregates"][ref]["mean"],
-                        4 if not im["unit"] else 2, im["aggregates"][ref].get("ci95"))
+                        4 if not im["unit"] else 2, im["columns"][ref])
                        for im in metrics for ref in ("local", "ground_truth")]
-    out.append("Quality: mean over the scored frames ± the half-width of its 95 % confidence interval (Student's t, "
-               "frames taken as independent); scored frames: against the local reference / the ground truth.\n")
+    cis = frame_intervals(frames, metrics)
+    blocks = sorted({ci[1] for ci in cis.values()})
+    out.append("Quality: mean over the scored frames ± the half-width of its 95 % confidence interval; scored frames: "
+               "against the local reference / the ground truth. Consecutive frames are correlated, so the "
+               "half-width is Student's t quantile (n - 1 degrees of freedom) times the standard error of the mean "
+               "by a circular block bootstrap (2000 resamples of blocks of consecutive scored frames, fixed seed; "
+               "the block length from each series' lag-1 autocorrelation by Carlstein's AR(1) rule"
+               + (f", here {blocks[0]}..{blocks[-1]} frames" if blocks else "") + "; experiments/intervals.py): "
+               "Student's t interval where frames are independent, wider where they are not.\n")
     out.append("| run | scene | configuration | scored frames | " + " | ".join(c[0] for c in quality_columns) +
                " | Mb/s | bytes/frame per pass | server fps (virtual) | client fps (wall) | buffer age ms (median) "
                "| frames lost |")
@@ -623,8 +658,9 @@ def main(d):
         per_pass = ", ".join(f"{p['pass']} {p['bytes_per_frame']:.0f}" for p in m["passes"] if p["server_frames"])
         ages = [v["median"] for k, v in m.items() if k.startswith("buffer_age_ms_")]
         lost = sum(p["frames_lost"] for p in m["passes"])
-        cells = " | ".join(fmt(m.get(key), digits) + (f" ± {fmt(m.get(ci), digits)}" if m.get(ci) else "")
-                           for _, key, digits, ci in quality_columns)
+        cells = " | ".join(fmt(m.get(key), digits) + (f" ± {fmt(cis[(r['id'], col)][0], digits)}"
+                                                      if m.get(key) is not None and (r["id"], col) in cis else "")
+                           for _, key, digits, col in quality_columns)
         scored = f"{m.get('frames_scored', '–')} / {m.get('frames_scored_ground_truth', '–')}"
         out.append(f"| {r['id']} | {r['scene']} | {r['label']} | {scored} | {cells} | "
                    f"{m['bandwidth_mbps']:.2f} | {per_pass or '–'} | {m['server_fps_virtual']:.1f} | "
