@@ -11,23 +11,30 @@ and its error map, all error maps on one fixed colour scale with its colour bar.
 import math
 import os
 import sys
+from typing import NamedTuple
 
 import dhrbench_results as dr
-from dhrbench_results import BadResults, DECLARED_BEFORE_RECORD
+from dhrbench_results import BadResults
 
 # matplotlib is imported once results.json and frames.csv have been checked (load_matplotlib):
 # a damaged file is reported without the second it takes to import.
-mpimg = plt = None
 EXIT_NO_MATPLOTLIB = 3
 
 
+class Plot(NamedTuple):
+    """matplotlib's pyplot and image modules, loaded by load_matplotlib() and passed to whatever draws."""
+    plt: object
+    mpimg: object
+
+
 def load_matplotlib():
-    global mpimg, plt
+    """Plot(pyplot, image) with the Agg backend; exit 3 with a message where matplotlib is missing."""
     try:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.image as mpimg
         import matplotlib.pyplot as plt
+        return Plot(plt, mpimg)
     except ImportError:
         print("dhrbench report: error: the report needs matplotlib for Debian's python3: apt-get install "
               "python3-matplotlib (or run scripts/setup.sh)", file=sys.stderr)
@@ -67,9 +74,9 @@ def frame_intervals(frames, metrics):
     return out
 
 
-def read_image(path):
+def read_image(plot, path):
     try:
-        return mpimg.imread(path)
+        return plot.mpimg.imread(path)
     except Exception as e:  # PIL and matplotlib raise several kinds for a damaged file
         raise BadResults(f"{path}: not a readable PNG image: {str(e)[:120]}")
 
@@ -100,15 +107,6 @@ def server_ms(run):
                ("server_rasterize", "trace_shadows", "trace_ao", "denoise", "encode", "server_composite") if s in stages)
 
 
-# The headline image metric: the first declared (SSIM), set by main() from results.json.
-HEADLINE = DECLARED_BEFORE_RECORD["image_metrics"][0]
-
-
-def quality(run):
-    """The headline metric's mean against the ground truth where scored, else the local reference."""
-    return metric_value(run, HEADLINE)
-
-
 def metric_value(run, im):
     """An image metric's mean against the ground truth where scored, else the local reference."""
     m = run["metrics"]
@@ -116,11 +114,12 @@ def metric_value(run, im):
     return q if q is not None else m.get(im["aggregates"]["local"]["mean"])
 
 
-def rate_quality_section(d, exp, ok, metrics, out):
-    """Rate-quality curves and BD-rate tables, when the experiment declares "curves"."""
+def rate_quality_section(plot, d, exp, ok, metrics):
+    """Rate-quality curves and BD-rate tables, when the experiment declares "curves" (the lines)."""
     spec = exp.get("curves")
+    out = []
     if not isinstance(spec, dict) or not ok:
-        return
+        return out
     import rate_quality as rq
     vary = [k for k in spec.get("vary", []) if isinstance(k, str)]
     sweep_keys = sorted({k for r in ok for k in r.get("settings", {}) if k not in vary})
@@ -139,7 +138,8 @@ def rate_quality_section(d, exp, ok, metrics, out):
         groups = sorted({(s, c) for s, c, _ in cm})
         scenes = sorted({s for s, _ in groups})
         conds = sorted({c for _, c in groups})
-        fig, axes = plt.subplots(len(scenes), len(conds), figsize=(4.6 * len(conds), 3.6 * len(scenes)), squeeze=False)
+        fig, axes = plot.plt.subplots(len(scenes), len(conds), figsize=(4.6 * len(conds), 3.6 * len(scenes)),
+                                      squeeze=False)
         for i, scene in enumerate(scenes):
             for j, cond in enumerate(conds):
                 ax = axes[i, j]
@@ -157,13 +157,14 @@ def rate_quality_section(d, exp, ok, metrics, out):
         fig.tight_layout()
         name = f"rate_quality_{im['name']}.png"
         fig.savefig(os.path.join(d, "plots", name), dpi=100)
-        plt.close(fig)
+        plot.plt.close(fig)
         out.append(f"![rate against {im['name'].upper()}](plots/{name})\n")
         for anchor in anchors:
             bd_section(rq, cm, anchor, im, out)
         for anchor in anchors:
             bd_section(rq, cm, anchor, im, out, equal_bandwidth=True)
         crossover_section(rq, cm, ok, sweep_keys, im, out)
+    return out
 
 
 def network_rtt_ms(runs):
@@ -300,12 +301,13 @@ def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
         out.append("")
 
 
-def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
+def scatter_with_front(plot, headline, runs, xkey, xlabel, title, path, logx=False):
+    """Per scene, the headline metric (metric_value) against `xkey` with the Pareto front."""
     scenes = sorted({r["scene"] for r in runs})
-    fig, axes = plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.2), squeeze=False)
+    fig, axes = plot.plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.2), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
-        rs = [r for r in runs if r["scene"] == scene and quality(r) is not None]
-        pts = [(xkey(r), quality(r)) for r in rs]
+        rs = [r for r in runs if r["scene"] == scene and metric_value(r, headline) is not None]
+        pts = [(xkey(r), metric_value(r, headline)) for r in rs]
         if not pts:
             continue
         ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=18, color="tab:blue", zorder=2)
@@ -318,54 +320,47 @@ def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
             ax.set_xscale("log")
         ax.set_title(scene)
         ax.set_xlabel(xlabel)
-        ax.set_ylabel(f"{HEADLINE['name'].upper()} (vs ground truth where scored, else local reference)")
+        ax.set_ylabel(f"{headline['name'].upper()} (vs ground truth where scored, else local reference)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plot.plt.close(fig)
 
 
-def main(d):
-    loaded = dr.load(d)
-    res = loaded.results
-    global HEADLINE
-    metrics = loaded.declared["image_metrics"]
-    HEADLINE = metrics[0]
-    headline_column = HEADLINE["columns"]["local"]
-    frames = loaded.frames
-    load_matplotlib()
-    os.makedirs(os.path.join(d, "plots"), exist_ok=True)
-    os.makedirs(os.path.join(d, "grids"), exist_ok=True)
-    ctx = res["context"]
-    exp = res["experiment"]
-    runs = res["runs"]
-    ok = [r for r in runs if "metrics" in r]
-    failed = [r for r in runs if "error" in r]
-
-    out = []
-    out.append(f"# {exp.get('name', 'experiment')}\n")
+def header_section(res):
+    """Title, description, how to regenerate, image size and the measuring conventions."""
+    ctx, exp = res["context"], res["experiment"]
+    out = [f"# {exp.get('name', 'experiment')}\n"]
     if exp.get("description"):
         out.append(exp["description"] + "\n")
     out.append(f"Regenerate: `{ctx.get('command', 'dhrbench run ' + res.get('experiment_path', ''))}` "
                f"(wall time of this run: {res.get('wall_s', float('nan')):.0f} s).\n")
-    out.append(size_line(runs))
+    out.append(size_line(res["runs"]))
     out.append("Virtual time (ms) drives the display, the network and the server schedule; wall time measures "
                "what each stage costs on this machine. Bandwidth counts every packet on the wire: payload, the "
                "44-byte dhrbench header and 28 bytes of IP/UDP. SSIM follows Wang et al. 2004 (Gaussian 11x11, "
                "sigma 1.5, K1 0.01, K2 0.03) on BT.601 luma of the 8-bit sRGB frames.\n")
-    out.append("## Context\n")
-    out.append("| | |\n|---|---|")
-    out.append(f"| git commit | `{ctx.get('git_commit')}`{' (dirty)' if ctx.get('git_dirty') else ''} |")
-    out.append(f"| build | {ctx.get('build_type')}, {ctx.get('compiler')} |")
-    out.append(f"| CPU | {ctx.get('cpu_model')} ({ctx.get('hardware_threads')} hardware threads; "
-               f"threads option {ctx.get('threads') or 'all'}) |")
-    out.append(f"| kernel | {ctx.get('kernel')} |")
-    libs = ", ".join(f"{k} {v}" for k, v in ctx.get("libraries", {}).items())
-    out.append(f"| libraries | {libs} |\n")
+    return out
 
-    out.append("## Results\n")
+
+def context_section(ctx):
+    """The machine and build the results come from."""
+    libs = ", ".join(f"{k} {v}" for k, v in ctx.get("libraries", {}).items())
+    return ["## Context\n", "| | |\n|---|---|",
+            f"| git commit | `{ctx.get('git_commit')}`{' (dirty)' if ctx.get('git_dirty') else ''} |",
+            f"| build | {ctx.get('build_type')}, {ctx.get('compiler')} |",
+            f"| CPU | {ctx.get('cpu_model')} ({ctx.get('hardware_threads')} hardware threads; "
+            f"threads option {ctx.get('threads') or 'all'}) |",
+            f"| kernel | {ctx.get('kernel')} |",
+            f"| libraries | {libs} |\n"]
+
+
+def results_section(ok, failed, metrics, frames):
+    """One row per run: every declared image metric's means with their intervals, bitrate, frame
+    sizes, frame rates, buffer ages and losses; then the failed runs."""
+    out = ["## Results\n"]
     # One column per declared image metric and reference (means over the scored frames).
     quality_columns = [(f"{im['name'].upper()}{' ' + UNIT_NAMES.get(im['unit'], im['unit']) if im['unit'] else ''} "
                         f"{'local' if ref == 'local' else 'truth'}", im["aggregates"][ref]["mean"],
@@ -402,9 +397,12 @@ def main(d):
         for r in failed:
             out.append(f"- {r['id']} ({r['label']} on {r['scene']}): `{r['error']}`")
         out.append("")
+    return out
 
-    # Stage times.
-    out.append("## Stage wall times (median / p95 ms)\n")
+
+def stages_section(ok):
+    """Median and p95 wall time of every stage, per run."""
+    out = ["## Stage wall times (median / p95 ms)\n"]
     stage_names = []
     for r in ok:
         for s in r["metrics"]["stages_wall"]:
@@ -417,65 +415,125 @@ def main(d):
         cells = [f"{st[s]['median_ms']:.2f} / {st[s]['p95_ms']:.2f}" if s in st else "–" for s in stage_names]
         out.append(f"| {r['id']} | " + " | ".join(cells) + " |")
     out.append("")
+    return out
 
-    if ok:
-        scatter_with_front(ok, lambda r: r["metrics"]["bandwidth_mbps"], "bandwidth on the wire (Mb/s)",
-                           "Quality against bandwidth", os.path.join(d, "plots", "quality_vs_bandwidth.png"), logx=True)
-        scatter_with_front(ok, server_ms, "server wall time per frame (ms, sum of stage medians)",
-                           "Quality against server time", os.path.join(d, "plots", "quality_vs_server_time.png"))
-        # Frame size against delivered frame rate (the paper's Fig. 10): per run, the bytes of one
-        # server frame (all passes) against the frames per second that arrived complete (the
-        # slowest pass). Under a bandwidth cap, larger frames arrive less often.
-        have_fps = any("delivered_fps" in p for r in ok for p in r["metrics"]["passes"])
-        fig, ax = plt.subplots(figsize=(7, 4.2))
-        for mode, colour in (("hybrid", "tab:blue"), ("remote", "tab:orange")) if have_fps else ():
-            rs = [r for r in ok if r.get("config", {}).get("mode", "hybrid") == mode]
-            xs, ys = [], []
-            for r in rs:
-                passes = [p for p in r["metrics"]["passes"] if p["server_frames"]]
-                if not passes:
-                    continue
-                xs.append(sum(p["bytes_per_frame"] for p in passes))
-                ys.append(min(p.get("delivered_fps", 0.0) for p in passes))
-            if xs:
-                ax.scatter(xs, ys, s=16, color=colour, label=mode)
-        ax.set_xscale("log")
-        ax.set_xlabel("bytes per server frame (all passes, encoded)")
-        ax.set_ylabel("frames delivered complete per second (slowest pass)")
-        ax.set_title("Frame size against delivered frame rate")
+
+def frame_size_plot(plot, ok, path):
+    """Frame size against delivered frame rate (the paper's Fig. 10): per run, the bytes of one
+    server frame (all passes) against the frames per second that arrived complete (the slowest
+    pass). Under a bandwidth cap, larger frames arrive less often. Returns whether the runs
+    recorded the delivered frame rate (else the plot is empty)."""
+    plt = plot.plt
+    have_fps = any("delivered_fps" in p for r in ok for p in r["metrics"]["passes"])
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for mode, colour in (("hybrid", "tab:blue"), ("remote", "tab:orange")) if have_fps else ():
+        rs = [r for r in ok if r.get("config", {}).get("mode", "hybrid") == mode]
+        xs, ys = [], []
+        for r in rs:
+            passes = [p for p in r["metrics"]["passes"] if p["server_frames"]]
+            if not passes:
+                continue
+            xs.append(sum(p["bytes_per_frame"] for p in passes))
+            ys.append(min(p.get("delivered_fps", 0.0) for p in passes))
+        if xs:
+            ax.scatter(xs, ys, s=16, color=colour, label=mode)
+    ax.set_xscale("log")
+    ax.set_xlabel("bytes per server frame (all passes, encoded)")
+    ax.set_ylabel("frames delivered complete per second (slowest pass)")
+    ax.set_title("Frame size against delivered frame rate")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return have_fps
+
+
+def per_frame_plot(plot, ok, frames, headline, path):
+    """The headline metric against the local reference per displayed frame, one panel per scene
+    (at most 12 runs each)."""
+    plt = plot.plt
+    column = headline["columns"]["local"]
+    scenes = sorted({r["scene"] for r in ok})
+    fig, axes = plt.subplots(len(scenes), 1, figsize=(9, 3.2 * len(scenes)), squeeze=False)
+    for ax, scene in zip(axes[:, 0], scenes):
+        for r in [r for r in ok if r["scene"] == scene][:12]:
+            rows = [f for f in frames if f["run"] == r["id"] and f[column] != ""]
+            ax.plot([int(f["frame"]) for f in rows], [float(f[column]) for f in rows],
+                    lw=1, label=f"{r['id']} {r['label']}"[:48])
+        ax.set_title(f"{scene}: {headline['name'].upper()} against the local reference, per displayed frame")
+        ax.set_xlabel("frame")
+        ax.set_ylabel(headline["name"].upper())
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(os.path.join(d, "plots", "frame_size_vs_fps.png"), dpi=110)
-        plt.close(fig)
-        out.append("## Plots\n")
-        out.append("Red: the Pareto front (no other run of the scene is both cheaper and better).\n")
-        out.append("![quality against bandwidth](plots/quality_vs_bandwidth.png)\n")
-        out.append("![quality against server time](plots/quality_vs_server_time.png)\n")
-        if have_fps:
-            out.append("![frame size against delivered frame rate](plots/frame_size_vs_fps.png)\n")
-        # SSIM per frame.
-        if frames:
-            scenes = sorted({r["scene"] for r in ok})
-            fig, axes = plt.subplots(len(scenes), 1, figsize=(9, 3.2 * len(scenes)), squeeze=False)
-            for ax, scene in zip(axes[:, 0], scenes):
-                for r in [r for r in ok if r["scene"] == scene][:12]:
-                    rows = [f for f in frames if f["run"] == r["id"] and f[headline_column] != ""]
-                    ax.plot([int(f["frame"]) for f in rows], [float(f[headline_column]) for f in rows],
-                            lw=1, label=f"{r['id']} {r['label']}"[:48])
-                ax.set_title(f"{scene}: {HEADLINE['name'].upper()} against the local reference, per displayed frame")
-                ax.set_xlabel("frame")
-                ax.set_ylabel(HEADLINE["name"].upper())
-                ax.grid(alpha=0.3)
-                ax.legend(fontsize=6, loc="lower left")
-            fig.tight_layout()
-            fig.savefig(os.path.join(d, "plots", "ssim_per_frame.png"), dpi=110)
-            plt.close(fig)
-            out.append("![SSIM per frame](plots/ssim_per_frame.png)\n")
+        ax.legend(fontsize=6, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
-    rate_quality_section(d, exp, ok, metrics, out)
 
-    # Image grids.
+def plots_section(plot, d, ok, frames, headline):
+    """Quality against bandwidth and server time (Pareto fronts), frame size against frame rate,
+    the headline metric per frame."""
+    if not ok:
+        return []
+    plots = os.path.join(d, "plots")
+    scatter_with_front(plot, headline, ok, lambda r: r["metrics"]["bandwidth_mbps"], "bandwidth on the wire (Mb/s)",
+                       "Quality against bandwidth", os.path.join(plots, "quality_vs_bandwidth.png"), logx=True)
+    scatter_with_front(plot, headline, ok, server_ms, "server wall time per frame (ms, sum of stage medians)",
+                       "Quality against server time", os.path.join(plots, "quality_vs_server_time.png"))
+    have_fps = frame_size_plot(plot, ok, os.path.join(plots, "frame_size_vs_fps.png"))
+    out = ["## Plots\n", "Red: the Pareto front (no other run of the scene is both cheaper and better).\n",
+           "![quality against bandwidth](plots/quality_vs_bandwidth.png)\n",
+           "![quality against server time](plots/quality_vs_server_time.png)\n"]
+    if have_fps:
+        out.append("![frame size against delivered frame rate](plots/frame_size_vs_fps.png)\n")
+    if frames:
+        per_frame_plot(plot, ok, frames, headline, os.path.join(plots, "ssim_per_frame.png"))
+        out.append("![SSIM per frame](plots/ssim_per_frame.png)\n")
+    return out
+
+
+def grid_figure(plot, img_dir, scene, chunk, path):
+    """One image grid: the references, then per run what the client showed, its error map and
+    (where written for every run of the chunk) FLIP's error map."""
+    plt = plot.plt
+    refs = []
+    first = chunk[0]["id"]
+    if os.path.exists(os.path.join(img_dir, first + "_truth.png")):
+        refs.append(("ground truth", first + "_truth.png"))
+    refs.append((f"local reference ({first})", first + "_local.png"))
+    cols = max(len(chunk), len(refs))
+    have_flip = all(os.path.exists(os.path.join(img_dir, r["id"] + "_flip.png")) for r in chunk)
+    fig, axes = plt.subplots(4 if have_flip else 3, cols, figsize=(3.2 * cols, 8.8 if have_flip else 6.6),
+                             squeeze=False)
+    for ax in axes.flat:
+        ax.axis("off")
+    for c, (title, name) in enumerate(refs):
+        axes[0, c].imshow(read_image(plot, os.path.join(img_dir, name)))
+        axes[0, c].set_title(title, fontsize=8)
+    im = None
+    for c, r in enumerate(chunk):
+        axes[1, c].imshow(read_image(plot, os.path.join(img_dir, r["id"] + "_shown.png")))
+        axes[1, c].set_title(f"{r['id']}: {r['label']}"[:44], fontsize=7)
+        err = read_image(plot, os.path.join(img_dir, r["id"] + "_error.png"))
+        if err.ndim == 3:
+            err = err[..., 0]
+        im = axes[2, c].imshow(err * ERROR_SCALE_LEVELS, cmap="viridis", vmin=0, vmax=ERROR_SCALE_LEVELS)
+        axes[2, c].set_title(f"error vs {r.get('images', {}).get('error_against', 'reference')}", fontsize=7)
+        if have_flip:
+            axes[3, c].imshow(read_image(plot, os.path.join(img_dir, r["id"] + "_flip.png")))
+            axes[3, c].set_title("FLIP error map (0 black .. 1 yellow)", fontsize=7)
+    if im is not None:
+        fig.colorbar(im, ax=list(axes[2, :]), orientation="vertical", fraction=0.02, pad=0.01,
+                     label="|luma difference|\n(8-bit levels)")
+    fig.suptitle(f"{scene}: last scored frame", fontsize=10)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def grids_section(plot, d, ok):
+    """Per scene, grids of at most MAX_RUNS_PER_GRID runs (grid_figure); a published report
+    without its per-run images lists the grids it keeps."""
     img_dir = os.path.join(d, "images")
     grids = []
     for scene in sorted({r["scene"] for r in ok}):
@@ -487,55 +545,39 @@ def main(d):
             grids += sorted((g for g in os.listdir(os.path.join(d, "grids")) if g.startswith(stem) and g.endswith(".png")
                              and g[len(stem):-4].isdigit()), key=lambda g: int(g[len(stem):-4]))
         for part in range(0, len(rs), MAX_RUNS_PER_GRID):
-            chunk = rs[part:part + MAX_RUNS_PER_GRID]
-            refs = []
-            first = chunk[0]["id"]
-            if os.path.exists(os.path.join(img_dir, first + "_truth.png")):
-                refs.append(("ground truth", first + "_truth.png"))
-            refs.append((f"local reference ({first})", first + "_local.png"))
-            cols = max(len(chunk), len(refs))
-            have_flip = all(os.path.exists(os.path.join(img_dir, r["id"] + "_flip.png")) for r in chunk)
-            fig, axes = plt.subplots(4 if have_flip else 3, cols, figsize=(3.2 * cols, 8.8 if have_flip else 6.6),
-                                     squeeze=False)
-            for ax in axes.flat:
-                ax.axis("off")
-            for c, (title, name) in enumerate(refs):
-                axes[0, c].imshow(read_image(os.path.join(img_dir, name)))
-                axes[0, c].set_title(title, fontsize=8)
-            im = None
-            for c, r in enumerate(chunk):
-                axes[1, c].imshow(read_image(os.path.join(img_dir, r["id"] + "_shown.png")))
-                axes[1, c].set_title(f"{r['id']}: {r['label']}"[:44], fontsize=7)
-                err = read_image(os.path.join(img_dir, r["id"] + "_error.png"))
-                if err.ndim == 3:
-                    err = err[..., 0]
-                im = axes[2, c].imshow(err * ERROR_SCALE_LEVELS, cmap="viridis", vmin=0, vmax=ERROR_SCALE_LEVELS)
-                axes[2, c].set_title(f"error vs {r.get('images', {}).get('error_against', 'reference')}", fontsize=7)
-                if have_flip:
-                    axes[3, c].imshow(read_image(os.path.join(img_dir, r["id"] + "_flip.png")))
-                    axes[3, c].set_title("FLIP error map (0 black .. 1 yellow)", fontsize=7)
-            if im is not None:
-                fig.colorbar(im, ax=list(axes[2, :]), orientation="vertical", fraction=0.02, pad=0.01,
-                             label="|luma difference|\n(8-bit levels)")
-            fig.suptitle(f"{scene}: last scored frame", fontsize=10)
             name = f"{stem}{part // MAX_RUNS_PER_GRID}.png"
-            fig.savefig(os.path.join(d, "grids", name), dpi=100)
-            plt.close(fig)
+            grid_figure(plot, img_dir, scene, rs[part:part + MAX_RUNS_PER_GRID], os.path.join(d, "grids", name))
             grids.append(name)
-    if grids:
-        out.append("## Image grids\n")
-        out.append("Top: references. Then what the client displayed; the error of each against the "
-                   "ground truth where it was scored on that frame, else against the local reference, on one fixed "
-                   f"colour scale (0..{ERROR_SCALE_LEVELS} levels of luma difference); and, where written, FLIP's "
-                   "error map against the same reference on FLIP's own colour map (magma, 0..1).\n")
-        for g in grids:
-            out.append(f"![{g}](grids/{g})\n")
+    if not grids:
+        return []
+    out = ["## Image grids\n",
+           "Top: references. Then what the client displayed; the error of each against the ground truth where it "
+           "was scored on that frame, else against the local reference, on one fixed colour scale "
+           f"(0..{ERROR_SCALE_LEVELS} levels of luma difference); and, where written, FLIP's error map against the "
+           "same reference on FLIP's own colour map (magma, 0..1).\n"]
+    out += [f"![{g}](grids/{g})\n" for g in grids]
+    return out
 
+
+def notes_section(exp):
     notes = exp.get("notes")
-    if notes:
-        out.append("## Notes\n")
-        out.append(notes if isinstance(notes, str) else "\n".join(notes))
-        out.append("")
+    if not notes:
+        return []
+    return ["## Notes\n", notes if isinstance(notes, str) else "\n".join(notes), ""]
+
+
+def main(d):
+    loaded = dr.load(d)  # checked: a damaged file is one BadResults, before matplotlib loads
+    plot = load_matplotlib()
+    for sub in ("plots", "grids"):
+        os.makedirs(os.path.join(d, sub), exist_ok=True)
+    res, metrics, headline = loaded.results, loaded.declared["image_metrics"], loaded.headline
+    ok = [r for r in res["runs"] if "metrics" in r]
+    failed = [r for r in res["runs"] if "error" in r]
+    out = header_section(res) + context_section(res["context"]) + results_section(ok, failed, metrics, loaded.frames)
+    out += stages_section(ok) + plots_section(plot, d, ok, loaded.frames, headline)
+    out += rate_quality_section(plot, d, res["experiment"], ok, metrics)
+    out += grids_section(plot, d, ok) + notes_section(res["experiment"])
     with open(os.path.join(d, "report.md"), "w") as f:
         f.write("\n".join(out) + "\n")
 
