@@ -395,3 +395,63 @@ def crossover(curve_map, is_remote, rtt_of, latency_key="network", higher_is_bet
             families[h] = start
         out[key] = {"rtts": rtts, "families": families, "wins": wins}
     return out
+
+
+def best_under_budget(pts, budget, higher_is_better=True, method="pchip"):
+    """The best quality a curve (list of (bitrate, quality)) reaches at a bitrate at or under
+    `budget`: its measured points at or under it, and where the budget lies within the curve's
+    measured bitrate range, the curve joined by `method` (PCHIP: quality against log10(bitrate))
+    at the budget; never extrapolated. None where no point is at or under the budget."""
+    pts = [(float(r), float(q)) for r, q in pts]
+    cands = [q for r, q in pts if r <= budget]
+    if not cands:
+        return None
+    rates = [r for r, _ in pts]
+    if min(rates) <= budget <= max(rates) and len(set(rates)) >= 2:
+        try:
+            cands.append(interpolate([(math.log10(r), q) for r, q in pts], math.log10(budget), method))
+        except ValueError:
+            pass  # two points at one bitrate: no function of it; the measured points stand
+    return max(cands) if higher_is_better else min(cands)
+
+
+def regime_map(curve_map, is_remote, rtt_of, budgets, latency_key="network", higher_is_better=True, method="pchip"):
+    """Which side wins at each bitrate budget and round-trip time, per scene (and other
+    conditions than `latency_key`): for every budget, the best family of each side (hybrid: not
+    is_remote) by best_under_budget(), the side whose best is better, and by how much. Returns
+    {(scene, rest): {"rtts": [...], "budgets": [...], "cells": {(rtt, budget): {"hybrid": (family,
+    quality) or None, "remote": ..., "winner": "hybrid", "remote", "tie" or None (neither has a
+    point at or under the budget), "only": the side that alone has one (else None), "margin":
+    hybrid's quality minus remote's, signed so that > 0 favours hybrid (None unless both)}}}}."""
+    groups = {}
+    for (scene, cond, fam), pts in curve_map.items():
+        lat = dict(cond).get(latency_key)
+        rtt = rtt_of(lat) if lat is not None else None
+        if rtt is None:
+            continue
+        rest = tuple((k, v) for k, v in cond if k != latency_key)
+        groups.setdefault((scene, rest), {}).setdefault(rtt, {})[fam] = [(x, y) for x, y, *_ in pts]
+    out = {}
+    for key, by_rtt in sorted(groups.items()):
+        cells = {}
+        for rtt, fams in by_rtt.items():
+            for b in budgets:
+                best = {"hybrid": None, "remote": None}
+                for fam, pts in sorted(fams.items()):
+                    q = best_under_budget(pts, b, higher_is_better, method)
+                    if q is None:
+                        continue
+                    side = "remote" if is_remote(fam) else "hybrid"
+                    cur = best[side]
+                    if cur is None or (q > cur[1] if higher_is_better else q < cur[1]):
+                        best[side] = (fam, q)
+                cell = dict(best, winner=None, only=None, margin=None)
+                if best["hybrid"] and best["remote"]:
+                    d = best["hybrid"][1] - best["remote"][1]
+                    cell["margin"] = d if higher_is_better else -d
+                    cell["winner"] = "hybrid" if cell["margin"] > 0 else ("remote" if cell["margin"] < 0 else "tie")
+                elif best["hybrid"] or best["remote"]:
+                    cell["only"] = cell["winner"] = "hybrid" if best["hybrid"] else "remote"
+                cells[(rtt, b)] = cell
+        out[key] = {"rtts": sorted(by_rtt), "budgets": list(budgets), "cells": cells}
+    return out

@@ -228,6 +228,116 @@ def crossover_section(rq, cm, runs, sweep_keys, im, out):
     out.append("")
 
 
+def regime_section(plot, d, exp, ok, metrics, budget_points=12):
+    """Per scene, which side -- hybrid or remote -- gives the better FLIP against the ground truth
+    (SSIM where FLIP is not declared) at each bitrate budget and round-trip time
+    (rate_quality.regime_map: each side's best family at that budget, each family's curve joined
+    by PCHIP in log-rate within its measured range), when the runs hold both sides and a network
+    sweep of constant latencies: a markdown table and a heatmap (plots/regime_map_SCENE.png)."""
+    import rate_quality as rq
+    by_name = {im["name"]: im for im in metrics}
+    im = by_name.get("flip") or by_name.get("ssim")
+    remote = {rq.family_of(r) for r in ok if r.get("config", {}).get("mode") == "remote"
+              or rq.family_of(r).startswith("remote")}
+    hybrid = {rq.family_of(r) for r in ok} - remote
+    rtts = network_rtt_ms(ok)
+    if im is None or not remote or not hybrid or not any(v is not None for v in rtts.values()):
+        return []
+    spec = exp.get("curves") if isinstance(exp.get("curves"), dict) else {}
+    sweep_keys = sorted({k for r in ok for k in r.get("settings", {})})
+    vary = [k for k in spec.get("vary", []) if isinstance(k, str)] or [k for k in sweep_keys if k != "network"]
+    key = im["aggregates"]["ground_truth"]["mean"]
+    higher = im.get("higher_is_better", True)
+    rate = lambda r: r["metrics"]["bandwidth_mbps"] or None  # noqa: E731
+    cm = rq.curves(ok, [k for k in sweep_keys if k not in vary], vary, rate, lambda r: r["metrics"].get(key))
+    rates = [x for pts in cm.values() for x, *_ in pts]
+    if not rates:
+        return []
+    lo, hi = math.log10(min(rates)), math.log10(max(rates))
+    budgets = [10 ** (lo + (hi - lo) * i / (budget_points - 1)) for i in range(budget_points)] if hi > lo else [min(rates)]
+    table = rq.regime_map(cm, lambda f: f in remote, lambda v: rtts.get(v), budgets, "network", higher)
+    # Only scenes where both sides were measured at a constant latency (a remote run over a
+    # trace has no RTT: a map of one side says nothing).
+    table = {k: m for k, m in table.items()
+             if all(any(c[side] for c in m["cells"].values()) for side in ("hybrid", "remote"))}
+    if not table:
+        return []
+    name = im["name"].upper()
+    out = ["## Regime map: hybrid or remote\n",
+           f"Which side gives the better {name} against the ground truth (run means; {'higher' if higher else 'lower'} "
+           "is better) at each bitrate budget (Mb/s on the wire, log-spaced over every run's bitrate) and round-trip "
+           "time (the network's two constant latencies added): per side its best family at that budget, each "
+           f"family's {name} interpolated in log-bitrate by PCHIP within its measured range (a budget above a "
+           "family's dearest point takes that point; none is extrapolated). Cell: **H** hybrid better, R remote "
+           f"better, by the {name} difference shown; *H only* / *R only*: only that side has a run at or under the "
+           "budget; – neither.\n"]
+    for (scene, rest), m in sorted(table.items()):
+        title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
+        fname = "regime_map_" + "".join(c if c.isalnum() or c in "-_" else "_" for c in title).strip("_") + ".png"
+        out.append(f"{title}:\n")
+        out.append("| RTT \\ Mb/s | " + " | ".join(f"{b:.3g}" for b in m["budgets"]) + " |")
+        out.append("|---|" + "---|" * len(m["budgets"]))
+        for rtt in m["rtts"]:
+            cells = []
+            for b in m["budgets"]:
+                c = m["cells"][(rtt, b)]
+                if c["winner"] is None:
+                    cells.append("–")
+                elif c["only"]:
+                    cells.append(f"*{c['only'][0].upper()} only*")
+                elif c["winner"] == "tie":
+                    cells.append("tie")
+                else:
+                    side = "**H**" if c["winner"] == "hybrid" else "R"
+                    cells.append(f"{side} {abs(c['margin']):.4f}")
+            out.append(f"| {rtt:g} ms | " + " | ".join(cells) + " |")
+        out.append("")
+        winners = sorted({c[c["winner"]][0] for c in m["cells"].values() if c["winner"] in ("hybrid", "remote")})
+        if winners:
+            out.append("Best families where a side wins: " + ", ".join(winners) + ".\n")
+        regime_heatmap(plot, m, title, name, os.path.join(d, "plots", fname))
+        out.append(f"![regime map {title}](plots/{fname})\n")
+    return out
+
+
+def regime_heatmap(plot, m, title, name, path):
+    """One scene's regime map as a heatmap: the margin (> 0: hybrid better) on a diverging scale
+    symmetric about 0; cells with one side only marked by text, empty cells grey."""
+    import numpy as np
+    plt = plot.plt
+    rtts, budgets = m["rtts"], m["budgets"]
+    grid = np.full((len(rtts), len(budgets)), np.nan)
+    for i, rtt in enumerate(rtts):
+        for j, b in enumerate(budgets):
+            c = m["cells"][(rtt, b)]
+            if c["margin"] is not None:
+                grid[i, j] = c["margin"]
+    span = float(np.nanmax(np.abs(grid))) if np.isfinite(grid).any() else 1.0
+    fig, ax = plt.subplots(figsize=(1.0 + 0.62 * len(budgets), 1.4 + 0.55 * len(rtts)))
+    cmap = plt.get_cmap("RdBu_r").copy()
+    cmap.set_bad("#dddddd")
+    im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=-(span or 1.0), vmax=span or 1.0, aspect="auto",
+                   origin="lower")
+    for i, rtt in enumerate(rtts):
+        for j, b in enumerate(budgets):
+            c = m["cells"][(rtt, b)]
+            text = ("H only" if c["only"] == "hybrid" else "R only") if c["only"] else ("H" if c["winner"] == "hybrid" else
+                                                                                        "R" if c["winner"] == "remote" else "")
+            if text:
+                ax.text(j, i, text, ha="center", va="center", fontsize=6)
+    ax.set_xticks(range(len(budgets)))
+    ax.set_xticklabels([f"{b:.3g}" for b in budgets], rotation=45, fontsize=7)
+    ax.set_yticks(range(len(rtts)))
+    ax.set_yticklabels([f"{t:g}" for t in rtts], fontsize=7)
+    ax.set_xlabel("bitrate budget (Mb/s, log-spaced)")
+    ax.set_ylabel("round-trip time (ms)")
+    ax.set_title(f"{title}: hybrid (red) or remote (blue), {name} margin", fontsize=8)
+    fig.colorbar(im, ax=ax, label=f"{name} advantage of hybrid")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def size_line(runs):
     """The image size and frames every figure below comes from, from the runs' effective settings
     (each distinct combination with its number of runs when they differ)."""
@@ -577,6 +687,7 @@ def main(d):
     out = header_section(res) + context_section(res["context"]) + results_section(ok, failed, metrics, loaded.frames)
     out += stages_section(ok) + plots_section(plot, d, ok, loaded.frames, headline)
     out += rate_quality_section(plot, d, res["experiment"], ok, metrics)
+    out += regime_section(plot, d, res["experiment"], ok, metrics)
     out += grids_section(plot, d, ok) + notes_section(res["experiment"])
     with open(os.path.join(d, "report.md"), "w") as f:
         f.write("\n".join(out) + "\n")

@@ -309,5 +309,39 @@ class Crossover(unittest.TestCase):
         self.assertEqual(out[("room", ())]["rtts"], [0.0, 200.0])
 
 
+class RegimeMap(unittest.TestCase):
+    def test_best_under_budget(self):
+        flip = [(1.0, 0.30), (2.0, 0.20), (4.0, 0.10)]
+        self.assertIsNone(rq.best_under_budget(flip, 0.5, higher_is_better=False))
+        self.assertEqual(rq.best_under_budget(flip, 1.0, higher_is_better=False), 0.30)
+        self.assertEqual(rq.best_under_budget(flip, 9.0, higher_is_better=False), 0.10)  # its best point, not beyond
+        # Within the range: PCHIP in log-rate; the points lie on a line in log2, so midway in log.
+        self.assertAlmostEqual(rq.best_under_budget(flip, math.sqrt(2), higher_is_better=False), 0.25, places=9)
+
+    def test_map(self):
+        # FLIP (lower is better). Remote gets worse with latency, hybrid does not; hybrid needs
+        # at least 2 Mb/s.
+        rows = []
+        for rtt, drop in ((0, 0.0), (200, 0.2)):
+            rows += [("remote h264", rtt, x, q) for x, q in ((0.5, 0.20 + drop), (1.0, 0.10 + drop), (4.0, 0.05 + drop))]
+            rows += [("hybrid", rtt, x, q) for x, q in ((2.0, 0.12), (8.0, 0.08))]
+        runs = [{"id": f"r{i}", "scene": "room", "family": f, "settings": {"network": f"rtt{rtt}", "crf": i},
+                 "mbps": x, "flip": q} for i, (f, rtt, x, q) in enumerate(rows)]
+        cm = rq.curves(runs, ["network", "crf"], ["crf"], lambda r: r["mbps"], lambda r: r["flip"])
+        out = rq.regime_map(cm, lambda f: f.startswith("remote"), lambda v: float(v[3:]), [0.25, 0.7, 2.0, 8.0],
+                            higher_is_better=False)
+        m = out[("room", ())]
+        self.assertEqual(m["rtts"], [0.0, 200.0])
+        c = m["cells"]
+        self.assertIsNone(c[(0.0, 0.25)]["winner"])                # no side has a point that cheap
+        self.assertEqual(c[(0.0, 0.7)]["only"], "remote")           # hybrid starts at 2 Mb/s
+        self.assertEqual(c[(0.0, 2.0)]["winner"], "remote")
+        self.assertAlmostEqual(c[(0.0, 2.0)]["margin"], -(0.12 - rq.best_under_budget(
+            [(0.5, 0.20), (1.0, 0.10), (4.0, 0.05)], 2.0, False)), places=12)
+        self.assertEqual(c[(200.0, 2.0)]["winner"], "hybrid")
+        self.assertAlmostEqual(c[(200.0, 8.0)]["margin"], 0.25 - 0.08, places=12)
+        self.assertEqual(c[(200.0, 8.0)]["hybrid"], ("hybrid", 0.08))
+
+
 if __name__ == "__main__":
     unittest.main()
