@@ -8,28 +8,33 @@ marked (higher SSIM, lower cost); SSIM per frame; stage wall times. Image grids 
 per scene, the ground truth, the local reference, and for each run what the client showed
 and its error map, all error maps on one fixed colour scale with its colour bar.
 """
-import csv
-import gzip
-import io
-import json
 import math
 import os
 import sys
-import zlib
+from typing import NamedTuple
+
+import dhrbench_results as dr
+from dhrbench_results import BadResults
 
 # matplotlib is imported once results.json and frames.csv have been checked (load_matplotlib):
 # a damaged file is reported without the second it takes to import.
-mpimg = plt = None
 EXIT_NO_MATPLOTLIB = 3
 
 
+class Plot(NamedTuple):
+    """matplotlib's pyplot and image modules, loaded by load_matplotlib() and passed to whatever draws."""
+    plt: object
+    mpimg: object
+
+
 def load_matplotlib():
-    global mpimg, plt
+    """Plot(pyplot, image) with the Agg backend; exit 3 with a message where matplotlib is missing."""
     try:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.image as mpimg
         import matplotlib.pyplot as plt
+        return Plot(plt, mpimg)
     except ImportError:
         print("dhrbench report: error: the report needs matplotlib for Debian's python3: apt-get install "
               "python3-matplotlib (or run scripts/setup.sh)", file=sys.stderr)
@@ -38,270 +43,40 @@ def load_matplotlib():
 ERROR_SCALE_LEVELS = 32  # the runner writes |luma difference| 0..32 levels as 0..255 grey
 MAX_RUNS_PER_GRID = 8
 UNIT_NAMES = {"db": "dB"}  # how a declared unit is written in a table heading
-MAX_JSON_DEPTH = 64  # core/json_io.h kMaxJsonDepth: the limit for every JSON dhrbench reads
 EXIT_BAD_INPUT = 2
 
 
-# The image metrics of results written before results.json declared them ("declared", from
-# core/results.cpp): SSIM and PSNR, with the same names.
-DECLARED_BEFORE_RECORD = {"image_metrics": [
-    {"name": "ssim", "unit": "", "higher_is_better": True,
-     "columns": {"local": "ssim_local", "ground_truth": "ssim_ground_truth"},
-     "aggregates": {"local": {"mean": "ssim_local_mean"}, "ground_truth": {"mean": "ssim_ground_truth_mean"}}},
-    {"name": "psnr", "unit": "db", "higher_is_better": True,
-     "columns": {"local": "psnr_local_db", "ground_truth": "psnr_ground_truth_db"},
-     "aggregates": {"local": {"mean": "psnr_local_mean_db"}, "ground_truth": {"mean": "psnr_ground_truth_mean_db"}}}]}
-
-
-class BadResults(Exception):
-    """Damaged input: the message names the file and what is wrong; main() prints it, exit 2."""
-
-
-def excerpt(v, limit=60):
-    try:
-        s = json.dumps(v, ensure_ascii=False)
-    except (TypeError, ValueError, RecursionError):
-        s = repr(v)
-    return s if len(s) <= limit else s[:limit] + "..."
-
-
-def _no_constant(name):
-    raise ValueError(f"{name} is not a JSON number")
-
-
-def _finite_float(text):
-    v = float(text)
-    if math.isinf(v):
-        raise ValueError(f"number out of range: {text[:40]}")
-    return v
-
-
-def load_json(path):
-    """results.json as dhrbench reads JSON: strict (no NaN/Infinity, no 1e400), depth-bounded."""
-    try:
-        with open(path, encoding="utf-8") as f:
-            text = f.read()
-    except OSError as e:
-        raise BadResults(f"{path}: cannot read the file: {e.strerror}")
-    except UnicodeDecodeError as e:
-        raise BadResults(f"{path}: not UTF-8 text (byte {e.start})")
-    try:
-        value = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float)
-    except RecursionError:
-        raise BadResults(f"{path}: JSON nested deeper than {MAX_JSON_DEPTH} levels of arrays and objects "
-                         "(the limit for every JSON dhrbench reads)")
-    except ValueError as e:  # json.JSONDecodeError too
-        raise BadResults(f"{path}: not valid JSON: {str(e)[:240]}")
-    # The depth of what was parsed, without recursion.
-    stack = [(value, 0)]
-    while stack:
-        v, depth = stack.pop()
-        if isinstance(v, (list, dict)):
-            depth += 1
-            if depth > MAX_JSON_DEPTH:
-                raise BadResults(f"{path}: JSON nested deeper than {MAX_JSON_DEPTH} levels of arrays and objects "
-                                 "(the limit for every JSON dhrbench reads)")
-            stack.extend((c, depth) for c in (v.values() if isinstance(v, dict) else v))
-    return value
-
-
-class Checker:
-    """Checks the fields of results.json that the report reads; every problem names its JSON path."""
-
-    def __init__(self, path):
-        self.path = path
-
-    def fail(self, where, what, v):
-        raise BadResults(f"{self.path}: {where}: must be {what}, got {excerpt(v)}")
-
-    def obj(self, v, where):
-        if not isinstance(v, dict):
-            self.fail(where, "a JSON object", v)
-        return v
-
-    def lst(self, v, where):
-        if not isinstance(v, list):
-            self.fail(where, "a list", v)
-        return v
-
-    def num(self, v, where, none_ok=False):
-        if v is None and none_ok:
-            return
-        ok = isinstance(v, (int, float)) and not isinstance(v, bool)
-        if ok:
+def frame_intervals(frames, metrics):
+    """{(run, frames.csv column): (half-width, block length)}: the 95 % interval
+    (experiments/intervals.py, mean_interval) of each run's mean of each declared image metric over its scored
+    frames, in frame order. +inf (PSNR of identical frames) counts as 100 dB, as in the means."""
+    import intervals
+    series = {}
+    cols = [(im["columns"][ref], im.get("unit") == "db") for im in metrics for ref in ("local", "ground_truth")]
+    for row in sorted(frames, key=lambda f: (f["run"], int(f["frame"]))):
+        for col, db in cols:
+            v = row.get(col)
+            if not v:
+                continue
             try:
-                ok = math.isfinite(float(v))
-            except OverflowError:
-                ok = False
-        if not ok:
-            self.fail(where, "a finite number" + (" or null" if none_ok else ""), v)
-
-    def name(self, v, where, filename=False):
-        """A string; a name that becomes part of a file name has no path separator or NUL."""
-        if not isinstance(v, str) or not v or "\0" in v or (filename and ("/" in v or "\\" in v or v in (".", ".."))):
-            self.fail(where, "a non-empty string" + (" without / (it names image files)" if filename else ""), v)
-
-    def results(self, res):
-        self.obj(res, "(top level)")
-        for key in ("context", "experiment", "runs"):
-            if key not in res:
-                raise BadResults(f"{self.path}: \"{key}\" is missing (is this a results.json written by 'dhrbench run'?)")
-        ctx = self.obj(res["context"], "context")
-        if "libraries" in ctx:
-            self.obj(ctx["libraries"], "context.libraries")
-        exp = self.obj(res["experiment"], "experiment")
-        for key in ("name", "description"):
-            if key in exp and not isinstance(exp[key], str):
-                self.fail(f"experiment.{key}", "a string", exp[key])
-        notes = exp.get("notes")
-        if notes is not None and not isinstance(notes, str) and not (
-                isinstance(notes, list) and all(isinstance(n, str) for n in notes)):
-            self.fail("experiment.notes", "a string or a list of strings", notes)
-        if "experiment_path" in res and not isinstance(res["experiment_path"], str):
-            self.fail("experiment_path", "a string", res["experiment_path"])
-        if "wall_s" in res:
-            self.num(res["wall_s"], "wall_s")
-        self.declared = self.declaration(res.get("declared", DECLARED_BEFORE_RECORD))
-        for i, r in enumerate(self.lst(res["runs"], "runs")):
-            self.run(r, f"runs[{i}]")
-
-    def declaration(self, d):
-        """The "declared" record: every image metric with its columns and aggregate keys."""
-        self.obj(d, "declared")
-        if "image_metrics" not in d:
-            raise BadResults(f"{self.path}: declared.image_metrics is missing")
-        for j, m in enumerate(self.lst(d["image_metrics"], "declared.image_metrics")):
-            w = f"declared.image_metrics[{j}]"
-            self.obj(m, w)
-            for key in ("name", "unit"):
-                if not isinstance(m.get(key), str):
-                    self.fail(f"{w}.{key}", "a string", m.get(key))
-            if not isinstance(m.get("higher_is_better"), bool):
-                self.fail(f"{w}.higher_is_better", "true or false", m.get("higher_is_better"))
-            for ref in ("local", "ground_truth"):
-                self.name(self.obj(m.get("columns"), f"{w}.columns").get(ref), f"{w}.columns.{ref}")
-                self.name(self.obj(self.obj(m.get("aggregates"), f"{w}.aggregates").get(ref), f"{w}.aggregates.{ref}")
-                          .get("mean"), f"{w}.aggregates.{ref}.mean")
-        if not d["image_metrics"]:
-            raise BadResults(f"{self.path}: declared.image_metrics is empty (the report needs one metric)")
-        return d
-
-    def run(self, r, where):
-        self.obj(r, where)
-        for key in ("id", "scene", "label"):
-            if key not in r:
-                raise BadResults(f"{self.path}: {where}.{key} is missing")
-        self.name(r["id"], f"{where}.id", filename=True)
-        self.name(r["scene"], f"{where}.scene")
-        if not isinstance(r["label"], str):
-            self.fail(f"{where}.label", "a string", r["label"])
-        if "error" in r and not isinstance(r["error"], str):
-            self.fail(f"{where}.error", "a string", r["error"])
-        for key in ("config", "images"):
-            if key in r:
-                self.obj(r[key], f"{where}.{key}")
-        if "metrics" not in r:
-            if "error" not in r:
-                raise BadResults(f"{self.path}: {where} ({r['id']}) has neither \"metrics\" nor \"error\": the record "
-                                 "is incomplete (a run always records one of them)")
-            return
-        m = self.obj(r["metrics"], f"{where}.metrics")
-        if "frames_displayed" in m and (not isinstance(m["frames_displayed"], int) or isinstance(
-                m["frames_displayed"], bool) or m["frames_displayed"] < 0):
-            self.fail(f"{where}.metrics.frames_displayed", "a whole number >= 0", m["frames_displayed"])
-        w = f"{where}.metrics"
-        for key in ("bandwidth_mbps", "server_fps_virtual", "client_fps_wall"):
-            if key not in m:
-                raise BadResults(f"{self.path}: {w}.{key} is missing")
-            self.num(m[key], f"{w}.{key}")
-        for im in self.declared["image_metrics"]:
-            for ref in ("local", "ground_truth"):
-                key = im["aggregates"][ref]["mean"]
-                if key in m:
-                    self.num(m[key], f"{w}.{key}", none_ok=True)
-        for key in ("passes", "stages_wall"):
-            if key not in m:
-                raise BadResults(f"{self.path}: {w}.{key} is missing")
-        for j, p in enumerate(self.lst(m["passes"], f"{w}.passes")):
-            pw = f"{w}.passes[{j}]"
-            self.obj(p, pw)
-            for key in ("pass", "bytes_per_frame", "server_frames", "frames_lost"):
-                if key not in p:
-                    raise BadResults(f"{self.path}: {pw}.{key} is missing")
-            for key in ("bytes_per_frame", "server_frames", "frames_lost"):
-                self.num(p[key], f"{pw}.{key}")
-            if "delivered_fps" in p:
-                self.num(p["delivered_fps"], f"{pw}.delivered_fps")
-        for stage, st in self.obj(m["stages_wall"], f"{w}.stages_wall").items():
-            sw = f"{w}.stages_wall.{stage}"
-            self.obj(st, sw)
-            for key in ("median_ms", "p95_ms"):
-                if key not in st:
-                    raise BadResults(f"{self.path}: {sw}.{key} is missing")
-                self.num(st[key], f"{sw}.{key}")
-        for key, v in m.items():
-            if key.startswith("buffer_age_ms_"):
-                self.obj(v, f"{w}.{key}")
-                if "median" not in v:
-                    raise BadResults(f"{self.path}: {w}.{key}.median is missing")
-                self.num(v["median"], f"{w}.{key}.median")
+                x = float(v)
+            except ValueError:
+                continue
+            if math.isinf(x) and db and x > 0:
+                x = 100.0
+            if math.isfinite(x):
+                series.setdefault((row["run"], col), []).append(x)
+    out = {}
+    for key, xs in series.items():
+        ci = intervals.mean_interval(xs)
+        if ci is not None:
+            out[key] = ci
+    return out
 
 
-def load_frames(path, column):
-    """frames.csv rows; the columns the report reads are checked (frame an integer, `column` -- the first
-    declared image metric against the local reference, ssim_local -- a number)."""
+def read_image(plot, path):
     try:
-        opener = gzip.open if path.endswith(".gz") else open
-        with opener(path, "rt", encoding="utf-8", newline="") as f:
-            text = f.read()
-        if text and not text.endswith("\n"):
-            raise BadResults(f"{path}: the file ends inside its last row (cut short): a complete row ends with a newline")
-        rows = list(csv.DictReader(io.StringIO(text, newline="")))
-    except OSError as e:
-        raise BadResults(f"{path}: cannot read the file: {e.strerror}")
-    except (UnicodeDecodeError, csv.Error, EOFError, zlib.error) as e:
-        raise BadResults(f"{path}: not a CSV file as 'dhrbench run' writes it: {str(e)[:120]}")
-    for n, row in enumerate(rows, start=2):
-        extra, missing = len(row.get(None) or []), sum(v is None for k, v in row.items() if k is not None)
-        if extra or missing:
-            header = len(row) - (None in row)
-            raise BadResults(f"{path}: line {n}: {header + extra - missing} fields where the header has {header} "
-                             "(a row cut short, or a damaged file)")
-        for key in ("run", "frame", column):
-            if row.get(key) is None:
-                raise BadResults(f"{path}: line {n}: the column \"{key}\" is missing")
-        try:
-            int(row["frame"])
-            if row[column] != "":
-                if not math.isfinite(float(row[column])):
-                    raise ValueError
-        except ValueError:
-            raise BadResults(f"{path}: line {n}: frame must be an integer and {column} a number or empty, got "
-                             f"{excerpt(row['frame'])} and {excerpt(row[column])}")
-    return rows
-
-
-def check_frames_against_runs(frames, runs, path):
-    """Every row of a run of results.json, and per run as many rows as it displayed frames."""
-    count = {}
-    for row in frames:
-        count[row["run"]] = count.get(row["run"], 0) + 1
-    ids = {r["id"] for r in runs}
-    for run_id in count:
-        if run_id not in ids:
-            raise BadResults(f"{path}: rows of run {excerpt(run_id)}, which results.json does not hold")
-    for r in runs:
-        want = r["metrics"].get("frames_displayed") if "metrics" in r else 0
-        if want is None:
-            continue  # results written before frames_displayed was recorded
-        if count.get(r["id"], 0) != want:
-            raise BadResults(f"{path}: run {r['id']} has {count.get(r['id'], 0)} row(s), but results.json says it "
-                             f"displayed {want} frame(s)")
-
-
-def read_image(path):
-    try:
-        return mpimg.imread(path)
+        return plot.mpimg.imread(path)
     except Exception as e:  # PIL and matplotlib raise several kinds for a damaged file
         raise BadResults(f"{path}: not a readable PNG image: {str(e)[:120]}")
 
@@ -332,15 +107,6 @@ def server_ms(run):
                ("server_rasterize", "trace_shadows", "trace_ao", "denoise", "encode", "server_composite") if s in stages)
 
 
-# The headline image metric: the first declared (SSIM), set by main() from results.json.
-HEADLINE = DECLARED_BEFORE_RECORD["image_metrics"][0]
-
-
-def quality(run):
-    """The headline metric's mean against the ground truth where scored, else the local reference."""
-    return metric_value(run, HEADLINE)
-
-
 def metric_value(run, im):
     """An image metric's mean against the ground truth where scored, else the local reference."""
     m = run["metrics"]
@@ -348,11 +114,12 @@ def metric_value(run, im):
     return q if q is not None else m.get(im["aggregates"]["local"]["mean"])
 
 
-def rate_quality_section(d, exp, ok, metrics, out):
-    """Rate-quality curves and BD-rate tables, when the experiment declares "curves"."""
+def rate_quality_section(plot, d, exp, ok, metrics):
+    """Rate-quality curves and BD-rate tables, when the experiment declares "curves" (the lines)."""
     spec = exp.get("curves")
+    out = []
     if not isinstance(spec, dict) or not ok:
-        return
+        return out
     import rate_quality as rq
     vary = [k for k in spec.get("vary", []) if isinstance(k, str)]
     sweep_keys = sorted({k for r in ok for k in r.get("settings", {}) if k not in vary})
@@ -371,7 +138,8 @@ def rate_quality_section(d, exp, ok, metrics, out):
         groups = sorted({(s, c) for s, c, _ in cm})
         scenes = sorted({s for s, _ in groups})
         conds = sorted({c for _, c in groups})
-        fig, axes = plt.subplots(len(scenes), len(conds), figsize=(4.6 * len(conds), 3.6 * len(scenes)), squeeze=False)
+        fig, axes = plot.plt.subplots(len(scenes), len(conds), figsize=(4.6 * len(conds), 3.6 * len(scenes)),
+                                      squeeze=False)
         for i, scene in enumerate(scenes):
             for j, cond in enumerate(conds):
                 ax = axes[i, j]
@@ -389,13 +157,14 @@ def rate_quality_section(d, exp, ok, metrics, out):
         fig.tight_layout()
         name = f"rate_quality_{im['name']}.png"
         fig.savefig(os.path.join(d, "plots", name), dpi=100)
-        plt.close(fig)
+        plot.plt.close(fig)
         out.append(f"![rate against {im['name'].upper()}](plots/{name})\n")
         for anchor in anchors:
             bd_section(rq, cm, anchor, im, out)
         for anchor in anchors:
             bd_section(rq, cm, anchor, im, out, equal_bandwidth=True)
         crossover_section(rq, cm, ok, sweep_keys, im, out)
+    return out
 
 
 def network_rtt_ms(runs):
@@ -459,6 +228,116 @@ def crossover_section(rq, cm, runs, sweep_keys, im, out):
     out.append("")
 
 
+def regime_section(plot, d, exp, ok, metrics, budget_points=12):
+    """Per scene, which side -- hybrid or remote -- gives the better FLIP against the ground truth
+    (SSIM where FLIP is not declared) at each bitrate budget and round-trip time
+    (rate_quality.regime_map: each side's best family at that budget, each family's curve joined
+    by PCHIP in log-rate within its measured range), when the runs hold both sides and a network
+    sweep of constant latencies: a markdown table and a heatmap (plots/regime_map_SCENE.png)."""
+    import rate_quality as rq
+    by_name = {im["name"]: im for im in metrics}
+    im = by_name.get("flip") or by_name.get("ssim")
+    remote = {rq.family_of(r) for r in ok if r.get("config", {}).get("mode") == "remote"
+              or rq.family_of(r).startswith("remote")}
+    hybrid = {rq.family_of(r) for r in ok} - remote
+    rtts = network_rtt_ms(ok)
+    if im is None or not remote or not hybrid or not any(v is not None for v in rtts.values()):
+        return []
+    spec = exp.get("curves") if isinstance(exp.get("curves"), dict) else {}
+    sweep_keys = sorted({k for r in ok for k in r.get("settings", {})})
+    vary = [k for k in spec.get("vary", []) if isinstance(k, str)] or [k for k in sweep_keys if k != "network"]
+    key = im["aggregates"]["ground_truth"]["mean"]
+    higher = im.get("higher_is_better", True)
+    rate = lambda r: r["metrics"]["bandwidth_mbps"] or None  # noqa: E731
+    cm = rq.curves(ok, [k for k in sweep_keys if k not in vary], vary, rate, lambda r: r["metrics"].get(key))
+    rates = [x for pts in cm.values() for x, *_ in pts]
+    if not rates:
+        return []
+    lo, hi = math.log10(min(rates)), math.log10(max(rates))
+    budgets = [10 ** (lo + (hi - lo) * i / (budget_points - 1)) for i in range(budget_points)] if hi > lo else [min(rates)]
+    table = rq.regime_map(cm, lambda f: f in remote, lambda v: rtts.get(v), budgets, "network", higher)
+    # Only scenes where both sides were measured at a constant latency (a remote run over a
+    # trace has no RTT: a map of one side says nothing).
+    table = {k: m for k, m in table.items()
+             if all(any(c[side] for c in m["cells"].values()) for side in ("hybrid", "remote"))}
+    if not table:
+        return []
+    name = im["name"].upper()
+    out = ["## Regime map: hybrid or remote\n",
+           f"Which side gives the better {name} against the ground truth (run means; {'higher' if higher else 'lower'} "
+           "is better) at each bitrate budget (Mb/s on the wire, log-spaced over every run's bitrate) and round-trip "
+           "time (the network's two constant latencies added): per side its best family at that budget, each "
+           f"family's {name} interpolated in log-bitrate by PCHIP within its measured range (a budget above a "
+           "family's dearest point takes that point; none is extrapolated). Cell: **H** hybrid better, R remote "
+           f"better, by the {name} difference shown; *H only* / *R only*: only that side has a run at or under the "
+           "budget; – neither.\n"]
+    for (scene, rest), m in sorted(table.items()):
+        title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
+        fname = "regime_map_" + "".join(c if c.isalnum() or c in "-_" else "_" for c in title).strip("_") + ".png"
+        out.append(f"{title}:\n")
+        out.append("| RTT \\ Mb/s | " + " | ".join(f"{b:.3g}" for b in m["budgets"]) + " |")
+        out.append("|---|" + "---|" * len(m["budgets"]))
+        for rtt in m["rtts"]:
+            cells = []
+            for b in m["budgets"]:
+                c = m["cells"][(rtt, b)]
+                if c["winner"] is None:
+                    cells.append("–")
+                elif c["only"]:
+                    cells.append(f"*{c['only'][0].upper()} only*")
+                elif c["winner"] == "tie":
+                    cells.append("tie")
+                else:
+                    side = "**H**" if c["winner"] == "hybrid" else "R"
+                    cells.append(f"{side} {abs(c['margin']):.4f}")
+            out.append(f"| {rtt:g} ms | " + " | ".join(cells) + " |")
+        out.append("")
+        winners = sorted({c[c["winner"]][0] for c in m["cells"].values() if c["winner"] in ("hybrid", "remote")})
+        if winners:
+            out.append("Best families where a side wins: " + ", ".join(winners) + ".\n")
+        regime_heatmap(plot, m, title, name, os.path.join(d, "plots", fname))
+        out.append(f"![regime map {title}](plots/{fname})\n")
+    return out
+
+
+def regime_heatmap(plot, m, title, name, path):
+    """One scene's regime map as a heatmap: the margin (> 0: hybrid better) on a diverging scale
+    symmetric about 0; cells with one side only marked by text, empty cells grey."""
+    import numpy as np
+    plt = plot.plt
+    rtts, budgets = m["rtts"], m["budgets"]
+    grid = np.full((len(rtts), len(budgets)), np.nan)
+    for i, rtt in enumerate(rtts):
+        for j, b in enumerate(budgets):
+            c = m["cells"][(rtt, b)]
+            if c["margin"] is not None:
+                grid[i, j] = c["margin"]
+    span = float(np.nanmax(np.abs(grid))) if np.isfinite(grid).any() else 1.0
+    fig, ax = plt.subplots(figsize=(1.0 + 0.62 * len(budgets), 1.4 + 0.55 * len(rtts)))
+    cmap = plt.get_cmap("RdBu_r").copy()
+    cmap.set_bad("#dddddd")
+    im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=-(span or 1.0), vmax=span or 1.0, aspect="auto",
+                   origin="lower")
+    for i, rtt in enumerate(rtts):
+        for j, b in enumerate(budgets):
+            c = m["cells"][(rtt, b)]
+            text = ("H only" if c["only"] == "hybrid" else "R only") if c["only"] else ("H" if c["winner"] == "hybrid" else
+                                                                                        "R" if c["winner"] == "remote" else "")
+            if text:
+                ax.text(j, i, text, ha="center", va="center", fontsize=6)
+    ax.set_xticks(range(len(budgets)))
+    ax.set_xticklabels([f"{b:.3g}" for b in budgets], rotation=45, fontsize=7)
+    ax.set_yticks(range(len(rtts)))
+    ax.set_yticklabels([f"{t:g}" for t in rtts], fontsize=7)
+    ax.set_xlabel("bitrate budget (Mb/s, log-spaced)")
+    ax.set_ylabel("round-trip time (ms)")
+    ax.set_title(f"{title}: hybrid (red) or remote (blue), {name} margin", fontsize=8)
+    fig.colorbar(im, ax=ax, label=f"{name} advantage of hybrid")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def size_line(runs):
     """The image size and frames every figure below comes from, from the runs' effective settings
     (each distinct combination with its number of runs when they differ)."""
@@ -475,41 +354,70 @@ def size_line(runs):
 
 def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
     """The BD-rate table (equal quality) or, with `equal_bandwidth`, the BD-quality table of every
-    family against `anchor` on image metric `im`."""
-    table = rq.bd_table(cm, anchor, rq.bd_quality if equal_bandwidth else rq.bd_rate)
+    family against `anchor` on image metric `im` (rate_quality.bd_checked: PCHIP, its flags marked
+    in the cells and explained below the table)."""
+    higher = im.get("higher_is_better", True)
+    table = rq.bd_table(cm, anchor, "quality" if equal_bandwidth else "rate", "pchip", higher)
     if not table:
         return
     fams = sorted({f for row in table.values() for f in row})
     name = im["name"].upper()
+    results = [((scene, cond), f, row[f]) for (scene, cond), row in sorted(table.items()) for f in fams if f in row]
+    valued = [res for _, _, res in results if res.value is not None]
+    # Fewer than 4 points: marked per cell unless every number has it (then said once).
+    few_everywhere = bool(valued) and all("few_points" in res.flags for res in valued)
+    marks = {"methods_disagree": "†", "few_points": "" if few_everywhere else "‡"}
     if equal_bandwidth:
-        better = "higher" if im.get("higher_is_better", True) else "lower"
+        better = "higher" if higher else "lower"
         out.append(f"At equal bandwidth: BD-{name} against **{anchor}** (VCEG-M33's BD-PSNR on {name}: the mean "
-                   f"{name} difference, family minus anchor, over the bitrate range both curves share; {better} is "
-                   "better; – : no shared bitrate range or too few points):\n")
+                   f"{name} difference, family minus anchor, over the bitrate range both curves share, {name} "
+                   f"interpolated by PCHIP in log-bitrate as the JCT-VC common test conditions do; {better} is "
+                   "better; – : no number, the reasons below):\n")
     else:
-        out.append(f"BD-rate against **{anchor}** on {name} (VCEG-M33; negative: the family needs that much "
-                   "less bitrate at equal quality; – : no shared quality range or too few points):\n")
+        out.append(f"BD-rate against **{anchor}** on {name} (VCEG-M33 with PCHIP interpolation of log-bitrate in "
+                   f"{name}, as the JCT-VC common test conditions; negative: the family needs that much less "
+                   "bitrate at equal quality; – : no number, the reasons below):\n")
     out.append("| scene | conditions | " + " | ".join(fams) + " |")
     out.append("|---|---|" + "---|" * len(fams))
     for (scene, cond), row in sorted(table.items()):
-        cells = [(f"{row[f]:+.4f}" if equal_bandwidth else f"{row[f]:+.1f} %") if isinstance(row.get(f), float) else "–"
-                 for f in fams]
+        cells = []
+        for f in fams:
+            res = row.get(f)
+            if res is None or res.value is None:
+                cells.append("–")
+                continue
+            text = f"{res.value:+.4f}" if equal_bandwidth else f"{res.value:+.1f} %"
+            cells.append(text + "".join(marks[k] for k in ("methods_disagree", "few_points") if k in res.flags))
         out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in cond) or '–'} | " + " | ".join(cells) + " |")
     out.append("")
-    reasons = [f"- {scene}, {', '.join(f'{k}={v}' for k, v in cond) or 'all runs'}, {f}: {row[f]}"
-               for (scene, cond), row in sorted(table.items()) for f in fams if isinstance(row.get(f), str)]
+    where = lambda key, f: f"{key[0]}, {', '.join(f'{k}={v}' for k, v in key[1]) or 'all runs'}, {f}"  # noqa: E731
+    disagree = [f"- {where(key, f)}: {res.flags['methods_disagree']}"
+                for key, f, res in results if "methods_disagree" in res.flags]
+    if disagree:
+        out.append("† The PCHIP, Akima and polynomial (VCEG-M33's cubic) fits disagree in sign or by more than "
+                   + ("5 % of the curves' quality span" if equal_bandwidth else "5 percentage points")
+                   + ": the number depends on how the points are joined:\n")
+        out.extend(disagree)
+        out.append("")
+    if few_everywhere:
+        out.append("Every number above comes from curves of fewer than 4 points (VCEG-M33 and the common test "
+                   "conditions use 4): read them as indications.\n")
+    elif any("few_points" in res.flags for res in valued):
+        out.append("‡ A curve of fewer than 4 points (VCEG-M33 and the common test conditions use 4).\n")
+    reasons = [f"- {where(key, f)}: {res.reason}" for key, f, res in results if res.value is None]
     if reasons:
         out.append(f"Why a cell has no {'BD-' + name if equal_bandwidth else 'BD-rate'}:\n")
         out.extend(reasons)
         out.append("")
 
 
-def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
+def scatter_with_front(plot, headline, runs, xkey, xlabel, title, path, logx=False):
+    """Per scene, the headline metric (metric_value) against `xkey` with the Pareto front."""
     scenes = sorted({r["scene"] for r in runs})
-    fig, axes = plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.2), squeeze=False)
+    fig, axes = plot.plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.2), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
-        rs = [r for r in runs if r["scene"] == scene and quality(r) is not None]
-        pts = [(xkey(r), quality(r)) for r in rs]
+        rs = [r for r in runs if r["scene"] == scene and metric_value(r, headline) is not None]
+        pts = [(xkey(r), metric_value(r, headline)) for r in rs]
         if not pts:
             continue
         ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=18, color="tab:blue", zorder=2)
@@ -522,70 +430,61 @@ def scatter_with_front(runs, xkey, xlabel, title, path, logx=False):
             ax.set_xscale("log")
         ax.set_title(scene)
         ax.set_xlabel(xlabel)
-        ax.set_ylabel(f"{HEADLINE['name'].upper()} (vs ground truth where scored, else local reference)")
+        ax.set_ylabel(f"{headline['name'].upper()} (vs ground truth where scored, else local reference)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plot.plt.close(fig)
 
 
-def main(d):
-    results_path = os.path.join(d, "results.json")
-    res = load_json(results_path)
-    checker = Checker(results_path)
-    checker.results(res)
-    global HEADLINE
-    metrics = checker.declared["image_metrics"]
-    HEADLINE = metrics[0]
-    headline_column = HEADLINE["columns"]["local"]
-    frames = []
-    for name in ("frames.csv", "frames.csv.gz"):  # a large one is published compressed
-        if os.path.exists(os.path.join(d, name)):
-            frames = load_frames(os.path.join(d, name), headline_column)
-            break
-    else:
-        raise BadResults(f"{os.path.join(d, 'frames.csv')}: missing: the report needs the frames of every run")
-    check_frames_against_runs(frames, res["runs"], os.path.join(d, "frames.csv"))
-    load_matplotlib()
-    os.makedirs(os.path.join(d, "plots"), exist_ok=True)
-    os.makedirs(os.path.join(d, "grids"), exist_ok=True)
-    ctx = res["context"]
-    exp = res["experiment"]
-    runs = res["runs"]
-    ok = [r for r in runs if "metrics" in r]
-    failed = [r for r in runs if "error" in r]
-
-    out = []
-    out.append(f"# {exp.get('name', 'experiment')}\n")
+def header_section(res):
+    """Title, description, how to regenerate, image size and the measuring conventions."""
+    ctx, exp = res["context"], res["experiment"]
+    out = [f"# {exp.get('name', 'experiment')}\n"]
     if exp.get("description"):
         out.append(exp["description"] + "\n")
     out.append(f"Regenerate: `{ctx.get('command', 'dhrbench run ' + res.get('experiment_path', ''))}` "
                f"(wall time of this run: {res.get('wall_s', float('nan')):.0f} s).\n")
-    out.append(size_line(runs))
+    out.append(size_line(res["runs"]))
     out.append("Virtual time (ms) drives the display, the network and the server schedule; wall time measures "
                "what each stage costs on this machine. Bandwidth counts every packet on the wire: payload, the "
                "44-byte dhrbench header and 28 bytes of IP/UDP. SSIM follows Wang et al. 2004 (Gaussian 11x11, "
                "sigma 1.5, K1 0.01, K2 0.03) on BT.601 luma of the 8-bit sRGB frames.\n")
-    out.append("## Context\n")
-    out.append("| | |\n|---|---|")
-    out.append(f"| git commit | `{ctx.get('git_commit')}`{' (dirty)' if ctx.get('git_dirty') else ''} |")
-    out.append(f"| build | {ctx.get('build_type')}, {ctx.get('compiler')} |")
-    out.append(f"| CPU | {ctx.get('cpu_model')} ({ctx.get('hardware_threads')} hardware threads; "
-               f"threads option {ctx.get('threads') or 'all'}) |")
-    out.append(f"| kernel | {ctx.get('kernel')} |")
-    libs = ", ".join(f"{k} {v}" for k, v in ctx.get("libraries", {}).items())
-    out.append(f"| libraries | {libs} |\n")
+    return out
 
-    out.append("## Results\n")
+
+def context_section(ctx):
+    """The machine and build the results come from."""
+    libs = ", ".join(f"{k} {v}" for k, v in ctx.get("libraries", {}).items())
+    return ["## Context\n", "| | |\n|---|---|",
+            f"| git commit | `{ctx.get('git_commit')}`{' (dirty)' if ctx.get('git_dirty') else ''} |",
+            f"| build | {ctx.get('build_type')}, {ctx.get('compiler')} |",
+            f"| CPU | {ctx.get('cpu_model')} ({ctx.get('hardware_threads')} hardware threads; "
+            f"threads option {ctx.get('threads') or 'all'}) |",
+            f"| kernel | {ctx.get('kernel')} |",
+            f"| libraries | {libs} |\n"]
+
+
+def results_section(ok, failed, metrics, frames):
+    """One row per run: every declared image metric's means with their intervals, bitrate, frame
+    sizes, frame rates, buffer ages and losses; then the failed runs."""
+    out = ["## Results\n"]
     # One column per declared image metric and reference (means over the scored frames).
     quality_columns = [(f"{im['name'].upper()}{' ' + UNIT_NAMES.get(im['unit'], im['unit']) if im['unit'] else ''} "
                         f"{'local' if ref == 'local' else 'truth'}", im["aggregates"][ref]["mean"],
-                        4 if not im["unit"] else 2, im["aggregates"][ref].get("ci95"))
+                        4 if not im["unit"] else 2, im["columns"][ref])
                        for im in metrics for ref in ("local", "ground_truth")]
-    out.append("Quality: mean over the scored frames ± the half-width of its 95 % confidence interval (Student's t, "
-               "frames taken as independent); scored frames: against the local reference / the ground truth.\n")
+    cis = frame_intervals(frames, metrics)
+    blocks = sorted({ci[1] for ci in cis.values()})
+    out.append("Quality: mean over the scored frames ± the half-width of its 95 % confidence interval; scored frames: "
+               "against the local reference / the ground truth. Consecutive frames are correlated, so the "
+               "half-width is Student's t quantile (n - 1 degrees of freedom) times the standard error of the mean "
+               "by a circular block bootstrap (2000 resamples of blocks of consecutive scored frames, fixed seed; "
+               "the block length from each series' lag-1 autocorrelation by Carlstein's AR(1) rule"
+               + (f", here {blocks[0]}..{blocks[-1]} frames" if blocks else "") + "; experiments/intervals.py): "
+               "Student's t interval where frames are independent, wider where they are not.\n")
     out.append("| run | scene | configuration | scored frames | " + " | ".join(c[0] for c in quality_columns) +
                " | Mb/s | bytes/frame per pass | server fps (virtual) | client fps (wall) | buffer age ms (median) "
                "| frames lost |")
@@ -595,8 +494,9 @@ def main(d):
         per_pass = ", ".join(f"{p['pass']} {p['bytes_per_frame']:.0f}" for p in m["passes"] if p["server_frames"])
         ages = [v["median"] for k, v in m.items() if k.startswith("buffer_age_ms_")]
         lost = sum(p["frames_lost"] for p in m["passes"])
-        cells = " | ".join(fmt(m.get(key), digits) + (f" ± {fmt(m.get(ci), digits)}" if m.get(ci) else "")
-                           for _, key, digits, ci in quality_columns)
+        cells = " | ".join(fmt(m.get(key), digits) + (f" ± {fmt(cis[(r['id'], col)][0], digits)}"
+                                                      if m.get(key) is not None and (r["id"], col) in cis else "")
+                           for _, key, digits, col in quality_columns)
         scored = f"{m.get('frames_scored', '–')} / {m.get('frames_scored_ground_truth', '–')}"
         out.append(f"| {r['id']} | {r['scene']} | {r['label']} | {scored} | {cells} | "
                    f"{m['bandwidth_mbps']:.2f} | {per_pass or '–'} | {m['server_fps_virtual']:.1f} | "
@@ -607,9 +507,12 @@ def main(d):
         for r in failed:
             out.append(f"- {r['id']} ({r['label']} on {r['scene']}): `{r['error']}`")
         out.append("")
+    return out
 
-    # Stage times.
-    out.append("## Stage wall times (median / p95 ms)\n")
+
+def stages_section(ok):
+    """Median and p95 wall time of every stage, per run."""
+    out = ["## Stage wall times (median / p95 ms)\n"]
     stage_names = []
     for r in ok:
         for s in r["metrics"]["stages_wall"]:
@@ -622,65 +525,125 @@ def main(d):
         cells = [f"{st[s]['median_ms']:.2f} / {st[s]['p95_ms']:.2f}" if s in st else "–" for s in stage_names]
         out.append(f"| {r['id']} | " + " | ".join(cells) + " |")
     out.append("")
+    return out
 
-    if ok:
-        scatter_with_front(ok, lambda r: r["metrics"]["bandwidth_mbps"], "bandwidth on the wire (Mb/s)",
-                           "Quality against bandwidth", os.path.join(d, "plots", "quality_vs_bandwidth.png"), logx=True)
-        scatter_with_front(ok, server_ms, "server wall time per frame (ms, sum of stage medians)",
-                           "Quality against server time", os.path.join(d, "plots", "quality_vs_server_time.png"))
-        # Frame size against delivered frame rate (the paper's Fig. 10): per run, the bytes of one
-        # server frame (all passes) against the frames per second that arrived complete (the
-        # slowest pass). Under a bandwidth cap, larger frames arrive less often.
-        have_fps = any("delivered_fps" in p for r in ok for p in r["metrics"]["passes"])
-        fig, ax = plt.subplots(figsize=(7, 4.2))
-        for mode, colour in (("hybrid", "tab:blue"), ("remote", "tab:orange")) if have_fps else ():
-            rs = [r for r in ok if r.get("config", {}).get("mode", "hybrid") == mode]
-            xs, ys = [], []
-            for r in rs:
-                passes = [p for p in r["metrics"]["passes"] if p["server_frames"]]
-                if not passes:
-                    continue
-                xs.append(sum(p["bytes_per_frame"] for p in passes))
-                ys.append(min(p.get("delivered_fps", 0.0) for p in passes))
-            if xs:
-                ax.scatter(xs, ys, s=16, color=colour, label=mode)
-        ax.set_xscale("log")
-        ax.set_xlabel("bytes per server frame (all passes, encoded)")
-        ax.set_ylabel("frames delivered complete per second (slowest pass)")
-        ax.set_title("Frame size against delivered frame rate")
+
+def frame_size_plot(plot, ok, path):
+    """Frame size against delivered frame rate (the paper's Fig. 10): per run, the bytes of one
+    server frame (all passes) against the frames per second that arrived complete (the slowest
+    pass). Under a bandwidth cap, larger frames arrive less often. Returns whether the runs
+    recorded the delivered frame rate (else the plot is empty)."""
+    plt = plot.plt
+    have_fps = any("delivered_fps" in p for r in ok for p in r["metrics"]["passes"])
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for mode, colour in (("hybrid", "tab:blue"), ("remote", "tab:orange")) if have_fps else ():
+        rs = [r for r in ok if r.get("config", {}).get("mode", "hybrid") == mode]
+        xs, ys = [], []
+        for r in rs:
+            passes = [p for p in r["metrics"]["passes"] if p["server_frames"]]
+            if not passes:
+                continue
+            xs.append(sum(p["bytes_per_frame"] for p in passes))
+            ys.append(min(p.get("delivered_fps", 0.0) for p in passes))
+        if xs:
+            ax.scatter(xs, ys, s=16, color=colour, label=mode)
+    ax.set_xscale("log")
+    ax.set_xlabel("bytes per server frame (all passes, encoded)")
+    ax.set_ylabel("frames delivered complete per second (slowest pass)")
+    ax.set_title("Frame size against delivered frame rate")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return have_fps
+
+
+def per_frame_plot(plot, ok, frames, headline, path):
+    """The headline metric against the local reference per displayed frame, one panel per scene
+    (at most 12 runs each)."""
+    plt = plot.plt
+    column = headline["columns"]["local"]
+    scenes = sorted({r["scene"] for r in ok})
+    fig, axes = plt.subplots(len(scenes), 1, figsize=(9, 3.2 * len(scenes)), squeeze=False)
+    for ax, scene in zip(axes[:, 0], scenes):
+        for r in [r for r in ok if r["scene"] == scene][:12]:
+            rows = [f for f in frames if f["run"] == r["id"] and f[column] != ""]
+            ax.plot([int(f["frame"]) for f in rows], [float(f[column]) for f in rows],
+                    lw=1, label=f"{r['id']} {r['label']}"[:48])
+        ax.set_title(f"{scene}: {headline['name'].upper()} against the local reference, per displayed frame")
+        ax.set_xlabel("frame")
+        ax.set_ylabel(headline["name"].upper())
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(os.path.join(d, "plots", "frame_size_vs_fps.png"), dpi=110)
-        plt.close(fig)
-        out.append("## Plots\n")
-        out.append("Red: the Pareto front (no other run of the scene is both cheaper and better).\n")
-        out.append("![quality against bandwidth](plots/quality_vs_bandwidth.png)\n")
-        out.append("![quality against server time](plots/quality_vs_server_time.png)\n")
-        if have_fps:
-            out.append("![frame size against delivered frame rate](plots/frame_size_vs_fps.png)\n")
-        # SSIM per frame.
-        if frames:
-            scenes = sorted({r["scene"] for r in ok})
-            fig, axes = plt.subplots(len(scenes), 1, figsize=(9, 3.2 * len(scenes)), squeeze=False)
-            for ax, scene in zip(axes[:, 0], scenes):
-                for r in [r for r in ok if r["scene"] == scene][:12]:
-                    rows = [f for f in frames if f["run"] == r["id"] and f[headline_column] != ""]
-                    ax.plot([int(f["frame"]) for f in rows], [float(f[headline_column]) for f in rows],
-                            lw=1, label=f"{r['id']} {r['label']}"[:48])
-                ax.set_title(f"{scene}: {HEADLINE['name'].upper()} against the local reference, per displayed frame")
-                ax.set_xlabel("frame")
-                ax.set_ylabel(HEADLINE["name"].upper())
-                ax.grid(alpha=0.3)
-                ax.legend(fontsize=6, loc="lower left")
-            fig.tight_layout()
-            fig.savefig(os.path.join(d, "plots", "ssim_per_frame.png"), dpi=110)
-            plt.close(fig)
-            out.append("![SSIM per frame](plots/ssim_per_frame.png)\n")
+        ax.legend(fontsize=6, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
-    rate_quality_section(d, exp, ok, metrics, out)
 
-    # Image grids.
+def plots_section(plot, d, ok, frames, headline):
+    """Quality against bandwidth and server time (Pareto fronts), frame size against frame rate,
+    the headline metric per frame."""
+    if not ok:
+        return []
+    plots = os.path.join(d, "plots")
+    scatter_with_front(plot, headline, ok, lambda r: r["metrics"]["bandwidth_mbps"], "bandwidth on the wire (Mb/s)",
+                       "Quality against bandwidth", os.path.join(plots, "quality_vs_bandwidth.png"), logx=True)
+    scatter_with_front(plot, headline, ok, server_ms, "server wall time per frame (ms, sum of stage medians)",
+                       "Quality against server time", os.path.join(plots, "quality_vs_server_time.png"))
+    have_fps = frame_size_plot(plot, ok, os.path.join(plots, "frame_size_vs_fps.png"))
+    out = ["## Plots\n", "Red: the Pareto front (no other run of the scene is both cheaper and better).\n",
+           "![quality against bandwidth](plots/quality_vs_bandwidth.png)\n",
+           "![quality against server time](plots/quality_vs_server_time.png)\n"]
+    if have_fps:
+        out.append("![frame size against delivered frame rate](plots/frame_size_vs_fps.png)\n")
+    if frames:
+        per_frame_plot(plot, ok, frames, headline, os.path.join(plots, "ssim_per_frame.png"))
+        out.append("![SSIM per frame](plots/ssim_per_frame.png)\n")
+    return out
+
+
+def grid_figure(plot, img_dir, scene, chunk, path):
+    """One image grid: the references, then per run what the client showed, its error map and
+    (where written for every run of the chunk) FLIP's error map."""
+    plt = plot.plt
+    refs = []
+    first = chunk[0]["id"]
+    if os.path.exists(os.path.join(img_dir, first + "_truth.png")):
+        refs.append(("ground truth", first + "_truth.png"))
+    refs.append((f"local reference ({first})", first + "_local.png"))
+    cols = max(len(chunk), len(refs))
+    have_flip = all(os.path.exists(os.path.join(img_dir, r["id"] + "_flip.png")) for r in chunk)
+    fig, axes = plt.subplots(4 if have_flip else 3, cols, figsize=(3.2 * cols, 8.8 if have_flip else 6.6),
+                             squeeze=False)
+    for ax in axes.flat:
+        ax.axis("off")
+    for c, (title, name) in enumerate(refs):
+        axes[0, c].imshow(read_image(plot, os.path.join(img_dir, name)))
+        axes[0, c].set_title(title, fontsize=8)
+    im = None
+    for c, r in enumerate(chunk):
+        axes[1, c].imshow(read_image(plot, os.path.join(img_dir, r["id"] + "_shown.png")))
+        axes[1, c].set_title(f"{r['id']}: {r['label']}"[:44], fontsize=7)
+        err = read_image(plot, os.path.join(img_dir, r["id"] + "_error.png"))
+        if err.ndim == 3:
+            err = err[..., 0]
+        im = axes[2, c].imshow(err * ERROR_SCALE_LEVELS, cmap="viridis", vmin=0, vmax=ERROR_SCALE_LEVELS)
+        axes[2, c].set_title(f"error vs {r.get('images', {}).get('error_against', 'reference')}", fontsize=7)
+        if have_flip:
+            axes[3, c].imshow(read_image(plot, os.path.join(img_dir, r["id"] + "_flip.png")))
+            axes[3, c].set_title("FLIP error map (0 black .. 1 yellow)", fontsize=7)
+    if im is not None:
+        fig.colorbar(im, ax=list(axes[2, :]), orientation="vertical", fraction=0.02, pad=0.01,
+                     label="|luma difference|\n(8-bit levels)")
+    fig.suptitle(f"{scene}: last scored frame", fontsize=10)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def grids_section(plot, d, ok):
+    """Per scene, grids of at most MAX_RUNS_PER_GRID runs (grid_figure); a published report
+    without its per-run images lists the grids it keeps."""
     img_dir = os.path.join(d, "images")
     grids = []
     for scene in sorted({r["scene"] for r in ok}):
@@ -692,55 +655,40 @@ def main(d):
             grids += sorted((g for g in os.listdir(os.path.join(d, "grids")) if g.startswith(stem) and g.endswith(".png")
                              and g[len(stem):-4].isdigit()), key=lambda g: int(g[len(stem):-4]))
         for part in range(0, len(rs), MAX_RUNS_PER_GRID):
-            chunk = rs[part:part + MAX_RUNS_PER_GRID]
-            refs = []
-            first = chunk[0]["id"]
-            if os.path.exists(os.path.join(img_dir, first + "_truth.png")):
-                refs.append(("ground truth", first + "_truth.png"))
-            refs.append((f"local reference ({first})", first + "_local.png"))
-            cols = max(len(chunk), len(refs))
-            have_flip = all(os.path.exists(os.path.join(img_dir, r["id"] + "_flip.png")) for r in chunk)
-            fig, axes = plt.subplots(4 if have_flip else 3, cols, figsize=(3.2 * cols, 8.8 if have_flip else 6.6),
-                                     squeeze=False)
-            for ax in axes.flat:
-                ax.axis("off")
-            for c, (title, name) in enumerate(refs):
-                axes[0, c].imshow(read_image(os.path.join(img_dir, name)))
-                axes[0, c].set_title(title, fontsize=8)
-            im = None
-            for c, r in enumerate(chunk):
-                axes[1, c].imshow(read_image(os.path.join(img_dir, r["id"] + "_shown.png")))
-                axes[1, c].set_title(f"{r['id']}: {r['label']}"[:44], fontsize=7)
-                err = read_image(os.path.join(img_dir, r["id"] + "_error.png"))
-                if err.ndim == 3:
-                    err = err[..., 0]
-                im = axes[2, c].imshow(err * ERROR_SCALE_LEVELS, cmap="viridis", vmin=0, vmax=ERROR_SCALE_LEVELS)
-                axes[2, c].set_title(f"error vs {r.get('images', {}).get('error_against', 'reference')}", fontsize=7)
-                if have_flip:
-                    axes[3, c].imshow(read_image(os.path.join(img_dir, r["id"] + "_flip.png")))
-                    axes[3, c].set_title("FLIP error map (0 black .. 1 yellow)", fontsize=7)
-            if im is not None:
-                fig.colorbar(im, ax=list(axes[2, :]), orientation="vertical", fraction=0.02, pad=0.01,
-                             label="|luma difference|\n(8-bit levels)")
-            fig.suptitle(f"{scene}: last scored frame", fontsize=10)
             name = f"{stem}{part // MAX_RUNS_PER_GRID}.png"
-            fig.savefig(os.path.join(d, "grids", name), dpi=100)
-            plt.close(fig)
+            grid_figure(plot, img_dir, scene, rs[part:part + MAX_RUNS_PER_GRID], os.path.join(d, "grids", name))
             grids.append(name)
-    if grids:
-        out.append("## Image grids\n")
-        out.append("Top: references. Then what the client displayed; the error of each against the "
-                   "ground truth where it was scored on that frame, else against the local reference, on one fixed "
-                   f"colour scale (0..{ERROR_SCALE_LEVELS} levels of luma difference); and, where written, FLIP's "
-                   "error map against the same reference on FLIP's own colour map (magma, 0..1).\n")
-        for g in grids:
-            out.append(f"![{g}](grids/{g})\n")
+    if not grids:
+        return []
+    out = ["## Image grids\n",
+           "Top: references. Then what the client displayed; the error of each against the ground truth where it "
+           "was scored on that frame, else against the local reference, on one fixed colour scale "
+           f"(0..{ERROR_SCALE_LEVELS} levels of luma difference); and, where written, FLIP's error map against the "
+           "same reference on FLIP's own colour map (magma, 0..1).\n"]
+    out += [f"![{g}](grids/{g})\n" for g in grids]
+    return out
 
+
+def notes_section(exp):
     notes = exp.get("notes")
-    if notes:
-        out.append("## Notes\n")
-        out.append(notes if isinstance(notes, str) else "\n".join(notes))
-        out.append("")
+    if not notes:
+        return []
+    return ["## Notes\n", notes if isinstance(notes, str) else "\n".join(notes), ""]
+
+
+def main(d):
+    loaded = dr.load(d)  # checked: a damaged file is one BadResults, before matplotlib loads
+    plot = load_matplotlib()
+    for sub in ("plots", "grids"):
+        os.makedirs(os.path.join(d, sub), exist_ok=True)
+    res, metrics, headline = loaded.results, loaded.declared["image_metrics"], loaded.headline
+    ok = [r for r in res["runs"] if "metrics" in r]
+    failed = [r for r in res["runs"] if "error" in r]
+    out = header_section(res) + context_section(res["context"]) + results_section(ok, failed, metrics, loaded.frames)
+    out += stages_section(ok) + plots_section(plot, d, ok, loaded.frames, headline)
+    out += rate_quality_section(plot, d, res["experiment"], ok, metrics)
+    out += regime_section(plot, d, res["experiment"], ok, metrics)
+    out += grids_section(plot, d, ok) + notes_section(res["experiment"])
     with open(os.path.join(d, "report.md"), "w") as f:
         f.write("\n".join(out) + "\n")
 

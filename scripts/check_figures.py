@@ -32,8 +32,6 @@ Usage:
   --print-run-args NAME: print the arguments of `dhrbench run` that rerun report NAME and nothing else.
 """
 import argparse
-import csv
-import gzip
 import json
 import math
 import os
@@ -43,6 +41,8 @@ import shutil
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "experiments"))
+import dhrbench_results as dr  # noqa: E402  (results.json and frames.csv(.gz) readers, errors naming the file)
 
 # Metric keys measured on the wall clock: they depend on the machine and its load.
 TIMING_KEYS = {"stages_wall", "client_frame_ms_median", "client_frame_ms_p95", "client_fps_wall", "wall_s"}
@@ -61,8 +61,8 @@ ALIASES = {
 def declared_wall_clock(results_path):
     """The wall-clock run metrics and frames.csv columns a results.json declares (none if older)."""
     try:
-        declared = json.load(open(results_path)).get("declared", {})
-    except (OSError, ValueError):
+        declared = dr.load_json(results_path).get("declared", {})
+    except (OSError, ValueError, AttributeError):
         return set(), set()
     keys = {m["key"] for m in declared.get("run_metrics", []) if m.get("wall_clock")}
     return keys, set(declared.get("frames_csv_wall_clock_columns", []))
@@ -71,8 +71,8 @@ def declared_wall_clock(results_path):
 def pass_names_of_runs(results_path):
     """Per run id, the names of the passes it sent (metrics.passes[].pass)."""
     try:
-        runs = json.load(open(results_path))["runs"]
-    except (OSError, ValueError, KeyError):
+        runs = dr.load_json(results_path)["runs"]
+    except (OSError, ValueError, KeyError, TypeError):
         return {}
     return {r["id"]: [p["pass"] for p in r.get("metrics", {}).get("passes", [])] for r in runs}
 
@@ -136,9 +136,9 @@ def compare_results(new_path, old_path, problems, notes, run_map):
     """Compares results.json run by run; fills `run_map` (new run id -> baseline run id) for
     compare_frames."""
     try:
-        new = json.load(open(new_path))
-        old = json.load(open(old_path))
-    except (OSError, ValueError) as e:
+        new = dr.load_json(new_path)
+        old = dr.load_json(old_path)
+    except (OSError, ValueError) as e:  # dr.BadResults is a ValueError naming the file
         problems.append(f"cannot read results: {e}")
         return 0
     run_map.clear()
@@ -178,17 +178,10 @@ def compare_results(new_path, old_path, problems, notes, run_map):
     return compared
 
 
-def open_frames(path):
-    """frames.csv, or its gzip-compressed form frames.csv.gz (how a published report larger than
-    4 MB keeps it: scripts/regenerate_reports.sh)."""
-    if not os.path.exists(path) and os.path.exists(path + ".gz"):
-        return gzip.open(path + ".gz", "rt", newline="")
-    return open(path, newline="")
-
-
 def read_frames(path, passes_of_run):
-    with open_frames(path) as f:
-        rows = [old_frame_columns(r, passes_of_run.get(r["run"], [])) for r in csv.DictReader(f)]
+    """frames.csv, or frames.csv.gz beside it (how a published report larger than 4 MB keeps it:
+    scripts/regenerate_reports.sh), keyed by (run, frame), wall-clock columns left out."""
+    rows = [old_frame_columns(r, passes_of_run.get(r["run"], [])) for r in dr.read_csv_rows(path)]
     return {(r["run"], r["frame"]): {ALIASES.get(k, k): v for k, v in r.items() if k not in TIMING_COLUMNS}
             for r in rows}
 
@@ -206,7 +199,7 @@ def compare_frames(new_path, old_path, problems, run_map, notes=None):
             old_id = run_map.get(run, run)
             if old_id in old_runs:
                 new[(old_id, frame)] = dict(row, run=old_id)
-    except OSError as e:
+    except (OSError, ValueError, KeyError) as e:  # dr.BadResults is a ValueError naming the file
         problems.append(f"cannot read frames.csv: {e}")
         return 0
     if set(new) != set(old):
@@ -250,7 +243,7 @@ def experiment_args(name, baseline):
         return [own]
     path = os.path.join(baseline, name, "results.json")
     try:
-        command = json.load(open(path))["context"]["command"]
+        command = dr.load_json(path)["context"]["command"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise SystemExit(f"{name}: no experiments/{name}.json, and no context.command in {path} ({e})")
     head, *sets = command.split(" --set ")

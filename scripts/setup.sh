@@ -20,8 +20,8 @@ PACKAGES=(
   assimp-testmodels
   # fuzz targets (libFuzzer) and sanitizer runtimes for clang
   clang libclang-rt-14-dev
-  # report plots
-  python3 python3-matplotlib python3-numpy
+  # report plots; results as tables (experiments/dhrbench_results: runs_frame, frames_frame)
+  python3 python3-matplotlib python3-numpy python3-pandas
   # tests: scikit-image is the reference SSIM (tests/ssim_reference.py)
   python3-skimage
   # the one-node Slurm cluster of tests/slurm/run_slurm_test.sh (scripts/slurm/)

@@ -1,5 +1,7 @@
 """BD-rate on cases with a known answer (experiments/rate_quality.py); run by CTest with Debian's
-python3 (numpy comes with python3-matplotlib)."""
+python3 (numpy comes with python3-matplotlib). SciPy (python3-scipy, which python3-skimage
+brings) is an independent implementation of PCHIP and Akima for the cross-checks; they are
+skipped where it is missing."""
 import math
 import os
 import sys
@@ -7,6 +9,12 @@ import unittest
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "experiments"))
 import rate_quality as rq  # noqa: E402
+
+try:
+    import numpy as np
+    from scipy.interpolate import Akima1DInterpolator, PchipInterpolator
+except ImportError:  # the cross-checks against SciPy are skipped
+    PchipInterpolator = Akima1DInterpolator = None
 
 ANCHOR = [(1.0, 30.0), (2.0, 33.5), (4.0, 36.0), (8.0, 38.0)]
 
@@ -48,6 +56,170 @@ class BdRate(unittest.TestCase):
                 rq.bd_rate(ANCHOR, bad)
 
 
+class EveryMethod(unittest.TestCase):
+    """Known answers that hold for every way of joining the points."""
+
+    CURVES = [ANCHOR, [(0.5, 0.91), (1.0, 0.95), (3.0, 0.985)], [(1.0, 0.90), (4.0, 0.98)],
+              [(0.3, 20.0), (0.7, 26.0), (1.1, 28.5), (2.9, 33.0), (7.5, 36.2), (20.0, 38.0)]]
+
+    def test_a_constant_rate_factor_is_exactly_that_factor(self):
+        for method in rq.METHODS:
+            for curve in self.CURVES:
+                for k in (0.5, 0.8, 1.0, 1.25, 3.0):
+                    scaled = [(r * k, q) for r, q in curve]
+                    self.assertAlmostEqual(rq.bd_rate(curve, scaled, method), (k - 1) * 100, places=8,
+                                           msg=f"{method} {curve} k={k}")
+
+    def test_identical_curves_are_zero(self):
+        for method in rq.METHODS:
+            for curve in self.CURVES:
+                self.assertAlmostEqual(rq.bd_rate(curve, curve, method), 0.0, places=10)
+                self.assertAlmostEqual(rq.bd_quality(curve, curve, method), 0.0, places=10)
+
+    def test_linear_in_log_curves(self):
+        # q = a + b log10(r) at uneven rates: every method reproduces the line, so BD-rate between
+        # two parallel lines is 10^(-(a_test - a_anchor) / b) - 1 and BD-quality the offset.
+        anchor = [(r, 30.0 + 10.0 * math.log10(r)) for r in (1.0, 1.7, 4.0, 9.0, 11.0)]
+        test = [(r, 32.0 + 10.0 * math.log10(r)) for r in (0.8, 2.5, 3.0, 7.0)]
+        for method in rq.METHODS:
+            self.assertAlmostEqual(rq.bd_rate(anchor, test, method), (10 ** -0.2 - 1) * 100, places=8, msg=method)
+            self.assertAlmostEqual(rq.bd_quality(anchor, test, method), 2.0, places=9, msg=method)
+
+    def test_unknown_method_is_an_error(self):
+        with self.assertRaises(ValueError):
+            rq.bd_rate(ANCHOR, ANCHOR, "spline")
+
+    def test_points_at_one_quality_are_no_function_for_the_splines(self):
+        bent = [(1.0, 30.0), (2.0, 33.0), (3.0, 33.0), (8.0, 38.0)]
+        for method in ("pchip", "akima"):
+            with self.assertRaises(ValueError):
+                rq.bd_rate(ANCHOR, bent, method)
+
+
+def _scipy_bd(cls, anchor, test, rate=True):
+    """BD-rate (percent) or BD-quality through a SciPy interpolator and its exact integral: the
+    `bjontegaard` package's 'pchip' method is scipy.interpolate.PchipInterpolator integrated this
+    way (FAU-LMS/bjontegaard, bjontegaard/bd_piecewise_cubic.py)."""
+    def xy(c):
+        x = np.array([q if rate else math.log10(r) for r, q in c])
+        y = np.array([math.log10(r) if rate else q for r, q in c])
+        o = np.argsort(x)
+        return x[o], y[o]
+    (xa, ya), (xt, yt) = xy(anchor), xy(test)
+    lo, hi = max(xa[0], xt[0]), min(xa[-1], xt[-1])
+    gap = (cls(xt, yt).integrate(lo, hi) - cls(xa, ya).integrate(lo, hi)) / (hi - lo)
+    return (10 ** gap - 1) * 100 if rate else gap
+
+
+@unittest.skipIf(PchipInterpolator is None, "scipy is not installed")
+class AgainstScipy(unittest.TestCase):
+    # The example curves of the `bjontegaard` package's README and example_usage.py (FAU-LMS,
+    # https://github.com/FAU-LMS/bjontegaard; x265 at four presets, kb/s and PSNR dB). Neither
+    # the README nor the examples print their results, and no published value of them was found:
+    # the reference here is SciPy, an independent implementation of the same interpolants.
+    FAU_LOW = ([9487.76, 4593.60, 2486.44, 1358.24], [40.037, 38.615, 36.845, 34.851],
+               [9787.80, 4469.00, 2451.52, 1356.24], [40.121, 38.651, 36.970, 34.987])
+    FAU_HIGH = ([82472.76, 26875.24, 9487.76, 4593.6], [43.825, 41.404, 40.037, 38.615],
+                [99896.96, 33952.04, 9787.8, 4469.0], [44.731, 41.875, 40.121, 38.651])
+
+    def cases(self):
+        out = []
+        for ra, qa, rt, qt in (self.FAU_LOW, self.FAU_HIGH):
+            out.append((list(zip(ra, qa)), list(zip(rt, qt))))
+        rng = np.random.default_rng(7)
+        for _ in range(40):
+            n, m = rng.integers(2, 8, size=2)
+            a = sorted(zip(np.exp(rng.uniform(-1, 3, n)), 0.8 + 0.2 * rng.uniform(0, 1, n)))
+            t = sorted(zip(np.exp(rng.uniform(-1, 3, m)), 0.8 + 0.2 * rng.uniform(0, 1, m)))
+            # Monotone curves (rate and quality sorted together), as measured ones are.
+            a = list(zip(sorted(r for r, _ in a), sorted(q for _, q in a)))
+            t = list(zip(sorted(r for r, _ in t), sorted(q for _, q in t)))
+            out.append((a, t))
+        return out
+
+    def test_pchip_and_akima_equal_scipy(self):
+        checked = 0
+        for a, t in self.cases():
+            for method, cls in (("pchip", PchipInterpolator), ("akima", Akima1DInterpolator)):
+                if method == "akima" and min(len(a), len(t)) < 3:
+                    continue  # two points: ours is the line; SciPy 1.10's Akima extrapolates garbage slopes
+                for rate in (True, False):
+                    fn = rq.bd_rate if rate else rq.bd_quality
+                    try:
+                        ours = fn(a, t, method)
+                    except rq.NoOverlap:
+                        continue
+                    self.assertAlmostEqual(ours, _scipy_bd(cls, a, t, rate), places=8, msg=f"{method} {a} {t}")
+                    checked += 1
+        self.assertGreater(checked, 60)
+
+    def test_slopes_and_values_equal_scipy(self):
+        x = np.array([0.1, 0.4, 0.5, 1.3, 2.0, 2.2, 4.0])
+        for y in (np.array([1.0, 2.0, 2.1, 2.1, 3.5, 3.0, 5.0]), np.array([0.0, 1.0, 1.5, 1.8, 2.5, 2.6, 3.0])):
+            np.testing.assert_allclose(rq.pchip_slopes(x, y), PchipInterpolator(x, y).derivative()(x), atol=1e-12)
+            np.testing.assert_allclose(rq.akima_slopes(x, y), Akima1DInterpolator(x, y).derivative()(x), atol=1e-12)
+            pts = list(zip(x, y))
+            for t in np.linspace(0.1, 4.0, 37):
+                self.assertAlmostEqual(rq.interpolate(pts, t, "pchip"), float(PchipInterpolator(x, y)(t)), places=12)
+                self.assertAlmostEqual(rq.interpolate(pts, t, "akima"), float(Akima1DInterpolator(x, y)(t)), places=12)
+        with self.assertRaises(ValueError):  # no extrapolation
+            rq.interpolate(list(zip(x, x)), 4.5)
+
+
+class Checked(unittest.TestCase):
+    def test_a_good_curve_has_no_flags(self):
+        res = rq.bd_checked(ANCHOR, [(r * 0.8, q) for r, q in ANCHOR])
+        self.assertAlmostEqual(res.value, -20.0, places=9)
+        self.assertEqual(res.flags, {})
+        self.assertEqual(set(res.by_method), set(rq.METHODS))
+
+    def test_a_curve_that_is_not_monotonic_has_no_number(self):
+        dip = [(1.0, 30.0), (2.0, 34.0), (4.0, 33.0), (8.0, 38.0)]
+        res = rq.bd_checked(ANCHOR, dip)
+        self.assertIsNone(res.value)
+        self.assertIn("the test curve is not monotonic", res.reason)
+        self.assertIn("34 at 2 Mb/s to 33 at 4 Mb/s", res.reason)
+        res = rq.bd_checked(dip, ANCHOR, "quality")
+        self.assertIsNone(res.value)
+        self.assertIn("the anchor curve is not monotonic", res.reason)
+        # Flat: no BD-rate (quality is its abscissa); BD-quality has one.
+        flat = [(1.0, 30.0), (2.0, 34.0), (4.0, 34.0), (8.0, 38.0)]
+        self.assertIsNone(rq.bd_checked(ANCHOR, flat).value)
+        self.assertIn("stays", rq.bd_checked(ANCHOR, flat).reason)
+        self.assertIsNotNone(rq.bd_checked(ANCHOR, flat, "quality").value)
+
+    def test_lower_is_better(self):
+        flip = [(1.0, 0.30), (2.0, 0.20), (4.0, 0.10)]
+        better = [(1.0, 0.25), (2.0, 0.15), (4.0, 0.08)]
+        self.assertLess(rq.bd_checked(flip, better, higher_is_better=False).value, 0.0)
+        self.assertIsNone(rq.bd_checked(flip, better).value)  # read as higher-is-better: falls
+        res = rq.bd_checked(flip, [(1.0, 0.25), (2.0, 0.15), (4.0, 0.16)], higher_is_better=False)
+        self.assertIn("rises from 0.15 at 2 Mb/s to 0.16 at 4 Mb/s (it must fall", res.reason)
+
+    def test_methods_that_disagree_are_flagged(self):
+        a = [(1, 0.80), (2, 0.90), (3, 0.905), (8, 0.99)]
+        t = [(1, 0.85), (1.5, 0.86), (4, 0.97), (6, 0.98)]
+        res = rq.bd_checked(a, t)
+        self.assertAlmostEqual(res.value, res.by_method["pchip"])
+        self.assertIn("methods_disagree", res.flags)
+        self.assertIn("polynomial", res.flags["methods_disagree"])
+        self.assertNotIn("few_points", res.flags)
+        self.assertEqual(rq.bd_checked(a, t, method="akima").value, res.by_method["akima"])
+
+    def test_fewer_than_4_points_are_flagged(self):
+        a = [(0.5, 0.91), (1.0, 0.95), (3.0, 0.985)]
+        res = rq.bd_checked(a, [(r * 1.5, q) for r, q in a])
+        self.assertAlmostEqual(res.value, 50.0, places=8)
+        self.assertIn("few_points", res.flags)
+        self.assertIn("the anchor curve has 3 points", res.flags["few_points"])
+
+    def test_disjoint_curves_have_a_reason(self):
+        res = rq.bd_checked(ANCHOR, [(1.0, 40.0), (2.0, 42.0)])
+        self.assertIsNone(res.value)
+        self.assertTrue(res.no_overlap)
+        self.assertIn("do not overlap", res.reason)
+
+
 class BdQuality(unittest.TestCase):
     def test_same_curve_is_zero(self):
         self.assertAlmostEqual(rq.bd_quality(ANCHOR, ANCHOR), 0.0, places=9)
@@ -80,7 +252,7 @@ class BdQuality(unittest.TestCase):
                                                             ("b", 18, 4.0, 0.97), ("b", 28, 1.0, 0.92)])]
         cm = rq.curves(runs, ["crf"], ["crf"], lambda r: r["mbps"], lambda r: r["ssim"])
         table = rq.bd_table(cm, "a", rq.bd_quality)
-        self.assertAlmostEqual(table[("room", ())]["b"], 0.02, places=9)
+        self.assertAlmostEqual(table[("room", ())]["b"].value, 0.02, places=9)
 
 
 class Curves(unittest.TestCase):
@@ -97,7 +269,7 @@ class Curves(unittest.TestCase):
         self.assertEqual([p[0] for p in cm[key]], [1.0, 4.0])
         table = rq.bd_table(cm, "remote")
         self.assertEqual(set(table), {("room", (("downlink.latency_ms", "0"),)), ("room", (("downlink.latency_ms", "50"),))})
-        self.assertLess(table[("room", (("downlink.latency_ms", "0"),))]["hybrid"], 0.0)
+        self.assertLess(table[("room", (("downlink.latency_ms", "0"),))]["hybrid"].value, 0.0)
 
 
 class Crossover(unittest.TestCase):
@@ -135,6 +307,40 @@ class Crossover(unittest.TestCase):
         # A trace network (no RTT) is left out.
         out = rq.crossover(cm, lambda f: f.startswith("remote"), lambda v: None if v == "rtt50" else float(v[3:]))
         self.assertEqual(out[("room", ())]["rtts"], [0.0, 200.0])
+
+
+class RegimeMap(unittest.TestCase):
+    def test_best_under_budget(self):
+        flip = [(1.0, 0.30), (2.0, 0.20), (4.0, 0.10)]
+        self.assertIsNone(rq.best_under_budget(flip, 0.5, higher_is_better=False))
+        self.assertEqual(rq.best_under_budget(flip, 1.0, higher_is_better=False), 0.30)
+        self.assertEqual(rq.best_under_budget(flip, 9.0, higher_is_better=False), 0.10)  # its best point, not beyond
+        # Within the range: PCHIP in log-rate; the points lie on a line in log2, so midway in log.
+        self.assertAlmostEqual(rq.best_under_budget(flip, math.sqrt(2), higher_is_better=False), 0.25, places=9)
+
+    def test_map(self):
+        # FLIP (lower is better). Remote gets worse with latency, hybrid does not; hybrid needs
+        # at least 2 Mb/s.
+        rows = []
+        for rtt, drop in ((0, 0.0), (200, 0.2)):
+            rows += [("remote h264", rtt, x, q) for x, q in ((0.5, 0.20 + drop), (1.0, 0.10 + drop), (4.0, 0.05 + drop))]
+            rows += [("hybrid", rtt, x, q) for x, q in ((2.0, 0.12), (8.0, 0.08))]
+        runs = [{"id": f"r{i}", "scene": "room", "family": f, "settings": {"network": f"rtt{rtt}", "crf": i},
+                 "mbps": x, "flip": q} for i, (f, rtt, x, q) in enumerate(rows)]
+        cm = rq.curves(runs, ["network", "crf"], ["crf"], lambda r: r["mbps"], lambda r: r["flip"])
+        out = rq.regime_map(cm, lambda f: f.startswith("remote"), lambda v: float(v[3:]), [0.25, 0.7, 2.0, 8.0],
+                            higher_is_better=False)
+        m = out[("room", ())]
+        self.assertEqual(m["rtts"], [0.0, 200.0])
+        c = m["cells"]
+        self.assertIsNone(c[(0.0, 0.25)]["winner"])                # no side has a point that cheap
+        self.assertEqual(c[(0.0, 0.7)]["only"], "remote")           # hybrid starts at 2 Mb/s
+        self.assertEqual(c[(0.0, 2.0)]["winner"], "remote")
+        self.assertAlmostEqual(c[(0.0, 2.0)]["margin"], -(0.12 - rq.best_under_budget(
+            [(0.5, 0.20), (1.0, 0.10), (4.0, 0.05)], 2.0, False)), places=12)
+        self.assertEqual(c[(200.0, 2.0)]["winner"], "hybrid")
+        self.assertAlmostEqual(c[(200.0, 8.0)]["margin"], 0.25 - 0.08, places=12)
+        self.assertEqual(c[(200.0, 8.0)]["hybrid"], ("hybrid", 0.08))
 
 
 if __name__ == "__main__":
