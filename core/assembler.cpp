@@ -1,5 +1,7 @@
 #include "core/assembler.h"
 
+#include "core/fec.h"
+
 #include "core/error.h"
 
 #include <algorithm>
@@ -170,14 +172,14 @@ uint64_t Assembler::packets_missing() const {
 }
 
 void Assembler::add_in_flight(const Frame& f) {
-  stats_.bytes_in_flight += f.bytes.size();
+  stats_.bytes_in_flight += f.held();
   ++stats_.frames_in_flight;
   stats_.peak_bytes_in_flight = std::max(stats_.peak_bytes_in_flight, stats_.bytes_in_flight);
   stats_.peak_frames_in_flight = std::max(stats_.peak_frames_in_flight, stats_.frames_in_flight);
 }
 
 void Assembler::remove_in_flight(const Frame& f) {
-  stats_.bytes_in_flight -= f.bytes.size();
+  stats_.bytes_in_flight -= f.held();
   --stats_.frames_in_flight;
 }
 
@@ -239,7 +241,44 @@ void Assembler::complete(Stream& s, size_t i) {
     report_lost({old.meta, LossReason::QueueOverflow, old.packet_count, old.packet_count});
     pending_.completed.erase(pending_.completed.begin());
   }
+  f.bytes.resize(f.total_bytes);  // the FEC shards' padding
   pending_.completed.push_back({f.meta, std::move(f.bytes), f.count, late, f.first_packet_ms, now_ms_});
+}
+
+// Rebuilds the missing data packets of a frame whose every FEC block has as many packets as
+// data packets (core/fec.h). False when the decoder refuses (cannot happen for valid layouts).
+bool Assembler::rebuild(Frame& f) {
+  FecLayout l;
+  if (!fec_layout(f.count, f.parity, l)) return false;
+  const size_t shard = fec_shard_bytes(f.total_bytes, f.chunk_bytes);
+  const auto has = [&](int i) { return (f.have[size_t(i) / 64] >> (i % 64)) & 1u; };
+  uint64_t rebuilt = 0;
+  for (int b = 0; b < l.blocks; ++b) {
+    const int k = l.block_data(b);
+    std::vector<int> present, missing;
+    std::vector<const uint8_t*> shards;
+    std::vector<uint8_t*> out;
+    for (int j = 0; j < k; ++j) {
+      const int i = b + j * l.blocks;
+      uint8_t* p = f.bytes.data() + size_t(i) * shard;
+      if (has(i)) {
+        if (int(present.size()) < k) present.push_back(j), shards.push_back(p);
+      } else {
+        missing.push_back(j), out.push_back(p);
+      }
+    }
+    if (missing.empty()) continue;
+    for (int j = 0; j < l.per_block && int(present.size()) < k; ++j) {
+      const int i = f.count + b * l.per_block + j;
+      if (has(i)) present.push_back(k + j), shards.push_back(f.parity_bytes.data() + size_t(b * l.per_block + j) * shard);
+    }
+    if (int(present.size()) < k || !rs_decode(k, l.per_block, shard, present, shards.data(), missing, out.data()))
+      return false;
+    rebuilt += missing.size();
+  }
+  ++stats_.frames_recovered;
+  stats_.packets_recovered += rebuilt;
+  return true;
 }
 
 // Gives up the partial frames that arrived first until `bytes` more fit the budget.
@@ -319,22 +358,31 @@ PacketFate Assembler::push(std::span<const uint8_t> datagram, int64_t now_ms) {
       }
       give_up(s, oldest, LossReason::Evicted);
     }
-    make_room(p.total_bytes);
+    FecLayout fec;
+    fec_layout(p.count, p.parity, fec);  // parse_packet checked it
+    const size_t shard = fec_shard_bytes(p.total_bytes, p.chunk_bytes);
+    const size_t data_bytes = p.parity ? size_t(p.count) * shard : size_t(p.total_bytes);
+    const size_t parity_bytes = size_t(p.parity) * shard;
+    if (data_bytes + parity_bytes > config_.max_frame_bytes) return count_fate(PacketFate::TooLarge);
+    make_room(data_bytes + parity_bytes);
     Frame f;
     f.meta = p.meta;
     f.total_bytes = p.total_bytes;
     f.count = p.count;
     f.chunk_bytes = p.chunk_bytes;
+    f.parity = p.parity;
     f.first_packet_ms = now;
-    f.bytes.resize(p.total_bytes);
-    f.have.assign((size_t(p.count) + 63) / 64, 0);
+    f.bytes.resize(data_bytes);
+    f.parity_bytes.resize(parity_bytes);
+    f.block_have.assign(size_t(fec.blocks), 0);
+    f.have.assign((size_t(p.count) + p.parity + 63) / 64, 0);
     add_in_flight(f);
     s.frames.push_back(std::move(f));
     fit = s.frames.end() - 1;
   } else {
     const Frame& f = *fit;
     // Sequence numbers are consecutive within a frame, so first_sequence must agree too.
-    if (p.total_bytes != f.total_bytes || p.count != f.count || p.chunk_bytes != f.chunk_bytes ||
+    if (p.total_bytes != f.total_bytes || p.count != f.count || p.chunk_bytes != f.chunk_bytes || p.parity != f.parity ||
         p.meta.desc != f.meta.desc || p.meta.codec_id != f.meta.codec_id ||
         p.meta.first_sequence != f.meta.first_sequence)
       return count_fate(PacketFate::Inconsistent);
@@ -343,17 +391,29 @@ PacketFate Assembler::push(std::span<const uint8_t> datagram, int64_t now_ms) {
   Frame& f = *fit;
   uint64_t& word = f.have[p.index / 64];
   const uint64_t bit = uint64_t(1) << (p.index % 64);
+  uint8_t* dst = p.is_parity() ? f.parity_bytes.data() + size_t(p.index - p.count) * p.payload.size()
+                               : f.bytes.data() + p.offset();
   if (word & bit) {
     // Same index and sequence number (checked above): a duplicate, unless the bytes differ.
-    const bool same = p.payload.empty() ||
-                      std::memcmp(f.bytes.data() + p.offset(), p.payload.data(), p.payload.size()) == 0;
+    const bool same = p.payload.empty() || std::memcmp(dst, p.payload.data(), p.payload.size()) == 0;
     return count_fate(same ? PacketFate::Duplicate : PacketFate::Inconsistent);
   }
   record_sequence();
-  if (!p.payload.empty()) std::memcpy(f.bytes.data() + p.offset(), p.payload.data(), p.payload.size());
+  if (!p.payload.empty()) std::memcpy(dst, p.payload.data(), p.payload.size());
   word |= bit;
   ++f.received;
-  if (f.received == f.count) {
+  if (!p.is_parity()) ++f.received_data;
+  bool done = f.received_data == f.count;
+  if (!done && f.parity) {
+    FecLayout fec;
+    fec_layout(f.count, f.parity, fec);
+    const int b = fec.block_of(p.index);
+    ++f.block_have[size_t(b)];
+    done = true;
+    for (int k = 0; k < fec.blocks && done; ++k) done = f.block_have[size_t(k)] >= fec.block_data(k);
+    done = done && rebuild(f);
+  }
+  if (done) {
     complete(s, size_t(fit - s.frames.begin()));
     return count_fate(PacketFate::Completed);
   }

@@ -1,6 +1,7 @@
 // The receiver side of core/packet.h: collects the packets of each (stream, pass, frame) back
 // into the encoded pass, with bounded memory, and reports which frames completed and which were
-// lost (docs/architecture.md, "Packets and the network": a pass of a frame is usable when all its packets arrived).
+// lost (docs/architecture.md, "Packets and the network": a pass of a frame is usable when all its
+// data packets arrived, or enough of its data and parity packets to rebuild them: core/fec.h).
 //
 // Every limit is checked before anything is allocated: a packet's header must pass
 // parse_packet(), its chunk must be at most max_payload_bytes, its pass (total encoded bytes)
@@ -101,6 +102,10 @@ struct AssemblerStats {
   uint64_t packets_lost = 0;
   // Packets whose sequence number had left the reorder window (counted lost before).
   uint64_t packets_late = 0;
+  // Frames completed by forward error correction (some data packets rebuilt from parity), and
+  // the data packets rebuilt.
+  uint64_t frames_recovered = 0;
+  uint64_t packets_recovered = 0;
   // LostFrame reports not queued because 4096 were waiting for poll() (still in frames_lost).
   uint64_t lost_reports_dropped = 0;
   size_t bytes_in_flight = 0;
@@ -166,10 +171,15 @@ class Assembler {
     uint32_t total_bytes = 0;
     uint16_t count = 0;
     uint16_t chunk_bytes = 0;
-    uint16_t received = 0;
-    std::vector<uint8_t> bytes;
+    uint16_t parity = 0;
+    uint16_t received = 0;       // data and parity packets
+    uint16_t received_data = 0;
+    std::vector<uint8_t> bytes;  // the pass; with parity: count shards of the FEC shard size
+    std::vector<uint8_t> parity_bytes;  // parity shards, in index order
+    std::vector<uint16_t> block_have;   // per FEC block: its packets received
     std::vector<uint64_t> have;  // one bit per packet index
     int64_t first_packet_ms = 0;
+    size_t held() const { return bytes.size() + parity_bytes.size(); }
   };
   struct Stream {
     explicit Stream(uint32_t window) : sequence(window) {}
@@ -187,6 +197,7 @@ class Assembler {
   void remember_finished(Stream& s, uint32_t frame_id);
   bool recently_finished(const Stream& s, uint32_t frame_id) const;
   void complete(Stream& s, size_t frame_index);
+  bool rebuild(Frame& f);
   void make_room(size_t bytes);
   void add_in_flight(const Frame& f);
   void remove_in_flight(const Frame& f);

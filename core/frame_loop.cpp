@@ -1,6 +1,7 @@
 #include "core/frame_loop.h"
 
 #include "core/assembler.h"
+#include "core/fec.h"
 #include "core/checksum.h"
 #include "core/composite.h"
 #include "core/error.h"
@@ -725,14 +726,16 @@ class Simulation {
       if (count) {
         ++t.server_frames;
         t.encoded_bytes += p.encoded_bytes;
-        result_.server_log.push_back({j, t.pass, p.encoded_bytes, p.packets.size(),
-                                      wire_bytes_of_pass(p.encoded_bytes, c_.max_payload_bytes)});
+        size_t wire = 0;  // parity packets included
+        for (const auto& packet : p.packets) wire += packet.size() + kIpUdpOverheadBytes;
+        result_.server_log.push_back({j, t.pass, p.encoded_bytes, p.packets.size(), wire});
       }
     }
     // All packets leave when the server finishes.
     for (size_t i = 0; i < f.passes.size(); ++i) {
       PassTraffic& t = traffic_[traffic_index_[i]];
       bool dropped = false;
+      std::vector<bool> arrived;
       for (auto& packet : f.passes[i].packets) {
         const uint64_t wire = packet.size() + kIpUdpOverheadBytes;
         if (count) {
@@ -742,10 +745,17 @@ class Simulation {
         const Delivery d = downlink_.send(wire, finish);
         if (d.delivered) in_flight_.push({d.arrival_ms, send_order_++, std::move(packet)});
         dropped = dropped || !d.delivered;
+        arrived.push_back(d.delivered);
       }
       // The simulator knows which datagrams the link dropped: a frame with any of them lost
-      // can never complete. (The receiver sees it as a gap in the sequence numbers.)
-      if (count && dropped) ++t.frames_lost;
+      // can never complete, unless its parity packets rebuild them (core/fec.h). (The receiver
+      // sees a loss as a gap in the sequence numbers.)
+      if (count && dropped) {
+        const int data = int(packet_count(f.passes[i].encoded_bytes, c_.max_payload_bytes));
+        FecLayout fec;
+        const bool rebuilt = fec_layout(data, int(arrived.size()) - data, fec) && fec_can_rebuild(fec, arrived);
+        ++(rebuilt ? t.frames_recovered : t.frames_lost);
+      }
     }
     server_free_ms_ = finish;
     server_last_frame_ = j;

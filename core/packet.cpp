@@ -3,6 +3,7 @@
 #include "core/byte_order.h"
 #include "core/checksum.h"
 #include "core/error.h"
+#include "core/fec.h"
 
 #include <algorithm>
 #include <cstring>
@@ -19,7 +20,7 @@ using le::put32;
 constexpr size_t kOffVersion = 4, kOffPass = 5, kOffStream = 6, kOffFrame = 8, kOffCodec = 12,
                  kOffSequence = 16, kOffTotal = 20, kOffIndex = 24, kOffCount = 26, kOffChunk = 28,
                  kOffPayloadLen = 30, kOffWidth = 32, kOffHeight = 34, kOffChannels = 36,
-                 kOffFullScale = 37, kOffReserved = 38, kOffChecksum = 40;
+                 kOffFullScale = 37, kOffParity = 38, kOffChecksum = 40;
 static_assert(kOffChecksum + 4 == kPacketHeaderBytes);
 
 // The checksum covers the header up to the checksum field, then everything after the header
@@ -52,8 +53,12 @@ size_t wire_bytes_of_pass(size_t encoded_bytes, size_t max_payload) {
   return encoded_bytes + packet_count(encoded_bytes, max_payload) * wire_bytes(0);
 }
 
+size_t fec_shard_bytes(size_t total_bytes, size_t chunk_bytes) {
+  return total_bytes <= chunk_bytes ? total_bytes : chunk_bytes;
+}
+
 std::vector<std::vector<uint8_t>> packetize(const PacketMeta& meta, std::span<const uint8_t> encoded,
-                                            size_t max_payload) {
+                                            size_t max_payload, int parity) {
   if (max_payload < 1 || max_payload > kMaxPayloadLimitBytes)
     fail("packetize: max_payload {} out of range 1..{}", max_payload, kMaxPayloadLimitBytes);
   const PassDesc& d = meta.desc;
@@ -71,10 +76,16 @@ std::vector<std::vector<uint8_t>> packetize(const PacketMeta& meta, std::span<co
     fail("packetize: {} bytes need {} packets of {} bytes, above 65535: raise max_payload",
          encoded.size(), count, max_payload);
 
-  std::vector<std::vector<uint8_t>> packets(count);
-  for (size_t i = 0; i < count; ++i) {
+  if (encoded.empty()) parity = 0;
+  FecLayout fec;
+  if (!fec_layout(int(count), parity, fec))
+    fail("packetize: {} parity packets for {} data packets form no FEC layout (core/fec.h)", parity, count);
+  const size_t shard = fec_shard_bytes(encoded.size(), max_payload);
+
+  std::vector<std::vector<uint8_t>> packets(count + size_t(parity));
+  for (size_t i = 0; i < packets.size(); ++i) {
     const size_t offset = i * max_payload;
-    const size_t len = std::min(max_payload, encoded.size() - offset);
+    const size_t len = i < count ? std::min(max_payload, encoded.size() - offset) : shard;
     auto& p = packets[i];
     p.assign(kPacketHeaderBytes + len, 0);
     uint8_t* h = p.data();
@@ -94,9 +105,25 @@ std::vector<std::vector<uint8_t>> packetize(const PacketMeta& meta, std::span<co
     put16(h + kOffHeight, uint32_t(d.height));
     h[kOffChannels] = uint8_t(d.channels);
     h[kOffFullScale] = uint8_t(d.full_scale);
-    if (len) std::memcpy(h + kPacketHeaderBytes, encoded.data() + offset, len);
-    put32(h + kOffChecksum, datagram_checksum(p));
+    put16(h + kOffParity, uint32_t(parity));
+    if (i < count && len) std::memcpy(h + kPacketHeaderBytes, encoded.data() + offset, len);
   }
+  if (parity > 0) {
+    // Each block's data shards (the last one zero-padded to the shard size) and parity shards.
+    std::vector<uint8_t> last(shard, 0);
+    const size_t tail = encoded.size() - (count - 1) * max_payload;
+    std::memcpy(last.data(), encoded.data() + (count - 1) * max_payload, tail);
+    for (int b = 0; b < fec.blocks; ++b) {
+      std::vector<const uint8_t*> data;
+      std::vector<uint8_t*> out;
+      for (size_t i = size_t(b); i < count; i += size_t(fec.blocks))
+        data.push_back(i + 1 == count ? last.data() : encoded.data() + i * max_payload);
+      for (int j = 0; j < fec.per_block; ++j)
+        out.push_back(packets[count + size_t(b * fec.per_block + j)].data() + kPacketHeaderBytes);
+      rs_encode(int(data.size()), fec.per_block, shard, data.data(), out.data());
+    }
+  }
+  for (auto& p : packets) put32(p.data() + kOffChecksum, datagram_checksum(p));
   return packets;
 }
 
@@ -112,22 +139,25 @@ ParseResult parse_packet(std::span<const uint8_t> d, ParsedPacket& out) {
   if (std::memcmp(h, kPacketMagic, 4) != 0) return ParseResult::BadMagic;
   if (h[kOffVersion] != kPacketVersion) return ParseResult::BadVersion;
   if (get32(h + kOffChecksum) != datagram_checksum(d)) return ParseResult::BadChecksum;
-  if (get16(h + kOffReserved) != 0) return ParseResult::BadReserved;
 
   out.total_bytes = get32(h + kOffTotal);
   out.index = get16(h + kOffIndex);
   out.count = get16(h + kOffCount);
   out.chunk_bytes = get16(h + kOffChunk);
+  out.parity = get16(h + kOffParity);
   const uint16_t payload_len = get16(h + kOffPayloadLen);
-  if (out.count == 0 || out.index >= out.count) return ParseResult::BadIndex;
+  FecLayout fec;
+  if (out.count == 0 || !fec_layout(out.count, out.parity, fec) || size_t(out.index) >= size_t(out.count) + out.parity ||
+      (out.parity > 0 && out.total_bytes == 0))
+    return ParseResult::BadIndex;
   if (out.chunk_bytes == 0) return ParseResult::BadLength;
   if (payload_len != d.size() - kPacketHeaderBytes) return ParseResult::BadLength;
   // The sender cuts a pass into chunks of chunk_bytes, the last one shorter: so count and
-  // each payload length follow from total and chunk.
+  // each payload length follow from total and chunk (parity packets: the FEC shard size).
   if (count_for(out.total_bytes, out.chunk_bytes) != out.count) return ParseResult::BadLength;
-  const uint64_t expected_len = out.index + 1 < out.count
-                                    ? uint64_t(out.chunk_bytes)
-                                    : out.total_bytes - uint64_t(out.count - 1) * out.chunk_bytes;
+  const uint64_t expected_len = out.index >= out.count       ? fec_shard_bytes(out.total_bytes, out.chunk_bytes)
+                                : out.index + 1 < out.count ? uint64_t(out.chunk_bytes)
+                                                             : out.total_bytes - uint64_t(out.count - 1) * out.chunk_bytes;
   if (payload_len != expected_len) return ParseResult::BadLength;
 
   if (!known_pass(h[kOffPass])) return ParseResult::BadDesc;

@@ -14,17 +14,18 @@
 //       16    4 sequence number (per stream: packet i of a pass is first_sequence + i)
 //       20    4 total encoded size of the pass, bytes
 //       24    2 packet index (< count)
-//       26    2 packet count (>= 1)
+//       26    2 packet count (>= 1): the data packets; parity packets have indices count..
+//                count + parity - 1 and payloads of the FEC shard size (core/fec.h)
 //       28    2 chunk bytes: the payload of every packet but the last (1..65535)
 //       30    2 payload bytes of this packet (= bytes after the header)
 //       32    2 width       (32..37: the PassDesc the decoder needs)
 //       34    2 height
 //       36    1 channels
 //       37    1 full_scale
-//       38    2 reserved, 0
+//       38    2 parity packets of the pass (core/fec.h; 0: no forward error correction)
 //       40    4 CRC-32C of bytes 0..39 followed by the payload
-// A "stream" is (stream id, pass kind): sequence numbers count packets per stream, so that a
-// gap in them is a lost packet of that stream.
+// A "stream" is (stream id, pass kind): sequence numbers count packets per stream (parity
+// packets included), so that a gap in them is a lost packet of that stream.
 #pragma once
 
 #include "core/pass_buffer.h"
@@ -73,12 +74,15 @@ constexpr size_t wire_bytes(size_t payload_bytes) {
 // Bytes all packets of a pass of `encoded_bytes` occupy on the wire.
 size_t wire_bytes_of_pass(size_t encoded_bytes, size_t max_payload = kDefaultMaxPayloadBytes);
 
-// Cuts `encoded` into datagrams of at most `max_payload` payload bytes (ready to send).
-// Throws dhr::Error for a description that is invalid or does not fit the header, a
-// max_payload outside 1..kMaxPayloadLimitBytes, or a pass that needs more than 65535 packets
-// or 4 GiB.
+// Cuts `encoded` into datagrams of at most `max_payload` payload bytes (ready to send), then
+// appends `parity` Reed-Solomon parity packets (core/fec.h; fec_parity_count gives a valid
+// count; an empty pass gets none). Throws dhr::Error for a description that is invalid or does
+// not fit the header, a max_payload outside 1..kMaxPayloadLimitBytes, a pass that needs more
+// than 65535 packets or 4 GiB, or a parity count that forms no FEC layout.
 std::vector<std::vector<uint8_t>> packetize(const PacketMeta& meta, std::span<const uint8_t> encoded,
-                                            size_t max_payload = kDefaultMaxPayloadBytes);
+                                            size_t max_payload = kDefaultMaxPayloadBytes, int parity = 0);
+// The FEC shard size of a pass: its chunk, or its size when it has one packet.
+size_t fec_shard_bytes(size_t total_bytes, size_t chunk_bytes);
 
 enum class ParseResult : uint8_t {
   Ok = 0,
@@ -89,7 +93,7 @@ enum class ParseResult : uint8_t {
   BadLength,    // payload bytes differ from the header, or disagree with total/count/chunk
   BadIndex,     // count == 0 or index >= count
   BadDesc,      // unknown pass kind or a description PassDesc::validate() refuses
-  BadReserved,  // reserved bits set (a newer sender)
+  BadReserved,  // no longer produced: the former reserved field carries the parity count
 };
 constexpr int kParseResultCount = 9;
 const char* parse_result_name(ParseResult r);
@@ -101,14 +105,17 @@ struct ParsedPacket {
   uint16_t index = 0;
   uint16_t count = 0;
   uint16_t chunk_bytes = 0;
+  uint16_t parity = 0;  // parity packets of the pass (index >= count: this is one)
   std::span<const uint8_t> payload;  // points into the datagram given to parse_packet
+  bool is_parity() const { return index >= count; }
   // Offset of this payload in the pass.
   size_t offset() const { return size_t(index) * chunk_bytes; }
 };
 
 // Checks a datagram in this order: length, magic, version, checksum, then the fields (the
 // checksum comes before field checks so that a corrupted packet is counted as corrupted).
-// On Ok, `out` holds the fields and every field has been checked: index < count, the payload
+// On Ok, `out` holds the fields and every field has been checked: index < count + parity with
+// parity forming a FEC layout (BadIndex otherwise; an empty pass has no parity), the payload
 // length is the one total/count/chunk imply, the description is valid. On any other result
 // `out` is unspecified. Never throws.
 ParseResult parse_packet(std::span<const uint8_t> datagram, ParsedPacket& out);

@@ -32,6 +32,10 @@ struct BackendChoice {
 // client).
 struct PassChoice {
   BackendChoice codec, denoiser, predictor;
+  // Forward error correction of its packets (core/fec.h): parity packets per FEC block, at least
+  // fec_min_parity and at least fec_parity x the block's data packets (0 and 0: none).
+  double fec_parity = 0.0;
+  int fec_min_parity = 0;
 };
 
 // One kind of traced pass.

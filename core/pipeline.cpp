@@ -1,8 +1,10 @@
 #include "core/pipeline.h"
 
+
 #include "core/composite.h"
 #include "core/depth_pass.h"
 #include "core/error.h"
+#include "core/fec.h"
 #include "core/packet.h"
 #include "core/raster.h"
 #include "core/rt_scene.h"
@@ -348,7 +350,10 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     meta.frame_id = frame;
     meta.codec_id = codec_ids_[i];
     meta.first_sequence = sequence_[i];
-    SentPass sent{sent_[i].name, buf.desc, encoded.size(), packetize(meta, encoded, c_.max_payload_bytes)};
+    const PassChoice& choice = c_.pass(sent_[i].name);
+    const int parity = fec_parity_count(int(packet_count(encoded.size(), c_.max_payload_bytes)), choice.fec_parity,
+                                        choice.fec_min_parity);
+    SentPass sent{sent_[i].name, buf.desc, encoded.size(), packetize(meta, encoded, c_.max_payload_bytes, parity)};
     sequence_[i] += uint32_t(sent.packets.size());
     for (const auto& packet : sent.packets) wire[i] += packet.size() + kIpUdpOverheadBytes;
     if (budgeted_[i]) wire[i] -= sent.encoded_bytes;

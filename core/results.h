@@ -111,7 +111,8 @@ struct PassTraffic {
   uint64_t wire_bytes = 0;      // packets incl. dhrbench header + 28 IP/UDP
   uint64_t packets = 0;
   uint64_t frames_completed = 0;   // assembled and handed to the decoder
-  uint64_t frames_lost = 0;        // server frames with a datagram dropped on the link
+  uint64_t frames_lost = 0;        // server frames with a datagram dropped on the link, not rebuilt
+  uint64_t frames_recovered = 0;   // server frames with datagrams dropped that FEC rebuilds
   uint64_t frames_given_up = 0;    // partial frames the receiver's assembler gave up
   uint64_t decode_errors = 0, keyframe_requests = 0;
   uint64_t frames_without_data = 0;  // displayed frames that showed this pass's local fallback

@@ -2,7 +2,9 @@
 // writer, the range checks and the cache keys.
 #include "core/run_config.h"
 
+
 #include "core/error.h"
+#include "core/fec.h"
 #include "core/json_io.h"
 #include "core/packet.h"
 #include "core/upsample.h"
@@ -175,6 +177,19 @@ std::vector<RunSetting> make_settings() {
   v.push_back(pass_backend(kDepthPassName, "codec", &PassChoice::codec, "",
                            "remote mode with a colour predictor that reads depth (depth_warp): the depth pass's codec "
                            "(lossless)"));
+  // passes.<name>.fec_parity and fec_min_parity for every pass that is sent.
+  for (const std::string& n : all_pass_names()) {
+    v.push_back(with(ranged(("passes." + n + ".fec_parity").c_str(), SettingType::Number, 0, 1,
+                            ("Reed-Solomon parity packets of the " + n +
+                             " pass per FEC block, as a fraction of its data packets (core/fec.h; parity counts as wire bytes)")
+                                .c_str(),
+                            [n](auto& c) -> auto& { return c.pass(n).fec_parity; }),
+                     kInLiveOffer));
+    v.push_back(with(ranged(("passes." + n + ".fec_min_parity").c_str(), SettingType::Integer, 0, kFecMaxShards - 1,
+                            ("the least parity packets per FEC block of the " + n + " pass (with fec_parity: the larger)").c_str(),
+                            [n](auto& c) -> auto& { return c.pass(n).fec_min_parity; }),
+                     kInLiveOffer));
+  }
   RunSetting timing;
   timing.key = "server_timing";
   timing.type = SettingType::Choice;

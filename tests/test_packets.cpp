@@ -1,8 +1,10 @@
 // Packets and the assembler: checksums, header checks, corruption and truncation, limits before
-// allocation, reordering, duplicates, timeouts and loss counted from sequence numbers.
+// allocation, reordering, duplicates, timeouts, loss counted from sequence numbers, and
+// frames rebuilt by forward error correction.
 #include "core/assembler.h"
 #include "core/checksum.h"
 #include "core/error.h"
+#include "core/fec.h"
 #include "core/packet.h"
 #include "core/rng.h"
 
@@ -10,7 +12,9 @@
 
 #include <algorithm>
 #include <cstring>
+#include <bit>
 #include <map>
+#include <optional>
 #include <set>
 #include <string>
 
@@ -153,7 +157,7 @@ TEST(Packet, FieldChecksOnSealedHeaders) {
   EXPECT_EQ(parse(good[2]), ParseResult::Ok);
   EXPECT_EQ(edit(0, [](auto& d) { d[0] = 'X'; }), ParseResult::BadMagic);
   EXPECT_EQ(edit(0, [](auto& d) { d[4] = kPacketVersion + 1; }), ParseResult::BadVersion);
-  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 38, 1); }), ParseResult::BadReserved);
+  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 38, 253); }), ParseResult::BadIndex);  // 3 + 253 shards > 255
   EXPECT_EQ(edit(0, [](auto& d) { put16(d, 24, 3); }), ParseResult::BadIndex);    // index == count
   EXPECT_EQ(edit(0, [](auto& d) { put16(d, 26, 0); }), ParseResult::BadIndex);    // count 0
   EXPECT_EQ(edit(0, [](auto& d) { put16(d, 26, 4); }), ParseResult::BadLength);   // count != ceil(total/chunk)
@@ -655,6 +659,139 @@ TEST(Assembler, IndependentLossIsReportedConsistently) {
     EXPECT_EQ(a.stats().frames_completed, sent.size() - with_drop.size());
     EXPECT_EQ(a.stats().frames_lost_total(), with_drop.size() - all_dropped.size());
   }
+}
+
+// ---- Forward error correction (core/fec.h)
+
+// Feeds the packets whose bit in `keep` is set (in a shuffled order) to a fresh assembler and
+// returns the one frame it completes, or nothing.
+std::optional<std::vector<uint8_t>> deliver(const std::vector<std::vector<uint8_t>>& packets, uint64_t keep,
+                                            uint64_t seed, AssemblerStats* stats = nullptr) {
+  std::vector<size_t> order;
+  for (size_t i = 0; i < packets.size(); ++i)
+    if ((keep >> i) & 1u) order.push_back(i);
+  shuffle(order, seed);
+  Assembler a;
+  for (size_t i : order) a.push(packets[i], 0);
+  AssemblerEvents e = a.flush(1);
+  if (stats) *stats = a.stats();
+  if (e.completed.size() != 1) return std::nullopt;
+  return std::move(e.completed[0].encoded);
+}
+
+TEST(Fec, EveryLossPatternUpToTheParityCountRebuildsTheFrame) {
+  // 5 data packets (the last one short) and 2 parity packets: all 2^7 patterns.
+  const std::vector<uint8_t> pass = random_bytes(4 * 300 + 123, 11);
+  const int parity = fec_parity_count(5, 0.4, 0);
+  ASSERT_EQ(parity, 2);
+  const auto packets = packetize(make_meta(9), pass, 300, parity);
+  ASSERT_EQ(packets.size(), 7u);
+  for (size_t i = 5; i < 7; ++i) EXPECT_EQ(packets[i].size(), kPacketHeaderBytes + 300);  // shard size
+  int rebuilt = 0;
+  for (uint64_t keep = 0; keep < 128; ++keep) {
+    const int lost = 7 - std::popcount(keep);
+    AssemblerStats st;
+    const auto got = deliver(packets, keep, keep, &st);
+    const bool data_lost = (keep & 31u) != 31u;
+    if (lost <= 2) {
+      ASSERT_TRUE(got) << "lost " << lost << " pattern " << keep;
+      EXPECT_EQ(*got, pass) << "pattern " << keep;
+      // With every data packet delivered the frame may still complete early from parity (a
+      // parity packet arrived before the last data packet); with one missing it must.
+      if (data_lost) {
+        EXPECT_EQ(st.frames_recovered, 1u);
+      }
+      rebuilt += data_lost;
+    } else {
+      // One loss more than the parity count: some data packet is missing and 4 shards cannot
+      // rebuild 5; the frame is reported lost.
+      EXPECT_FALSE(got) << "lost " << lost << " pattern " << keep;
+      EXPECT_EQ(st.frames_lost_total(), keep ? 1u : 0u);
+    }
+    // The simulator's rule says the same.
+    FecLayout l;
+    ASSERT_TRUE(fec_layout(5, 2, l));
+    std::vector<bool> arrived(7);
+    for (size_t i = 0; i < 7; ++i) arrived[i] = (keep >> i) & 1u;
+    EXPECT_EQ(fec_can_rebuild(l, arrived), lost <= 2);
+  }
+  EXPECT_EQ(rebuilt, 5 + 20);  // patterns of 1 or 2 losses that include a data packet
+}
+
+TEST(Fec, InterleavedBlocksSpreadABurst) {
+  // 300 data packets: 3 blocks of 100 (data packet i in block i % 3), 10 % parity: 10 each.
+  const std::vector<uint8_t> pass = random_bytes(300 * 64 - 7, 12);
+  const int parity = fec_parity_count(300, 0.1, 2);
+  ASSERT_EQ(parity, 30);
+  FecLayout l;
+  ASSERT_TRUE(fec_layout(300, parity, l));
+  EXPECT_EQ(l.blocks, 3);
+  EXPECT_EQ(l.per_block, 10);
+  const auto packets = packetize(make_meta(4), pass, 64, parity);
+  ASSERT_EQ(packets.size(), 330u);
+  for (const int burst : {30, 31}) {
+    Assembler a;
+    for (size_t i = 0; i < packets.size(); ++i)
+      if (i < 100 || i >= 100 + size_t(burst)) a.push(packets[i], 0);
+    AssemblerEvents e = a.flush(1);
+    if (burst == 30) {  // 10 lost in each block: exactly its parity
+      ASSERT_EQ(e.completed.size(), 1u);
+      EXPECT_EQ(e.completed[0].encoded, pass);
+      EXPECT_EQ(a.stats().packets_recovered, 30u);
+    } else {
+      EXPECT_TRUE(e.completed.empty());
+      ASSERT_EQ(e.lost.size(), 1u);
+    }
+  }
+  // The minimum applies per block; the cap keeps a block within 255 shards.
+  EXPECT_EQ(fec_parity_count(3, 0.0, 2), 2);
+  EXPECT_EQ(fec_parity_count(3, 0.0, 0), 0);
+  EXPECT_EQ(fec_parity_count(10, 0.2, 1), 2);
+  EXPECT_EQ(fec_parity_count(128, 1.0, 0), 127);
+  EXPECT_THROW(fec_parity_count(10, 1.5, 0), Error);
+  EXPECT_THROW(fec_parity_count(10, 0.1, 255), Error);
+}
+
+TEST(Fec, DamagedOrForgedParityIsCaught) {
+  const std::vector<uint8_t> pass = random_bytes(1000, 13);
+  auto packets = packetize(make_meta(2), pass, 250, 2);  // 4 data, 2 parity
+  ASSERT_EQ(packets.size(), 6u);
+  // A flipped bit of a parity payload fails the checksum: it cannot poison the rebuild.
+  auto bad = packets[5];
+  bad.back() ^= 0x10;
+  EXPECT_EQ(parse(bad), ParseResult::BadChecksum);
+  Assembler a;
+  a.push(packets[0], 0);
+  a.push(packets[1], 0);
+  EXPECT_EQ(a.push(bad, 0), PacketFate::BadChecksum);
+  EXPECT_EQ(a.push(packets[4], 0), PacketFate::Accepted);  // 3 of 4: not yet
+  EXPECT_EQ(a.push(packets[5], 0), PacketFate::Completed);
+  AssemblerEvents e = a.poll(0);
+  ASSERT_EQ(e.completed.size(), 1u);
+  EXPECT_EQ(e.completed[0].encoded, pass);
+  // Header fields that form no FEC layout are refused before anything is stored.
+  auto edit = [&](size_t i, auto&& change) {
+    auto d = packets[i];
+    change(d);
+    seal_packet(d);
+    return parse(d);
+  };
+  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 24, 6); }), ParseResult::BadIndex);  // index >= count + parity
+  EXPECT_EQ(edit(4, [](auto& d) { put16(d, 30, 200); d.resize(kPacketHeaderBytes + 200); }), ParseResult::BadLength);
+  // Parity on an empty pass, and a parity count that is not a multiple of the blocks.
+  auto empty = packetize(make_meta(3), {}, 250, 2);
+  ASSERT_EQ(empty.size(), 1u);  // an empty pass gets no parity
+  EXPECT_EQ(edit(0, [](auto&) {}), ParseResult::Ok);
+  auto e0 = empty[0];
+  put16(e0, 38, 1);
+  seal_packet(e0);
+  EXPECT_EQ(parse(e0), ParseResult::BadIndex);
+  auto big = packetize(make_meta(3), random_bytes(200 * 10, 14), 10);  // 200 data packets: 2 blocks
+  auto b0 = big[0];
+  put16(b0, 38, 3);
+  seal_packet(b0);
+  EXPECT_EQ(parse(b0), ParseResult::BadIndex);
+  EXPECT_THROW(packetize(make_meta(3), random_bytes(200 * 10, 14), 10, 3), Error);
 }
 
 }  // namespace

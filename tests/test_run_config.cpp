@@ -127,7 +127,7 @@ TEST(RunSettings, UnknownKeysAreNamedWithTheValidOnes) {
   const std::string all = joined(problems);
   EXPECT_NE(all.find("run.widht: unknown key (valid: mode, width"), std::string::npos) << all;
   EXPECT_NE(all.find("run.trace.ao_ray: unknown key (valid: ao_rays"), std::string::npos) << all;
-  EXPECT_NE(all.find("run.passes.ao.codek: unknown key (valid: codec, denoiser, predictor)"), std::string::npos) << all;
+  EXPECT_NE(all.find("run.passes.ao.codek: unknown key (valid: codec, denoiser, predictor, fec_parity, fec_min_parity)"), std::string::npos) << all;
   EXPECT_NE(all.find("run.passes.normal: unknown key (valid: visibility, ao, colour, depth)"), std::string::npos) << all;
 }
 
@@ -202,7 +202,8 @@ TEST(RunSettings, CacheKeysChangeWithExactlyTheFlaggedSettings) {
 void flatten(const nlohmann::json& j, const std::string& prefix, std::set<std::string>& out) {
   for (const auto& [k, v] : j.items()) {
     const std::string key = prefix.empty() ? k : prefix + "." + k;
-    if (k == "trace" && prefix.empty()) flatten(v, key, out);
+    if ((k == "trace" || k == "passes") && prefix.empty()) flatten(v, key, out);
+    else if (prefix == "passes") flatten(v, key, out);
     else out.insert(key);
   }
 }
