@@ -88,7 +88,7 @@
     return t.length >= 2 ? t : [lo, hi];
   }
   function drawChart(m, chart, parent) {
-    var W = 440, H = 290, L = 58, R = 12, T = 26, B = 40;
+    var W = 420, H = 290, L = 58, R = 12, T = 26, B = 40;
     var xs = [], ys = [];
     chart.series.forEach(function (s) { s.points.forEach(function (p) { xs.push(p.x); ys.push(p.y); }); });
     var xlo = Math.min.apply(null, xs) / 1.25, xhi = Math.max.apply(null, xs) * 1.25;
@@ -114,23 +114,35 @@
         m.metric.toUpperCase() + (m.unit ? " (" + m.unit + ")" : "") + (m.higher ? ", higher better" : ", lower better"));
     var legend = document.createElement("div");
     legend.className = "legend";
-    chart.series.forEach(function (s, i) {
-      var c = COLOURS[i % COLOURS.length];
+    chart.series.forEach(function (s) {
+      var i = familyIndex(s.family), c = COLOURS[i % COLOURS.length], shape = Math.floor(i / COLOURS.length) % 3;
       svg("polyline", { points: s.points.map(function (p) { return sx(p.x) + "," + sy(p.y); }).join(" "), fill: "none",
                         stroke: c, "stroke-width": 1.5, "stroke-dasharray": s.anchor ? "5,3" : "none" }, g);
       s.points.forEach(function (p) {
-        var dot = svg("circle", { cx: sx(p.x), cy: sy(p.y), r: 4, fill: c, stroke: "#fff", class: "point" }, g);
+        var x = sx(p.x), y = sy(p.y), dot = shape === 0 ? svg("circle", { cx: x, cy: y, r: 4 }, g)
+          : svg("polygon", { points: shape === 1 ? [x - 4, y - 4, x + 4, y - 4, x + 4, y + 4, x - 4, y + 4].join(",")
+                                                 : [x, y - 5, x + 5, y, x, y + 5, x - 5, y].join(",") }, g);
+        dot.setAttribute("fill", c);
+        dot.setAttribute("stroke", "#fff");
+        dot.setAttribute("class", "point");
         svg("title", {}, dot, p.id + ": " + p.conf + "\nfamily: " + s.family + "\n" + fmt(p.x) + " Mb/s\n" +
             m.metric.toUpperCase() + " " + fmt(p.y) + " against the " + (p.ref === "truth" ? "ground truth" : "local reference"));
       });
       var span = document.createElement("span");
-      span.innerHTML = "<b style='color:" + c + "'>&#9679;</b> ";
+      span.innerHTML = "<b style='color:" + c + "'>" + ["&#9679;", "&#9632;", "&#9670;"][shape] + "</b> ";
       span.appendChild(document.createTextNode(s.family + (s.anchor ? " (anchor)" : "")));
       legend.appendChild(span);
     });
     box.appendChild(legend);
     parent.appendChild(box);
   }
+  // One colour and marker per family across every chart (10 colours, then squares, diamonds).
+  var families = [];
+  function familyIndex(f) {
+    if (families.indexOf(f) < 0) families.push(f);
+    return families.indexOf(f);
+  }
+  data.charts.forEach(function (m) { m.charts.forEach(function (c) { c.series.forEach(function (s) { familyIndex(s.family); }); }); });
   var select = document.getElementById("metric"), chartsDiv = document.getElementById("charts");
   function drawCharts() {
     chartsDiv.innerHTML = "";
@@ -286,7 +298,9 @@
     if (tBefore === t0 || tBefore !== tAfter) { ok = false; notes.push("zoom not applied or not kept"); }
     if (overlay !== v.spec.entries[first].error) { ok = false; notes.push("'e' did not show the error map"); }
     setStatus("selftest", ok ? "pass" : "fail: " + notes.join("; "));
-    v.root.scrollIntoView();  // for a screenshot of the viewer
+    // To the top of the page, so that a headless screenshot of one window shows it (scrolling
+    // gives headless Chromium's --screenshot a blank page).
+    document.body.insertBefore(v.root, status.nextSibling);
   }
 
   each(document.querySelectorAll("table.sortable"), sortable);

@@ -145,7 +145,7 @@ def chart_data(exp, ok, metrics, quality):
             chart = charts.setdefault((scene, cond), {"scene": scene, "cond": ", ".join(f"{k}={v}" for k, v in cond)
                                                       or "all runs", "series": []})
             chart["series"].append({"family": fam, "anchor": fam in anchors, "points": [
-                {"x": x, "y": y, "id": r["id"], "conf": r.get("configuration", r["label"]),
+                {"x": float(f"{x:.6g}"), "y": float(f"{y:.6g}"), "id": r["id"], "conf": r.get("configuration", r["label"]),
                  "ref": "truth" if r["metrics"].get(im["aggregates"]["ground_truth"]["mean"]) is not None else "local"}
                 for x, y, r in pts]})
         if charts:
@@ -204,7 +204,7 @@ table.sortable th{cursor:pointer;background:#eef;user-select:none}
 th.asc:after{content:' ▲'}th.desc:after{content:' ▼'}
 .charts{display:flex;flex-wrap:wrap;gap:12px}
 .chart{border:1px solid #ddd;padding:4px}.chart svg{display:block}
-.legend{font-size:11px;max-width:440px}.legend span{display:inline-block;margin-right:8px}
+.legend{font-size:11px;max-width:420px}.legend span{display:inline-block;margin-right:8px}
 .viewer{margin:1em 0;border:1px solid #ccc;padding:6px}
 .viewer.active{border-color:#36c}
 .vbuttons button{margin:2px;font-size:12px}.vbuttons button.on{background:#36c;color:#fff}
@@ -233,18 +233,18 @@ def write(d, header_lines, res, ok, failed, metrics, quality):
 <div id="status" data-errors="0" data-error-messages="" data-images-loaded="0" data-images-failed="0"
  data-images-expected="0" data-charts="0" data-selftest="not run"></div>
 {markdown_lines(header_lines)}
-<p>This page: report.md's figures as sortable tables (click a heading), rate-quality charts (hover a point),
-one image viewer per scene (below) and the report's plots. The full text with its BD-rate tables is in
+<p>This page: rate-quality charts (hover a point), report.md's figures as sortable tables (click a heading),
+one image viewer per scene and the report's plots. The full text with its BD-rate tables is in
 <a href="report.md">report.md</a>.</p>
+<h2>Rate-quality</h2>
+<p>One chart per scene and condition; each family's runs joined in order of bitrate (log axis). Quality: against
+the ground truth where the run scored it, else the local reference. Metric: <select id="metric"></select></p>
+<div class="charts" id="charts"></div>
 <h2>Runs</h2>
 <p>Quality: each metric's mean over the scored frames against the ground truth (truth) and the local reference
 (local); ↑ higher is better, ↓ lower. Mb/s: every packet on the wire.</p>
 {runs_table(ok, metrics)}
 {f"<h3>Failed runs</h3><ul>{failed_html}</ul>" if failed else ""}
-<h2>Rate-quality</h2>
-<p>One chart per scene and condition; each family's runs joined in order of bitrate (log axis). Quality: against
-the ground truth where the run scored it, else the local reference. Metric: <select id="metric"></select></p>
-<div class="charts" id="charts"></div>
 <h2>Images</h2>
 <p>Per scene the last scored frame, at the size the run stored in images/. Keys: 1-9 or ←/→ switch (or click a
 button); wheel zooms, drag pans (kept when switching); <b>e</b> shows the run's error map (|luma difference|
