@@ -34,7 +34,7 @@ def _inline(text):
         s = html.escape(p, quote=False)
         s = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", s)
         s = re.sub(r"(?<![\w*])\*(?!\s)(.+?)\*(?![\w*])", r"<i>\1</i>", s)
-        s = re.sub(r"\[([^\]]+)\]\(([^)\s]+)\)", lambda m: f'<a href="{html.escape(m.group(2))}">{m.group(1)}</a>', s)
+        s = re.sub(r"\[([^\]]+)\]\(([^)\s]+)\)", lambda m: f'<a href="{m.group(2).replace(chr(34), "&quot;")}">{m.group(1)}</a>', s)
         out.append(s)
     return "".join(out)
 
@@ -223,7 +223,7 @@ def write(d, header_lines, res, ok, failed, metrics, quality):
     with open(os.path.join(HERE, "report_html.js"), encoding="utf-8") as f:
         script = f.read()
     data = {"charts": chart_data(res["experiment"], ok, metrics, quality), "viewers": viewer_data(d, ok)}
-    data_json = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
+    data_json = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
     failed_html = "".join(f"<li>{html.escape(r['id'])} ({html.escape(r['label'])} on {html.escape(r['scene'])}): "
                           f"<code>{html.escape(r['error'])}</code></li>" for r in failed)
     name = html.escape(res["experiment"].get("name", "experiment"))

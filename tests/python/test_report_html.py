@@ -59,7 +59,7 @@ def check_folder(folder, browser, with_images):
     check(not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", text) and "<link" not in text
           and "<script src" not in text, f"{name}: self-contained (no external script, style or URL)")
     data = json.loads(re.search(r'<script type="application/json" id="data">(.*?)</script>', text, re.S)
-                      .group(1).replace("<\\/", "</"))
+                      .group(1))
     refs = set(re.findall(r"<img src='([^']+)'", text))
     refs |= {e[k] for v in data["viewers"] for e in v["entries"] for k in ("src", "error", "flip") if k in e}
     missing = [r for r in refs if not os.path.isfile(os.path.join(folder, r))]
@@ -86,7 +86,7 @@ def check_folder(folder, browser, with_images):
         check(st.get("selftest") == "pass", f"{name}: viewer self-test: {st.get('selftest')}")
         check(st.get("src-before") != st.get("src-after") and st.get("src-after", "").endswith("_shown.png"),
               f"{name}: a key switches the image ({st.get('src-before')} -> {st.get('src-after')} -> "
-              f"{st.get('src-next')}), zoom kept ({st.get('transform-after')}), 'e' shows {st.get('overlay-src')}")
+              f"{st.get('src-next')}), zoom and pan kept ({st.get('transform-after')}), 'e' shows {st.get('overlay-src')}")
     else:
         check(st.get("selftest", "").startswith("pass"), f"{name}: self-test without images: {st.get('selftest')}")
     for suffix, shot in (("", "top"), ("#selftest", "selftest")):
