@@ -81,11 +81,15 @@
     for (var v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) t.push(+v.toPrecision(12));
     return t;
   }
-  function logTicks(lo, hi) {
-    var t = [];
-    for (var e = Math.floor(Math.log10(lo)); e <= Math.ceil(Math.log10(hi)); e++)
-      [1, 2, 5].forEach(function (m) { var v = m * Math.pow(10, e); if (v >= lo && v <= hi) t.push(+v.toPrecision(12)); });
-    return t.length >= 2 ? t : [lo, hi];
+  function logTicks(lo, hi) {  // 1-2-5 per decade, else 1..9, else linear steps within a narrow range
+    var sets = [[1, 2, 5], [1, 2, 3, 4, 5, 6, 7, 8, 9]];
+    for (var i = 0; i < sets.length; i++) {
+      var t = [];
+      for (var e = Math.floor(Math.log10(lo)); e <= Math.ceil(Math.log10(hi)); e++)
+        sets[i].forEach(function (m) { var v = m * Math.pow(10, e); if (v >= lo && v <= hi) t.push(+v.toPrecision(12)); });
+      if (t.length >= 3) return t;
+    }
+    return linearTicks(lo, hi).filter(function (v) { return v > 0; });
   }
   function drawChart(m, chart, parent) {
     var W = 420, H = 290, L = 58, R = 12, T = 26, B = 40;
