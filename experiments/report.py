@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Builds DIR/report.md and its plots from what 'dhrbench run' wrote in DIR (results.json,
+"""Builds DIR/report.md and its plots, and DIR/report.html (experiments/report_html.py), from what 'dhrbench run' wrote in DIR (results.json,
 frames.csv, images/). Run by 'dhrbench run' and 'dhrbench report DIR' with Debian's
 /usr/bin/python3 and python3-matplotlib; nothing here runs the benchmark again.
 
@@ -691,6 +691,8 @@ def main(d):
     out += grids_section(plot, d, ok) + notes_section(res["experiment"])
     with open(os.path.join(d, "report.md"), "w") as f:
         f.write("\n".join(out) + "\n")
+    import report_html
+    report_html.write(d, header_section(res), res, ok, failed, metrics, metric_value)
 
 
 if __name__ == "__main__":

@@ -24,6 +24,8 @@ PACKAGES=(
   clang libclang-rt-14-dev
   # report plots; results as tables (experiments/dhrbench_results: runs_frame, frames_frame)
   python3 python3-matplotlib python3-numpy python3-pandas
+  # tests: report.html opened in headless Chromium (tests/python/test_report_html.py)
+  chromium
   # tests: scikit-image is the reference SSIM (tests/ssim_reference.py)
   python3-skimage
   # the one-node Slurm cluster of tests/slurm/run_slurm_test.sh (scripts/slurm/)
