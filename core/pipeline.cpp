@@ -1,6 +1,5 @@
 #include "core/pipeline.h"
 
-
 #include "core/composite.h"
 #include "core/depth_pass.h"
 #include "core/error.h"

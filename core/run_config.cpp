@@ -2,7 +2,6 @@
 // writer, the range checks and the cache keys.
 #include "core/run_config.h"
 
-
 #include "core/error.h"
 #include "core/fec.h"
 #include "core/json_io.h"
