@@ -228,12 +228,12 @@ def crossover_section(rq, cm, runs, sweep_keys, im, out):
     out.append("")
 
 
-def regime_section(plot, d, exp, ok, metrics, budget_points=12):
+def regime_tables(exp, ok, metrics, budget_points=12):
     """Per scene, which side -- hybrid or remote -- gives the better FLIP against the ground truth
     (SSIM where FLIP is not declared) at each bitrate budget and round-trip time
     (rate_quality.regime_map: each side's best family at that budget, each family's curve joined
     by PCHIP in log-rate within its measured range), when the runs hold both sides and a network
-    sweep of constant latencies: a markdown table and a heatmap (plots/regime_map_SCENE.png)."""
+    sweep of constant latencies. Returns (the metric's declaration, {(scene, rest): map}) or None."""
     import rate_quality as rq
     by_name = {im["name"]: im for im in metrics}
     im = by_name.get("flip") or by_name.get("ssim")
@@ -242,7 +242,7 @@ def regime_section(plot, d, exp, ok, metrics, budget_points=12):
     hybrid = {rq.family_of(r) for r in ok} - remote
     rtts = network_rtt_ms(ok)
     if im is None or not remote or not hybrid or not any(v is not None for v in rtts.values()):
-        return []
+        return None
     spec = exp.get("curves") if isinstance(exp.get("curves"), dict) else {}
     sweep_keys = sorted({k for r in ok for k in r.get("settings", {})})
     vary = [k for k in spec.get("vary", []) if isinstance(k, str)] or [k for k in sweep_keys if k != "network"]
@@ -252,7 +252,7 @@ def regime_section(plot, d, exp, ok, metrics, budget_points=12):
     cm = rq.curves(ok, [k for k in sweep_keys if k not in vary], vary, rate, lambda r: r["metrics"].get(key))
     rates = [x for pts in cm.values() for x, *_ in pts]
     if not rates:
-        return []
+        return None
     lo, hi = math.log10(min(rates)), math.log10(max(rates))
     budgets = [10 ** (lo + (hi - lo) * i / (budget_points - 1)) for i in range(budget_points)] if hi > lo else [min(rates)]
     table = rq.regime_map(cm, lambda f: f in remote, lambda v: rtts.get(v), budgets, "network", higher)
@@ -260,8 +260,62 @@ def regime_section(plot, d, exp, ok, metrics, budget_points=12):
     # trace has no RTT: a map of one side says nothing).
     table = {k: m for k, m in table.items()
              if all(any(c[side] for c in m["cells"].values()) for side in ("hybrid", "remote"))}
-    if not table:
+    return (im, table) if table else None
+
+
+def regime_file(title):
+    return "regime_map_" + "".join(c if c.isalnum() or c in "-_" else "_" for c in title).strip("_") + ".png"
+
+
+def answer_section(res, ok, regimes):
+    """The answer first (at most ten lines): the question, one sentence per scene from the regime
+    map (how many of the cells where both sides have a run each side wins, over which budgets,
+    and where only one side exists), the scale, and the figure that shows it."""
+    if not regimes:
         return []
+    im, table = regimes
+    name = im["name"].upper()
+    first = ok[0]["config"] if ok and "config" in ok[0] else {}
+    scenes = sorted({r["scene"] for r in ok})
+    frames = sorted({r["metrics"].get("frames_displayed") for r in ok if r["metrics"].get("frames_displayed")})
+    truth_frames = sorted({r["metrics"].get("frames_scored_ground_truth") for r in ok
+                           if r["metrics"].get("frames_scored_ground_truth")})
+    out = ["## The answer\n",
+           f"Question: at a given bitrate budget and round-trip time, does hybrid rendering or remote rendering "
+           f"give the better image ({name} against the ground truth)?\n"]
+    for (scene, rest), m in sorted(table.items()):
+        both = [(k, c) for k, c in m["cells"].items() if c["winner"] in ("hybrid", "remote", "tie")
+                and not c["only"]]
+        hw = [k for k, c in both if c["winner"] == "hybrid"]
+        rw = [k for k, c in both if c["winner"] == "remote"]
+        only = {side: sorted(b for (_, b), c in m["cells"].items() if c["only"] == side) for side in ("hybrid", "remote")}
+        parts = [f"hybrid better in {len(hw)} and remote in {len(rw)} of {len(both)} cells where both have a run"]
+        for side, won in (("hybrid", hw), ("remote", rw)):
+            if won:
+                bs = sorted(b for _, b in won)
+                parts.append(f"{side} wins at {bs[0]:.3g}-{bs[-1]:.3g} Mb/s")
+        for side in ("remote", "hybrid"):
+            if only[side]:
+                parts.append(f"only {side} reaches {only[side][0]:.3g}-{only[side][-1]:.3g} Mb/s")
+        rtt_list = ", ".join(f"{t:g}" for t in m["rtts"])
+        title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
+        out.append(f"- **{title}** (RTT {rtt_list} ms): " + "; ".join(parts) + ".")
+    w, h = first.get("width"), first.get("height")
+    out.append(f"\nScale: {w}x{h}, {len(scenes)} scene(s), {'/'.join(str(f) for f in frames)} displayed frames per run, "
+               f"{'/'.join(str(f) for f in truth_frames)} scored against the ground truth, {len(ok)} runs.\n")
+    (scene, rest), _ = sorted(table.items())[0]
+    title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
+    out.append(f"![regime map {title}](plots/{regime_file(title)})\n")
+    return out
+
+
+def regime_section(plot, d, regimes):
+    """The regime maps (regime_tables): a markdown table and a heatmap (plots/regime_map_SCENE.png)
+    per scene."""
+    if not regimes:
+        return []
+    im, table = regimes
+    higher = im.get("higher_is_better", True)
     name = im["name"].upper()
     out = ["## Regime map: hybrid or remote\n",
            f"Which side gives the better {name} against the ground truth (run means; {'higher' if higher else 'lower'} "
@@ -273,7 +327,7 @@ def regime_section(plot, d, exp, ok, metrics, budget_points=12):
            "budget; – neither.\n"]
     for (scene, rest), m in sorted(table.items()):
         title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
-        fname = "regime_map_" + "".join(c if c.isalnum() or c in "-_" else "_" for c in title).strip("_") + ".png"
+        fname = regime_file(title)
         out.append(f"{title}:\n")
         out.append("| RTT \\ Mb/s | " + " | ".join(f"{b:.3g}" for b in m["budgets"]) + " |")
         out.append("|---|" + "---|" * len(m["budgets"]))
@@ -684,15 +738,18 @@ def main(d):
     res, metrics, headline = loaded.results, loaded.declared["image_metrics"], loaded.headline
     ok = [r for r in res["runs"] if "metrics" in r]
     failed = [r for r in res["runs"] if "error" in r]
-    out = header_section(res) + context_section(res["context"]) + results_section(ok, failed, metrics, loaded.frames)
+    regimes = regime_tables(res["experiment"], ok, metrics)
+    header = header_section(res)
+    out = header[:1] + answer_section(res, ok, regimes) + header[1:] + context_section(res["context"])
+    out += results_section(ok, failed, metrics, loaded.frames)
     out += stages_section(ok) + plots_section(plot, d, ok, loaded.frames, headline)
     out += rate_quality_section(plot, d, res["experiment"], ok, metrics)
-    out += regime_section(plot, d, res["experiment"], ok, metrics)
+    out += regime_section(plot, d, regimes)
     out += grids_section(plot, d, ok) + notes_section(res["experiment"])
     with open(os.path.join(d, "report.md"), "w") as f:
         f.write("\n".join(out) + "\n")
     import report_html
-    report_html.write(d, header_section(res), res, ok, failed, metrics, metric_value)
+    report_html.write(d, header[:1] + answer_section(res, ok, regimes) + header[1:], res, ok, failed, metrics, metric_value)
 
 
 if __name__ == "__main__":
