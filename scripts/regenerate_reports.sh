@@ -52,6 +52,12 @@ for n in "${names[@]}"; do
   else
     rm -rf "reports/$n"
     cp -r "$scratch/$n" "reports/$n"
+    # The full-size frames (images/) stay out of the repository: the report is written again
+    # without them (report.md keeps its downscaled grids; report.html then has no image viewer).
+    if [ -d "reports/$n/images" ]; then
+      rm -rf "reports/$n/images"
+      "$exe" report "reports/$n" >/dev/null
+    fi
     # The repository keeps files under 4 MB: a larger frames.csv is committed gzip-compressed
     # (report.py and check_figures.py read either form).
     f="reports/$n/frames.csv"
