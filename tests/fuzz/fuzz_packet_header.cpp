@@ -3,7 +3,8 @@
 // checks behind the checksum would never be reached). Properties checked on every accepted
 // datagram: the fields are in range, and the datagram is byte for byte the one packetize()
 // (encode_control()) makes for those fields, i.e. the parsers accept exactly the canonical
-// encoding.
+// encoding (data packets; a parity packet's payload depends on the whole pass).
+#include "core/fec.h"
 #include "core/live_protocol.h"
 #include "core/packet.h"
 #include "tests/fuzz/fuzz_common.h"
@@ -16,20 +17,27 @@ namespace {
 
 void check_accepted(std::span<const uint8_t> d, const dhr::ParsedPacket& p) {
   using namespace dhr;
-  DHR_FUZZ_CHECK(p.count >= 1 && p.index < p.count);
+  DHR_FUZZ_CHECK(p.count >= 1 && size_t(p.index) < size_t(p.count) + p.parity);
   DHR_FUZZ_CHECK(p.chunk_bytes >= 1);
   DHR_FUZZ_CHECK(p.payload.data() == d.data() + kPacketHeaderBytes);
   DHR_FUZZ_CHECK(p.payload.size() == d.size() - kPacketHeaderBytes);
-  DHR_FUZZ_CHECK(p.offset() + p.payload.size() <= p.total_bytes);
   DHR_FUZZ_CHECK(p.meta.desc.validate().empty());
   DHR_FUZZ_CHECK(p.sequence == p.meta.first_sequence + p.index);
+  FecLayout fec;
+  DHR_FUZZ_CHECK(fec_layout(p.count, p.parity, fec));
+  if (p.is_parity()) {
+    // A parity packet's payload is a function of the whole pass: only its size is checked.
+    DHR_FUZZ_CHECK(p.total_bytes > 0 && p.payload.size() == fec_shard_bytes(p.total_bytes, p.chunk_bytes));
+    return;
+  }
+  DHR_FUZZ_CHECK(p.offset() + p.payload.size() <= p.total_bytes);
   // Rebuild the pass around this payload and packetize it again (small passes only, to keep
   // the fuzzer fast; chunks above what packetize() accepts cannot be rebuilt).
   if (p.total_bytes > (1u << 16) || p.chunk_bytes > kMaxPayloadLimitBytes) return;
   std::vector<uint8_t> pass(p.total_bytes, 0);
   std::copy(p.payload.begin(), p.payload.end(), pass.begin() + std::ptrdiff_t(p.offset()));
-  const auto again = packetize(p.meta, pass, p.chunk_bytes);  // must not throw
-  DHR_FUZZ_CHECK(again.size() == p.count);
+  const auto again = packetize(p.meta, pass, p.chunk_bytes, p.parity);  // must not throw
+  DHR_FUZZ_CHECK(again.size() == size_t(p.count) + p.parity);
   const auto& mine = again[p.index];
   DHR_FUZZ_CHECK(mine.size() == d.size() && std::memcmp(mine.data(), d.data(), d.size()) == 0);
 }
