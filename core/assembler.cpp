@@ -1,7 +1,5 @@
 #include "core/assembler.h"
 
-#include "core/fec.h"
-
 #include "core/error.h"
 
 #include <algorithm>
@@ -248,8 +246,7 @@ void Assembler::complete(Stream& s, size_t i) {
 // Rebuilds the missing data packets of a frame whose every FEC block has as many packets as
 // data packets (core/fec.h). False when the decoder refuses (cannot happen for valid layouts).
 bool Assembler::rebuild(Frame& f) {
-  FecLayout l;
-  if (!fec_layout(f.count, f.parity, l)) return false;
+  const FecLayout& l = f.fec;
   const size_t shard = fec_shard_bytes(f.total_bytes, f.chunk_bytes);
   const auto has = [&](int i) { return (f.have[size_t(i) / 64] >> (i % 64)) & 1u; };
   uint64_t rebuilt = 0;
@@ -370,7 +367,7 @@ PacketFate Assembler::push(std::span<const uint8_t> datagram, int64_t now_ms) {
     f.total_bytes = p.total_bytes;
     f.count = p.count;
     f.chunk_bytes = p.chunk_bytes;
-    f.parity = p.parity;
+    f.fec = fec;
     f.first_packet_ms = now;
     f.bytes.resize(data_bytes);
     f.parity_bytes.resize(parity_bytes);
@@ -382,7 +379,7 @@ PacketFate Assembler::push(std::span<const uint8_t> datagram, int64_t now_ms) {
   } else {
     const Frame& f = *fit;
     // Sequence numbers are consecutive within a frame, so first_sequence must agree too.
-    if (p.total_bytes != f.total_bytes || p.count != f.count || p.chunk_bytes != f.chunk_bytes || p.parity != f.parity ||
+    if (p.total_bytes != f.total_bytes || p.count != f.count || p.chunk_bytes != f.chunk_bytes || p.parity != f.fec.parity ||
         p.meta.desc != f.meta.desc || p.meta.codec_id != f.meta.codec_id ||
         p.meta.first_sequence != f.meta.first_sequence)
       return count_fate(PacketFate::Inconsistent);
@@ -404,14 +401,9 @@ PacketFate Assembler::push(std::span<const uint8_t> datagram, int64_t now_ms) {
   ++f.received;
   if (!p.is_parity()) ++f.received_data;
   bool done = f.received_data == f.count;
-  if (!done && f.parity) {
-    FecLayout fec;
-    fec_layout(f.count, f.parity, fec);
-    const int b = fec.block_of(p.index);
-    ++f.block_have[size_t(b)];
-    done = true;
-    for (int k = 0; k < fec.blocks && done; ++k) done = f.block_have[size_t(k)] >= fec.block_data(k);
-    done = done && rebuild(f);
+  if (!done && f.fec.parity) {
+    ++f.block_have[size_t(f.fec.block_of(p.index))];
+    done = fec_blocks_complete(f.fec, f.block_have) && rebuild(f);
   }
   if (done) {
     complete(s, size_t(fit - s.frames.begin()));

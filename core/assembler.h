@@ -16,6 +16,7 @@
 // out, superseded by a newer completed frame, evicted to respect a limit, or flushed.
 #pragma once
 
+#include "core/fec.h"
 #include "core/packet.h"
 
 #include <array>
@@ -171,7 +172,7 @@ class Assembler {
     uint32_t total_bytes = 0;
     uint16_t count = 0;
     uint16_t chunk_bytes = 0;
-    uint16_t parity = 0;
+    FecLayout fec;               // parity packets and their blocks (fec.parity 0: none)
     uint16_t received = 0;       // data and parity packets
     uint16_t received_data = 0;
     std::vector<uint8_t> bytes;  // the pass; with parity: count shards of the FEC shard size

@@ -35,17 +35,19 @@ int fec_parity_count(int data, double fraction, int min_parity) {
   return std::min(m * l.blocks, 65535 - data);
 }
 
+bool fec_blocks_complete(const FecLayout& l, std::span<const uint16_t> block_have) {
+  if (block_have.size() != size_t(l.blocks)) return false;
+  for (int b = 0; b < l.blocks; ++b)
+    if (block_have[size_t(b)] < l.block_data(b)) return false;
+  return true;
+}
+
 bool fec_can_rebuild(const FecLayout& l, const std::vector<bool>& arrived) {
   if (arrived.size() != size_t(l.data + l.parity)) return false;
-  std::vector<int> have(size_t(l.blocks), 0);
-  bool all_data = true;
+  std::vector<uint16_t> have(size_t(l.blocks), 0);
   for (int i = 0; i < l.data + l.parity; ++i)
     if (arrived[size_t(i)]) ++have[size_t(l.block_of(i))];
-    else all_data = all_data && i >= l.data;
-  if (all_data) return true;
-  for (int b = 0; b < l.blocks; ++b)
-    if (have[size_t(b)] < l.block_data(b)) return false;
-  return true;
+  return fec_blocks_complete(l, have);
 }
 
 namespace {

@@ -45,8 +45,10 @@ bool fec_layout(int data, int parity, FecLayout& out);
 // fraction outside 0..1 or min_parity outside 0..kFecMaxShards - 1.
 int fec_parity_count(int data, double fraction, int min_parity);
 
-// True when the packets marked in `arrived` (data + parity entries, in index order) rebuild
-// every data packet.
+// True when every block holds at least as many packets (data or parity) as it has data packets:
+// then every data packet is there or can be rebuilt. `block_have` holds the count per block.
+bool fec_blocks_complete(const FecLayout& layout, std::span<const uint16_t> block_have);
+// The same for the packets marked in `arrived` (data + parity entries, in index order).
 bool fec_can_rebuild(const FecLayout& layout, const std::vector<bool>& arrived);
 
 // Parity of one block: `k` data shards and `m` parity shards of `len` bytes each.

@@ -1,10 +1,10 @@
 #include "core/frame_loop.h"
 
 #include "core/assembler.h"
-#include "core/fec.h"
 #include "core/checksum.h"
 #include "core/composite.h"
 #include "core/error.h"
+#include "core/fec.h"
 #include "core/metrics.h"
 #include "core/packet.h"
 #include "core/pipeline.h"
@@ -734,7 +734,6 @@ class Simulation {
     // All packets leave when the server finishes.
     for (size_t i = 0; i < f.passes.size(); ++i) {
       PassTraffic& t = traffic_[traffic_index_[i]];
-      bool dropped = false;
       std::vector<bool> arrived;
       for (auto& packet : f.passes[i].packets) {
         const uint64_t wire = packet.size() + kIpUdpOverheadBytes;
@@ -744,13 +743,12 @@ class Simulation {
         }
         const Delivery d = downlink_.send(wire, finish);
         if (d.delivered) in_flight_.push({d.arrival_ms, send_order_++, std::move(packet)});
-        dropped = dropped || !d.delivered;
         arrived.push_back(d.delivered);
       }
       // The simulator knows which datagrams the link dropped: a frame with any of them lost
       // can never complete, unless its parity packets rebuild them (core/fec.h). (The receiver
       // sees a loss as a gap in the sequence numbers.)
-      if (count && dropped) {
+      if (count && std::find(arrived.begin(), arrived.end(), false) != arrived.end()) {
         const int data = int(packet_count(f.passes[i].encoded_bytes, c_.max_payload_bytes));
         FecLayout fec;
         const bool rebuilt = fec_layout(data, int(arrived.size()) - data, fec) && fec_can_rebuild(fec, arrived);

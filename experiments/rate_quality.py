@@ -354,13 +354,10 @@ def beats(test, other, higher_is_better=True, method="pchip"):
     return None
 
 
-def crossover(curve_map, is_remote, rtt_of, latency_key="network", higher_is_better=True):
-    """Where hybrid starts to win, per scene (and other conditions than `latency_key`): for every
-    hybrid family, the smallest round-trip time from which on, at every measured RTT, it beats
-    (beats()) every remote family measured there. `is_remote(family)` tells the sides apart;
-    `rtt_of(value)` gives the RTT in ms of a `latency_key` value, or None (a trace: left out).
-    Returns {(scene, other conditions): {"rtts": [...], "families": {family: RTT or None (it does
-    not win at the largest RTT)}, "wins": {family: {rtt: True/False/None}}}}."""
+def latency_groups(curve_map, rtt_of, latency_key):
+    """The curves by (scene, conditions other than `latency_key`), then by round-trip time:
+    {(scene, rest): {rtt: {family: [(rate, quality), ...]}}}; curves whose `latency_key` value has
+    no RTT (rtt_of gives None: a trace) are left out."""
     groups = {}
     for (scene, cond, fam), pts in curve_map.items():
         lat = dict(cond).get(latency_key)
@@ -369,6 +366,17 @@ def crossover(curve_map, is_remote, rtt_of, latency_key="network", higher_is_bet
             continue
         rest = tuple((k, v) for k, v in cond if k != latency_key)
         groups.setdefault((scene, rest), {}).setdefault(rtt, {})[fam] = [(x, y) for x, y, *_ in pts]
+    return groups
+
+
+def crossover(curve_map, is_remote, rtt_of, latency_key="network", higher_is_better=True):
+    """Where hybrid starts to win, per scene (and other conditions than `latency_key`): for every
+    hybrid family, the smallest round-trip time from which on, at every measured RTT, it beats
+    (beats()) every remote family measured there. `is_remote(family)` tells the sides apart;
+    `rtt_of(value)` gives the RTT in ms of a `latency_key` value, or None (a trace: left out).
+    Returns {(scene, other conditions): {"rtts": [...], "families": {family: RTT or None (it does
+    not win at the largest RTT)}, "wins": {family: {rtt: True/False/None}}}}."""
+    groups = latency_groups(curve_map, rtt_of, latency_key)
     out = {}
     for key, by_rtt in sorted(groups.items()):
         rtts = sorted(by_rtt)
@@ -423,14 +431,7 @@ def regime_map(curve_map, is_remote, rtt_of, budgets, latency_key="network", hig
     quality) or None, "remote": ..., "winner": "hybrid", "remote", "tie" or None (neither has a
     point at or under the budget), "only": the side that alone has one (else None), "margin":
     hybrid's quality minus remote's, signed so that > 0 favours hybrid (None unless both)}}}}."""
-    groups = {}
-    for (scene, cond, fam), pts in curve_map.items():
-        lat = dict(cond).get(latency_key)
-        rtt = rtt_of(lat) if lat is not None else None
-        if rtt is None:
-            continue
-        rest = tuple((k, v) for k, v in cond if k != latency_key)
-        groups.setdefault((scene, rest), {}).setdefault(rtt, {})[fam] = [(x, y) for x, y, *_ in pts]
+    groups = latency_groups(curve_map, rtt_of, latency_key)
     out = {}
     for key, by_rtt in sorted(groups.items()):
         cells = {}

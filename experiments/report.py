@@ -740,7 +740,8 @@ def main(d):
     failed = [r for r in res["runs"] if "error" in r]
     regimes = regime_tables(res["experiment"], ok, metrics)
     header = header_section(res)
-    out = header[:1] + answer_section(res, ok, regimes) + header[1:] + context_section(res["context"])
+    header = header[:1] + answer_section(res, ok, regimes) + header[1:]
+    out = header + context_section(res["context"])
     out += results_section(ok, failed, metrics, loaded.frames)
     out += stages_section(ok) + plots_section(plot, d, ok, loaded.frames, headline)
     out += rate_quality_section(plot, d, res["experiment"], ok, metrics)
@@ -749,7 +750,7 @@ def main(d):
     with open(os.path.join(d, "report.md"), "w") as f:
         f.write("\n".join(out) + "\n")
     import report_html
-    report_html.write(d, header[:1] + answer_section(res, ok, regimes) + header[1:], res, ok, failed, metrics, metric_value)
+    report_html.write(d, header, res, ok, failed, metrics, metric_value)
 
 
 if __name__ == "__main__":
