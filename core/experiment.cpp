@@ -145,7 +145,8 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   e.source = j;
   std::vector<std::string> problems;
   Reader top{j, path, problems};
-  top.keys({"version", "name", "description", "scenes", "run", "networks", "sweep", "configurations", "curves", "notes"});
+  top.keys({"version", "name", "description", "scenes", "run", "networks", "sweep", "configurations", "curves", "answer",
+            "notes"});
   if (!j.is_object()) fail("{}: an experiment must be a JSON object", path);
   int version = kExperimentVersion;
   if (!j.contains("version")) {
@@ -295,6 +296,32 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
                                          path, text_excerpt(anchor),
                                          text_excerpt(fmt::format("{}", fmt::join(families, ", ")), 200)));
     }
+  }
+
+  // The report's answer (experiments/report.py, "The answer"): its question, the cost the
+  // Pareto front is drawn against, or a key whose values the answer compares along another.
+  if (j.contains("answer")) {
+    const auto& an = j.at("answer");
+    Reader r{an, path + ".answer", problems};
+    r.keys({"question", "cost", "group", "along"});
+    std::string text;
+    r.string("question", text);
+    if (r.has("question") && (text.empty() || text.size() > 400))
+      problems.push_back(fmt::format("{}.answer.question: must be 1-400 characters", path));
+    r.string("cost", text, {"bandwidth", "server_time"});
+    for (const char* k : {"group", "along"}) {
+      std::string key;
+      r.string(k, key);
+      if (key.empty()) continue;
+      bool used = false;
+      for (const auto& a : axes) used = used || a.first == key;
+      for (const auto& c : configs) used = used || c.set.contains(key);
+      if (!used)
+        problems.push_back(fmt::format("{}.answer.{}: '{}' is not a key of \"sweep\" or of a configuration's \"set\"", path, k,
+                                       text_excerpt(key)));
+    }
+    if (r.has("group") && !r.has("along"))
+      problems.push_back(fmt::format("{}.answer: \"group\" needs \"along\" (the key whose values each group is compared over)", path));
   }
 
   // Problems of the expanded run settings, grouped: message -> the runs it concerns.

@@ -159,6 +159,17 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
   std::ofstream(bad) << e.dump();
   EXPECT_NE(run("validate " + bad.string(), &log), 0);
   EXPECT_NE(log.find("must be a family's name or a non-empty list of them"), std::string::npos) << log;
+  // The report's answer: a cost it does not know, a group without "along", a key nothing sets.
+  e["curves"] = {{"vary", {"passes.ao.codec"}}};
+  e["answer"] = {{"cost", "joules"}, {"group", "trace.ao_rays"}};
+  std::ofstream(bad) << e.dump();
+  EXPECT_NE(run("validate " + bad.string(), &log), 0);
+  EXPECT_NE(log.find("answer.cost = \"joules\": must be one of"), std::string::npos) << log;
+  EXPECT_NE(log.find("answer.group: 'trace.ao_rays' is not a key"), std::string::npos) << log;
+  EXPECT_NE(log.find("\"group\" needs \"along\""), std::string::npos) << log;
+  e["answer"] = {{"question", "which AO codec?"}, {"cost", "server_time"}};
+  std::ofstream(bad) << e.dump();
+  EXPECT_EQ(run("validate " + bad.string(), &log), 0) << log;
   fs::remove(bad);
 }
 
