@@ -267,22 +267,144 @@ def regime_file(title):
     return "regime_map_" + "".join(c if c.isalnum() or c in "-_" else "_" for c in title).strip("_") + ".png"
 
 
-def answer_section(res, ok, regimes):
-    """The answer first (at most ten lines): the question, one sentence per scene from the regime
-    map (how many of the cells where both sides have a run each side wins, over which budgets,
-    and where only one side exists), the scale, and the figure that shows it."""
-    if not regimes:
-        return []
-    im, table = regimes
-    name = im["name"].upper()
+def scene_name(scene):
+    """A scene as a reader names it: room, classroom (not scenes/real/classroom.json)."""
+    base = scene.replace("\\", "/").rsplit("/", 1)[-1]
+    return base[:-5] if base.endswith(".json") else base
+
+
+def lead_metric(metrics):
+    """The metric an answer is given in: FLIP where the results declare it (it sees the AO and
+    shadow passes that SSIM barely moves for), else the first declared (SSIM)."""
+    by_name = {im["name"]: im for im in metrics}
+    return by_name.get("flip") or metrics[0]
+
+
+def scale_line(ok):
+    """Resolution, scenes, frames and runs the answer rests on."""
     first = ok[0]["config"] if ok and "config" in ok[0] else {}
     scenes = sorted({r["scene"] for r in ok})
     frames = sorted({r["metrics"].get("frames_displayed") for r in ok if r["metrics"].get("frames_displayed")})
     truth_frames = sorted({r["metrics"].get("frames_scored_ground_truth") for r in ok
                            if r["metrics"].get("frames_scored_ground_truth")})
+    seeds = sorted({r.get("config", {}).get("seed") for r in ok if r.get("config", {}).get("seed") is not None})
+    truth = (f", {'/'.join(str(f) for f in truth_frames)} scored against the ground truth" if truth_frames
+             else ", none scored against a ground truth")
+    found = convergence_checks(ok)
+    scored = {r["scene"] for r in ok if r.get("config", {}).get("ground_truth_every")}
+    converged = ""
+    if scored and scored <= set(found) and all("flip_mean" in found[s][2]["summary"] for s in scored):
+        worst = max(scored, key=lambda s: found[s][2]["summary"]["flip_mean"])
+        converged = (f"; the ground truth is within FLIP {found[worst][2]['summary']['flip_mean']:.3g} of "
+                     f"{found[worst][1]['factor']}x its samples ({scene_name(worst)}, the farthest; "
+                     "\"Ground truth convergence\")")
+    return (f"Scale: {first.get('width')}x{first.get('height')}, {len(scenes)} scene(s), "
+            f"{'/'.join(str(f) for f in frames)} displayed frames per run{truth}, "
+            f"{len(seeds)} seed(s), {len(ok)} runs{converged}.")
+
+
+CONVERGE_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "reports", "converge")
+
+
+def converge_command(c):
+    """The command that gives a convergence file (reports/converge/), from what it records."""
+    scenes = " ".join(f"--scene {s['scene']}" for s in c["scenes"])
+    frames = max(len(s["frames"]) for s in c["scenes"])
+    return (f"dhrbench converge {scenes} --width {c['width']} --height {c['height']} --frames {frames} "
+            f"--ao-rays {c['ao_rays']} --samples-per-light {c['samples_per_light']} --sampling {c['sampling']} "
+            f"--factor {c['factor']}")
+
+
+def convergence_checks(ok):
+    """Per scene of the runs, the committed check (reports/converge/*.json, `dhrbench converge`)
+    of the ground truth the runs were scored against: {scene: (file name, the check, its scene
+    entry)}, for the scenes a check with the same size, samples and sampling covers."""
+    found = {}
+    try:
+        names = sorted(n for n in os.listdir(CONVERGE_DIR) if n.endswith(".json"))
+    except OSError:
+        return found
+    checks = []
+    for n in names:
+        path = os.path.join(CONVERGE_DIR, n)
+        chk = dr.load_json(path)  # a damaged check is an error naming the file, never skipped
+        scenes = chk.get("scenes") if isinstance(chk, dict) else None
+        if not isinstance(scenes, list) or not all(
+                isinstance(s, dict) and isinstance(s.get("frames"), list) and isinstance(s.get("summary"), dict)
+                and all(isinstance(v, (int, float)) for v in s["summary"].values()) for s in scenes):
+            raise BadResults(f"{path}: not the convergence.json of `dhrbench converge` (scenes: a list of "
+                             "{scene, frames, summary of numbers})")
+        checks.append((n, chk))
+    for r in ok:
+        c = r.get("config", {})
+        if r["scene"] in found or not c.get("ground_truth_every"):
+            continue
+        want = (c.get("width"), c.get("height"), c.get("ground_truth_ao_rays"), c.get("ground_truth_samples_per_light"),
+                c.get("ground_truth_sampling"))
+        for n, chk in checks:
+            if not isinstance(chk, dict):
+                continue
+            have = (chk.get("width"), chk.get("height"), chk.get("ao_rays"), chk.get("samples_per_light"), chk.get("sampling"))
+            entry = next((s for s in chk.get("scenes", []) if isinstance(s, dict)
+                          and s.get("scene") == scene_name(r["scene"])), None)
+            if have == want and entry is not None:
+                found[r["scene"]] = (n, chk, entry)
+                break
+    return found
+
+
+def convergence_section(ok):
+    """The ground truth shown converged: per scene, the committed check against factor x its
+    samples, or how to make one."""
+    scored = [r for r in ok if r.get("config", {}).get("ground_truth_every")]
+    if not scored:
+        return []
+    found = convergence_checks(scored)
+    out = ["## Ground truth convergence\n",
+           "Each figure scores the ground truth these runs were scored against (same size, samples and sampling; "
+           "an independent seed) against one with factor x its samples (`dhrbench converge`): the difference bounds "
+           "the ground truth's own error from above, so a run's difference from the ground truth smaller than this "
+           "is within the ground truth's noise.\n",
+           "| scene | check | factor | frames | FLIP mean (worst) | SSIM mean (worst) | PSNR dB mean |",
+           "|---|---|---:|---:|---:|---:|---:|"]
+    for scene in sorted({r["scene"] for r in scored}):
+        if scene in found:
+            n, chk, e = found[scene]
+            sm = e.get("summary", {})
+            out.append(f"| {scene_name(scene)} | `reports/converge/{n}` | {chk.get('factor')} | "
+                       f"{len(e.get('frames', []))} | {fmt(sm.get('flip_mean'))} ({fmt(sm.get('flip_worst'))}) | "
+                       f"{fmt(sm.get('ssim_mean'))} ({fmt(sm.get('ssim_worst'))}) | {fmt(sm.get('psnr_mean'), 2)} |")
+        else:
+            c = next(r["config"] for r in scored if r["scene"] == scene)
+            out.append(f"| {scene_name(scene)} | none committed: `dhrbench converge --scene {scene_name(scene)} --width "
+                       f"{c.get('width')} --height {c.get('height')} --ao-rays {c.get('ground_truth_ao_rays')} "
+                       f"--samples-per-light {c.get('ground_truth_samples_per_light')} --sampling "
+                       f"{c.get('ground_truth_sampling')}` | | | | | |")
+    commands = sorted({converge_command(chk) for n, chk, e in found.values()})
+    if commands:
+        out.append("\nCommands: " + "; ".join(f"`{c}`" for c in commands) + ".\n")
+    else:
+        out.append("")
+    return out
+
+
+class Answer(NamedTuple):
+    """The answer first: report.md's opening lines and the one sentence reports/README.md quotes."""
+    lines: list
+    sentence: str
+
+
+def regime_answer(ok, regimes):
+    """The answer of a report that holds both sides at constant latencies: the question, one
+    sentence per scene from the regime map (how many of the cells where both sides have a run
+    each side wins, over which budgets, and where only one side exists), the scale, and the
+    figure that shows it."""
+    im, table = regimes
+    name = im["name"].upper()
     out = ["## The answer\n",
            f"Question: at a given bitrate budget and round-trip time, does hybrid rendering or remote rendering "
            f"give the better image ({name} against the ground truth)?\n"]
+    short, rows = [], []
     for (scene, rest), m in sorted(table.items()):
         both = [(k, c) for k, c in m["cells"].items() if c["winner"] in ("hybrid", "remote", "tie")
                 and not c["only"]]
@@ -299,14 +421,122 @@ def answer_section(res, ok, regimes):
                 parts.append(f"only {side} reaches {only[side][0]:.3g}-{only[side][-1]:.3g} Mb/s")
         rtt_list = ", ".join(f"{t:g}" for t in m["rtts"])
         title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
-        out.append(f"- **{title}** (RTT {rtt_list} ms): " + "; ".join(parts) + ".")
-    w, h = first.get("width"), first.get("height")
-    out.append(f"\nScale: {w}x{h}, {len(scenes)} scene(s), {'/'.join(str(f) for f in frames)} displayed frames per run, "
-               f"{'/'.join(str(f) for f in truth_frames)} scored against the ground truth, {len(ok)} runs.\n")
+        rows.append(f"- **{title}** (RTT {rtt_list} ms): " + "; ".join(parts) + ".")
+        short.append(f"{scene_name(scene)} {len(hw)}:{len(rw)}" + (f", only remote under {only['remote'][-1]:.3g} Mb/s"
+                                                                  if only["remote"] else ""))
+    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
+    out.append("\n" + scale_line(ok) + "\n")
     (scene, rest), _ = sorted(table.items())[0]
     title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
     out.append(f"![regime map {title}](plots/{regime_file(title)})\n")
-    return out
+    sentence = (f"At matched bitrate and RTT, cells where hybrid : remote gives the better {name} against the ground "
+                f"truth: " + "; ".join(short) + ".")
+    return Answer(out, sentence)
+
+
+def scene_values(ok, scene, im):
+    """(run, value) of an image metric's run means on one scene, against the ground truth where
+    every run of the scene scored it, else against the local reference; and which reference."""
+    rs = [r for r in ok if r["scene"] == scene]
+    truth = [r["metrics"].get(im["aggregates"]["ground_truth"]["mean"]) for r in rs]
+    ref = "ground_truth" if rs and all(v is not None for v in truth) else "local"
+    vals = [(r, r["metrics"].get(im["aggregates"][ref]["mean"])) for r in rs]
+    return [(r, v) for r, v in vals if isinstance(v, (int, float)) and math.isfinite(v)], ref
+
+
+REFERENCE_WORDS = {"ground_truth": "the ground truth", "local": "the local reference"}
+
+
+def front_answer(ok, metrics, spec):
+    """The answer of a report without both sides at constant latencies: per scene, the best run on
+    the lead metric, the cheapest run (bandwidth, or the server's time where the experiment's
+    answer.cost says so), and how many runs lie on the front of quality against that cost."""
+    im = lead_metric(metrics)
+    name = im["name"].upper()
+    higher = im.get("higher_is_better", True)
+    key = lambda v: v if higher else -v  # noqa: E731  larger is better
+    by_time = spec.get("cost") == "server_time"
+    cost = server_ms if by_time else (lambda r: r["metrics"].get("bandwidth_mbps") or None)  # noqa: E731
+    unit = "ms of server time per frame" if by_time else "Mb/s"
+    rows, short, refs = [], [], set()
+    for scene in sorted({r["scene"] for r in ok}):
+        vals, ref = scene_values(ok, scene, im)
+        vals = [(r, v) for r, v in vals if cost(r)]
+        if not vals:
+            continue
+        refs.add(ref)
+        best_r, best_v = max(vals, key=lambda rv: key(rv[1]))
+        cheap_r, cheap_v = min(vals, key=lambda rv: cost(rv[0]))
+        front = pareto([(cost(r), key(v)) for r, v in vals])
+        rows.append(f"- **{scene_name(scene)}**: best {name} {best_v:.4g} ({best_r['label']}, {cost(best_r):.3g} {unit}); "
+                    f"cheapest {cost(cheap_r):.3g} {unit} ({cheap_r['label']}, {name} {cheap_v:.4g}); "
+                    f"{len(front)} of {len(vals)} runs on the front.")
+        short.append(f"{scene_name(scene)} {best_v:.4g} ({best_r['label']}, {cost(best_r):.3g} {unit})")
+    if not rows:
+        return Answer([], "")
+    against = " and ".join(REFERENCE_WORDS[r] for r in sorted(refs))
+    question = spec.get("question") or f"which configuration gives the best image for the {'server time' if by_time else 'bandwidth'} it costs?"
+    out = ["## The answer\n",
+           f"Question: {question} ({name} against {against}; {'higher' if higher else 'lower'} is better; the front: "
+           f"the runs no other run of the scene beats on both quality and {'server time' if by_time else 'bandwidth'}.)\n"]
+    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
+    out.append("\n" + scale_line(ok) + "\n")
+    plot = "quality_vs_server_time" if by_time else "quality_vs_bandwidth"
+    out.append(f"![quality against {'server time' if by_time else 'bandwidth'}](plots/{plot}.png)\n")
+    return Answer(out, f"Best {name} against {against} per scene: " + "; ".join(short) + ".")
+
+
+def range_answer(ok, metrics, spec):
+    """The answer of a report that compares groups (answer.group, e.g. the predictor) along a
+    condition (answer.along, e.g. the network): per scene and group, the lead metric at the best and
+    the worst value of the condition."""
+    im = lead_metric(metrics)
+    name = im["name"].upper()
+    higher = im.get("higher_is_better", True)
+    key = lambda v: v if higher else -v  # noqa: E731
+    group, along = spec["group"], spec["along"]
+    rows, short, refs = [], [], set()
+    for scene in sorted({r["scene"] for r in ok}):
+        vals, ref = scene_values(ok, scene, im)
+        groups = {}
+        for r, v in vals:
+            st = r.get("settings", {})
+            if group in st and along in st:
+                groups.setdefault(str(st[group]), []).append((str(st[along]), v))
+        if not groups:
+            continue
+        refs.add(ref)
+        parts = []
+        for g, pts in sorted(groups.items()):
+            best = max(pts, key=lambda p: key(p[1]))
+            worst = min(pts, key=lambda p: key(p[1]))
+            parts.append(f"{g}: {best[1]:.4g} ({best[0]}) to {worst[1]:.4g} ({worst[0]})")
+        rows.append(f"- **{scene_name(scene)}**, {name} by {group}: " + "; ".join(parts) + ".")
+        short.append(f"{scene_name(scene)}: " + "; ".join(parts))
+    if not rows:
+        return Answer([], "")
+    against = " and ".join(REFERENCE_WORDS[r] for r in sorted(refs))
+    question = spec.get("question") or f"how does the image change with {along}, for each {group}?"
+    out = ["## The answer\n",
+           f"Question: {question} ({name} against {against}, {'higher' if higher else 'lower'} is better: each "
+           f"{group}'s best and worst run over the values of {along}.)\n"]
+    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
+    out.append("\n" + scale_line(ok) + "\n")
+    return Answer(out, f"{name} against {against}, best to worst over {along}: " + " | ".join(short) + ".")
+
+
+def answer(exp, ok, metrics, regimes):
+    """The answer first (at most ten lines): from the regime map where the report holds both sides
+    at constant latencies; else along the condition the experiment's "answer" names; else from the
+    Pareto fronts."""
+    if not ok or not metrics:
+        return Answer([], "")
+    spec = exp.get("answer") if isinstance(exp.get("answer"), dict) else {}
+    if regimes:
+        return regime_answer(ok, regimes)
+    if isinstance(spec.get("group"), str) and isinstance(spec.get("along"), str):
+        return range_answer(ok, metrics, spec)
+    return front_answer(ok, metrics, spec)
 
 
 def regime_section(plot, d, regimes):
@@ -466,7 +696,9 @@ def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
 
 
 def scatter_with_front(plot, headline, runs, xkey, xlabel, title, path, logx=False):
-    """Per scene, the headline metric (metric_value) against `xkey` with the Pareto front."""
+    """Per scene, an image metric (metric_value) against `xkey` with the Pareto front, its points
+    labelled by configuration."""
+    sign = 1 if headline.get("higher_is_better", True) else -1
     scenes = sorted({r["scene"] for r in runs})
     fig, axes = plot.plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.2), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
@@ -475,16 +707,19 @@ def scatter_with_front(plot, headline, runs, xkey, xlabel, title, path, logx=Fal
         if not pts:
             continue
         ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=18, color="tab:blue", zorder=2)
-        front = pareto(pts)
+        front = pareto([(x, sign * q) for x, q in pts])
         ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], color="tab:red", lw=1.2, zorder=1,
                 label="Pareto front")
         for i in front:
-            ax.annotate(rs[i]["id"], pts[i], fontsize=7, xytext=(3, 3), textcoords="offset points")
+            label = rs[i].get("label") or rs[i]["id"]
+            ax.annotate(label if len(label) <= 32 else label[:31] + "…", pts[i], fontsize=6, xytext=(3, 3),
+                        textcoords="offset points")
         if logx and all(p[0] > 0 for p in pts):
             ax.set_xscale("log")
         ax.set_title(scene)
         ax.set_xlabel(xlabel)
-        ax.set_ylabel(f"{headline['name'].upper()} (vs ground truth where scored, else local reference)")
+        ax.set_ylabel(f"{headline['name'].upper()} (vs ground truth where scored, else local reference; "
+                      f"{'higher' if sign > 0 else 'lower'} is better)", fontsize=8)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(title)
@@ -635,15 +870,15 @@ def per_frame_plot(plot, ok, frames, headline, path):
     plt.close(fig)
 
 
-def plots_section(plot, d, ok, frames, headline):
-    """Quality against bandwidth and server time (Pareto fronts), frame size against frame rate,
-    the headline metric per frame."""
+def plots_section(plot, d, ok, frames, headline, lead):
+    """Quality (the lead metric) against bandwidth and server time (Pareto fronts), frame size
+    against frame rate, the headline metric per frame."""
     if not ok:
         return []
     plots = os.path.join(d, "plots")
-    scatter_with_front(plot, headline, ok, lambda r: r["metrics"]["bandwidth_mbps"], "bandwidth on the wire (Mb/s)",
+    scatter_with_front(plot, lead, ok, lambda r: r["metrics"]["bandwidth_mbps"], "bandwidth on the wire (Mb/s)",
                        "Quality against bandwidth", os.path.join(plots, "quality_vs_bandwidth.png"), logx=True)
-    scatter_with_front(plot, headline, ok, server_ms, "server wall time per frame (ms, sum of stage medians)",
+    scatter_with_front(plot, lead, ok, server_ms, "server wall time per frame (ms, sum of stage medians)",
                        "Quality against server time", os.path.join(plots, "quality_vs_server_time.png"))
     have_fps = frame_size_plot(plot, ok, os.path.join(plots, "frame_size_vs_fps.png"))
     out = ["## Plots\n", "Red: the Pareto front (no other run of the scene is both cheaper and better).\n",
@@ -740,12 +975,13 @@ def main(d):
     failed = [r for r in res["runs"] if "error" in r]
     regimes = regime_tables(res["experiment"], ok, metrics)
     header = header_section(res)
-    header = header[:1] + answer_section(res, ok, regimes) + header[1:]
+    header = header[:1] + answer(res["experiment"], ok, metrics, regimes).lines + header[1:]
     out = header + context_section(res["context"])
     out += results_section(ok, failed, metrics, loaded.frames)
-    out += stages_section(ok) + plots_section(plot, d, ok, loaded.frames, headline)
+    out += stages_section(ok) + plots_section(plot, d, ok, loaded.frames, headline, lead_metric(metrics))
     out += rate_quality_section(plot, d, res["experiment"], ok, metrics)
     out += regime_section(plot, d, regimes)
+    out += convergence_section(ok)
     out += grids_section(plot, d, ok) + notes_section(res["experiment"])
     with open(os.path.join(d, "report.md"), "w") as f:
         f.write("\n".join(out) + "\n")
