@@ -876,6 +876,36 @@ TEST(VideoCodecs, CountPlaneKeepsItsPsnrWhenTheRangeChanges) {
     }
 }
 
+// chroma "444" keeps full-resolution chroma: on alternating red and blue columns (same luma
+// band, chroma changing every pixel) 4:2:0 averages each pair of columns to purple while 4:4:4
+// returns the colours. Each video codec, CRF 10, one keyframe of 64x48.
+TEST(VideoCodecs, Chroma444KeepsOnePixelColourDetail) {
+  const std::vector<std::string> names = lossy_video_codecs();
+  ASSERT_FALSE(names.empty()) << "no lossy video codec registered";
+  PassBuffer in;
+  in.desc = PassDesc{PassKind::Colour, 64, 48, 3, 255};
+  in.bytes.resize(in.desc.byte_size());
+  for (int y = 0; y < 48; ++y)
+    for (int x = 0; x < 64; ++x) {
+      uint8_t* p = &in.bytes[(size_t(y) * 64 + size_t(x)) * 3];
+      p[0] = x % 2 ? 40 : 200;
+      p[1] = 60;
+      p[2] = x % 2 ? 200 : 40;
+    }
+  for (const std::string& name : names) {
+    double db[2] = {0, 0};
+    for (int i = 0; i < 2; ++i) {
+      auto codec = registries().codecs.create(name, {{"crf", 10}, {"chroma", i == 0 ? "420" : "444"}});
+      std::vector<uint8_t> bytes;
+      codec->encode(in, {}, bytes);
+      db[i] = test::buffer_psnr_db(in, decode_or_fail(*codec, bytes, in.desc));
+    }
+    std::printf("%-5s red/blue columns at crf 10: 4:2:0 %.2f dB, 4:4:4 %.2f dB\n", name.c_str(), db[0], db[1]);
+    EXPECT_LT(db[0], 25.0) << name << ": 4:2:0 cannot hold one-pixel chroma";
+    EXPECT_GT(db[1], db[0] + 10.0) << name;
+  }
+}
+
 // hevc and av1 promise bytes independent of their thread count (x265: one frame thread, a
 // pool of `threads`; libaom: row-mt off). h264 does not (x264's frame threads change the bytes).
 TEST(VideoCodecs, HevcAndAv1BytesDoNotDependOnThreads) {

@@ -4,6 +4,7 @@
 extern "C" {
 #include <libavutil/imgutils.h>
 #include <libavutil/opt.h>
+#include <libavutil/pixdesc.h>
 #include <libswscale/swscale.h>
 }
 
@@ -187,7 +188,11 @@ class AvVideoCodec final : public Codec {
     enc_->height = g.padded_height;
     enc_->time_base = AVRational{1, s_.fps};
     enc_->framerate = AVRational{s_.fps, 1};
-    enc_->pix_fmt = (!g.colour && gray_) ? AV_PIX_FMT_GRAY8 : AV_PIX_FMT_YUV420P;
+    enc_->pix_fmt = (!g.colour && gray_)             ? AV_PIX_FMT_GRAY8
+                    : (g.colour && s_.chroma444) ? AV_PIX_FMT_YUV444P
+                                                 : AV_PIX_FMT_YUV420P;
+    if (enc_->pix_fmt == AV_PIX_FMT_YUV444P && !av_encoder_takes(f_.encoder.c_str(), AV_PIX_FMT_YUV444P))
+      fail("{}: {} does not take 4:4:4 pictures (chroma \"444\"); use chroma \"420\"", f_.name, f_.encoder);
     enc_->gop_size = s_.gop;
     enc_->max_b_frames = 0;
     enc_->thread_count = s_.threads;
@@ -219,9 +224,10 @@ class AvVideoCodec final : public Codec {
       fail("{}: cannot allocate a picture: {}", f_.name, av_error_text(r));
     if (g.colour) {
       to_yuv_ = sws_getContext(g.padded_width, g.padded_height, AV_PIX_FMT_RGB24, g.padded_width, g.padded_height,
-                               AV_PIX_FMT_YUV420P, SWS_BILINEAR, nullptr, nullptr, nullptr);
+                               enc_->pix_fmt, SWS_BILINEAR, nullptr, nullptr, nullptr);
       if (!to_yuv_)
-        fail("{}: libswscale cannot convert RGB24 to YUV420P at {}x{}", f_.name, g.padded_width, g.padded_height);
+        fail("{}: libswscale cannot convert RGB24 to {} at {}x{}", f_.name, av_get_pix_fmt_name(enc_->pix_fmt),
+             g.padded_width, g.padded_height);
     }
     enc_desc_ = desc;
     next_pts_ = 0;
@@ -312,8 +318,9 @@ class AvVideoCodec final : public Codec {
     }
     const auto format = AVPixelFormat(f->format);
     const bool yuv420 = format == AV_PIX_FMT_YUV420P || format == AV_PIX_FMT_YUVJ420P;
-    if (!(yuv420 || (!g.colour && format == AV_PIX_FMT_GRAY8))) {
-      error = fmt::format("{}: decoded pixel format {} is not 8-bit 4:2:0 or gray", f_.name, int(format));
+    const bool yuv444 = format == AV_PIX_FMT_YUV444P || format == AV_PIX_FMT_YUVJ444P;
+    if (!(yuv420 || (g.colour && yuv444) || (!g.colour && format == AV_PIX_FMT_GRAY8))) {
+      error = fmt::format("{}: decoded pixel format {} is not 8-bit 4:2:0, 4:4:4 (colour) or gray", f_.name, int(format));
       return false;
     }
     out.desc = desc;
@@ -331,10 +338,11 @@ class AvVideoCodec final : public Codec {
       return true;
     }
     // Returns the same context while the size stays the same.
-    to_rgb_ = sws_getCachedContext(to_rgb_, g.padded_width, g.padded_height, AV_PIX_FMT_YUV420P, g.padded_width,
+    const AVPixelFormat picture = yuv444 ? AV_PIX_FMT_YUV444P : AV_PIX_FMT_YUV420P;
+    to_rgb_ = sws_getCachedContext(to_rgb_, g.padded_width, g.padded_height, picture, g.padded_width,
                                    g.padded_height, AV_PIX_FMT_RGB24, SWS_BILINEAR, nullptr, nullptr, nullptr);
     if (!to_rgb_) {
-      error = f_.name + ": libswscale cannot convert YUV420P to RGB24";
+      error = fmt::format("{}: libswscale cannot convert {} to RGB24", f_.name, av_get_pix_fmt_name(picture));
       return false;
     }
     AVFrame* rgb = rgb_frame(g);
@@ -387,7 +395,9 @@ std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf
           ParamSpec::integer("bitrate_kbps", 10000, 1, 1000000, "target bitrate in kbit/s (bitrate mode)"),
           ParamSpec::integer("fps", 60, 1, 1000, "frame rate the bitrate refers to (bitrate mode)"),
           ParamSpec::integer("gop", 60, 1, 100000, "keyframe interval in frames"),
-          ParamSpec::integer("threads", 1, 1, 16, encoder_label + " threads (" + threads_note + ")")};
+          ParamSpec::integer("threads", 1, 1, 16, encoder_label + " threads (" + threads_note + ")"),
+          ParamSpec::choice("chroma", "420", {"420", "444"},
+                            "colour pictures' chroma: 4:2:0 (half-resolution chroma, what streaming ships) or 4:4:4")};
 }
 
 ParamSpec x26x_preset_param(const std::string& encoder_label) {
@@ -407,6 +417,7 @@ AvVideoSettings av_video_settings(const Params& p) {
   s.fps = p.get_int("fps");
   s.gop = p.get_int("gop");
   s.threads = p.get_int("threads");
+  s.chroma444 = p.get_string("chroma") == "444";
   return s;
 }
 

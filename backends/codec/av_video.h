@@ -8,7 +8,8 @@
 //   Ao              one gray picture (4:0:0 when the encoder offers GRAY8, else 4:2:0 with
 //                   constant chroma 128); values are luma samples, full range.
 //   SoftVisibility  the light planes stacked top to bottom in one gray picture (w x h*lights).
-//   Colour          RGB8 -> YUV 4:2:0 (BT.601, limited range) with libswscale, and back.
+//   Colour          RGB8 -> YUV 4:2:0 (BT.601, limited range) with libswscale, and back; 4:4:4
+//                   (full-resolution chroma) where the parameter chroma is "444".
 // Full-range mapping (lossy rate control only): an Ao/SoftVisibility value v of 0..full_scale
 // is coded as round(v * 255 / full_scale) and decoded back as round(u * full_scale / 255), so a
 // count plane (0..8 soft-visibility samples, 0..N AO rays) uses the whole sample range and the
@@ -51,9 +52,10 @@ struct AvVideoSettings {
   int fps = 60;
   int gop = 60;
   int threads = 1;
+  bool chroma444 = false;  // colour pictures as YUV 4:4:4 (else 4:2:0)
 };
 
-// rate_control, crf (0..crf_max, default crf_default), bitrate_kbps, fps, gop, threads; the
+// rate_control, crf (0..crf_max, default crf_default), bitrate_kbps, fps, gop, threads, chroma; the
 // notes say how the encoder codes losslessly and what its thread count does to the bytes.
 std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
                                        const std::string& lossless_note, const std::string& threads_note);
