@@ -303,7 +303,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   if (j.contains("answer")) {
     const auto& an = j.at("answer");
     Reader r{an, path + ".answer", problems};
-    r.keys({"question", "cost", "group", "along"});
+    r.keys({"question", "cost", "group", "along", "terms"});
     std::string text;
     r.string("question", text);
     if (r.has("question") && (text.empty() || text.size() > 400))
@@ -319,6 +319,36 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
       if (!used)
         problems.push_back(fmt::format("{}.answer.{}: '{}' is not a key of \"sweep\" or of a configuration's \"set\"", path, k,
                                        text_excerpt(key)));
+    }
+    // An error budget: each term is the difference between a configuration with the effect and
+    // one without it, on every scene (without "without": the first configuration's own figure).
+    if (r.has("terms")) {
+      const auto& terms = an.at("terms");
+      const std::string want =
+          "a non-empty list of {\"name\": text, \"with\": configuration, \"without\": configuration (optional)}";
+      if (!terms.is_array() || terms.empty() || terms.size() > 32) {
+        problems.push_back(fmt::format("{}.answer.terms: must be {} (at most 32)", path, want));
+      } else {
+        for (size_t i = 0; i < terms.size(); ++i) {
+          const std::string where = fmt::format("{}.answer.terms[{}]", path, i);
+          Reader t{terms[i], where, problems};
+          t.keys({"name", "with", "without"});
+          if (!terms[i].is_object()) continue;
+          for (const char* k : {"name", "with", "without"}) {
+            if (std::string(k) == "without" && !terms[i].contains(k)) continue;  // the term is "with" itself
+            if (!terms[i].contains(k) || !terms[i].at(k).is_string()) {
+              problems.push_back(fmt::format("{}.{}: missing or not text ({})", where, k, want));
+              continue;
+            }
+            if (std::string(k) == "name") continue;
+            const std::string config = terms[i].at(k).get<std::string>();
+            bool known = false;
+            for (const auto& c : configs) known = known || c.name == config;
+            if (!known)
+              problems.push_back(fmt::format("{}.{}: '{}' is not a configuration's name", where, k, text_excerpt(config)));
+          }
+        }
+      }
     }
     if (r.has("group") && !r.has("along"))
       problems.push_back(fmt::format("{}.answer: \"group\" needs \"along\" (the key whose values each group is compared over)", path));

@@ -15,7 +15,8 @@
 //   "configurations": [ {"name": "...", "family": "...", "set": {"dotted.key": value, ...}}, ... ]
 //   "curves": {"vary": ["dotted.key", ...], "anchor": "family" | ["family", ...]}
 //                                                                  rate-quality curves (optional)
-//   "answer": {"question": "...", "cost": "bandwidth" | "server_time", "group": "key", "along": "key"}
+//   "answer": {"question": "...", "cost": "bandwidth" | "server_time", "group": "key", "along": "key",
+//              "terms": [{"name": "...", "with": "configuration", "without": "configuration"}, ...]}
 //                                  what report.md opens with (optional; experiments/report.py)
 // }
 // Rate-quality curves (docs/architecture.md, "Rate-quality curves"): the runs of one family on

@@ -525,17 +525,57 @@ def range_answer(ok, metrics, spec):
     return Answer(out, f"{name} against {against}, best to worst over {along}: " + " | ".join(short) + ".")
 
 
+def budget_answer(ok, metrics, spec):
+    """The answer of an error budget (answer.terms): per scene, each term's share of the lead
+    metric, the run of the configuration with the effect minus the run without it."""
+    im = lead_metric(metrics)
+    name = im["name"].upper()
+    sign = 1 if not im.get("higher_is_better", True) else -1  # positive: the effect costs quality
+    terms = [t for t in spec["terms"] if isinstance(t, dict)]
+    rows, short, refs = [], [], set()
+    for scene in sorted({r["scene"] for r in ok}):
+        vals, ref = scene_values(ok, scene, im)
+        by_config = {r.get("configuration"): v for r, v in vals}
+        parts = []
+        for t in terms:
+            a, b = by_config.get(t.get("with")), by_config.get(t.get("without"))
+            if a is None or (b is None and "without" in t):
+                parts.append(f"{t.get('name')} – (a run is missing)")
+            elif "without" in t:
+                parts.append(f"{t.get('name')} {sign * (a - b):+.4f}")
+            else:
+                parts.append(f"{t.get('name')} {a:.4f}")
+        if not vals:
+            continue
+        refs.add(ref)
+        rows.append(f"- **{scene_name(scene)}**: " + "; ".join(parts) + ".")
+        short.append(f"{scene_name(scene)}: " + ", ".join(parts))
+    if not rows:
+        return Answer([], "")
+    against = " and ".join(REFERENCE_WORDS[r] for r in sorted(refs))
+    question = spec.get("question") or "how much does each effect cost the image?"
+    out = ["## The answer\n",
+           f"Question: {question} (each term: {name} against {against} of the configuration with the effect "
+           f"minus the one without it, signed so that a positive term is error the effect adds; a term without a "
+           f"configuration to subtract is that configuration's own {name}.)\n"]
+    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
+    out.append("\n" + scale_line(ok) + "\n")
+    return Answer(out, f"{name} added by each effect: " + " | ".join(short) + ".")
+
+
 def answer(exp, ok, metrics, regimes):
-    """The answer first (at most ten lines): from the regime map where the report holds both sides
-    at constant latencies; else along the condition the experiment's "answer" names; else from the
-    Pareto fronts."""
+    """The answer first (at most ten lines): the error budget or the comparison along a condition
+    that the experiment's "answer" declares; else the regime map where the report holds both
+    sides at constant latencies; else the Pareto fronts."""
     if not ok or not metrics:
         return Answer([], "")
     spec = exp.get("answer") if isinstance(exp.get("answer"), dict) else {}
-    if regimes:
-        return regime_answer(ok, regimes)
+    if isinstance(spec.get("terms"), list):
+        return budget_answer(ok, metrics, spec)
     if isinstance(spec.get("group"), str) and isinstance(spec.get("along"), str):
         return range_answer(ok, metrics, spec)
+    if regimes:
+        return regime_answer(ok, regimes)
     return front_answer(ok, metrics, spec)
 
 
