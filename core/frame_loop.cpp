@@ -454,6 +454,35 @@ void TraceCache::evict_locked() {
 
 // ---- validation ----------------------------------------------------------------------------
 
+std::string warmup_problem(const SimConfig& c) {
+  // A datagram's latency when sent at virtual time t.
+  auto latency_at = [](const LinkConfig& l, double t_ms) {
+    switch (l.latency_model) {
+      case LinkConfig::Latency::Constant: return l.latency_ms;
+      case LinkConfig::Latency::Normal: return std::max(l.latency_floor_ms, l.latency_ms + 3.0 * l.jitter_ms);
+      case LinkConfig::Latency::Trace:
+        try {
+          return load_latency_trace(l.trace_file).at(t_ms + l.trace_offset_ms);
+        } catch (const Error&) {
+          return 0.0;  // validate_sim_config reports the trace
+        }
+    }
+    return 0.0;
+  };
+  const double server_ms = c.server_timing == SimConfig::ServerTiming::Fixed ? c.server_fixed_ms : 0.0;
+  const double up_ms = latency_at(c.uplink, 0.0);
+  const double down_ms = latency_at(c.downlink, up_ms + server_ms);
+  const double first_ms = up_ms + server_ms + down_ms;
+  const double interval_ms = 1000.0 / c.display_hz;
+  const double warmup_ms = c.warmup_frames * interval_ms;
+  if (c.score_startup || warmup_ms + 1e-9 >= first_ms) return {};
+  const int need = int(std::ceil(first_ms / interval_ms - 1e-9));
+  return fmt::format("warmup_frames {} ({:.1f} ms) ends before the first server frame can arrive ({:.1f} ms: uplink {:.1f} + "
+                     "server {:.1f} + downlink {:.1f} ms), so the first scored frames would show no server data; "
+                     "use warmup_frames >= {} (or score_startup true to measure the startup)",
+                     c.warmup_frames, warmup_ms, first_ms, up_ms, server_ms, down_ms, need);
+}
+
 void validate_sim_config(const SimConfig& c, const Scene& scene, const Registries& r) {
   std::vector<std::string> problems;
   auto check = [&](bool ok, std::string what) {

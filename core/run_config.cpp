@@ -106,6 +106,10 @@ std::vector<RunSetting> make_settings() {
   v.push_back(with(ranged("warmup_frames", SettingType::Integer, 0, 100000, "frames run before them, not scored, not counted",
                           [](auto& c) -> auto& { return c.warmup_frames; }),
                    0, "the client runs --frames frames in real time"));
+  v.push_back(field("score_startup", SettingType::Boolean,
+                    "score frames shown before the first server frame can arrive (a startup study); false: an experiment "
+                    "refuses a warmup_frames that ends before then",
+                    [](auto& c) -> auto& { return c.score_startup; }));
   v.push_back(with(ranged("display_hz", SettingType::Number, 1, 1000, "the client's display rate (virtual clock)",
                           [](auto& c) -> auto& { return c.display_hz; }),
                    kTraced | kInTruthKey));

@@ -57,6 +57,9 @@ struct SimConfig {
   int history_frames = 64;     // client G-buffers kept for prediction
   int score_every = 1;         // quality against the local reference on every n-th frame
   int ground_truth_every = 0;  // against the ground truth on every n-th frame (0: never)
+  // Experiments refuse a warm-up shorter than the first server frame's way to the client
+  // (warmup_problem, core/frame_loop.h) unless this says the startup is what is measured.
+  bool score_startup = false;
   int ground_truth_ao_rays = 256;
   int ground_truth_samples_per_light = 64;
   std::string ground_truth_sampling = sampling_name(ReferenceRays{}.lattice);  // or the other (core/trace.h)

@@ -66,6 +66,7 @@ LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& s
     if (it == loaded.scenes.end()) continue;
     try {
       validate_sim_config(run.config, it->second, registries());
+      if (std::string why = warmup_problem(run.config); !why.empty()) throw Error(why);
     } catch (const Error& err) {
       std::string what = err.what();
       for (size_t pos = 0; (pos = what.find('\n', pos)) != std::string::npos; pos += 5) what.replace(pos, 1, "\n    ");

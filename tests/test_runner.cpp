@@ -170,6 +170,27 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
   e["answer"] = {{"question", "which AO codec?"}, {"cost", "server_time"}};
   std::ofstream(bad) << e.dump();
   EXPECT_EQ(run("validate " + bad.string(), &log), 0) << log;
+  // A warm-up that ends before the first server frame can arrive would score a startup: refused
+  // with the bound and the frames it needs, unless score_startup says the startup is measured.
+  e["run"]["uplink"] = {{"latency_ms", 50}};
+  e["run"]["downlink"] = {{"latency_ms", 50}};
+  e["run"]["server_fixed_ms"] = 16;
+  e["run"]["warmup_frames"] = 6;
+  e["run"]["display_hz"] = 60;
+  std::ofstream(bad) << e.dump();
+  EXPECT_NE(run("validate " + bad.string(), &log), 0);
+  // (the sweep's downlink.latency_ms = 60 runs; the others arrive in time)
+  EXPECT_NE(log.find("warmup_frames 6 (100.0 ms) ends before the first server frame can arrive (126.0 ms: uplink 50.0 + "
+                     "server 16.0 + downlink 60.0 ms)"),
+            std::string::npos) << log;
+  EXPECT_NE(log.find("use warmup_frames >= 8"), std::string::npos) << log;
+  e["run"]["warmup_frames"] = 8;
+  std::ofstream(bad) << e.dump();
+  EXPECT_EQ(run("validate " + bad.string(), &log), 0) << log;
+  e["run"]["warmup_frames"] = 6;
+  e["run"]["score_startup"] = true;
+  std::ofstream(bad) << e.dump();
+  EXPECT_EQ(run("validate " + bad.string(), &log), 0) << log;
   fs::remove(bad);
 }
 

@@ -223,7 +223,7 @@ TEST(Shard, AFailedShardIsReportedAndRerunAlone) {
   fs::create_directories(base);
   // Seed 1's runs read a latency trace beside the experiment; seed 2's do not.
   std::ofstream(base / "e.json") << R"({"version": 2, "name": "shard_fail", "scenes": ["room"],
-    "run": {"width": 48, "height": 32, "frames": 6, "warmup_frames": 2, "trace": {"ao_rays": 2},
+    "run": {"width": 48, "height": 32, "frames": 6, "warmup_frames": 3, "trace": {"ao_rays": 2},
             "ground_truth_every": 3, "ground_truth_ao_rays": 16, "ground_truth_samples_per_light": 4, "server_fixed_ms": 5},
     "configurations": [
       {"name": "measured latency", "set": {"seed": 1, "downlink.latency": "trace", "downlink.trace_file": "latency.txt"}},
