@@ -44,11 +44,13 @@ for n in "${names[@]}"; do
   fi
   echo "regenerate_reports: $n took $(( $(date +%s) - start )) s"
 done
-# Every run done: replace the published folders (report.md of live is written by hand and kept).
+# Every run done: replace the published folders (live's report.md is written from its files by
+# experiments/report_live.py).
 for n in "${names[@]}"; do
   if [ "$n" = live ]; then
     rm -rf reports/live/client reports/live/server reports/live/*.log reports/live/relay.json
     cp -r "$scratch/live/." reports/live/
+    /usr/bin/python3 experiments/report_live.py reports/live
   else
     rm -rf "reports/$n"
     cp -r "$scratch/$n" "reports/$n"
@@ -64,4 +66,6 @@ for n in "${names[@]}"; do
     if [ -f "$f" ] && [ "$(stat -c %s "$f")" -gt 4000000 ]; then gzip -9n "$f"; fi
   fi
 done
-echo "regenerate_reports: reports/ updated from $scratch"
+# The index (reports/README.md) is written from the reports it lists.
+/usr/bin/python3 experiments/report_index.py
+echo "regenerate_reports: reports/ and reports/README.md updated from $scratch"

@@ -4,6 +4,7 @@ experiments/report_index.py writes from them. A report is rebuilt in a scratch c
 results.json, frames.csv(.gz) and grids/; a difference fails with the diff and the command that
 refreshes the committed file."""
 import difflib
+import json
 import os
 import shutil
 import subprocess
@@ -53,6 +54,29 @@ class CommittedReports(unittest.TestCase):
                                                                  f"reports/{name}/report.md", "written"))[:40])
                         self.fail(f"reports/{name}/report.md differs from what its results give "
                                   f"(refresh: dhrbench report reports/{name}):\n{diff}")
+
+    def test_live_report_regenerates_identically(self):
+        # reports/live is written by experiments/report_live.py from the three processes' files.
+        with tempfile.TemporaryDirectory() as tmp:
+            dst = os.path.join(tmp, "live")
+            shutil.copytree(os.path.join(REPORTS, "live"), dst, ignore=shutil.ignore_patterns("frames"))
+            os.remove(os.path.join(dst, "report.md"))
+            p = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "report_live.py"), dst],
+                               capture_output=True, text=True)
+            self.assertEqual(p.returncode, 0, p.stderr)
+            with open(os.path.join(REPORTS, "live", "report.md")) as a, open(os.path.join(dst, "report.md")) as b:
+                self.assertEqual(a.read(), b.read(), "refresh: /usr/bin/python3 experiments/report_live.py reports/live")
+            # A damaged file is one line naming it and the field.
+            with open(os.path.join(dst, "relay.json")) as f:
+                relay = json.load(f)
+            del relay["server_to_client"]
+            with open(os.path.join(dst, "relay.json"), "w") as f:
+                json.dump(relay, f)
+            p = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "report_live.py"), dst],
+                               capture_output=True, text=True)
+            self.assertEqual(p.returncode, 2)
+            self.assertIn("relay.json: server_to_client.dropped_loss: missing", p.stderr)
+            self.assertNotIn("Traceback", p.stderr)
 
     def test_index_is_current(self):
         p = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "report_index.py"), "--check"],

@@ -24,8 +24,8 @@ except ImportError:
 class Quick(unittest.TestCase):
     def test_loads_and_checks(self):
         res = dr.load(QUICK)
-        self.assertEqual(len(res.results["runs"]), 5)
-        self.assertEqual(len(res.frames), 300)
+        self.assertEqual(len(res.results["runs"]), 11)
+        self.assertEqual(len(res.frames), 660)
         self.assertEqual(res.headline["name"], "ssim")
         self.assertTrue(res.frames_path.endswith("frames.csv"))
 
@@ -33,7 +33,7 @@ class Quick(unittest.TestCase):
     def test_tables(self):
         res = dr.load(QUICK)
         runs = dr.runs_frame(res)
-        self.assertEqual(list(runs["id"]), ["r000", "r001", "r002", "r003", "r004"])
+        self.assertEqual(list(runs["id"]), [f"r{i:03d}" for i in range(11)])
         self.assertEqual(runs.loc[0, "settings.network"], "5g")
         self.assertAlmostEqual(runs.loc[0, "bandwidth_mbps"], res.results["runs"][0]["metrics"]["bandwidth_mbps"])
         self.assertIn("passes.visibility.bytes_per_frame", runs.columns)
@@ -44,7 +44,7 @@ class Quick(unittest.TestCase):
         self.assertEqual(units["ssim_local_mean"], "")
         self.assertEqual(units["stages_wall.encode.median_ms"], "ms")
         frames = dr.frames_frame(res)
-        self.assertEqual(len(frames), 300)
+        self.assertEqual(len(frames), 660)
         self.assertEqual(str(frames["frame"].dtype), "int64")
         self.assertEqual(frames.attrs["units"]["psnr_local_db"], "db")
         # The run means of results.json are the means of the frames (to the CSV's 6 digits).
@@ -57,7 +57,7 @@ class Quick(unittest.TestCase):
         p = subprocess.run([sys.executable, "-m", "dhrbench_results", QUICK], cwd=EXPERIMENTS,
                            capture_output=True, text=True)
         self.assertEqual(p.returncode, 0, p.stderr)
-        self.assertIn("5 runs (5 with metrics), 300 frames", p.stdout)
+        self.assertIn("11 runs (11 with metrics), 660 frames", p.stdout)
         self.assertIn("remote h264 crf 23, 5G", p.stdout)
 
 
@@ -111,7 +111,7 @@ class Damaged(unittest.TestCase):
     def test_a_row_of_an_unknown_run(self):
         with open(self.frames) as f:
             lines = f.read().splitlines(keepends=True)
-        lines.append(lines[-1].replace("r004", "r999", 1))
+        lines.append(lines[-1].replace("r010", "r999", 1))
         with open(self.frames, "w") as f:
             f.writelines(lines)
         self.expect(self.frames, 'rows of run "r999", which results.json does not hold')
@@ -129,7 +129,7 @@ class Damaged(unittest.TestCase):
             lines = f.read().splitlines(keepends=True)
         with open(self.frames, "w") as f:
             f.writelines(lines[:-1])
-        self.expect(self.frames, "run r004 has 59 row(s), but results.json says it displayed 60 frame(s)")
+        self.expect(self.frames, "run r010 has 59 row(s), but results.json says it displayed 60 frame(s)")
 
     def test_a_bad_number(self):
         with open(self.frames) as f:
