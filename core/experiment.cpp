@@ -260,7 +260,23 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
     const auto& cv = j.at("curves");
     Reader r{cv, path + ".curves", problems};
     if (!cv.is_object()) problems.push_back(fmt::format("{}.curves: must be an object {{\"vary\": [keys], \"anchor\": family}}", path));
-    r.keys({"vary", "anchor"});
+    r.keys({"vary", "anchor", "replicates"});
+    // Replicates: swept keys whose values are independent draws (seeds, camera paths); the report
+    // gives each BD figure's mean and interval over them.
+    if (r.has("replicates")) {
+      const auto& rep = cv.at("replicates");
+      if (!rep.is_array() || rep.empty()) {
+        problems.push_back(fmt::format("{}.curves.replicates: must be a non-empty list of swept keys (e.g. [\"seed\"])", path));
+      } else {
+        for (const auto& k : rep) {
+          bool swept = false;
+          if (k.is_string())
+            for (const auto& a : axes) swept = swept || a.first == k.get<std::string>();
+          if (!swept)
+            problems.push_back(fmt::format("{}.curves.replicates: {} is not a key of \"sweep\"", path, json_excerpt(k)));
+        }
+      }
+    }
     if (!r.has("vary") || !cv.at("vary").is_array() || cv.at("vary").empty()) {
       problems.push_back(fmt::format("{}.curves.vary: must be a non-empty list of the dotted keys that move along a curve", path));
     } else {

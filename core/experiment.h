@@ -13,7 +13,8 @@
 //   "networks": { "5g": {"uplink": {...}, "downlink": {...}}, ... }   named networks
 //   "sweep": { "dotted.key": [values...], ... }      Cartesian product over the keys, or
 //   "configurations": [ {"name": "...", "family": "...", "set": {"dotted.key": value, ...}}, ... ]
-//   "curves": {"vary": ["dotted.key", ...], "anchor": "family" | ["family", ...]}
+//   "curves": {"vary": ["dotted.key", ...], "anchor": "family" | ["family", ...],
+//              "replicates": ["seed", ...]}   swept keys whose values are independent draws
 //                                                                  rate-quality curves (optional)
 //   "answer": {"question": "...", "cost": "bandwidth" | "server_time", "group": "key", "along": "key",
 //              "terms": [{"name": "...", "with": "configuration", "without": "configuration"}, ...]}

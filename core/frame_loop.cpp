@@ -602,7 +602,7 @@ class Simulation {
  private:
   double frame_ms(int a) const { return double(a) * 1000.0 / c_.display_hz; }
   double frame_time_s(int a) const { return c_.start_time_s + double(a) / c_.display_hz; }
-  Camera camera(int a) const { return scene_.camera.at(frame_time_s(a), c_.width, c_.height); }
+  Camera camera(int a) const { return scene_.camera.at(c_.camera_time_s(frame_time_s(a)), c_.width, c_.height); }
   bool scored(int a) const { return a >= c_.warmup_frames; }
   void stage(const char* name, double ms, bool count) {
     if (count) stages_[name].samples_ms.push_back(ms);

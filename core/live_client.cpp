@@ -74,7 +74,9 @@ class LiveClient {
 
   double now_ms() const { return ms_between(t0_, Clock::now()); }
   double frame_time_s(int a) const { return c_.start_time_s + double(a) / c_.display_hz; }
-  Camera camera(int a) const { return scene_.scene->camera.at(frame_time_s(a), c_.width, c_.height); }
+  Camera camera(int a) const {
+    return scene_.scene->camera.at(c_.camera_time_s(frame_time_s(a)), c_.width, c_.height);
+  }
 
   // Seals (with a key) and sends to the server.
   SendResult send_control(const ControlMessage& m) {

@@ -116,6 +116,11 @@ std::vector<RunSetting> make_settings() {
   v.push_back(with(ranged("start_time_s", SettingType::Number, 0, 1e6, "scene time of the first (warm-up) frame",
                           [](auto& c) -> auto& { return c.start_time_s; }),
                    kTraced | kInTruthKey));
+  v.push_back(with(ranged("camera_speed", SettingType::Number, 0.1, 10,
+                          "the camera path's speed against the scene clock (2: the same path twice as fast; moving "
+                          "objects keep the scene's clock)",
+                          [](auto& c) -> auto& { return c.camera_speed; }),
+                   kTraced | kInTruthKey));
   v.push_back(with(ranged("seed", SettingType::Integer, 0, 9.007e15, "seed of every random number (tracing, network)",
                           [](auto& c) -> auto& { return c.seed; }),
                    kTraced | kInTruthKey));

@@ -32,6 +32,10 @@ struct SimConfig {
   int warmup_frames = 0;     // run before them, not scored, not counted
   double display_hz = 60.0;
   double start_time_s = 0.0;  // scene time of the first (warm-up) frame
+  // The camera's path runs this many times faster than the scene's clock (moving objects keep
+  // the scene's): a second, faster head motion over the same scene.
+  double camera_speed = 1.0;
+  double camera_time_s(double scene_time_s) const { return start_time_s + (scene_time_s - start_time_s) * camera_speed; }
   uint64_t seed = 1;
 
   TraceSettings trace;  // seed and frame are set per frame from `seed` and the frame index

@@ -159,10 +159,15 @@ def rate_quality_section(plot, d, exp, ok, metrics):
         fig.savefig(os.path.join(d, "plots", name), dpi=100)
         plot.plt.close(fig)
         out.append(f"![rate against {im['name'].upper()}](plots/{name})\n")
+        replicates = [k for k in spec.get("replicates", []) if isinstance(k, str)]
         for anchor in anchors:
             bd_section(rq, cm, anchor, im, out)
+            if replicates:
+                replicate_section(rq, cm, anchor, im, replicates, out)
         for anchor in anchors:
             bd_section(rq, cm, anchor, im, out, equal_bandwidth=True)
+            if replicates:
+                replicate_section(rq, cm, anchor, im, replicates, out, equal_bandwidth=True)
         crossover_section(rq, cm, ok, sweep_keys, im, out)
     return out
 
@@ -288,6 +293,7 @@ def scale_line(ok):
     truth_frames = sorted({r["metrics"].get("frames_scored_ground_truth") for r in ok
                            if r["metrics"].get("frames_scored_ground_truth")})
     seeds = sorted({r.get("config", {}).get("seed") for r in ok if r.get("config", {}).get("seed") is not None})
+    speeds = {r.get("config", {}).get("camera_speed", 1.0) for r in ok}  # one path per speed
     truth = (f", {'/'.join(str(f) for f in truth_frames)} scored against the ground truth" if truth_frames
              else ", none scored against a ground truth")
     found = convergence_checks(ok)
@@ -300,7 +306,7 @@ def scale_line(ok):
                      "\"Ground truth convergence\")")
     return (f"Scale: {first.get('width')}x{first.get('height')}, {len(scenes)} scene(s), "
             f"{'/'.join(str(f) for f in frames)} displayed frames per run{truth}, "
-            f"{len(seeds)} seed(s), {len(ok)} runs{converged}.")
+            f"{len(seeds)} seed(s), {len(speeds)} camera path(s), {len(ok)} runs{converged}.")
 
 
 CONVERGE_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "reports", "converge")
@@ -394,23 +400,28 @@ class Answer(NamedTuple):
     sentence: str
 
 
-def regime_answer(ok, regimes):
+def regime_answer(ok, regimes, replicates=()):
     """The answer of a report that holds both sides at constant latencies: the question, one
     sentence per scene from the regime map (how many of the cells where both sides have a run
     each side wins, over which budgets, and where only one side exists), the scale, and the
-    figure that shows it."""
+    figure that shows it. The maps of replicates (curves.replicates: seeds, camera paths) of
+    one scene and condition are pooled: their cells counted together."""
     im, table = regimes
     name = im["name"].upper()
     out = ["## The answer\n",
            f"Question: at a given bitrate budget and round-trip time, does hybrid rendering or remote rendering "
            f"give the better image ({name} against the ground truth)?\n"]
-    short, rows = [], []
+    pooled = {}
     for (scene, rest), m in sorted(table.items()):
-        both = [(k, c) for k, c in m["cells"].items() if c["winner"] in ("hybrid", "remote", "tie")
-                and not c["only"]]
+        key = (scene, tuple((k, v) for k, v in rest if k not in replicates))
+        pooled.setdefault(key, []).append(m)
+    short, rows = [], []
+    for (scene, rest), maps in sorted(pooled.items()):
+        cells = [c for m in maps for c in m["cells"].items()]
+        both = [(k, c) for k, c in cells if c["winner"] in ("hybrid", "remote", "tie") and not c["only"]]
         hw = [k for k, c in both if c["winner"] == "hybrid"]
         rw = [k for k, c in both if c["winner"] == "remote"]
-        only = {side: sorted(b for (_, b), c in m["cells"].items() if c["only"] == side) for side in ("hybrid", "remote")}
+        only = {side: sorted(b for (_, b), c in cells if c["only"] == side) for side in ("hybrid", "remote")}
         parts = [f"hybrid better in {len(hw)} and remote in {len(rw)} of {len(both)} cells where both have a run"]
         for side, won in (("hybrid", hw), ("remote", rw)):
             if won:
@@ -419,9 +430,10 @@ def regime_answer(ok, regimes):
         for side in ("remote", "hybrid"):
             if only[side]:
                 parts.append(f"only {side} reaches {only[side][0]:.3g}-{only[side][-1]:.3g} Mb/s")
-        rtt_list = ", ".join(f"{t:g}" for t in m["rtts"])
+        rtt_list = ", ".join(f"{t:g}" for t in sorted({t for m in maps for t in m["rtts"]}))
         title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
-        rows.append(f"- **{title}** (RTT {rtt_list} ms): " + "; ".join(parts) + ".")
+        over = f", {len(maps)} replicates pooled" if len(maps) > 1 else ""
+        rows.append(f"- **{title}** (RTT {rtt_list} ms{over}): " + "; ".join(parts) + ".")
         short.append(f"{scene_name(scene)} {len(hw)}:{len(rw)}" + (f", only remote under {only['remote'][-1]:.3g} Mb/s"
                                                                   if only["remote"] else ""))
     out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
@@ -575,7 +587,9 @@ def answer(exp, ok, metrics, regimes):
     if isinstance(spec.get("group"), str) and isinstance(spec.get("along"), str):
         return range_answer(ok, metrics, spec)
     if regimes:
-        return regime_answer(ok, regimes)
+        curves = exp.get("curves") if isinstance(exp.get("curves"), dict) else {}
+        replicates = [k for k in curves.get("replicates", []) if isinstance(k, str)]
+        return regime_answer(ok, regimes, replicates)
     return front_answer(ok, metrics, spec)
 
 
@@ -733,6 +747,48 @@ def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
         out.append(f"Why a cell has no {'BD-' + name if equal_bandwidth else 'BD-rate'}:\n")
         out.extend(reasons)
         out.append("")
+
+
+def replicate_section(rq, cm, anchor, im, replicates, out, equal_bandwidth=False):
+    """BD-rate (or BD-quality) of every family against `anchor` over the replicates (the swept
+    keys in curves.replicates, e.g. seed and camera_speed): per scene, remaining conditions and
+    family, the mean of its per-replicate BD figures with Student's t 95 % interval (the
+    replicates taken as independent draws), their range and how many replicates gave a number."""
+    import intervals
+    higher = im.get("higher_is_better", True)
+    table = rq.bd_table(cm, anchor, "quality" if equal_bandwidth else "rate", "pchip", higher)
+    groups = {}
+    for (scene, cond), row in table.items():
+        rest = tuple((k, v) for k, v in cond if k not in replicates)
+        reps = tuple((k, v) for k, v in cond if k in replicates)
+        for fam, res in row.items():
+            groups.setdefault((scene, rest, fam), []).append((reps, res.value))
+    if not groups:
+        return
+    name = im["name"].upper()
+    what = f"BD-{name}" if equal_bandwidth else f"BD-rate on {name}"
+    out.append(f"{what} against **{anchor}** over the replicates ({', '.join(f'`{k}`' for k in replicates)}): the mean "
+               "of the per-replicate figures (PCHIP, as above) with Student's t 95 % interval, the replicates taken as "
+               "independent draws of the scene's noise and motion; n: replicates with a number (of those run).\n")
+    out.append("| scene | conditions | family | n | mean | 95 % interval | range |")
+    out.append("|---|---|---|---:|---:|---:|---:|")
+    unit = "" if equal_bandwidth else " %"
+    digits = 4 if equal_bandwidth else 1
+    for (scene, rest, fam), vals in sorted(groups.items()):
+        xs = [v for _, v in vals if v is not None]
+        if not xs:
+            out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in rest) or '–'} | {fam} | 0 of {len(vals)} | – | – | – |")
+            continue
+        mean = sum(xs) / len(xs)
+        if len(xs) >= 2:
+            sd = math.sqrt(sum((x - mean) ** 2 for x in xs) / (len(xs) - 1))
+            half = intervals.t975(len(xs) - 1) * sd / math.sqrt(len(xs))
+            ci = f"{mean - half:+.{digits}f} .. {mean + half:+.{digits}f}{unit}"
+        else:
+            ci = "– (one replicate)"
+        out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in rest) or '–'} | {fam} | {len(xs)} of {len(vals)} | "
+                   f"{mean:+.{digits}f}{unit} | {ci} | {min(xs):+.{digits}f} .. {max(xs):+.{digits}f}{unit} |")
+    out.append("")
 
 
 def scatter_with_front(plot, headline, runs, xkey, xlabel, title, path, logx=False):

@@ -286,3 +286,15 @@ TEST(RunSettings, ExperimentVersions) {
 
 }  // namespace
 }  // namespace dhr
+
+// camera_speed runs the camera's path faster than the scene clock from the run's start (a second,
+// faster head motion over the same scene); 1 is the path as authored.
+TEST(RunSettings, CameraSpeedScalesTheCameraClockFromTheStart) {
+  dhr::SimConfig c;
+  c.start_time_s = 1.0;
+  EXPECT_DOUBLE_EQ(c.camera_time_s(1.5), 1.5);
+  c.camera_speed = 2.0;
+  EXPECT_DOUBLE_EQ(c.camera_time_s(1.0), 1.0);
+  EXPECT_DOUBLE_EQ(c.camera_time_s(1.5), 2.0);
+  EXPECT_DOUBLE_EQ(c.camera_time_s(3.0), 5.0);
+}
