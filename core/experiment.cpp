@@ -421,8 +421,10 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
           std::vector<std::string> run_problems;
           spec.config = sim_config_from_json(run, path + ": run", run_problems, version);
           for (auto& p : run_problems) per_run[p].push_back(fmt::format("{} on {}", text_excerpt(spec.label, 120), text_excerpt(scene)));
-          for (LinkConfig* link : {&spec.config.uplink, &spec.config.downlink})
+          for (LinkConfig* link : {&spec.config.uplink, &spec.config.downlink}) {
             link->trace_file = resolve_data_path(link->trace_file, path);
+            link->capacity_trace_file = resolve_data_path(link->capacity_trace_file, path);
+          }
           e.runs.push_back(std::move(spec));
           // Next combination.
           size_t a = 0;

@@ -494,9 +494,9 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
         fmt::format("max_payload_bytes {} + {} header + {} IP/UDP exceeds the downlink MTU {}", c.max_payload_bytes,
                     kPacketHeaderBytes, kIpUdpOverheadBytes, c.downlink.mtu_bytes));
   for (const LinkConfig* link : {&c.uplink, &c.downlink}) {
-    if (link->latency_model != LinkConfig::Latency::Trace) continue;
     try {
-      load_latency_trace(link->trace_file);
+      if (link->latency_model == LinkConfig::Latency::Trace) load_latency_trace(link->trace_file);
+      if (!link->capacity_trace_file.empty()) load_capacity_trace(link->capacity_trace_file);
     } catch (const Error& e) {
       problems.push_back(fmt::format("{}: {}", link == &c.uplink ? "uplink" : "downlink", e.what()));
     }

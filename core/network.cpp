@@ -54,7 +54,7 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
   static const std::vector<std::string> keys = {
       "latency", "latency_ms", "jitter_ms", "latency_floor_ms", "trace_file", "trace_offset_ms", "loss",
       "loss_rate", "ge_p_good_to_bad", "ge_p_bad_to_good", "ge_loss_good", "ge_loss_bad", "bandwidth_mbps",
-      "queue_limit_bytes", "mtu_bytes", "preserve_order"};
+      "capacity_trace_file", "capacity_trace_offset_ms", "queue_limit_bytes", "mtu_bytes", "preserve_order"};
   for (const auto& [key, value] : j.items()) {
     if (std::find(keys.begin(), keys.end(), key) == keys.end()) {
       std::string valid;
@@ -88,6 +88,12 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
   number("ge_loss_good", c.ge_loss_good, 0.0, 1.0);
   number("ge_loss_bad", c.ge_loss_bad, 0.0, 1.0);
   number("bandwidth_mbps", c.bandwidth_mbps, 0.0, 1e6);
+  number("capacity_trace_offset_ms", c.capacity_trace_offset_ms, 0.0, 1e9);
+  if (j.contains("capacity_trace_file")) {
+    if (!j.at("capacity_trace_file").is_string())
+      problems.push_back(fmt::format("{}.capacity_trace_file: must be a path string (\"\": none)", where));
+    else c.capacity_trace_file = j.at("capacity_trace_file").get<std::string>();
+  }
   double queue = double(c.queue_limit_bytes), mtu = c.mtu_bytes;
   number("queue_limit_bytes", queue, 0.0, 1e10);
   number("mtu_bytes", mtu, 68.0, 65535.0);
@@ -103,8 +109,11 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
   }
   if (c.latency_model == Latency::Trace && c.trace_file.empty())
     problems.push_back(fmt::format("{}: latency 'trace' needs trace_file", where));
-  if (c.bandwidth_mbps > 0 && c.queue_limit_bytes == 0)
+  if ((c.bandwidth_mbps > 0 || !c.capacity_trace_file.empty()) && c.queue_limit_bytes == 0)
     problems.push_back(fmt::format("{}: a bandwidth cap needs queue_limit_bytes > 0 (an unbounded queue hides congestion)", where));
+  if (c.bandwidth_mbps > 0 && !c.capacity_trace_file.empty())
+    problems.push_back(fmt::format("{}: bandwidth_mbps and capacity_trace_file both set; give one (the trace is the "
+                                   "capacity over time)", where));
   if (!problems.empty()) {
     std::string msg = problems.front();
     for (size_t i = 1; i < problems.size(); ++i) msg += "\n" + problems[i];
@@ -119,7 +128,8 @@ nlohmann::json LinkConfig::to_json() const {
           {"loss", loss_name(loss_model)}, {"loss_rate", loss_rate}, {"ge_p_good_to_bad", ge_p_good_to_bad},
           {"ge_p_bad_to_good", ge_p_bad_to_good}, {"ge_loss_good", ge_loss_good}, {"ge_loss_bad", ge_loss_bad},
           {"bandwidth_mbps", bandwidth_mbps}, {"queue_limit_bytes", queue_limit_bytes}, {"mtu_bytes", mtu_bytes},
-          {"preserve_order", preserve_order}};
+          {"preserve_order", preserve_order}, {"capacity_trace_file", capacity_trace_file},
+          {"capacity_trace_offset_ms", capacity_trace_offset_ms}};
 }
 
 double LatencyTrace::at(double t_ms) const {
@@ -129,9 +139,12 @@ double LatencyTrace::at(double t_ms) const {
   return latency_ms[i];
 }
 
-LatencyTrace load_latency_trace(const std::string& path) {
+namespace {
+
+// A trace of samples (latency_ms holds them): `what` names it in errors, values lo..hi.
+LatencyTrace load_sample_trace(const std::string& path, const char* what, const char* unit, double lo, double hi) {
   std::ifstream in(path);
-  if (!in) fail("{}: latency trace not found or unreadable", path);
+  if (!in) fail("{}: {} trace not found or unreadable", path, what);
   LatencyTrace t;
   std::string line;
   int number = 0;
@@ -151,13 +164,21 @@ LatencyTrace load_latency_trace(const std::string& path) {
     std::istringstream s(line);
     double v = 0;
     std::string rest;
-    if (!(s >> v) || (s >> rest) || !std::isfinite(v) || v < 0 || v > 1e5)
-      fail("{}:{}: '{}' is not a latency in ms (a number 0..100000)", path, number, line);
+    if (!(s >> v) || (s >> rest) || !std::isfinite(v) || v < lo || v > hi)
+      fail("{}:{}: '{}' is not a {} in {} (a number {}..{})", path, number, line, what, unit, lo, hi);
     t.latency_ms.push_back(v);
     if (t.latency_ms.size() > 10'000'000) fail("{}: more than 10 million samples", path);
   }
-  if (t.latency_ms.empty()) fail("{}: no latency samples", path);
+  if (t.latency_ms.empty()) fail("{}: no {} samples", path, what);
   return t;
+}
+
+}  // namespace
+
+LatencyTrace load_latency_trace(const std::string& path) { return load_sample_trace(path, "latency", "ms", 0.0, 1e5); }
+
+LatencyTrace load_capacity_trace(const std::string& path) {
+  return load_sample_trace(path, "capacity", "Mb/s", 0.01, 1e6);
 }
 
 const char* drop_reason_name(DropReason r) {
@@ -173,6 +194,7 @@ const char* drop_reason_name(DropReason r) {
 Link::Link(const LinkConfig& config, uint64_t seed, uint32_t stream_id)
     : config_(config), seed_(seed), stream_(stream_id) {
   if (config_.latency_model == LinkConfig::Latency::Trace) trace_ = load_latency_trace(config_.trace_file);
+  if (!config_.capacity_trace_file.empty()) capacity_ = load_capacity_trace(config_.capacity_trace_file);
 }
 
 Delivery Link::send(uint64_t wire_bytes, double now_ms) {
@@ -207,7 +229,26 @@ Delivery Link::send(uint64_t wire_bytes, double now_ms) {
   }
   // 2. Bandwidth cap with a bounded FIFO queue.
   double depart = now_ms;
-  if (config_.bandwidth_mbps > 0) {
+  if (!capacity_.latency_ms.empty()) {
+    // A capacity that changes: the queue counts the bytes of the datagrams not yet sent whole,
+    // and a datagram goes at the capacity in force when its transmission starts.
+    while (!queued_.empty() && queued_.front().first <= now_ms) {
+      queued_bytes_ -= queued_.front().second;
+      queued_.pop_front();
+    }
+    if (queued_bytes_ + wire_bytes > config_.queue_limit_bytes) {
+      ++stats_.dropped_queue;
+      d.reason = DropReason::QueueFull;
+      return d;
+    }
+    const double start = std::max(now_ms, link_free_ms_);
+    const double bytes_per_ms = capacity_.at(start + config_.capacity_trace_offset_ms) * 1e6 / 8.0 / 1000.0;
+    depart = start + double(wire_bytes) / bytes_per_ms;
+    link_free_ms_ = depart;
+    queued_.emplace_back(depart, wire_bytes);
+    queued_bytes_ += wire_bytes;
+    stats_.max_queue_delay_ms = std::max(stats_.max_queue_delay_ms, depart - now_ms);
+  } else if (config_.bandwidth_mbps > 0) {
     const double bytes_per_ms = config_.bandwidth_mbps * 1e6 / 8.0 / 1000.0;
     const double backlog_ms = std::max(0.0, link_free_ms_ - now_ms);
     if (backlog_ms * bytes_per_ms + double(wire_bytes) > double(config_.queue_limit_bytes)) {

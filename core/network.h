@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
+#include <deque>
 #include <string>
 #include <vector>
 
@@ -41,6 +42,11 @@ struct LinkConfig {
   double ge_loss_bad = 1.0;
 
   double bandwidth_mbps = 0.0;       // 0 = unlimited
+  // A capacity that changes: a trace of Mb/s samples (the latency trace's format, values
+  // 0.01..1e6; repeats), in place of bandwidth_mbps. A datagram is sent at the capacity in force
+  // when its transmission starts; the FIFO holds at most queue_limit_bytes.
+  std::string capacity_trace_file;
+  double capacity_trace_offset_ms = 0.0;  // where in the trace virtual time 0 falls
   uint64_t queue_limit_bytes = 0;    // with a bandwidth cap: 0 = unbounded is refused; see validate
   int mtu_bytes = 1500;
   bool preserve_order = true;
@@ -60,6 +66,8 @@ struct LatencyTrace {
   double at(double t_ms) const;  // the sample in force at time t (wrapping)
 };
 LatencyTrace load_latency_trace(const std::string& path);
+// A capacity trace (LinkConfig::capacity_trace_file): the same format, samples in Mb/s.
+LatencyTrace load_capacity_trace(const std::string& path);
 
 enum class DropReason : uint8_t { None = 0, Loss, QueueFull, OverMtu };
 const char* drop_reason_name(DropReason r);
@@ -88,6 +96,10 @@ class Link {
  private:
   LinkConfig config_;
   LatencyTrace trace_;
+  LatencyTrace capacity_;  // capacity_trace_file's samples (Mb/s); empty: bandwidth_mbps
+  // With a capacity trace: the datagrams queued or in transmission (departure ms, bytes).
+  std::deque<std::pair<double, uint64_t>> queued_;
+  uint64_t queued_bytes_ = 0;
   uint64_t seed_;
   uint32_t stream_;
   uint64_t index_ = 0;         // datagrams sent so far

@@ -81,6 +81,56 @@ TEST(Link, BandwidthCapSerializesAndTailDrops) {
   EXPECT_TRUE(link.send(1000, 10.0).delivered);
 }
 
+// A capacity trace: 8 Mb/s (1000 bytes per ms) for 10 ms, then 0.8 Mb/s (100 bytes per ms).
+// A datagram goes at the capacity in force when its transmission starts; the queue counts the
+// bytes not yet sent whole and drops what would pass queue_limit_bytes.
+TEST(Link, CapacityTraceChangesTheRateAndTheQueueDrops) {
+  const auto dir = std::filesystem::temp_directory_path() / "dhr_test_capacity";
+  std::filesystem::create_directories(dir);
+  std::ofstream(dir / "step.txt") << "interval_ms: 10\n8\n0.8\n0.8\n0.8\n";
+  LinkConfig c;
+  c.capacity_trace_file = (dir / "step.txt").string();
+  c.queue_limit_bytes = 3000;
+  Link link(c, 1, 0);
+  // Before the step: 1 ms per 1000-byte datagram.
+  EXPECT_NEAR(link.send(1000, 0.0).arrival_ms, 1.0, 1e-9);
+  EXPECT_NEAR(link.send(1000, 5.0).arrival_ms, 6.0, 1e-9);
+  // After it: 10 ms per datagram, and they queue.
+  EXPECT_NEAR(link.send(1000, 12.0).arrival_ms, 22.0, 1e-9);
+  EXPECT_NEAR(link.send(1000, 12.0).arrival_ms, 32.0, 1e-9);
+  EXPECT_NEAR(link.send(1000, 12.0).arrival_ms, 42.0, 1e-9);
+  // Three datagrams (3000 bytes) wait: a fourth would pass the queue's limit.
+  const Delivery d = link.send(1000, 12.0);
+  EXPECT_FALSE(d.delivered);
+  EXPECT_EQ(d.reason, DropReason::QueueFull);
+  // Once the first has gone, one fits again, behind the others: its transmission starts at 42 ms,
+  // where the trace (40 ms long) has begun again at 8 Mb/s.
+  EXPECT_NEAR(link.send(1000, 22.5).arrival_ms, 43.0, 1e-9);
+  EXPECT_EQ(link.stats().dropped_queue, 1u);
+  // The trace repeats: at 40 ms (slot 0 again) the capacity is back at 8 Mb/s.
+  Link fresh(c, 1, 0);
+  EXPECT_NEAR(fresh.send(1000, 40.0).arrival_ms, 41.0, 1e-9);
+  // Both a fixed cap and a trace, or a trace without a queue limit: refused, naming the keys.
+  EXPECT_THROW(LinkConfig::from_json({{"bandwidth_mbps", 10}, {"capacity_trace_file", "x.txt"}, {"queue_limit_bytes", 1000}},
+                                     "downlink"),
+               Error);
+  try {
+    LinkConfig::from_json({{"capacity_trace_file", "x.txt"}}, "downlink");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("queue_limit_bytes > 0"), std::string::npos) << e.what();
+  }
+  // Samples are Mb/s in 0.01..1e6: a zero capacity is refused, naming the line.
+  std::ofstream(dir / "zero.txt") << "5\n0\n";
+  try {
+    load_capacity_trace((dir / "zero.txt").string());
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("zero.txt:2: '0' is not a capacity in Mb/s"), std::string::npos) << e.what();
+  }
+  std::filesystem::remove_all(dir);
+}
+
 TEST(Link, OverMtuRefused) {
   LinkConfig c;
   c.mtu_bytes = 1500;
@@ -200,6 +250,31 @@ TEST(LatencyTrace, FileFormatAndErrors) {
   }
   EXPECT_THROW(load_latency_trace((dir / "missing.txt").string()), Error);
   std::filesystem::remove_all(dir);
+}
+
+// The shipped capacity traces (scripts/make_capacity_traces.py) hold what their headers say.
+TEST(CapacityTrace, ShippedTracesHaveTheirStatedShape) {
+  const std::string dir = std::string(DHR_SOURCE_DIR) + "/experiments/traces/";
+  const LatencyTrace step = load_capacity_trace(dir + "capacity_step.txt");
+  EXPECT_DOUBLE_EQ(step.at(500), 10.0);
+  EXPECT_DOUBLE_EQ(step.at(1500), 2.0);
+  EXPECT_DOUBLE_EQ(step.at(2500), 10.0);
+  const LatencyTrace ramp = load_capacity_trace(dir + "capacity_ramp.txt");
+  EXPECT_DOUBLE_EQ(*std::min_element(ramp.latency_ms.begin(), ramp.latency_ms.end()), 1.0);
+  EXPECT_DOUBLE_EQ(ramp.at(0), 10.0);
+  const LatencyTrace mobile = load_capacity_trace(dir + "capacity_mobile.txt");
+  ASSERT_EQ(mobile.latency_ms.size(), 600u);
+  const auto& x = mobile.latency_ms;
+  double mean = 0;
+  for (double v : x) mean += v / double(x.size());
+  double c0 = 0, c1 = 0;
+  for (size_t i = 0; i < x.size(); ++i) {
+    c0 += (x[i] - mean) * (x[i] - mean);
+    if (i > 0) c1 += (x[i] - mean) * (x[i - 1] - mean);
+  }
+  EXPECT_NEAR(mean, 8.0, 1.5);
+  EXPECT_GT(c1 / c0, 0.8);  // the AR(1)'s 0.9, seen through the exponential and the clamp
+  EXPECT_NEAR(std::sqrt(c0 / double(x.size())) / mean, 0.6, 0.2);
 }
 
 TEST(LatencyTrace, Shipped5gTraceHasThePapersMeanAndP99) {
