@@ -27,6 +27,7 @@ extern "C" {
 #include <libavutil/log.h>
 }
 
+#include <algorithm>
 #include <cctype>
 #include <cmath>
 #include <cstdio>
@@ -35,6 +36,7 @@ extern "C" {
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <numeric>
 #include <limits>
 #include <map>
 #include <optional>
@@ -903,6 +905,42 @@ TEST(VideoCodecs, Chroma444KeepsOnePixelColourDetail) {
     std::printf("%-5s red/blue columns at crf 10: 4:2:0 %.2f dB, 4:4:4 %.2f dB\n", name.c_str(), db[0], db[1]);
     EXPECT_LT(db[0], 25.0) << name << ": 4:2:0 cannot hold one-pixel chroma";
     EXPECT_GT(db[1], db[0] + 10.0) << name;
+  }
+}
+
+// Rate control that streaming uses: in bitrate mode a VBV of about one frame interval bounds the
+// keyframe that a 1 s buffer lets pass the per-frame budget many times over; in crf mode
+// max_kbps caps the rate (x264/x265: VBV; libaom: constrained quality). 64x48 colour pan, 20
+// frames at 60 Hz, a keyframe first.
+TEST(VideoCodecs, VbvBoundsFrameSizesAndMaxKbpsCapsCrf) {
+  const std::vector<std::string> names = lossy_video_codecs();
+  ASSERT_FALSE(names.empty()) << "no lossy video codec registered";
+  auto stream = [](Codec& codec) {
+    std::vector<size_t> sizes;
+    for (int f = 0; f < 20; ++f) {
+      const SyntheticView view{128, 96, 3.0 * f, 2.0 * f, uint32_t(f)};
+      std::vector<uint8_t> bytes;
+      codec.encode(test::make_colour(view), {}, bytes);
+      sizes.push_back(bytes.size());
+    }
+    return sizes;
+  };
+  for (const std::string& name : names) {
+    const double budget = 300.0 * 1000 / 8 / 60;  // bytes per frame at 300 kbit/s and 60 Hz
+    auto loose = registries().codecs.create(name, {{"rate_control", "bitrate"}, {"bitrate_kbps", 300}});
+    auto tight = registries().codecs.create(name, {{"rate_control", "bitrate"}, {"bitrate_kbps", 300}, {"vbv_buffer_ms", 17}});
+    const std::vector<size_t> a = stream(*loose), b = stream(*tight);
+    const size_t max_a = *std::max_element(a.begin(), a.end()), max_b = *std::max_element(b.begin(), b.end());
+    std::printf("%-5s bitrate 300 kbit/s: largest frame %zu B with a 1 s VBV, %zu B with 17 ms (budget %.0f B)\n",
+                name.c_str(), max_a, max_b, budget);
+    EXPECT_LT(max_b, max_a) << name;
+    auto uncapped = registries().codecs.create(name, {{"crf", 12}});
+    auto capped = registries().codecs.create(name, {{"crf", 12}, {"max_kbps", 300}, {"vbv_buffer_ms", 100}});
+    const std::vector<size_t> u = stream(*uncapped), c = stream(*capped);
+    const double mean_u = double(std::accumulate(u.begin(), u.end(), size_t(0))) / double(u.size());
+    const double mean_c = double(std::accumulate(c.begin(), c.end(), size_t(0))) / double(c.size());
+    std::printf("%-5s crf 12: mean frame %.0f B uncapped, %.0f B with max_kbps 300\n", name.c_str(), mean_u, mean_c);
+    EXPECT_LT(mean_c, 0.7 * mean_u) << name;
   }
 }
 

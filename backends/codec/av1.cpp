@@ -43,6 +43,10 @@ CodecEntry make_av1_codec() {
               o.set("cpu-used", std::to_string(cpu_used));
               o.set("lag-in-frames", "0");
               o.set("row-mt", "0");
+              // A capped CRF: libaom has no VBV in its constant-quality mode; with a target bitrate
+              // beside the crf, libavcodec runs it as constrained quality (CQ), max_kbps the target.
+              if (s.rate_control == AvRateControl::Crf && s.max_kbps > 0)
+                o.context()->bit_rate = int64_t(s.max_kbps) * 1000;
               if (s.rate_control == AvRateControl::Lossless) {
                 // In realtime mode lossless=1 left inter frames lossy (tests/test_codecs.cpp found it):
                 // lossless runs in good-quality mode with the quantiser pinned at 0.

@@ -75,7 +75,7 @@ class AvVideoCodec final : public Codec {
     if (options.target_kbps > 0.0 && takes_target_kbps()) {  // a bit budget's share, from this frame on
       enc_->bit_rate = std::max<int64_t>(1000, std::llround(std::min(options.target_kbps, 1e9) * 1000.0));
       enc_->rc_max_rate = enc_->bit_rate;
-      enc_->rc_buffer_size = int(std::min<int64_t>(enc_->bit_rate, INT32_MAX));
+      enc_->rc_buffer_size = vbv_bits(enc_->bit_rate);
     }
     fill_picture(in);
     frame_->pts = next_pts_++;
@@ -174,6 +174,11 @@ class AvVideoCodec final : public Codec {
     return g;
   }
 
+  // The VBV buffer in bits: vbv_buffer_ms at `rate` bit/s.
+  int vbv_bits(int64_t rate) const {
+    return int(std::clamp<int64_t>(rate * s_.vbv_buffer_ms / 1000, 1, INT32_MAX));
+  }
+
   void open_encoder(const PassDesc& desc) {
     enc_desc_ = PassDesc{};  // stays invalid if opening fails, so the next encode retries
     avcodec_free_context(&enc_);
@@ -204,12 +209,18 @@ class AvVideoCodec final : public Codec {
     }
     AvOptions options(f_.name, enc_);
     switch (s_.rate_control) {
-      case AvRateControl::Crf: options.set("crf", std::to_string(s_.crf)); break;
+      case AvRateControl::Crf:
+        options.set("crf", std::to_string(s_.crf));
+        if (s_.max_kbps > 0) {  // a capped CRF: the VBV at max_kbps
+          enc_->rc_max_rate = int64_t(s_.max_kbps) * 1000;
+          enc_->rc_buffer_size = vbv_bits(enc_->rc_max_rate);
+        }
+        break;
       case AvRateControl::Lossless: break;  // configure_encoder switches it on
       case AvRateControl::Bitrate:
         enc_->bit_rate = int64_t(s_.bitrate_kbps) * 1000;
         enc_->rc_max_rate = enc_->bit_rate;
-        enc_->rc_buffer_size = int(std::min<int64_t>(enc_->bit_rate, INT32_MAX));
+        enc_->rc_buffer_size = vbv_bits(enc_->bit_rate);
         break;
     }
     f_.configure_encoder(s_, options);
@@ -396,6 +407,11 @@ std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf
           ParamSpec::integer("fps", 60, 1, 1000, "frame rate the bitrate refers to (bitrate mode)"),
           ParamSpec::integer("gop", 60, 1, 100000, "keyframe interval in frames"),
           ParamSpec::integer("threads", 1, 1, 16, encoder_label + " threads (" + threads_note + ")"),
+          ParamSpec::integer("vbv_buffer_ms", 1000, 1, 10000,
+                             "VBV buffer in ms at the peak rate (bitrate mode: the target; crf mode: max_kbps): "
+                             "smaller bounds each frame's size more tightly (one frame interval: CBR per frame)"),
+          ParamSpec::integer("max_kbps", 0, 0, 1000000,
+                             "crf mode: cap the rate with a VBV at this peak (capped CRF; 0: uncapped)"),
           ParamSpec::choice("chroma", "420", {"420", "444"},
                             "colour pictures' chroma: 4:2:0 (half-resolution chroma, what streaming ships) or 4:4:4")};
 }
@@ -418,6 +434,8 @@ AvVideoSettings av_video_settings(const Params& p) {
   s.gop = p.get_int("gop");
   s.threads = p.get_int("threads");
   s.chroma444 = p.get_string("chroma") == "444";
+  s.vbv_buffer_ms = p.get_int("vbv_buffer_ms");
+  s.max_kbps = p.get_int("max_kbps");
   return s;
 }
 

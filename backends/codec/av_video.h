@@ -53,9 +53,14 @@ struct AvVideoSettings {
   int gop = 60;
   int threads = 1;
   bool chroma444 = false;  // colour pictures as YUV 4:4:4 (else 4:2:0)
+  // The VBV: a buffer of vbv_buffer_ms at the peak rate (bitrate mode: the target; crf mode:
+  // max_kbps, a capped CRF; 0: uncapped) bounds how far one frame may pass the average.
+  int vbv_buffer_ms = 1000;
+  int max_kbps = 0;
 };
 
-// rate_control, crf (0..crf_max, default crf_default), bitrate_kbps, fps, gop, threads, chroma; the
+// rate_control, crf (0..crf_max, default crf_default), bitrate_kbps, fps, gop, threads, chroma,
+// vbv_buffer_ms, max_kbps; the
 // notes say how the encoder codes losslessly and what its thread count does to the bytes.
 std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
                                        const std::string& lossless_note, const std::string& threads_note);

@@ -23,7 +23,10 @@
 //   rate_control          crf | bitrate | lossless   lossless = qp 0                    default crf
 //   crf                   0..51                      constant rate factor (crf mode)    default 23
 //   bitrate_kbps          1..1000000                 target (bitrate mode: ABR, VBV max = target,
-//                                                    VBV buffer = 1 s)                  default 10000
+//                                                    VBV buffer = vbv_buffer_ms)        default 10000
+//   vbv_buffer_ms         1..10000                   VBV buffer at the peak rate        default 1000
+//   max_kbps              0..1000000                 crf mode: VBV peak (capped CRF)    default 0 (none)
+//   chroma                420 | 444                  colour pictures' chroma            default 420
 //   fps                   1..1000                    frame rate the bitrate refers to   default 60
 //   gop                   1..100000                  keyframe (IDR) interval in frames  default 60
 //   threads               1..16                      x264 threads (1: deterministic)    default 1
