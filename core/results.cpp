@@ -66,6 +66,65 @@ StageStats client_frames(const RunResult& r) {
   return client;
 }
 
+// Stalls (RunMetric stalls, stall_ms_*, frames_frozen): a pass stalls when the server frame it
+// shows stays the same for more than stall_after_frames display intervals, or it shows none. A
+// stall's frames are the displayed frames that showed no new frame of that pass; frozen are those
+// past the threshold. Episodes are runs of displayed frames in which some pass stalls.
+struct Stalls {
+  uint64_t episodes = 0, frozen = 0;
+  double total_ms = 0.0, longest_ms = 0.0;
+};
+Stalls stalls_of(const RunResult& r) {
+  Stalls out;
+  const bool set = r.config.is_object();  // a RunResult made in a test may have no config
+  const double hz = set ? r.config.value("display_hz", 60.0) : 60.0;
+  const long after = set ? r.config.value("stall_after_frames", 3) : 3;
+  const long n = long(r.frames.size());
+  std::vector<bool> stalled(size_t(n), false), frozen(size_t(n), false);
+  std::map<std::string, std::vector<int>> shown;  // per pass: its source frame per displayed frame
+  for (long k = 0; k < n; ++k)
+    for (const auto& p : r.frames[size_t(k)].passes) {
+      auto& v = shown[p.pass];
+      v.resize(size_t(n), -1);
+      v[size_t(k)] = p.source_frame;
+    }
+  for (const auto& [pass, src] : shown) {
+    long last = -1;  // the displayed frame where this pass last showed a new server frame
+    auto close_gap = [&](long next) {  // the frames after `last` up to `next`, exclusive
+      if (last < 0 || next - last <= after) return;
+      for (long j = last + 1; j < next; ++j) {
+        stalled[size_t(j)] = true;
+        if (j - last > after) frozen[size_t(j)] = true;
+      }
+    };
+    for (long k = 0; k < n; ++k) {
+      if (src[size_t(k)] < 0) {  // nothing to show yet, or the pass was reset
+        stalled[size_t(k)] = frozen[size_t(k)] = true;
+        continue;
+      }
+      if (k > 0 && src[size_t(k)] == src[size_t(k - 1)]) continue;
+      close_gap(k);
+      last = k;
+    }
+    close_gap(n);
+  }
+  for (long k = 0, run = 0; k <= n; ++k) {
+    if (k < n && stalled[size_t(k)]) {
+      ++run;
+      continue;
+    }
+    if (run > 0) {
+      ++out.episodes;
+      const double ms = double(run) * 1000.0 / hz;
+      out.total_ms += ms;
+      out.longest_ms = std::max(out.longest_ms, ms);
+    }
+    run = 0;
+  }
+  out.frozen = uint64_t(std::count(frozen.begin(), frozen.end(), true));
+  return out;
+}
+
 }  // namespace
 
 const char* against_name(Against a) { return a == Against::Local ? "local" : "ground_truth"; }
@@ -268,6 +327,17 @@ const std::vector<RunMetric>& run_metrics() {
        [](R r) -> nlohmann::json { return r.frames_without_data; }},
       {"receiver_packets_lost", "packets", "found by the receiver from sequence-number gaps", false,
        [](R r) -> nlohmann::json { return r.receiver_packets_lost; }},
+      {"stalls", "stalls",
+       "episodes in which some pass showed no new server frame for more than stall_after_frames display intervals "
+       "(a loss, a late frame, a capacity drop)",
+       false, [](R r) -> nlohmann::json { return stalls_of(r).episodes; }},
+      {"stall_ms_total", "ms", "the stalls' time on the display: the display intervals that showed no new frame of a "
+       "stalled pass",
+       false, [](R r) -> nlohmann::json { return stalls_of(r).total_ms; }},
+      {"stall_ms_longest", "ms", "the longest stall (the recovery time after the worst loss burst)", false,
+       [](R r) -> nlohmann::json { return stalls_of(r).longest_ms; }},
+      {"frames_frozen", "frames", "displayed frames past a stall's threshold, or with a pass that has no data", false,
+       [](R r) -> nlohmann::json { return stalls_of(r).frozen; }},
       {"client_frame_ms_median", "ms", "client stages per displayed frame, median (wall clock)", true,
        [](R r) -> nlohmann::json { return client_frames(r).median(); }},
       {"client_frame_ms_p95", "ms", "client stages per displayed frame, 95th percentile (wall clock)", true,

@@ -231,6 +231,10 @@ std::vector<RunSetting> make_settings() {
                    kInLiveOffer));
   v.push_back(ranged("history_frames", SettingType::Integer, 1, 1024, "client G-buffers kept for prediction",
                      [](auto& c) -> auto& { return c.history_frames; }));
+  v.push_back(ranged("stall_after_frames", SettingType::Integer, 1, 1000,
+                     "a pass stalls when its newest data stays the same for more than this many display intervals "
+                     "(the metrics stalls, stall_ms_total, stall_ms_longest, frames_frozen)",
+                     [](auto& c) -> auto& { return c.stall_after_frames; }));
   v.push_back(ranged("score_every", SettingType::Integer, 1, 1e9, "score against the local reference on every n-th frame",
                      [](auto& c) -> auto& { return c.score_every; }));
   v.push_back(with(ranged("ground_truth_every", SettingType::Integer, 0, 1e9,

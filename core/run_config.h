@@ -59,6 +59,9 @@ struct SimConfig {
   // the other passes used over the last second (core/pipeline.h, ServerPipeline).
   double stream_kbps = 0.0;
   int history_frames = 64;     // client G-buffers kept for prediction
+  // A pass is stalled while its newest data stays the same for more than this many display
+  // intervals (the stall metrics of core/results.h).
+  int stall_after_frames = 3;
   int score_every = 1;         // quality against the local reference on every n-th frame
   int ground_truth_every = 0;  // against the ground truth on every n-th frame (0: never)
   // Experiments refuse a warm-up shorter than the first server frame's way to the client

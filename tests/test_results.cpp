@@ -110,6 +110,38 @@ TEST(Results, StatisticsOverFrames) {
   EXPECT_THROW(student_t95(0), std::exception);
 }
 
+// Stalls: a pass whose newest server frame stays the same for more than stall_after_frames (3)
+// display intervals, or that shows none. The AO pass below shows source frames
+// 0 1 2 3 3 3 3 3 8 9 - 11 (-: none); the visibility pass updates every frame.
+TEST(Results, StallsFrozenFramesAndTheirDurations) {
+  RunResult r;
+  r.config = {{"display_hz", 60.0}, {"stall_after_frames", 3}};
+  const std::vector<int> ao = {0, 1, 2, 3, 3, 3, 3, 3, 8, 9, -1, 11};
+  for (size_t k = 0; k < ao.size(); ++k) {
+    FrameRecord f;
+    f.passes = {{"visibility", int(k)}, {"ao", ao[k]}};
+    r.frames.push_back(f);
+  }
+  const nlohmann::json m = r.metrics();
+  // Frame 3 shown for 5 intervals (3..7): frames 4-7 stalled, 7 past the threshold; frame 10 none.
+  EXPECT_EQ(m.at("stalls").get<int>(), 2);
+  EXPECT_NEAR(m.at("stall_ms_total").get<double>(), 5 * 1000.0 / 60.0, 1e-9);
+  EXPECT_NEAR(m.at("stall_ms_longest").get<double>(), 4 * 1000.0 / 60.0, 1e-9);
+  EXPECT_EQ(m.at("frames_frozen").get<int>(), 2);
+  // Shown for 3 intervals only: no stall at the threshold 3.
+  r.frames[6].passes[1].source_frame = 6;
+  r.frames[7].passes[1].source_frame = 6;
+  r.frames[10].passes[1].source_frame = 10;
+  const nlohmann::json n = r.metrics();
+  EXPECT_EQ(n.at("stalls").get<int>(), 0);
+  EXPECT_EQ(n.at("frames_frozen").get<int>(), 0);
+  // A stall that lasts to the run's end counts.
+  for (size_t k = 6; k < ao.size(); ++k) r.frames[k].passes[0].source_frame = 5;
+  const nlohmann::json e = r.metrics();
+  EXPECT_EQ(e.at("stalls").get<int>(), 1);
+  EXPECT_NEAR(e.at("stall_ms_total").get<double>(), 6 * 1000.0 / 60.0, 1e-9);
+}
+
 TEST(Results, FramesCsvRowsMatchTheHeader) {
   const std::vector<std::string> passes = {"visibility", "ao", "colour"};
   std::string head = frames_csv_header({"run"}, passes);
