@@ -240,7 +240,8 @@ void Assembler::complete(Stream& s, size_t i) {
     pending_.completed.erase(pending_.completed.begin());
   }
   f.bytes.resize(f.total_bytes);  // the FEC shards' padding
-  pending_.completed.push_back({f.meta, std::move(f.bytes), f.count, late, f.first_packet_ms, now_ms_});
+  pending_.completed.push_back({f.meta, std::move(f.bytes), f.count, late, f.first_packet_ms, now_ms_,
+                                uint16_t(f.fec.parity)});
 }
 
 // Rebuilds the missing data packets of a frame whose every FEC block has as many packets as

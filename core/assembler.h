@@ -79,6 +79,7 @@ struct AssembledFrame {
   bool late = false;             // older than a frame of its stream delivered before
   int64_t first_packet_ms = 0;
   int64_t completed_ms = 0;
+  uint16_t parity_count = 0;     // its FEC parity packets (their sequence numbers follow the data's)
 };
 
 struct LostFrame {

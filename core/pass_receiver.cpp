@@ -7,7 +7,8 @@ namespace dhr {
 PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f, const FrameContext& context) {
   Outcome o;
   const bool gap = expected_sequence != f.meta.first_sequence;
-  expected_sequence = f.meta.first_sequence + f.packet_count;
+  // The next frame of the stream starts after this one's data and parity packets.
+  expected_sequence = f.meta.first_sequence + f.packet_count + f.parity_count;
   // Asks for recovery: from the newest frame the decoder holds, else a keyframe after a reset.
   auto request = [&] {
     o.keyframe_request = true;
