@@ -328,7 +328,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
     for (const char* k : {"group", "along"}) {
       std::string key;
       r.string(k, key);
-      if (key.empty()) continue;
+      if (key.empty() || (std::string(k) == "group" && key == "configuration")) continue;  // by configuration
       bool used = false;
       for (const auto& a : axes) used = used || a.first == key;
       for (const auto& c : configs) used = used || c.set.contains(key);

@@ -18,7 +18,8 @@
 //                                                                  rate-quality curves (optional)
 //   "answer": {"question": "...", "cost": "bandwidth" | "server_time", "group": "key", "along": "key",
 //              "terms": [{"name": "...", "with": "configuration", "without": "configuration"}, ...]}
-//                                  what report.md opens with (optional; experiments/report.py)
+//                                  what report.md opens with (optional; experiments/report.py);
+//                                  "group": "configuration" compares the configurations
 // }
 // Rate-quality curves (docs/architecture.md, "Rate-quality curves"): the runs of one family on
 // one scene under the same values of every swept key not in "vary" form one curve; the report

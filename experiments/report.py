@@ -512,8 +512,8 @@ def range_answer(ok, metrics, spec):
         vals, ref = scene_values(ok, scene, im)
         groups = {}
         for r, v in vals:
-            st = r.get("settings", {})
-            if group in st and along in st:
+            st = dict(r.get("settings", {}), configuration=r.get("configuration"))
+            if st.get(group) is not None and along in st:
                 groups.setdefault(str(st[group]), []).append((str(st[along]), v))
         if not groups:
             continue
@@ -870,10 +870,12 @@ def results_section(ok, failed, metrics, frames):
                "the block length from each series' lag-1 autocorrelation by Carlstein's AR(1) rule"
                + (f", here {blocks[0]}..{blocks[-1]} frames" if blocks else "") + "; experiments/intervals.py): "
                "Student's t interval where frames are independent, wider where they are not.\n")
+    # Results written before the stall metrics have no stall column.
+    stalls = any("stalls" in r["metrics"] for r in ok)
     out.append("| run | scene | configuration | scored frames | " + " | ".join(c[0] for c in quality_columns) +
                " | Mb/s | bytes/frame per pass | server fps (virtual) | client fps (wall) | buffer age ms (median) "
-               "| frames lost |")
-    out.append("|---|---|---|---|" + "---|" * len(quality_columns) + "---|---|---|---|---|---|")
+               "| frames lost" + (" (FEC rebuilt) | stalls (ms in all, longest) |" if stalls else " |"))
+    out.append("|---|---|---|---|" + "---|" * len(quality_columns) + "---|---|---|---|---|---|" + ("---|" if stalls else ""))
     for r in ok:
         m = r["metrics"]
         per_pass = ", ".join(f"{p['pass']} {p['bytes_per_frame']:.0f}" for p in m["passes"] if p["server_frames"])
@@ -885,7 +887,9 @@ def results_section(ok, failed, metrics, frames):
         scored = f"{m.get('frames_scored', '–')} / {m.get('frames_scored_ground_truth', '–')}"
         out.append(f"| {r['id']} | {r['scene']} | {r['label']} | {scored} | {cells} | "
                    f"{m['bandwidth_mbps']:.2f} | {per_pass or '–'} | {m['server_fps_virtual']:.1f} | "
-                   f"{m['client_fps_wall']:.1f} | {', '.join(f'{a:.1f}' for a in ages) or '–'} | {lost} |")
+                   f"{m['client_fps_wall']:.1f} | {', '.join(f'{a:.1f}' for a in ages) or '–'} | {lost}"
+                   + (f" ({sum(p.get('frames_recovered', 0) for p in m['passes'])}) | {m.get('stalls', '–')} "
+                      f"({fmt(m.get('stall_ms_total'), 0)}, {fmt(m.get('stall_ms_longest'), 0)}) |" if stalls else " |"))
     out.append("")
     if failed:
         out.append("### Failed configurations\n")
