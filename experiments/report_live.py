@@ -57,8 +57,25 @@ def build(d):
     denoisers = ", ".join(f"{p} {offer.get(p + '_denoiser', {}).get('name')}" for p in passes)
     predictors = ", ".join(f"{p} {get(c, 'predictor.' + p + '.name', cpath)}" for p in passes)
     q = lambda m, k: C(f"quality.{m}.{k}")  # noqa: E731
+    q = lambda m, k: C(f"quality.{m}.{k}")  # noqa: E731
+    saved = sorted(f for f in os.listdir(os.path.join(d, "client", "frames")) if f.endswith(".png")) \
+        if os.path.isdir(os.path.join(d, "client", "frames")) else []
+    ages = [C(f"passes.{p}.age_ms.median") for p in passes]
     out = [
         "# Live mode on loopback: server, relay and client as three processes\n",
+        "## The answer\n",
+        "Question: over real UDP sockets, through a relay that delays and loses datagrams, does the client keep up "
+        "with its display, and at what quality?\n",
+        f"- {C('frames.displayed'):.0f} of {C('frames.requested'):.0f} frames displayed on time "
+        f"({C('frames.skipped_late'):.0f} missed their display time), showing passes "
+        f"{f'{min(ages):.0f}' if round(min(ages)) == round(max(ages)) else f'{min(ages):.0f}-{max(ages):.0f}'} ms old "
+        f"(median); {C('socket.mbps'):.2f} Mb/s on the wire, {100 * C('packets.loss_rate'):.2f} % of the packets "
+        f"lost; against the local reference SSIM {q('ssim_local', 'mean'):.3f} and FLIP {q('flip_local', 'mean'):.3f} "
+        f"(means over {C('frames.scored'):.0f} scored frames).\n",
+        f"Scale: {offer.get('width')}x{offer.get('height')}, scene {offer.get('scene')}, one run of "
+        f"{C('socket.duration_s'):.1f} s of wall clock on one machine (three processes sharing its cores).\n",
+    ] + ([f"![the client's frame {saved[-1]}](client/frames/{saved[-1]})\n"] if saved else []) + [
+        "## The run\n",
         "Written by `/usr/bin/python3 experiments/report_live.py reports/live` from the files beside it; made by "
         "`DHR_LIVE_CLIENT_ARGS=\"--save-every 300\" DHR_LIVE_FRAMES=600 bash scripts/live_loopback.sh reports/live` "
         "(what `bash scripts/regenerate_reports.sh` runs for it). Wall-clock results: the three processes share the "

@@ -59,7 +59,7 @@ class CommittedReports(unittest.TestCase):
         # reports/live is written by experiments/report_live.py from the three processes' files.
         with tempfile.TemporaryDirectory() as tmp:
             dst = os.path.join(tmp, "live")
-            shutil.copytree(os.path.join(REPORTS, "live"), dst, ignore=shutil.ignore_patterns("frames"))
+            shutil.copytree(os.path.join(REPORTS, "live"), dst)
             os.remove(os.path.join(dst, "report.md"))
             p = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "report_live.py"), dst],
                                capture_output=True, text=True)
