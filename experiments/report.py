@@ -423,13 +423,13 @@ def regime_answer(ok, regimes, replicates=()):
         rw = [k for k, c in both if c["winner"] == "remote"]
         only = {side: sorted(b for (_, b), c in cells if c["only"] == side) for side in ("hybrid", "remote")}
         parts = [f"hybrid better in {len(hw)} and remote in {len(rw)} of {len(both)} cells where both have a run"]
+        span = lambda bs: f"{bs[0]:.3g}" if f"{bs[0]:.3g}" == f"{bs[-1]:.3g}" else f"{bs[0]:.3g}-{bs[-1]:.3g}"  # noqa: E731
         for side, won in (("hybrid", hw), ("remote", rw)):
             if won:
-                bs = sorted(b for _, b in won)
-                parts.append(f"{side} wins at {bs[0]:.3g}-{bs[-1]:.3g} Mb/s")
+                parts.append(f"{side} wins at {span(sorted(b for _, b in won))} Mb/s")
         for side in ("remote", "hybrid"):
             if only[side]:
-                parts.append(f"only {side} reaches {only[side][0]:.3g}-{only[side][-1]:.3g} Mb/s")
+                parts.append(f"only {side} reaches {span(only[side])} Mb/s")
         rtt_list = ", ".join(f"{t:g}" for t in sorted({t for m in maps for t in m["rtts"]}))
         title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
         over = f", {len(maps)} replicates pooled" if len(maps) > 1 else ""
