@@ -254,6 +254,17 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
     axes.clear();  // never expanded
   }
 
+  // What "curves" and "answer" may name: a swept key, or one a configuration sets.
+  auto swept = [&](const nlohmann::json& key) {
+    return key.is_string() &&
+           std::any_of(axes.begin(), axes.end(), [&](const auto& a) { return a.first == key.get<std::string>(); });
+  };
+  auto swept_or_set = [&](const nlohmann::json& key) {
+    return swept(key) || (key.is_string() && std::any_of(configs.begin(), configs.end(), [&](const auto& c) {
+                            return c.set.contains(key.get<std::string>());
+                          }));
+  };
+
   // Rate-quality curves: "vary" names keys that are swept or set by configurations; the anchor is
   // a family.
   if (j.contains("curves")) {
@@ -269,10 +280,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
         problems.push_back(fmt::format("{}.curves.replicates: must be a non-empty list of swept keys (e.g. [\"seed\"])", path));
       } else {
         for (const auto& k : rep) {
-          bool swept = false;
-          if (k.is_string())
-            for (const auto& a : axes) swept = swept || a.first == k.get<std::string>();
-          if (!swept)
+          if (!swept(k))
             problems.push_back(fmt::format("{}.curves.replicates: {} is not a key of \"sweep\"", path, json_excerpt(k)));
         }
       }
@@ -281,12 +289,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
       problems.push_back(fmt::format("{}.curves.vary: must be a non-empty list of the dotted keys that move along a curve", path));
     } else {
       for (const auto& k : cv.at("vary")) {
-        bool used = false;
-        if (k.is_string()) {
-          for (const auto& a : axes) used = used || a.first == k.get<std::string>();
-          for (const auto& c : configs) used = used || c.set.contains(k.get<std::string>());
-        }
-        if (!used)
+        if (!swept_or_set(k))
           problems.push_back(fmt::format("{}.curves.vary: {} is not a key of \"sweep\" or of a configuration's \"set\"", path,
                                          json_excerpt(k)));
       }
@@ -329,10 +332,7 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
       std::string key;
       r.string(k, key);
       if (key.empty() || (std::string(k) == "group" && key == "configuration")) continue;  // by configuration
-      bool used = false;
-      for (const auto& a : axes) used = used || a.first == key;
-      for (const auto& c : configs) used = used || c.set.contains(key);
-      if (!used)
+      if (!swept_or_set(key))
         problems.push_back(fmt::format("{}.answer.{}: '{}' is not a key of \"sweep\" or of a configuration's \"set\"", path, k,
                                        text_excerpt(key)));
     }

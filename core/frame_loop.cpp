@@ -755,9 +755,7 @@ class Simulation {
       if (count) {
         ++t.server_frames;
         t.encoded_bytes += p.encoded_bytes;
-        size_t wire = 0;  // parity packets included
-        for (const auto& packet : p.packets) wire += packet.size() + kIpUdpOverheadBytes;
-        result_.server_log.push_back({j, t.pass, p.encoded_bytes, p.packets.size(), wire});
+        result_.server_log.push_back({j, t.pass, p.encoded_bytes, p.packets.size(), wire_bytes_of_packets(p.packets)});
       }
     }
     // All packets leave when the server finishes.

@@ -241,11 +241,9 @@ class LiveServer {
     // passes and the same bytes.
     ServerFrame f = s.pipeline->run(cam.frame, cam.camera, cam.scene_time_s, keyframe, holds);
     if (s.log.is_open())
-      for (const SentPass& p : f.passes) {
-        size_t wire = 0;  // FEC parity packets included
-        for (const auto& packet : p.packets) wire += packet.size() + kIpUdpOverheadBytes + mac_bytes();
-        s.log << fmt::format("{:08x},{},{},{},{},{}\n", s.id, cam.frame, p.name, p.encoded_bytes, p.packets.size(), wire);
-      }
+      for (const SentPass& p : f.passes)
+        s.log << fmt::format("{:08x},{},{},{},{},{}\n", s.id, cam.frame, p.name, p.encoded_bytes, p.packets.size(),
+                             wire_bytes_of_packets(p.packets, mac_bytes()));
     if (s.compute_ms.size() < kMaxSamples) s.compute_ms.push_back(ms_between(t0, Clock::now()));
     for (SentPass& pass : f.passes)
       for (auto& p : pass.packets) {

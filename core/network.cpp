@@ -6,7 +6,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
+#include <map>
+#include <memory>
+#include <mutex>
 #include <sstream>
 
 namespace dhr {
@@ -132,20 +136,20 @@ nlohmann::json LinkConfig::to_json() const {
           {"capacity_trace_offset_ms", capacity_trace_offset_ms}};
 }
 
-double LatencyTrace::at(double t_ms) const {
-  if (latency_ms.empty()) return 0.0;
+double SampleTrace::at(double t_ms) const {
+  if (samples.empty()) return 0.0;
   const double slot = std::floor(std::max(t_ms, 0.0) / interval_ms);
-  const auto i = size_t(std::fmod(slot, double(latency_ms.size())));
-  return latency_ms[i];
+  const auto i = size_t(std::fmod(slot, double(samples.size())));
+  return samples[i];
 }
 
 namespace {
 
-// A trace of samples (latency_ms holds them): `what` names it in errors, values lo..hi.
-LatencyTrace load_sample_trace(const std::string& path, const char* what, const char* unit, double lo, double hi) {
+// A trace file's samples: `what` names it in errors, values lo..hi.
+SampleTrace parse_sample_trace(const std::string& path, const char* what, const char* unit, double lo, double hi) {
   std::ifstream in(path);
   if (!in) fail("{}: {} trace not found or unreadable", path, what);
-  LatencyTrace t;
+  SampleTrace t;
   std::string line;
   int number = 0;
   while (std::getline(in, line)) {
@@ -166,18 +170,39 @@ LatencyTrace load_sample_trace(const std::string& path, const char* what, const 
     std::string rest;
     if (!(s >> v) || (s >> rest) || !std::isfinite(v) || v < lo || v > hi)
       fail("{}:{}: '{}' is not a {} in {} (a number {}..{})", path, number, line, what, unit, lo, hi);
-    t.latency_ms.push_back(v);
-    if (t.latency_ms.size() > 10'000'000) fail("{}: more than 10 million samples", path);
+    t.samples.push_back(v);
+    if (t.samples.size() > 10'000'000) fail("{}: more than 10 million samples", path);
   }
-  if (t.latency_ms.empty()) fail("{}: no {} samples", path, what);
+  if (t.samples.empty()) fail("{}: no {} samples", path, what);
   return t;
+}
+
+// parse_sample_trace once per (file, kind, size, modification time): an experiment validates
+// and runs thousands of runs over the same trace files. Only traces that parsed are kept.
+SampleTrace load_sample_trace(const std::string& path, const char* what, const char* unit, double lo, double hi) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const auto size = fs::file_size(path, ec);
+  const auto time = ec ? fs::file_time_type{} : fs::last_write_time(path, ec);
+  if (ec) return parse_sample_trace(path, what, unit, lo, hi);  // it names what is wrong with the file
+  const std::string key = fmt::format("{}\n{}\n{}\n{}", what, path, size, time.time_since_epoch().count());
+  static std::mutex mutex;
+  static std::map<std::string, std::shared_ptr<const SampleTrace>> parsed;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (auto it = parsed.find(key); it != parsed.end()) return *it->second;
+  }
+  auto t = std::make_shared<const SampleTrace>(parse_sample_trace(path, what, unit, lo, hi));
+  std::lock_guard<std::mutex> lock(mutex);
+  parsed.emplace(key, t);
+  return *t;
 }
 
 }  // namespace
 
-LatencyTrace load_latency_trace(const std::string& path) { return load_sample_trace(path, "latency", "ms", 0.0, 1e5); }
+SampleTrace load_latency_trace(const std::string& path) { return load_sample_trace(path, "latency", "ms", 0.0, 1e5); }
 
-LatencyTrace load_capacity_trace(const std::string& path) {
+SampleTrace load_capacity_trace(const std::string& path) {
   return load_sample_trace(path, "capacity", "Mb/s", 0.01, 1e6);
 }
 
@@ -229,7 +254,7 @@ Delivery Link::send(uint64_t wire_bytes, double now_ms) {
   }
   // 2. Bandwidth cap with a bounded FIFO queue.
   double depart = now_ms;
-  if (!capacity_.latency_ms.empty()) {
+  if (!capacity_.samples.empty()) {
     // A capacity that changes: the queue counts the bytes of the datagrams not yet sent whole,
     // and a datagram goes at the capacity in force when its transmission starts.
     while (!queued_.empty() && queued_.front().first <= now_ms) {

@@ -57,17 +57,20 @@ struct LinkConfig {
   nlohmann::json to_json() const;  // every field, defaults filled in
 };
 
-// Latency trace: a text file; '#' starts a comment; an optional line "interval_ms: X"
-// (default 10) gives the time between samples; every other line holds one latency in ms.
-// The trace repeats. Throws dhr::Error naming the file and line on bad content.
-struct LatencyTrace {
+// A trace of samples over time: a text file; '#' starts a comment; an optional line
+// "interval_ms: X" (default 10) gives the time between samples; every other line holds one
+// sample. The trace repeats. Throws dhr::Error naming the file and line on bad content. Each
+// file is parsed once per process (validation and every run's links read the same files), and
+// again when its size or modification time changes.
+struct SampleTrace {
   double interval_ms = 10.0;
-  std::vector<double> latency_ms;
+  std::vector<double> samples;
   double at(double t_ms) const;  // the sample in force at time t (wrapping)
 };
-LatencyTrace load_latency_trace(const std::string& path);
-// A capacity trace (LinkConfig::capacity_trace_file): the same format, samples in Mb/s.
-LatencyTrace load_capacity_trace(const std::string& path);
+// A latency trace (LinkConfig::trace_file): samples in ms, 0..100000.
+SampleTrace load_latency_trace(const std::string& path);
+// A capacity trace (LinkConfig::capacity_trace_file): samples in Mb/s, 0.01..1e6.
+SampleTrace load_capacity_trace(const std::string& path);
 
 enum class DropReason : uint8_t { None = 0, Loss, QueueFull, OverMtu };
 const char* drop_reason_name(DropReason r);
@@ -95,8 +98,8 @@ class Link {
 
  private:
   LinkConfig config_;
-  LatencyTrace trace_;
-  LatencyTrace capacity_;  // capacity_trace_file's samples (Mb/s); empty: bandwidth_mbps
+  SampleTrace trace_;
+  SampleTrace capacity_;  // capacity_trace_file's samples (Mb/s); empty: bandwidth_mbps
   // With a capacity trace: the datagrams queued or in transmission (departure ms, bytes).
   std::deque<std::pair<double, uint64_t>> queued_;
   uint64_t queued_bytes_ = 0;

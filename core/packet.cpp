@@ -53,6 +53,12 @@ size_t wire_bytes_of_pass(size_t encoded_bytes, size_t max_payload) {
   return encoded_bytes + packet_count(encoded_bytes, max_payload) * wire_bytes(0);
 }
 
+size_t wire_bytes_of_packets(const std::vector<std::vector<uint8_t>>& packets, size_t extra_per_packet) {
+  size_t wire = 0;
+  for (const auto& packet : packets) wire += packet.size() + kIpUdpOverheadBytes + extra_per_packet;
+  return wire;
+}
+
 size_t fec_shard_bytes(size_t total_bytes, size_t chunk_bytes) {
   return total_bytes <= chunk_bytes ? total_bytes : chunk_bytes;
 }

@@ -73,6 +73,9 @@ constexpr size_t wire_bytes(size_t payload_bytes) {
 }
 // Bytes all packets of a pass of `encoded_bytes` occupy on the wire.
 size_t wire_bytes_of_pass(size_t encoded_bytes, size_t max_payload = kDefaultMaxPayloadBytes);
+// Bytes on the wire of packets as sent (FEC parity packets included): each packet's size, the
+// IP/UDP headers and `extra_per_packet` (live mode's MAC).
+size_t wire_bytes_of_packets(const std::vector<std::vector<uint8_t>>& packets, size_t extra_per_packet = 0);
 
 // Cuts `encoded` into datagrams of at most `max_payload` payload bytes (ready to send), then
 // appends `parity` Reed-Solomon parity packets (core/fec.h; fec_parity_count gives a valid

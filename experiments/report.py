@@ -8,6 +8,7 @@ marked (higher SSIM, lower cost); SSIM per frame; stage wall times. Image grids 
 per scene, the ground truth, the local reference, and for each run what the client showed
 and its error map, all error maps on one fixed colour scale with its colour bar.
 """
+import functools
 import math
 import os
 import sys
@@ -321,15 +322,14 @@ def converge_command(c):
             f"--factor {c['factor']}")
 
 
-def convergence_checks(ok):
-    """Per scene of the runs, the committed check (reports/converge/*.json, `dhrbench converge`)
-    of the ground truth the runs were scored against: {scene: (file name, the check, its scene
-    entry)}, for the scenes a check with the same size, samples and sampling covers."""
-    found = {}
+@functools.lru_cache(maxsize=None)
+def committed_convergence_checks():
+    """[(file name, check)] of reports/converge/*.json, each checked, read once per process (the
+    answer's scale line, the convergence section and the index all ask)."""
     try:
         names = sorted(n for n in os.listdir(CONVERGE_DIR) if n.endswith(".json"))
     except OSError:
-        return found
+        return []
     checks = []
     for n in names:
         path = os.path.join(CONVERGE_DIR, n)
@@ -341,6 +341,15 @@ def convergence_checks(ok):
             raise BadResults(f"{path}: not the convergence.json of `dhrbench converge` (scenes: a list of "
                              "{scene, frames, summary of numbers})")
         checks.append((n, chk))
+    return checks
+
+
+def convergence_checks(ok):
+    """Per scene of the runs, the committed check (reports/converge/*.json, `dhrbench converge`)
+    of the ground truth the runs were scored against: {scene: (file name, the check, its scene
+    entry)}, for the scenes a check with the same size, samples and sampling covers."""
+    found = {}
+    checks = committed_convergence_checks()
     for r in ok:
         c = r.get("config", {})
         if r["scene"] in found or not c.get("ground_truth_every"):
@@ -394,6 +403,22 @@ def convergence_section(ok):
     return out
 
 
+def answer_lines(question, rows, ok, figure=None):
+    """The answer block's lines: the question, one row per scene (joined into one line past six
+    scenes, so that the block stays within ten lines), the scale, and the figure if any."""
+    out = ["## The answer\n", f"Question: {question}\n"]
+    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
+    out.append("\n" + scale_line(ok) + "\n")
+    if figure:
+        out.append(figure)
+    return out
+
+
+def against_words(refs):
+    """The references the answer's figures are against, as words."""
+    return " and ".join(REFERENCE_WORDS[r] for r in sorted(refs))
+
+
 class Answer(NamedTuple):
     """The answer first: report.md's opening lines and the one sentence reports/README.md quotes."""
     lines: list
@@ -408,9 +433,6 @@ def regime_answer(ok, regimes, replicates=()):
     one scene and condition are pooled: their cells counted together."""
     im, table = regimes
     name = im["name"].upper()
-    out = ["## The answer\n",
-           f"Question: at a given bitrate budget and round-trip time, does hybrid rendering or remote rendering "
-           f"give the better image ({name} against the ground truth)?\n"]
     pooled = {}
     for (scene, rest), m in sorted(table.items()):
         key = (scene, tuple((k, v) for k, v in rest if k not in replicates))
@@ -436,11 +458,11 @@ def regime_answer(ok, regimes, replicates=()):
         rows.append(f"- **{title}** (RTT {rtt_list} ms{over}): " + "; ".join(parts) + ".")
         short.append(f"{scene_name(scene)} {len(hw)}:{len(rw)}" + (f", only remote under {only['remote'][-1]:.3g} Mb/s"
                                                                   if only["remote"] else ""))
-    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
-    out.append("\n" + scale_line(ok) + "\n")
     (scene, rest), _ = sorted(table.items())[0]
     title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
-    out.append(f"![regime map {title}](plots/{regime_file(title)})\n")
+    out = answer_lines(f"at a given bitrate budget and round-trip time, does hybrid rendering or remote rendering "
+                       f"give the better image ({name} against the ground truth)?", rows, ok,
+                       f"![regime map {title}](plots/{regime_file(title)})\n")
     sentence = (f"At matched bitrate and RTT, cells where hybrid : remote gives the better {name} against the ground "
                 f"truth: " + "; ".join(short) + ".")
     return Answer(out, sentence)
@@ -486,15 +508,13 @@ def front_answer(ok, metrics, spec):
         short.append(f"{scene_name(scene)} {best_v:.4g} ({best_r['label']}, {cost(best_r):.3g} {unit})")
     if not rows:
         return Answer([], "")
-    against = " and ".join(REFERENCE_WORDS[r] for r in sorted(refs))
-    question = spec.get("question") or f"which configuration gives the best image for the {'server time' if by_time else 'bandwidth'} it costs?"
-    out = ["## The answer\n",
-           f"Question: {question} ({name} against {against}; {'higher' if higher else 'lower'} is better; the front: "
-           f"the runs no other run of the scene beats on both quality and {'server time' if by_time else 'bandwidth'}.)\n"]
-    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
-    out.append("\n" + scale_line(ok) + "\n")
+    against = against_words(refs)
+    what = "server time" if by_time else "bandwidth"
+    question = spec.get("question") or f"which configuration gives the best image for the {what} it costs?"
     plot = "quality_vs_server_time" if by_time else "quality_vs_bandwidth"
-    out.append(f"![quality against {'server time' if by_time else 'bandwidth'}](plots/{plot}.png)\n")
+    out = answer_lines(f"{question} ({name} against {against}; {'higher' if higher else 'lower'} is better; the front: "
+                       f"the runs no other run of the scene beats on both quality and {what}.)", rows, ok,
+                       f"![quality against {what}](plots/{plot}.png)\n")
     return Answer(out, f"Best {name} against {against} per scene: " + "; ".join(short) + ".")
 
 
@@ -527,13 +547,10 @@ def range_answer(ok, metrics, spec):
         short.append(f"{scene_name(scene)}: " + "; ".join(parts))
     if not rows:
         return Answer([], "")
-    against = " and ".join(REFERENCE_WORDS[r] for r in sorted(refs))
+    against = against_words(refs)
     question = spec.get("question") or f"how does the image change with {along}, for each {group}?"
-    out = ["## The answer\n",
-           f"Question: {question} ({name} against {against}, {'higher' if higher else 'lower'} is better: each "
-           f"{group}'s best and worst run over the values of {along}.)\n"]
-    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
-    out.append("\n" + scale_line(ok) + "\n")
+    out = answer_lines(f"{question} ({name} against {against}, {'higher' if higher else 'lower'} is better: each "
+                       f"{group}'s best and worst run over the values of {along}.)", rows, ok)
     return Answer(out, f"{name} against {against}, best to worst over {along}: " + " | ".join(short) + ".")
 
 
@@ -564,14 +581,11 @@ def budget_answer(ok, metrics, spec):
         short.append(f"{scene_name(scene)}: " + ", ".join(parts))
     if not rows:
         return Answer([], "")
-    against = " and ".join(REFERENCE_WORDS[r] for r in sorted(refs))
+    against = against_words(refs)
     question = spec.get("question") or "how much does each effect cost the image?"
-    out = ["## The answer\n",
-           f"Question: {question} (each term: {name} against {against} of the configuration with the effect "
-           f"minus the one without it, signed so that a positive term is error the effect adds; a term without a "
-           f"configuration to subtract is that configuration's own {name}.)\n"]
-    out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
-    out.append("\n" + scale_line(ok) + "\n")
+    out = answer_lines(f"{question} (each term: {name} against {against} of the configuration with the effect "
+                       f"minus the one without it, signed so that a positive term is error the effect adds; a term "
+                       f"without a configuration to subtract is that configuration's own {name}.)", rows, ok)
     return Answer(out, f"{name} added by each effect: " + " | ".join(short) + ".")
 
 

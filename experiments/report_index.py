@@ -92,8 +92,7 @@ def converge_lines():
            "samples: the distance bounds the ground truth's own error. Reports scored against a ground truth of "
            "the same settings cite it in their \"Ground truth convergence\" section.\n",
            "| file | scenes: FLIP mean (SSIM mean) | command |", "|---|---|---|"]
-    for n in sorted(f for f in os.listdir(d) if f.endswith(".json")):
-        chk = dr.load_json(os.path.join(d, n))
+    for n, chk in report.committed_convergence_checks():
         scenes = "; ".join(f"{s['scene']} {s['summary']['flip_mean']:.4f} ({s['summary']['ssim_mean']:.4f})"
                            for s in chk["scenes"])
         out.append(f"| `converge/{n}` | {scenes} | `{report.converge_command(chk)} --out DIR` |")

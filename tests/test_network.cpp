@@ -233,8 +233,8 @@ TEST(LatencyTrace, FileFormatAndErrors) {
     std::ofstream f(dir / "t.txt");
     f << "# comment\ninterval_ms: 5\n10\n20 # inline\n30\n";
   }
-  LatencyTrace t = load_latency_trace((dir / "t.txt").string());
-  EXPECT_EQ(t.latency_ms.size(), 3u);
+  SampleTrace t = load_latency_trace((dir / "t.txt").string());
+  EXPECT_EQ(t.samples.size(), 3u);
   EXPECT_DOUBLE_EQ(t.at(0), 10);
   EXPECT_DOUBLE_EQ(t.at(7), 20);
   EXPECT_DOUBLE_EQ(t.at(15), 10);  // wraps
@@ -255,16 +255,16 @@ TEST(LatencyTrace, FileFormatAndErrors) {
 // The shipped capacity traces (scripts/make_capacity_traces.py) hold what their headers say.
 TEST(CapacityTrace, ShippedTracesHaveTheirStatedShape) {
   const std::string dir = std::string(DHR_SOURCE_DIR) + "/experiments/traces/";
-  const LatencyTrace step = load_capacity_trace(dir + "capacity_step.txt");
+  const SampleTrace step = load_capacity_trace(dir + "capacity_step.txt");
   EXPECT_DOUBLE_EQ(step.at(500), 10.0);
   EXPECT_DOUBLE_EQ(step.at(1500), 2.0);
   EXPECT_DOUBLE_EQ(step.at(2500), 10.0);
-  const LatencyTrace ramp = load_capacity_trace(dir + "capacity_ramp.txt");
-  EXPECT_DOUBLE_EQ(*std::min_element(ramp.latency_ms.begin(), ramp.latency_ms.end()), 1.0);
+  const SampleTrace ramp = load_capacity_trace(dir + "capacity_ramp.txt");
+  EXPECT_DOUBLE_EQ(*std::min_element(ramp.samples.begin(), ramp.samples.end()), 1.0);
   EXPECT_DOUBLE_EQ(ramp.at(0), 10.0);
-  const LatencyTrace mobile = load_capacity_trace(dir + "capacity_mobile.txt");
-  ASSERT_EQ(mobile.latency_ms.size(), 600u);
-  const auto& x = mobile.latency_ms;
+  const SampleTrace mobile = load_capacity_trace(dir + "capacity_mobile.txt");
+  ASSERT_EQ(mobile.samples.size(), 600u);
+  const auto& x = mobile.samples;
   double mean = 0;
   for (double v : x) mean += v / double(x.size());
   double c0 = 0, c1 = 0;
@@ -278,8 +278,8 @@ TEST(CapacityTrace, ShippedTracesHaveTheirStatedShape) {
 }
 
 TEST(LatencyTrace, Shipped5gTraceHasThePapersMeanAndP99) {
-  LatencyTrace t = load_latency_trace(std::string(DHR_SOURCE_DIR) + "/experiments/traces/5g_paper_shape.txt");
-  std::vector<double> v = t.latency_ms;
+  SampleTrace t = load_latency_trace(std::string(DHR_SOURCE_DIR) + "/experiments/traces/5g_paper_shape.txt");
+  std::vector<double> v = t.samples;
   double mean = 0;
   for (double x : v) mean += x;
   mean /= double(v.size());
