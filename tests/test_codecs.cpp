@@ -493,7 +493,7 @@ TEST_P(CodecConformance, ForeignFramesAreRejected) {
 }
 
 // Single bit flips: a corrupt frame must be rejected or decode into what the intact frame
-// decodes into (measured.md: without checksums 55-65% decode into wrong bytes). Codecs
+// decodes into (without checksums, flips can decode without error into wrong bytes). Codecs
 // exempted above (no checksum) are only held to never crashing and right-sized output.
 TEST_P(CodecConformance, BitFlipsAreDetectedOrHarmless) {
   const Variant& v = GetParam();

@@ -1,7 +1,8 @@
 // lz4: the LZ4 frame format (liblz4's LZ4F API, frame spec v1.6.2) with a block checksum and
 // a content checksum (xxHash32) and the content size in the frame header, so that a corrupt
-// or truncated frame is detected instead of decoding into wrong bytes (measured.md: without
-// checksums 55-65% of single bit flips decode without error into wrong bytes). The paper
+// or truncated frame is detected instead of decoding into wrong bytes (without checksums,
+// single bit flips can decode without error into wrong bytes; tests/test_codecs.cpp
+// `CodecConformance.BitFlipsAreDetectedOrHarmless` holds lz4 to detecting them). The paper
 // names LZ4 as the lossless codec for its bitmasks; fast mode is its choice for speed.
 //
 // Visibility bitmasks are coded as one bit-plane per light by default (core/buffer_layout.h);

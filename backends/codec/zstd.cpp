@@ -3,10 +3,10 @@
 // instead of decoding into wrong bytes. One compression and one decompression context are
 // kept for the codec's life: creating them per frame costs more than coding a small frame.
 //
-// Level 1 is the default: on noisy 8-ray AO it is both smaller and faster than level 3
-// (measured.md). Visibility bitmasks are coded as one bit-plane per light by default
-// (core/buffer_layout.h); the layout is not stored in the frame: encoder and decoder take it
-// from the same parameters, and the frame stays a standard Zstandard frame.
+// Level 1 is the default: on noisy 8-ray AO it is both smaller and faster than level 3.
+// Visibility bitmasks are coded as one bit-plane per light by default (core/buffer_layout.h);
+// the layout is not stored in the frame: encoder and decoder take it from the same
+// parameters, and the frame stays a standard Zstandard frame.
 //
 // Parameters:
 //   level    1..19                  compression level                       default 1
