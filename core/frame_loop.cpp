@@ -51,7 +51,7 @@ struct Datagram {
 
 // Bump when tracing, rasterizing or the cache file format changes: disk entries written by an
 // older version are then never read (the key is stored in the file and compared).
-// 2: ray offsets scaled by the hit triangle's own error (issue 13). 3: scenes with moving objects
+// 2: ray offsets scaled by the hit triangle's own error. 3: scenes with moving objects
 // in Embree's two-level layout (RtSceneOptions::static_child).
 constexpr int kTraceCacheVersion = 3;
 

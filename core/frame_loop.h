@@ -92,7 +92,8 @@ class TraceCache {
   size_t bytes() const { return bytes_; }
 
   // The client's G-buffers of one scene and camera path, for the runs after the one that
-  // rasterized them (docs/performance.md, item 2): the runs of a sweep display the same frames.
+  // rasterized them (docs/performance.md, "Computed once per sweep"): the runs of a sweep
+  // display the same frames.
   // Kept apart from the byte bound above (one run's client already holds as many: its
   // `history_frames`, 8 in remote mode): the first `capacity` frames offered for one scene and
   // size are kept -- a run visits its frames in order, so the first ones, not the most recent,
@@ -148,7 +149,7 @@ SimConfig keyed_config(const SimConfig& config, const Scene& scene);
 // The cache key of the local reference of client frame `frame` (TraceCache::find_image): the
 // trace key (scene, camera path, trace settings, frame) and every traced pass's denoiser, all it
 // depends on. A run finding the key of every frame it scores takes them instead of computing its
-// own (docs/performance.md, item 2).
+// own (docs/performance.md, "Computed once per sweep").
 std::string local_reference_key(const std::string& scene_key, const SimConfig& config, int frame);
 
 // One key per FLIP score the run will compute, in order: the local reference of every scored

@@ -96,7 +96,7 @@ enum class ParseResult : uint8_t {
   BadLength,    // payload bytes differ from the header, or disagree with total/count/chunk
   BadIndex,     // count == 0 or index >= count
   BadDesc,      // unknown pass kind or a description PassDesc::validate() refuses
-  BadReserved,  // no longer produced: the former reserved field carries the parity count
+  BadReserved,  // not produced: the header field it checked carries the parity count
 };
 constexpr int kParseResultCount = 9;
 const char* parse_result_name(ParseResult r);

@@ -79,7 +79,7 @@ struct DenoisedPass {
 // Where denoised passes are kept for other runs (the simulator's TraceCache): a temporal
 // denoiser's output depends on nothing but its settings, the pass's trace settings and the
 // sequence of frames it was fed, so the runs of a sweep whose servers (or local references)
-// feed the same sequence compute it once (docs/performance.md, item 2).
+// feed the same sequence compute it once (docs/performance.md, "Computed once per sweep").
 class DenoiseMemo {
  public:
   virtual ~DenoiseMemo() = default;

@@ -15,9 +15,9 @@
 // (list_pairs_x16: the pairs that trace, their rays copied in list order; trace_pairs_x16:
 // loaded into packets) and soft_pair_rays_x16 (the cone loop of a soft light with S > 1
 // samples per pixel, as the ground truth traces). Compressed lanes are stored from a register:
-// AVX-512's compressing store to memory is microcoded on AMD's Zen 4 (storing from a register
-// took 8 % off temple's pass). Same rays and counts as core/trace_rows.cpp's kernels, bit for bit
-// (tests/test_trace_bits.cpp pins them by hash on every scene with lights).
+// AVX-512's compressing store to memory is microcoded on AMD's Zen 4 (a store from a register
+// makes temple's hard pass about 8 % faster). Same rays and counts as core/trace_rows.cpp's
+// kernels, bit for bit (tests/test_trace_bits.cpp pins them by hash on every scene with lights).
 // docs/performance.md has the measurements.
 //
 // Only the functions marked DHR_AVX512_TARGET are compiled for AVX-512 (core/avx512.h).

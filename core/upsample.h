@@ -1,4 +1,4 @@
-// Reduced-resolution passes (issue 18 item 2; docs/architecture.md, "Reduced-resolution AO").
+// Reduced-resolution passes (docs/architecture.md, "Reduced-resolution AO").
 // The server may trace the AO pass at 1/s of the width and height (trace.ao_scale = s): low-res
 // pixel (X, Y) is the full-res pixel (X s + s/2, Y s + s/2) (clamped to the image), so the
 // server traces, denoises and codes a G-buffer of those pixels (downsample_gbuffer), and the

@@ -49,8 +49,8 @@ TIMING_KEYS = {"stages_wall", "client_frame_ms_median", "client_frame_ms_p95", "
 TIMING_COLUMNS = {"client_wall_ms"}
 # Renamed keys and columns: new name -> the name in older results.
 ALIASES = {
-    # the backends record's keys are the run settings' keys (core/run_config.cpp) since the
-    # per-pass keys; the old record had one "predictor" for the visibility and the AO pass.
+    # the backends record's keys are the run settings' keys (core/run_config.cpp); older results
+    # have these names, with one "predictor" for the visibility and the AO pass.
     "passes.visibility.codec": "visibility_codec", "passes.ao.codec": "ao_codec",
     "passes.colour.codec": "colour_codec", "passes.visibility.denoiser": "visibility_denoiser",
     "passes.ao.denoiser": "ao_denoiser", "passes.visibility.predictor": "predictor",

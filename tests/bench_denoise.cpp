@@ -1,7 +1,6 @@
 // Denoiser cost at 1280x720 against the cost of tracing ONE more AO ray per pixel on the same
 // scene, measured in the same run (the project's ceiling rule: docs/architecture.md, "What is
-// measured"). Goal (issue "Denoiser backends"): svgf_ao costs less than one
-// extra AO ray per pixel.
+// measured"). Goal: svgf_ao costs less than one extra AO ray per pixel.
 //
 // Scene: scenes/room.json (the built-in PINK ROOM stand-in), G-buffer by the rasterizer
 // (core/raster.h) at t = 1 s of its camera path, AO traced by core/trace.h with the scene's
@@ -26,9 +25,9 @@
 // scene's camera path at 1280x720: the share of output pixels equal, 1 level apart, 2 or more.
 //
 // With --accuracy (run by hand; instead of the benchmarks; about 5 minutes for all eight
-// scenes on 2 cores): the accuracy-versus-time table (issue "Denoiser backends") at 640x360,
-// for each scene: AO rays {1, 2, 4, 8, 16, 32, 64} x denoiser {none, single_iteration, atrous,
-// svgf_ao} x frame of history {1, 8}: SSIM and MAE (8-bit levels) of the denoised AO against
+// scenes on 2 cores): the accuracy-versus-time table at 640x360, for each scene: AO rays
+// {1, 2, 4, 8, 16, 32, 64} x denoiser {none, single_iteration, atrous, svgf_ao} x frame of
+// history {1, 8}: SSIM and MAE (8-bit levels) of the denoised AO against
 // converged AO (1024 rays; --reference_rays=N), with trace and denoise wall time. The camera is
 // static at t = 1 s of the scene's path; frame f traces a fresh noise realisation (frame
 // index f of core/rng.h) and the denoiser keeps its history, so "frame 8" is the best case of
@@ -163,13 +162,14 @@ BENCHMARK(BM_TraceAoOneRay)->Unit(benchmark::kMillisecond)->UseRealTime();
 // rounding 3, polynomial 8, exponent 1, underflow mask 1 --, weight 2, sums 6: the operations
 // the bits depend on, in order). With the fast weights (the default) a tap is 33 instructions
 // on average in the compiled kernel (29-38 between two vscalefps in the disassembly of
-// atrous_blocks16<7, 2, true>, whose unmasked blocks atrous_row16_all now runs: the operations,
-// broadcasts of constants and register copies for the FMAs) and 31 operations without those (dot 3 with two FMAs, clamp 1, 7 squarings, |dz|
-// and |dl| 4, their weighted sum 2, rounding 1, fraction 1, polynomial 3, exponent 1, cut mask
-// 1, weight 2, sums 4). The machine's rate of independent 16-lane float multiplies and adds (no
-// loads, no dependencies between the chains, all threads; an FMA is one instruction like a
-// multiply) turns those counts into CPU milliseconds per frame: the least the five iterations
-// can cost at 1280x720 on this machine.
+// atrous_blocks16<7, 2, true>, which atrous_row16_all runs for its unmasked blocks: the
+// operations, broadcasts of constants and register copies for the FMAs) and 31 operations
+// without those (dot 3 with two FMAs, clamp 1, 7 squarings, |dz| and |dl| 4, their weighted sum
+// 2, rounding 1, fraction 1, polynomial 3, exponent 1, cut mask 1, weight 2, sums 4). The
+// machine's rate of independent 16-lane float multiplies and adds (no loads, no dependencies
+// between the chains, all threads; an FMA is one instruction like a multiply) turns those
+// counts into CPU milliseconds per frame: the least the five iterations can cost at 1280x720 on
+// this machine.
 constexpr int kTapOpsCompiled = 33, kTapOpsMinimal = 31;            // fast weights, the default
 constexpr int kTapOpsCompiledExact = 45, kTapOpsMinimalExact = 43;  // fast_weights = false
 
@@ -273,7 +273,7 @@ std::vector<Minima> interleaved_minima(int rounds) {
   configs.push_back({"svgf_ao 3x3 kernel, 3 iterations (steady)", "svgf_ao", false, {{"kernel_radius", 1}, {"iterations", 3}}});
   configs.push_back({"svgf_ao 5x5 kernel, 1 iteration (steady)", "svgf_ao", false, {{"iterations", 1}}});
   // The same filter with its a-trous weights by separate products and sums and a degree-4
-  // exponential (fast_weights false), as before the fast weights became the default.
+  // exponential (fast_weights false), the filter without the default fast weights.
   configs.push_back({"svgf_ao exact weights (steady)", "svgf_ao", false, {{"fast_weights", false}}});
   configs.push_back({"svgf_ao exact weights (reset)", "svgf_ao", true, {{"fast_weights", false}}});
   // The paper's lightweight path for long history (light_history = L: one 3x3 iteration where

@@ -1,5 +1,5 @@
 // Image metrics at 1280x720, each beside a ceiling or floor timed in the same run:
-//  - SSIM (luma) in both conventions, SsimBorder::Mirrored (the benchmark's SSIM until now) and
+//  - SSIM (luma) in both conventions, SsimBorder::Mirrored (core/metrics.h's default) and
 //    SsimBorder::Valid (the reference convention), against OpenCV's quality module
 //    (cv::quality::QualitySSIM) on the same plane;
 //  - FLIP against a memory-bandwidth floor of the same image size: one pass that reads both
@@ -118,8 +118,8 @@ void BM_Flip_test_half(benchmark::State& state) {
 }
 BENCHMARK(BM_Flip_test_half)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// The same with pow through libm one pixel at a time (the code before core/pow_row.h, and what
-// CPUs without AVX-512 run): the same bits.
+// The same with pow through libm one pixel at a time (pow_row_portable_only: the path of CPUs
+// without AVX-512): the same bits.
 void BM_Flip_test_half_libm_pow(benchmark::State& state) {
   static const dhr::FlipFeatures features = dhr::flip_features(frame_a());
   const auto& b = frame_b();
@@ -203,7 +203,7 @@ BENCHMARK(BM_Flip_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
 // and quotients, nor the reads and writes of the planes. The loop runs at 0.91-0.97 of the
 // peak rate of these instructions on the AVX-512 EPYC, so no implementation of these filters as
 // specified (direct, separable, in these precisions) takes much less; docs/performance.md
-// compares it with a client frame (issue 16, item 5).
+// compares it with a client frame.
 constexpr int kFloorW = 1280, kFloorH = 720;
 
 int64_t ssim_taps_per_pixel() { return 5 * int64_t(dhr::kSsimWindow); }  // each direction

@@ -18,7 +18,7 @@
 //                            reconstruction through h264 crf 23 (encode; `decode`: the client)
 // Counters: `bytes` per coded frame, and for delta_reproj `x_inner` (its CPU time over the
 // inner codec's) and `overhead_minus_predict_ms` (delta_reproj - inner - predict: what the
-// wrapping costs beyond the prediction; the bound is that it stays <= 0 or near it);
+// wrapping costs beyond the prediction; the goal is that it stays <= 0 or near it);
 // for delta_video also `overhead_minus_predict_mirror_ms` (less one h264 decode: its encoder
 // decodes its own output to keep the client's reconstruction as the reference).
 //

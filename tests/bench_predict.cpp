@@ -6,16 +6,17 @@
 // Each reprojection benchmark reports ms per frame and, as counters, the gather's ms and
 // the ratio (reprojection / gather).
 //
-// The memory floor of a stage (docs/performance.md, "Client stages (item 5)"): one streaming
-// pass over exactly the bytes the stage reads (every plane it reads, once) and writes (its
-// output), on the same TBB row split, timed in process CPU time beside the stage's own
+// The memory floor of a stage (docs/performance.md, "Each stage against its floor"): one
+// streaming pass over exactly the bytes the stage reads (every plane it reads, once) and writes
+// (its output), on the same TBB row split, timed in process CPU time beside the stage's own
 // process CPU time per frame (`cpu_ms`, `floor_cpu_ms`, `x_floor`), both on one thread (TBB
-// limited to 1: no worker spinning in the CPU time, the same basis as bench_raster's ratio). Reprojection reads the dst
-// G-buffer's object_id, position and normal, the src G-buffer's object_id, position, normal and
-// geo_normal and the received bytes, and writes the predicted bytes (70 B/px for 1-byte passes);
-// BM_Composite (room, rasterized at 1280x720, three lights, a synthetic visibility bitmask and
-// AO) reads object_id, normal, albedo, position and both passes and writes the RGB8 image
-// (45 B/px; geo_normal only where the normal is zero, not counted).
+// limited to 1: no worker spinning in the CPU time, the same basis as bench_raster's ratio).
+// Reprojection reads the dst G-buffer's object_id, position and normal, the src G-buffer's
+// object_id, position, normal and geo_normal and the received bytes, and writes the predicted
+// bytes (70 B/px for 1-byte passes); BM_Composite (room, rasterized at 1280x720, three lights,
+// a synthetic visibility bitmask and AO) reads object_id, normal, albedo, position and both
+// passes and writes the RGB8 image (45 B/px; geo_normal only where the normal is zero, not
+// counted).
 #include "backends/register_all.h"
 #include "core/avx512.h"
 #include "core/backend.h"

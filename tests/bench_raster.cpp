@@ -6,7 +6,7 @@
 // a rasterizer that did nothing but write its output would cost. `cpu_ms` is the process CPU
 // time per frame (all threads) and `x_fill_cpu` its ratio to the fill's process CPU time (one
 // thread, best of 7): on a shared machine the wall times measure the neighbours, the CPU time
-// a frame consumes much less (docs/performance.md, "Client stages (item 5)").
+// a frame consumes much less (docs/performance.md).
 //
 //   build-*/tests/bench_raster --benchmark_min_time=0.5
 #include "core/error.h"

@@ -742,11 +742,11 @@ TEST(FastWeights, WithinOneLevelOfTheDefault) {
   EXPECT_THROW(make("svgf_ao", {{"fast_weights", 1}}), Error);  // a boolean
 }
 
-// Off (0) is the old filter, and a threshold no history reaches (above history_cap) runs the
-// light path's machinery (the class plane, the split first iteration, the skipped blocks) with
-// every pixel on the full path: the same bits. A threshold of 1 puts every pixel on the light
-// path: one 3x3 iteration fed back, which is exactly single_iteration. Feedback "accumulated"
-// and a 3x3 configured kernel take other branches of the same code.
+// Off (0) is the full filter on every pixel, and a threshold no history reaches (above
+// history_cap) runs the light path's machinery (the class plane, the split first iteration,
+// the skipped blocks) with every pixel on the full path: the same bits. A threshold of 1 puts
+// every pixel on the light path: one 3x3 iteration fed back, which is exactly single_iteration.
+// Feedback "accumulated" and a 3x3 configured kernel take other branches of the same code.
 TEST(LightHistory, OffAndExtremesGiveKnownFilters) {
   const int n = 12, cut = 7;
   const auto base = run_moving(*make("svgf_ao"), n, cut);

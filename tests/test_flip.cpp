@@ -208,10 +208,11 @@ TEST(Flip, ConcurrentCallsScoreAsAlone) {
   EXPECT_EQ(again.map, alone[0].map);
 }
 
-// The bits of the map and the mean, pinned: FLIP's filters were rewritten for speed (outputs kept
-// in registers across taps, AVX2 and baseline builds) with every product and sum in the same
-// order, so these digests are those of the one-tap-at-a-time filters they replaced (commit
-// ada004e). Widths around the 32-output blocks, kernels wider than the image, two viewing setups.
+// The bits of the map and the mean, pinned: FLIP's filters keep outputs in registers across taps
+// (AVX2 and baseline builds) with every product and sum in the order of a filter that takes one
+// tap at a time, so these digests are those of the one-tap-at-a-time filters (recorded at
+// commit ada004e). Widths around the 32-output blocks, kernels wider than the image, two
+// viewing setups.
 TEST(Flip, SameBitsAsTheOneTapAtATimeFilters) {
   struct Case {
     int w, h;

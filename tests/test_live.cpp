@@ -693,7 +693,7 @@ TEST(LiveMode, AReducedResolutionAoPassStreamsAndIsUpsampled) {
   EXPECT_GT(ao_frames, 0);
 }
 
-// Recovery from the frame the client holds (issue 18): with the reprojected delta on both
+// Recovery from the frame the client holds: with the reprojected delta on both
 // passes through a lossy relay, the client's keyframe requests carry the newest frame each
 // decoder holds and the server predicts from it; the session keeps displaying both passes.
 TEST(LiveMode, AfterALossTheServerHearsWhichFrameTheClientHolds) {
@@ -834,7 +834,8 @@ TEST(LiveTrust, ASessionUnderAttackFromAThirdSocketEndsAsACleanOne) {
     d[0] = 'x';  // never a magic
     return d;
   };
-  // Forged AO pass packets of the session's stream with far-future frame ids (the issue's freeze).
+  // Forged AO pass packets of the session's stream with far-future frame ids (accepted, they
+  // would freeze the pass: docs/live-security.md).
   for (int i = 0; i < 20; ++i) {
     PacketMeta m;
     m.stream_id = uint16_t(token & 0xffff);

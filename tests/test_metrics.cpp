@@ -129,8 +129,8 @@ TEST(Metrics, IdenticalFlatAndDarkImagesScoreExactlyOne) {
 
 // The reference convention against scikit-image itself: tests/ssim_reference.py runs
 // skimage.metrics.structural_similarity (gaussian_weights=True, sigma=1.5,
-// use_sample_covariance=False, data_range=255) on the same planes; agreement to 1e-4 is the
-// issue's requirement. A missing scikit-image fails the test (scripts/setup.sh installs it).
+// use_sample_covariance=False, data_range=255) on the same planes; they must agree to 1e-4. A
+// missing scikit-image fails the test (scripts/setup.sh installs it).
 namespace dhr {
 namespace {
 

@@ -1,8 +1,8 @@
 // The rasterizer's output bits, pinned: on every built-in scene and every real scene (skipped
 // when ../shared/scenes is missing), at 321x181 (odd sizes: partial tiles and spans) and
 // 1280x720, the FNV-1a hash of every G-buffer plane and of the statistics must equal the values
-// recorded from the rasterizer (core/raster.cpp) of commit 9b6eb01, before the speed work of
-// docs/performance.md ("Client stages (item 5)"), with one thread and with all of them. A
+// recorded from the rasterizer (core/raster.cpp) of commit 9b6eb01, the code without the vector
+// kernels (core/raster_avx512.cpp), with one thread and with all of them. A
 // change of core/raster*.cpp that moves any pixel of any plane by one bit fails here; a
 // deliberate change of the output must update the table and say so.
 // Run with DHR_PRINT_RASTER_HASHES=1 to print the table's rows for the current code.
@@ -41,7 +41,7 @@ const std::map<std::string, uint64_t>& pinned() {
       {"classroom/1280x720", 0x96ddce0603154f70ull},
       {"dining-room/321x181", 0x746a7ea3ed3f8347ull},
       {"dining-room/1280x720", 0x84f887d59767953cull},
-      // living-room's leaf.png has alpha: its colour is now read as stored, not premultiplied (issue 51).
+      // living-room's leaf.png has alpha: its colour is read as stored, not premultiplied (recorded at 9cdc6ef).
       {"living-room/321x181", 0xbe5ef65f9f8eb2c9ull},
       {"living-room/1280x720", 0xcca0aa9cec6ba5a4ull},
       {"sponza-dabrovic/321x181", 0x0d844bf2574fceefull},

@@ -201,7 +201,7 @@ TEST(ListExamples, EveryExampleIsAcceptedByTheLoaderAndBySet) {
   }
 }
 
-// What `dhrbench list` used to print ({"codec": "zstd", "level": 3}) is not an experiment's
+// A flat codec entry ({"ao_codec": {"codec": "zstd", "level": 3}}) is not an experiment's
 // syntax: the loader names both unknown keys.
 TEST(ListExamples, TheOldFlatSyntaxIsRejected) {
   std::vector<std::string> problems;

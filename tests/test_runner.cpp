@@ -273,8 +273,8 @@ TEST(Experiment, BadFilesAreErrors) {
   fs::remove_all(dir);
 }
 
-// Issue 13: 100,000 levels of nesting in an experiment crashed dhrbench (SIGSEGV); through the
-// command it is now one message naming the file and the limit, exit 1.
+// 100,000 levels of nesting in an experiment (or a --set value) must not crash dhrbench: through
+// the command it is one message naming the file and the limit, exit 1.
 TEST(Runner, DeepNestingInAnExperimentOrASetValueIsAClearError) {
   const fs::path dir = fs::temp_directory_path() / "dhr_runner_deep";
   fs::create_directories(dir);
@@ -301,8 +301,8 @@ TEST(Runner, DeepNestingInAnExperimentOrASetValueIsAClearError) {
   fs::remove_all(dir);
 }
 
-// Issue 51: an experiment's name reached a shell ("name": "x'$(touch PWNED)'" ran the command
-// when the report was written) and "../../escaped" wrote outside out/. Names are now plain names
+// An experiment's name never reaches a shell ("name": "x'$(touch PWNED)'" must run nothing when
+// the report is written) and never writes outside out/ ("../../escaped"): names are plain names
 // or refused; folders with any character reach the report script as one argument.
 TEST(Runner, NamesAndFoldersNeverReachAShell) {
   const fs::path base = fs::temp_directory_path() / ("dhr_runner_names." + std::to_string(getpid()));
@@ -355,8 +355,8 @@ TEST(Runner, NamesAndFoldersNeverReachAShell) {
   fs::remove_all(base);
 }
 
-// Issue 51: 8 keys x 256 values wrapped the run count to 0 in size_t and expanded until memory
-// ran out; two configurations of one name were accepted.
+// A sweep too large to expand (8 keys x 256 values wraps the run count to 0 in size_t) and two
+// configurations of one name are refused before anything is expanded.
 TEST(Experiment, HugeSweepsAndRepeatedNamesAreRefusedBeforeExpanding) {
   const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json";
   nlohmann::json sweep = nlohmann::json::object();

@@ -249,9 +249,9 @@ TEST(SceneFormat, VersionIsRequiredAndChecked) {
             std::string::npos);
 }
 
-// Hostile JSON (issue 13): 100,000 levels of nesting once crashed the loader (SIGSEGV while
-// printing the value in an error message), and a number out of range (1e400) escaped as a
-// library exception that named no file. Each is now one dhr::Error naming the file.
+// Hostile JSON: 100,000 levels of nesting (printing such a value in an error message can
+// overflow the stack) and a number out of range (1e400, which the JSON library reports in an
+// exception that names no file) must each give one dhr::Error naming the file, not a crash.
 TEST(SceneFormat, HostileJsonIsAClearErrorNamingTheFile) {
   TempDir dir;
   const int n = 100000;
@@ -521,9 +521,9 @@ TEST(ModelImport, LyingOffHeaderIsRefusedBeforeAllocating) {
   EXPECT_EQ(import_model(good).triangle_count(), 1u);
 }
 
-// Issue 51: the importer dropped a mesh's uvs (or normals) in silence when one index was out of
-// range, and rendered without materials when the MTL file was missing; each is now an error
-// naming the file and line.
+// A uv (or normal) index out of range and a missing MTL file are errors naming the file and
+// line: not a mesh whose uvs or normals are dropped in silence, nor one rendered without
+// materials.
 TEST(ModelImport, ObjIndicesOutOfRangeAndMissingMtlAreErrorsNamingTheLine) {
   TempDir dir;
   const std::string tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n";
@@ -573,8 +573,9 @@ TEST(ModelImport, GlbThatClaimsMoreThanItHoldsIsRefusedBeforeAllocating) {
   EXPECT_NE(error_of([&] { import_model(gltf); }).find("claims 4000000000 bytes, more than its file"), std::string::npos);
 }
 
-// Issue 51: OpenImageIO premultiplied alpha by default (RGB 200 with alpha 128 read as 100), and
-// an EXR's linear floats were read as if sRGB-encoded; NaN/inf became 0/255 in silence.
+// Colour is read as stored, not premultiplied by alpha (OpenImageIO's default would read RGB 200
+// with alpha 128 as 100); an EXR's floats are linear, not sRGB-encoded; NaN/inf are refused, not
+// made 0/255 in silence.
 TEST(ImageRead, AlphaIsUnassociatedFloatsAreLinearNonFiniteIsRefused) {
   TempDir dir;
   const std::string rgba = dir.path() + "/rgba.png";

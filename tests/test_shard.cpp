@@ -280,9 +280,9 @@ TEST(Shard, AFailedShardIsReportedAndRerunAlone) {
   fs::remove_all(base);
 }
 
-// Issue 51: 'merge sh2 sh1 sh2' (OUT one of the shards) damaged shard sh2 before it failed, and
-// a frames.csv with rows removed or cut mid-row merged with exit 0. Everything is now checked
-// before anything is written; folder names reach the report script as they are (no shell).
+// 'merge sh2 sh1 sh2' (OUT one of the shards) and a frames.csv with rows removed or cut mid-row
+// are refused before anything is written, so no shard is damaged; folder names reach the report
+// script as they are (no shell).
 TEST(Shard, MergeRefusesOutInsideAShardAndDamagedShardsBeforeWriting) {
   const fs::path base = fs::temp_directory_path() / fmt::format("dhr_shard_refuse.{}", ::getpid());
   fs::remove_all(base);

@@ -171,7 +171,7 @@ TEST(TraceBlocks, OriginOffsetFollowsTheErrorBound) {
     tilted[k] = glm::dvec3(glm::vec3(float(0.6 * wall[k].x + 0.8 * wall[k].z), float(wall[k].y),
                                      float(-0.8 * wall[k].x + 0.6 * wall[k].z)));
   EXPECT_GT(offset(tilted), 10.0 * offset(wall));
-  EXPECT_LT(offset(tilted), 1e-3);  // the old emax^3 / |Ng| bound gave 52 mm
+  EXPECT_LT(offset(tilted), 1e-3);  // an emax^3 / |Ng| bound gives 52 mm
   // Scaling by a power of two scales every term by it (tiny and huge scenes alike).
   for (const double scale : {0x1p-14, 0x1p+17}) {
     for (const glm::dvec3* t : {wall, static_cast<const glm::dvec3*>(tilted)}) {
@@ -197,7 +197,7 @@ TEST(TraceBlocks, OriginOffsetFollowsTheErrorBound) {
         if (!(glm::length(cr) > 0.0)) continue;  // 0.1 mm at 1000 km: collapsed in float
         const glm::dvec3 nv = glm::normalize(cr);
         const double d = origin_offset_m(v, nv, 0.0, embree_plane_error(v));
-        // Some ULPs of the coordinates and of the size (the old bound grew as emax^3 / |Ng|).
+        // Some ULPs of the coordinates and of the size (not a bound growing as emax^3 / |Ng|).
         EXPECT_LT(d, 64.0 * 0x1p-24 * (std::abs(p.x) + std::abs(p.y) + std::abs(p.z) + 3.0 * size));
         const glm::vec3 f[3] = {glm::vec3(v[0]), glm::vec3(v[1]), glm::vec3(v[2])};
         const glm::vec3 ng = glm::cross(f[2] - f[0], f[0] - f[1]);

@@ -1,12 +1,12 @@
 // The visibility pass's output bits, pinned: on every built-in scene and every real scene
 // (skipped when ../shared/scenes is missing), in each shadow mode (hard, one jittered ray per
 // light, 4 rays per light), the FNV-1a hash of the counts, of the statistics and of the rays
-// handed to Embree (collect_visibility_rays) must equal the values recorded from the tracer
-// of commit d05e197 (before the speed work of docs/performance.md); where Embree runs other
-// kernels than AVX-512, the values of that ISA's table (below). A change of the tracer's
-// kernels that moves any ray or any count by one bit fails here; a deliberate change of the
-// output must update every table and say so. Run with DHR_PRINT_TRACE_HASHES=1 to print the
-// table's rows for the current code, once per ISA on a machine with AVX-512:
+// handed to Embree (collect_visibility_rays) must equal the recorded values (below: which code
+// recorded them); where Embree runs other kernels than AVX-512, the values of that ISA's table.
+// A change of the tracer's kernels that moves any ray or any count by one bit fails here; a
+// deliberate change of the output must update every table and say so. Run with
+// DHR_PRINT_TRACE_HASHES=1 to print the table's rows for the current code, once per ISA on a
+// machine with AVX-512:
 //   for isa in avx512 avx2 avx sse4.2; do DHR_MAX_ISA=$isa DHR_PRINT_TRACE_HASHES=1
 //     build/tests/test_trace_bits --gtest_filter=TraceBits.VisibilityPassIsPinned; done
 // (one command: the loop's body is one line).
@@ -39,22 +39,14 @@ namespace {
 // on AMD EPYCs: those kernels start from rcpps, whose bits the x86 vendors do not share, so an
 // Intel CPU without AVX-512 may give other hashes (not checked: no such machine here).
 
-// scene/mode -> hash, by the ISA Embree runs (dhr::embree_isa(); SSE2 and SSE4.2 agree):
-// - avx512: recorded with DHR_PRINT_TRACE_HASHES=1 at commit d05e197 (AVX-512 machine);
-// - avx2: recorded at commit c05ad78 on an AMD EPYC without AVX-512 (the tracer of that commit
-//   gave the avx512 table on AVX-512 machines, its CI run included); the AVX-512 EPYC with
-//   DHR_MAX_ISA=avx2 gives the same table;
-// - avx and sse4.2 (and sse2): recorded with DHR_MAX_ISA=avx and =sse4.2 (and =sse2) on the
-//   AVX-512 EPYC at commit 2746b24, which brought the cap. (An earlier comment here said that
-//   Embree's SSE4.2 and AVX2 kernels agree, from a ~/.embree3 file; Debian's Embree does not read
-//   that file, so both runs had used AVX2.)
-// In every table the street rows were recorded again (the same loop, every ISA on the AVX-512
-// EPYC) at commit bf65e45, which moved scenes with moving objects to Embree's two-level layout
-// (RtSceneOptions::static_child): it answers a few of street's rays on shared edges
-// differently. The other rows did not move.
-// Every row of every table was recorded again (the same loop) at the commit after b4a40f4,
-// which made ray origins from an error bound (core/trace.h, origin_offset_m): every origin
-// moved, so every hash did; the counts that changed are listed in that commit's message.
+// scene/mode -> hash, by the ISA Embree runs (dhr::embree_isa(); SSE2 and SSE4.2 agree). Every
+// row of every table is the tracer's with ray origins from an error bound (core/trace.h,
+// origin_offset_m) and scenes with moving objects in Embree's two-level layout
+// (RtSceneOptions::static_child), recorded with the loop in this file's header (every ISA by
+// DHR_MAX_ISA on one AVX-512 machine) in commit 9db9702, whose message lists the counts that
+// moved. On AMD EPYCs, DHR_MAX_ISA=avx2 on an AVX-512 machine gives the table of a machine
+// without AVX-512 (compared on the tables of commit c05ad78). Debian's Embree does not read a
+// ~/.embree3 file: DHR_MAX_ISA is what caps its kernels.
 const std::map<std::string, uint64_t>& pinned() {
   using Table = std::map<std::string, uint64_t>;
   static const std::map<std::string, Table> by_isa = {
@@ -209,10 +201,10 @@ TEST(TraceBits, VisibilityPassIsPinned) {
 // A packet's rays come from one row of the image: which rows a thread's block of work holds (TBB
 // chooses the blocks as the threads run) must not change which rays share a packet, because
 // Embree's traversal (without RTC_SCENE_FLAG_ROBUST) can decide a ray on an edge differently in
-// another packet. Measured before the fix: street at 640x360 and t = 2 s, hard shadows, the
-// baseline kernels gave one count more or less after other traces had run, and this test failed
-// there (blocks of 1 row against blocks of 3 and of all rows). Both kernels, hard and soft (4
-// rays per area light) shadows and AO.
+// another packet. Packets that follow the blocks instead make street at 640x360 and t = 2 s,
+// hard shadows, give one count more or less with the baseline kernels after other traces have
+// run, and this test fails on them (blocks of 1 row against blocks of 3 and of all rows).
+// Both kernels, hard and soft (4 rays per area light) shadows and AO.
 TEST(TraceBits, CountsDoNotDependOnRowBlocks) {
   int compared = 0;
   test::for_each_scene([&](const std::string& name, const Scene& scene) {

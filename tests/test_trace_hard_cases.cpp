@@ -105,8 +105,8 @@ INSTANTIATE_TEST_SUITE_P(Offsets, FarFromOrigin, ::testing::Values(0.0f, 1e5f, 1
 // 100 km across, centred on the world origin or far from it, with nothing to occlude it: no
 // pixel may be shadowed (hard or soft) or occluded (AO). Embree's intersection error grows with
 // the triangle (its edges and normal are rounded to float), not with the hit point, so an
-// origin offset scaled by the hit point's coordinates alone shadowed big planes near the world
-// origin (issue 13, item 4). Two views: the whole plane, and a close-up of its centre.
+// origin offset scaled by the hit point's coordinates alone would shadow big planes near the
+// world origin. Two views: the whole plane, and a close-up of its centre.
 class LargeTiltedPlane : public ::testing::TestWithParam<std::tuple<float, float>> {};
 
 TEST_P(LargeTiltedPlane, UnoccludedPlaneIsNeverShadowed) {
@@ -185,8 +185,8 @@ Mesh strip_mesh(float x0, float x1, float z0, float z1, float y, int segments) {
 // ledge (a quad at y = 4 cm over z in [-0.5, 0]) occludes part of the strip's AO hemisphere and
 // shadows the part of it with z < 1.2 cm from the light. Its two long triangles must give what
 // the same strip cut into 3 cm squares gives (Embree's error is tiny for both: the strip is
-// axis-aligned). An offset grown with emax^3 / |Ng| (52 mm here) started the rays above the
-// ledge: AO near 1 and no shadow (issue 51, item 6).
+// axis-aligned). An offset grown with emax^3 / |Ng| (52 mm here) would start the rays above
+// the ledge: AO near 1 and no shadow.
 TEST(TraceHardCases, LongStripUnderLedge) {
   struct Answer {
     double ao = 0.0;
@@ -283,8 +283,8 @@ TEST(TraceHardCases, BoxShadowFarFromOrigin) {
 }
 
 // A thin slab (1 m x 5 cm x 1 m, 5 cm above the plane) scaled down to 1e-4 (and 2^-13, where
-// every float of the scene scales exactly): its shadow matches the unit-scale scene's. The old
-// fixed n / 65536 (15 um) near the world origin started the rays above the 1e-4 slab.
+// every float of the scene scales exactly): its shadow matches the unit-scale scene's. A fixed
+// offset of n / 65536 (15 um) near the world origin would start the rays above the 1e-4 slab.
 TEST(TraceHardCases, TinySceneCastsItsShadow) {
   const glm::vec3 slab(1.0f, 0.05f, 1.0f), light(-4.0f, 0.5f, 0.0f);
   const auto [reference, plane] = box_shadow(glm::vec3(0.0f), 1.0f, slab, 0.075f, light);

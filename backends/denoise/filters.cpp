@@ -4,13 +4,13 @@
 // are in filters_kernels.cpp, the vector maths in filters_simd.h.
 //
 // Cost at 1280x720 (tests/bench_denoise.cpp): around the a-trous taps, the passes are fused
-// (FilterPipeline::run) and the guide is built 8 pixels at a time: temporal alone went from 34
-// to 26 CPU ms, the reset path from 9 to 4; the rest of a frame is memory-bound (the
-// reprojection touches about 25 planes; on a cache-resident crop it is 5-7x faster per pixel).
-// svgf_ao's light_history path (one 3x3 iteration where the history is long) takes a steady
-// frame from about 140 to 40 CPU ms. With AVX-512 the guide's rows run 16 pixels at a time
-// (guide_row16) and the accumulation's 16 (AVX-512) or 8 (AVX2) at a time
-// (filters_accumulate.cpp): temporal from 21.2 to 12.1 CPU ms (docs/performance.md, svgf_ao).
+// (FilterPipeline::run) and the guide is built 8 pixels at a time, 16 with AVX-512
+// (guide_row16), the accumulation's rows 16 (AVX-512) or 8 (AVX2) at a time
+// (filters_accumulate.cpp): temporal alone takes 12.1 CPU ms with AVX-512. The rest of a frame
+// is memory-bound (the reprojection touches about 25 planes; on a cache-resident crop it is
+// 5-7x faster per pixel). svgf_ao's light_history path (one 3x3 iteration where the history is
+// long) takes a steady frame in about 40 CPU ms against about 140 for the full filter. What
+// each step saved: `git show aec67ef:docs/performance.md`, "svgf_ao".
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 #include "core/error.h"

@@ -49,9 +49,8 @@ struct FilterSettings {
   // frames of history get one 3x3 a-trous iteration instead of `iterations`; 0 = off.
   int light_history = 0;
   // The a-trous weights with fused multiply-adds and a degree-3 exponential (filters_simd.h,
-  // fast_weight); false: separate products and sums and exp_neg, as before this option. The
-  // same filter, its weights rounded differently; less CPU (docs/performance.md, "svgf_ao's
-  // fast weights").
+  // fast_weight); false: separate products and sums and exp_neg. The same filter, its weights
+  // rounded differently; less CPU (docs/performance.md, "svgf_ao's fast weights").
   bool fast_weights = true;
 };
 

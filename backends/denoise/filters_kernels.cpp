@@ -7,16 +7,14 @@
 // Cost at 1280x720 (tests/bench_denoise.cpp): a-trous dominates (5 iterations x 24 taps per
 // pixel). Centre values and sums of 8 pixels (16 with AVX-512) stay in registers across the
 // 24 taps; the normal power is 7 squarings (sigma_n = 128 is compiled in; other powers of two
-// loop). Where the CPU has AVX-512 the a-trous and spatial-moment kernels take 16 lanes:
-// svgf_ao went from 189 to 131 CPU ms per frame on a 2-vCPU Zen 5 (room, 1280x720;
-// bench_denoise). With the 16-lane taps unrolled around a 14-instruction exponential
-// (atrous_block16_unrolled), the row ends 16 at a time and the AO phi's sums in registers:
-// from 3.79x to 2.69x the CPU time of one traced AO ray, 2.41x with the temporal part's rows
-// in 16 lanes too, 1.83-1.92x with the fast weights (FMAs and a degree-3 exponential; the
-// default, AtrousArgs::fast_weights) on a 2-vCPU Zen 4 (docs/performance.md, svgf_ao); every
-// pixel of a row in 16-lane blocks (the ends masked), each finished in registers, and the last
-// iteration's variance left out: 0.85-0.87x that time, 1.83-1.92x in an hour when the code before
-// was 2.12-2.29x.
+// loop). Where the CPU has AVX-512 the a-trous and spatial-moment kernels take 16 lanes: the
+// taps unrolled around a 14-instruction exponential (atrous_block16_unrolled), the row ends 16
+// at a time, the AO phi's sums in registers, the fast weights (FMAs and a degree-3
+// exponential; the default, AtrousArgs::fast_weights), every pixel of a row in 16-lane blocks
+// (the ends masked), each finished in registers, and the last iteration's variance left out.
+// With the temporal part's rows in 16 lanes too, svgf_ao takes 1.83-1.92x the CPU time of one
+// traced AO ray on a 2-vCPU Zen 4 (room, 1280x720; docs/performance.md, "Each stage against its
+// floor"); what each step saved: `git show aec67ef:docs/performance.md`, "svgf_ao".
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 #include "core/cpu_isa.h"
