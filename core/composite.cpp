@@ -635,12 +635,6 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, const PassBuffer* visi
   return composite(g, scene, passes, settings);
 }
 
-ImageRGB8 composite(const GBuffer& g, const Scene& scene, const TracedPasses& traced, const CompositeSettings& settings) {
-  std::vector<CompositePass> inputs;
-  for (const TracedPass& p : traced.passes) inputs.push_back({p.meaning, &p.buffer});
-  return composite(g, scene, inputs, settings);
-}
-
 ImageRGB8 composite_fractions(const GBuffer& g, const Scene& scene, std::span<const CompositeFractions> passes,
                               const CompositeSettings& settings) {
   CompositeInputs<std::span<const float>> in;

@@ -19,7 +19,6 @@
 #include "core/gbuffer.h"
 #include "core/image.h"
 #include "core/pass_buffer.h"
-#include "core/passes.h"
 #include "core/scene.h"
 
 #include <glm/glm.hpp>
@@ -72,10 +71,6 @@ ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, std::span<const Com
 
 // The same for the two lighting passes the server traces today (null = absent).
 ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, const PassBuffer* visibility, const PassBuffer* ao,
-                    const CompositeSettings& settings = {});
-
-// The composite of one frame's traced passes as traced (before denoising).
-ImageRGB8 composite(const GBuffer& gbuf, const Scene& scene, const TracedPasses& traced,
                     const CompositeSettings& settings = {});
 
 // One pass as float estimates (the ground truth's converged passes, PassType::converged):

@@ -36,7 +36,7 @@
 // missing scenes) is reported at once, before anything runs.
 #pragma once
 
-#include "core/frame_loop.h"
+#include "core/run_config.h"
 #include "core/scene.h"
 
 #include <nlohmann/json.hpp>

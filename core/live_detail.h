@@ -6,7 +6,6 @@
 #include "core/assembler.h"
 #include "core/composite.h"
 #include "core/error.h"
-#include "core/frame_loop.h"
 #include "core/image_io.h"
 #include "core/json_io.h"
 #include "core/live_protocol.h"
@@ -15,8 +14,10 @@
 #include "core/pipeline.h"
 #include "core/pass_receiver.h"
 #include "core/raster.h"
+#include "core/results.h"
 #include "core/rng.h"
 #include "core/rt_scene.h"
+#include "core/run_check.h"
 #include "core/trace.h"
 
 #include <fmt/format.h>

@@ -1,12 +1,19 @@
 #include "core/passes.h"
 
 #include "core/error.h"
+#include "core/trace.h"
 #include "core/upsample.h"
 
 #include <algorithm>
 #include <chrono>
 
 namespace dhr {
+
+std::vector<CompositePass> composite_inputs(const TracedPasses& traced) {
+  std::vector<CompositePass> inputs;
+  for (const TracedPass& p : traced.passes) inputs.push_back({p.meaning, &p.buffer});
+  return inputs;
+}
 
 namespace {
 

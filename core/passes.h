@@ -11,8 +11,10 @@
 // denoise stage and the composite use.
 #pragma once
 
+#include "core/composite.h"
+#include "core/gbuffer.h"
 #include "core/pass_buffer.h"
-#include "core/trace.h"
+#include "core/trace_plan.h"
 
 #include <nlohmann/json.hpp>
 
@@ -22,6 +24,8 @@
 #include <vector>
 
 namespace dhr {
+
+class RtScene;  // core/rt_scene.h: the kernels' scene
 
 struct BackendChoice {
   std::string name;
@@ -107,6 +111,9 @@ struct TracedPasses {
   const PassBuffer* find(std::string_view name) const;
   double total_ms() const;
 };
+
+// The passes as the composite's inputs (core/composite.h), in their order.
+std::vector<CompositePass> composite_inputs(const TracedPasses& traced);
 
 // Everything the plan asks for: every planned pass's kernel, in order. Moves the scene to
 // gbuf.time_s. With `only`, the planned pass of that name alone (none when it is not planned):

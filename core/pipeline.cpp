@@ -35,12 +35,6 @@ TraceFn direct_tracer(RtScene& rt, const SimConfig& config) {
   };
 }
 
-int remote_depth_bits(const SimConfig& c, const Registries& r) {
-  if (c.mode != "remote") return 0;
-  const BackendChoice& p = c.pass(kColourPassName).predictor;
-  return r.predictors.create(p.name, p.params)->depth_bits();
-}
-
 // ---- reduced resolution
 
 int reduced_scale(const GBuffer& gbuf, const PassDesc& desc) {

@@ -22,6 +22,7 @@
 #include "core/pass_receiver.h"
 #include "core/passes.h"
 #include "core/raster.h"
+#include "core/run_check.h"
 #include "core/run_config.h"
 #include "core/scene.h"
 #include "core/stream_dump.h"
@@ -55,10 +56,6 @@ struct Rastered {
 using RasterFn = std::function<Rastered(const RasterFrame& frame)>;
 // Rasterizes `frame` now.
 Rastered rasterize_now(const RasterFrame& frame);
-
-// The bits of the depth pass the server of this run sends with its colour (0: none): remote mode
-// with a colour predictor that reads depth (Predictor::depth_bits).
-int remote_depth_bits(const SimConfig& config, const Registries& registries);
 
 // The scale at which `desc` is a reduced-resolution pass of `gbuf` (1: the same size); dhr::Error
 // when it is none (core/upsample.h).

@@ -3,6 +3,7 @@
 
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/passes.h"
 #include "core/rng.h"
 
 #include <fmt/format.h>
@@ -251,7 +252,7 @@ ImageRGB8 local_reference(RtScene& rt, const GBuffer& g, const TraceSettings& se
                           const CompositeSettings& composite_settings, TraceStats* stats) {
   const TraceResult r = trace_passes(rt, g, settings);
   if (stats) stats->add(r.stats);
-  return composite(g, rt.scene(), r, composite_settings);
+  return composite(g, rt.scene(), composite_inputs(r), composite_settings);
 }
 
 }  // namespace dhr

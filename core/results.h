@@ -17,7 +17,7 @@
 #include "core/image.h"
 #include "core/passes.h"
 #include "core/temporal.h"
-#include "core/trace.h"
+#include "core/trace_plan.h"
 
 #include <nlohmann/json.hpp>
 

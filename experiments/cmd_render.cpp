@@ -3,6 +3,7 @@
 #include "core/composite.h"
 #include "core/error.h"
 #include "core/json_io.h"
+#include "core/passes.h"
 #include "core/image_io.h"
 #include "core/raster.h"
 #include "core/reference.h"
@@ -166,7 +167,7 @@ Runner add_render_command(CLI::App& app) {
       if (wants("ao") && tr.find("ao")) write_png(prefix + "ao.png", viewable_plane(*tr.find("ao"), 0));
       if (wants("composite")) {
         t0 = std::chrono::steady_clock::now();
-        const ImageRGB8 img = composite(gbuf, scene, tr);
+        const ImageRGB8 img = composite(gbuf, scene, composite_inputs(tr));
         fmt::print("composite {:8.2f} ms\n", ms_since(t0));
         write_png(prefix + "composite.png", img);
       }

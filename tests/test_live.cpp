@@ -5,6 +5,7 @@
 // reason, the pass-packet windows, the MAC, and a session that a third socket attacks with
 // forged, malformed and random datagrams while it runs, ending exactly as a clean one.
 #include "core/experiment.h"
+#include "core/frame_loop.h"
 #include "backends/register_all.h"
 #include "core/json_io.h"
 #include "core/live.h"

@@ -1,6 +1,8 @@
 // The experiment runner end to end: a tiny experiment through the dhrbench command, then the
 // results schema, the CSV and the report files; and its validation of bad experiments.
+#include "core/error.h"
 #include "core/experiment.h"
+#include "core/frame_loop.h"
 #include "tests/support.h"
 
 #include <gtest/gtest.h>

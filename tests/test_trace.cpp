@@ -5,11 +5,13 @@
 #include "core/composite.h"
 #include "core/cpu_isa.h"
 #include "core/error.h"
+#include "core/passes.h"
 #include "core/reference.h"
 #include "core/rng.h"
 #include "core/rt_scene.h"
 #include "core/shapes.h"
 #include "core/trace.h"
+#include "core/trace_rays.h"
 #include "core/trace_kernels.h"
 
 #include "tests/support.h"

@@ -4,6 +4,7 @@
 // view and invalid rays. Every case asserts no NaN, no crash and the documented answer.
 #include "core/composite.h"
 #include "core/error.h"
+#include "core/passes.h"
 #include "core/rt_scene.h"
 #include "core/shapes.h"
 #include "core/trace.h"
