@@ -5,6 +5,8 @@
 #include "core/cpu_isa.h"
 #include "core/error.h"
 
+#include <embree3/rtcore.h>
+
 #include <fmt/format.h>
 #include <tbb/blocked_range.h>
 #include <tbb/info.h>
@@ -21,6 +23,15 @@
 namespace dhr {
 
 namespace {
+
+RTCBuildQuality embree_quality(RtBuildQuality q) {
+  switch (q) {
+    case RtBuildQuality::low: return RTC_BUILD_QUALITY_LOW;
+    case RtBuildQuality::medium: return RTC_BUILD_QUALITY_MEDIUM;
+    case RtBuildQuality::high: return RTC_BUILD_QUALITY_HIGH;
+  }
+  return RTC_BUILD_QUALITY_HIGH;
+}
 
 void embree_error(void* user, RTCError code, const char* message) {
   // Embree reports errors through this callback; keep the first one so the next check can
@@ -161,7 +172,7 @@ RTCGeometry RtScene::make_triangle_geometry(uint32_t object_index) {
   }
   const Material& mat = *info->material;
   rtcSetGeometryMask(g, mat.emitter ? kMaskEmitter : kMaskAll);
-  rtcSetGeometryBuildQuality(g, options_.quality);
+  rtcSetGeometryBuildQuality(g, embree_quality(options_.quality));
   if (mat.alpha_cutout && mat.texture >= 0 && size_t(mat.texture) < scene_.textures.size() &&
       scene_.textures[size_t(mat.texture)].has_alpha && mesh.uvs.size() == nv) {
     info->cutout_texture = &scene_.textures[size_t(mat.texture)];
@@ -216,13 +227,13 @@ void RtScene::build() {
   // Embree keeps a BVH per static geometry and rebuilds only the level above them and the
   // instances (RtSceneOptions::static_child: the older layout, one child scene for all static
   // geometry, built once and instanced).
-  rtcSetSceneBuildQuality(top_, has_moving ? RTC_BUILD_QUALITY_LOW : options_.quality);
+  rtcSetSceneBuildQuality(top_, has_moving ? RTC_BUILD_QUALITY_LOW : embree_quality(options_.quality));
   const bool static_child = has_moving && options_.static_child;
   RTCScene static_target = top_;
   if (static_child) {
     static_child_ = rtcNewScene(device_);
     rtcSetSceneFlags(static_child_, flags);
-    rtcSetSceneBuildQuality(static_child_, options_.quality);
+    rtcSetSceneBuildQuality(static_child_, embree_quality(options_.quality));
     static_target = static_child_;
   }
 
@@ -258,7 +269,7 @@ void RtScene::build() {
     if (!g) continue;
     RTCScene child = rtcNewScene(device_);
     rtcSetSceneFlags(child, flags);
-    rtcSetSceneBuildQuality(child, options_.quality);
+    rtcSetSceneBuildQuality(child, embree_quality(options_.quality));
     rtcAttachGeometryByID(child, g, 0);
     rtcReleaseGeometry(g);
     arena_->execute([&] { rtcCommitScene(child); });

@@ -27,7 +27,6 @@
 #include "core/gbuffer.h"
 #include "core/scene.h"
 
-#include <embree3/rtcore.h>
 #include <glm/glm.hpp>
 #include <tbb/task_arena.h>
 
@@ -37,6 +36,13 @@
 #include <memory>
 #include <string>
 #include <vector>
+
+// Embree's handle types, declared as <embree3/rtcore.h> declares them, so that this header
+// does not bring Embree to its readers: only the trace layer's sources include Embree
+// (docs/architecture.md, "Layers").
+typedef struct RTCDeviceTy* RTCDevice;
+typedef struct RTCSceneTy* RTCScene;
+typedef struct RTCGeometryTy* RTCGeometry;
 
 namespace dhr {
 
@@ -50,13 +56,16 @@ constexpr unsigned kMaskEmitter = 2u;   // emitter geometry: camera and AO rays 
 constexpr unsigned kMaskShadow = kMaskOccluder;
 constexpr unsigned kMaskAll = kMaskOccluder | kMaskEmitter;
 
+// The BVH build quality of Embree's static and object-space trees (RTC_BUILD_QUALITY_*).
+enum class RtBuildQuality { low, medium, high };
+
 struct RtSceneOptions {
   int threads = 0;  // Embree's build threads and the TBB arena used for tracing; 0 = all cores
   // RTC_SCENE_FLAG_ROBUST: watertight traversal (no rays slipping through shared edges) at a
   // cost in speed. Default off: bench_trace measures the cost (see the report of this module)
   // and the ray origin offset (core/trace.h) already removes self-intersection.
   bool robust = false;
-  RTCBuildQuality quality = RTC_BUILD_QUALITY_HIGH;  // static and object-space BVHs (built once)
+  RtBuildQuality quality = RtBuildQuality::high;  // static and object-space BVHs (built once)
   // The layout of a scene with moving objects. By default every static geometry is attached to
   // the top level beside the moving objects' instances, and the top level is built at
   // RTC_BUILD_QUALITY_LOW: Embree then builds two levels, one BVH per geometry at `quality` and
@@ -194,7 +203,7 @@ class RtScene {
   std::vector<int> top_geom_moving_slot_;                // by top-level geomID (-1: not a moving instance)
   std::vector<const RtGeometryInfo*> static_child_info_; // by geomID in static_child_
   std::vector<const RtGeometryInfo*> moving_child_info_; // by moving slot (geomID 0 in its child)
-  unsigned static_instance_geom_ = RTC_INVALID_GEOMETRY_ID;
+  unsigned static_instance_geom_ = ~0u;  // RTC_INVALID_GEOMETRY_ID: no static instance
   std::vector<glm::mat4> world_from_object_;  // per object, at time_s_
   std::vector<std::vector<uint8_t>> skipped_;  // per object: triangle skipped at build
   std::vector<int> id_to_index_;              // Object::id -> index (dense up to max id)

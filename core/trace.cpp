@@ -14,6 +14,7 @@
 //   visibility pass's surfaces, packets and cone loops); chosen at run time
 //   (TraceSettings::wide_kernels).
 #include "core/trace.h"
+#include "core/trace_rays.h"
 
 #include "core/error.h"
 #include "core/trace_kernels.h"

@@ -12,6 +12,8 @@
 #include "core/avx512.h"
 #include "core/trace.h"
 
+#include <embree3/rtcore.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>

@@ -28,6 +28,7 @@
 #include "core/rt_scene.h"
 #include "core/scene_load.h"
 #include "core/trace.h"
+#include "core/trace_rays.h"
 
 #include <benchmark/benchmark.h>
 #include <fmt/format.h>

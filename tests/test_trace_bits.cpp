@@ -14,6 +14,7 @@
 #include "core/rt_scene.h"
 #include "core/scene_load.h"
 #include "core/trace.h"
+#include "core/trace_rays.h"
 
 #include "tests/support.h"
 
