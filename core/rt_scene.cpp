@@ -8,6 +8,7 @@
 #include <embree3/rtcore.h>
 
 #include <fmt/format.h>
+#include <immintrin.h>
 #include <tbb/blocked_range.h>
 #include <tbb/info.h>
 #include <tbb/parallel_for.h>
@@ -17,6 +18,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <limits>
 #include <string>
 
@@ -65,7 +67,10 @@ void alpha_cutout_filter(const RTCFilterFunctionNArguments* args) {
   }
 }
 
-std::string tracer_name(const std::string& isa) { return fmt::format("embree {} {}", embree_version(), isa); }
+std::string tracer_name(const std::string& isa) {
+  if (isa == "avx512") return fmt::format("embree {} {}", embree_version(), isa);
+  return fmt::format("embree {} {} rcp:{}", embree_version(), isa, cpu_rcp_signature());
+}
 
 }  // namespace
 
@@ -78,6 +83,23 @@ const std::string& embree_version() {
     return fmt::format("{}.{}.{}", v / 10000, (v / 100) % 100, v % 100);
   }();
   return version;
+}
+
+const std::string& cpu_rcp_signature() {
+  static const std::string signature = [] {
+    // rcpps reads the top 12 bits of the mantissa (and the exponent, which only scales the
+    // result): 1 + i/4096 for every i covers its table, the half steps its interpolation.
+    uint32_t h = 2166136261u;  // FNV-1a
+    for (int i = 0; i < 8192; ++i) {
+      const float x = 1.0f + float(i) / 8192.0f;
+      const float r = _mm_cvtss_f32(_mm_rcp_ss(_mm_set_ss(x)));
+      uint32_t bits = 0;
+      std::memcpy(&bits, &r, sizeof bits);
+      for (int b = 0; b < 4; ++b) h = (h ^ ((bits >> (8 * b)) & 0xffu)) * 16777619u;
+    }
+    return fmt::format("{:08x}", h);
+  }();
+  return signature;
 }
 
 std::string embree_tracer() { return tracer_name(embree_isa()); }

@@ -1205,11 +1205,21 @@ TEST(EmbreeIsa, CapIsCheckedAndApplied) {
   const auto native16 = [](const RtScene& rt) {
     return rtcGetDeviceProperty(rt.device(), RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED) != 0;
   };
+  // "embree <version> <isa>[ rcp:<signature>]": the ISA, and the rcpps signature below AVX-512.
+  const auto tracer_isa = [](const std::string& t) {
+    const size_t a = t.find(' ', t.find(' ') + 1) + 1;
+    return t.substr(a, t.find(' ', a) - a);
+  };
+  const auto check_rcp = [](const std::string& t, const std::string& isa) {
+    const std::string rcp = " rcp:" + cpu_rcp_signature();
+    EXPECT_EQ(t.ends_with(rcp), isa != "avx512") << t;
+  };
   ScopedEnv unset("DHR_MAX_ISA", "");  // empty: as unset (ctest may run this with a cap)
   const std::string best = embree_isa();
   {
     RtScene rt(s);
-    EXPECT_EQ(rt.tracer().substr(rt.tracer().rfind(' ') + 1), best);
+    EXPECT_EQ(tracer_isa(rt.tracer()), best);
+    check_rcp(rt.tracer(), best);
     EXPECT_EQ(native16(rt), best == "avx512") << rt.tracer();
   }
   for (const char* isa : {"sse2", "avx2"}) {
@@ -1219,7 +1229,8 @@ TEST(EmbreeIsa, CapIsCheckedAndApplied) {
       EXPECT_EQ(got, isa);
     }
     RtScene rt(s);
-    EXPECT_EQ(rt.tracer().substr(rt.tracer().rfind(' ') + 1), got);
+    EXPECT_EQ(tracer_isa(rt.tracer()), got);
+    check_rcp(rt.tracer(), got);
     EXPECT_FALSE(native16(rt)) << rt.tracer();
     // It still traces: a ray down onto the plane hits it.
     const GBuffer g = rt.primary_gbuffer(cam({0, 3, 4}, {0, 0, 0}), 0.0);
