@@ -8,7 +8,6 @@ marked (higher SSIM, lower cost); SSIM per frame; stage wall times. Image grids 
 per scene, the ground truth, the local reference, and for each run what the client showed
 and its error map, all error maps on one fixed colour scale with its colour bar.
 """
-import functools
 import math
 import os
 import sys
@@ -162,14 +161,14 @@ def rate_quality_section(plot, d, exp, ok, metrics):
         out.append(f"![rate against {im['name'].upper()}](plots/{name})\n")
         replicates = [k for k in spec.get("replicates", []) if isinstance(k, str)]
         for anchor in anchors:
-            bd_section(rq, cm, anchor, im, out)
+            out += bd_section(rq, cm, anchor, im)
             if replicates:
-                replicate_section(rq, cm, anchor, im, replicates, out)
+                out += replicate_section(rq, cm, anchor, im, replicates)
         for anchor in anchors:
-            bd_section(rq, cm, anchor, im, out, equal_bandwidth=True)
+            out += bd_section(rq, cm, anchor, im, equal_bandwidth=True)
             if replicates:
-                replicate_section(rq, cm, anchor, im, replicates, out, equal_bandwidth=True)
-        crossover_section(rq, cm, ok, sweep_keys, im, out)
+                out += replicate_section(rq, cm, anchor, im, replicates, equal_bandwidth=True)
+        out += crossover_section(rq, cm, ok, sweep_keys, im)
     return out
 
 
@@ -192,22 +191,23 @@ def network_rtt_ms(runs):
     return rtts
 
 
-def crossover_section(rq, cm, runs, sweep_keys, im, out):
+def crossover_section(rq, cm, runs, sweep_keys, im):
     """Per scene, the round-trip time from which on hybrid wins on image metric `im`: the
     smallest measured RTT from which on, at every larger one too, a hybrid family beats every
     remote family (less bitrate at equal quality where the curves meet, a better quality range
-    where they do not)."""
+    where they do not). Returns the lines (none without a network sweep of both sides)."""
     if "network" not in sweep_keys:
-        return
+        return []
     rtts = network_rtt_ms(runs)
     remote = {rq.family_of(r) for r in runs if r.get("config", {}).get("mode") == "remote"}
     if not remote or not any(v is not None for v in rtts.values()):
-        return
+        return []
     higher = im.get("higher_is_better", True)
     table = rq.crossover(cm, lambda f: f in remote, lambda v: rtts.get(v), "network", higher)
     if not table:
-        return
+        return []
     name = im["name"].upper()
+    out = []
     out.append(f"Where hybrid starts to win on {name}: the smallest round-trip time from which on, at every larger "
                "RTT measured, a hybrid family beats every remote family (less bitrate at equal quality where the "
                "curves meet, BD-rate < 0; where they do not, a better quality range at a bitrate remote also "
@@ -232,6 +232,7 @@ def crossover_section(rq, cm, runs, sweep_keys, im, out):
                    f"{f'{best:g} ms' if best is not None else 'not at the largest RTT'} | "
                    f"{', '.join(fams) or '–'} | " + " | ".join(per_rtt) + " |")
     out.append("")
+    return out
 
 
 def regime_tables(exp, ok, metrics, budget_points=12):
@@ -286,8 +287,9 @@ def lead_metric(metrics):
     return by_name.get("flip") or metrics[0]
 
 
-def scale_line(ok):
-    """Resolution, scenes, frames and runs the answer rests on."""
+def scale_line(ok, checks):
+    """Resolution, scenes, frames and runs the answer rests on; `checks`: the committed
+    convergence checks (dr.load_convergence_checks)."""
     first = ok[0]["config"] if ok and "config" in ok[0] else {}
     scenes = sorted({r["scene"] for r in ok})
     frames = sorted({r["metrics"].get("frames_displayed") for r in ok if r["metrics"].get("frames_displayed")})
@@ -297,7 +299,7 @@ def scale_line(ok):
     speeds = {r.get("config", {}).get("camera_speed", 1.0) for r in ok}  # one path per speed
     truth = (f", {'/'.join(str(f) for f in truth_frames)} scored against the ground truth" if truth_frames
              else ", none scored against a ground truth")
-    found = convergence_checks(ok)
+    found = convergence_checks(ok, checks)
     scored = {r["scene"] for r in ok if r.get("config", {}).get("ground_truth_every")}
     converged = ""
     if scored and scored <= set(found) and all("flip_mean" in found[s][2]["summary"] for s in scored):
@@ -322,34 +324,12 @@ def converge_command(c):
             f"--factor {c['factor']}")
 
 
-@functools.lru_cache(maxsize=None)
-def committed_convergence_checks():
-    """[(file name, check)] of reports/converge/*.json, each checked, read once per process (the
-    answer's scale line, the convergence section and the index all ask)."""
-    try:
-        names = sorted(n for n in os.listdir(CONVERGE_DIR) if n.endswith(".json"))
-    except OSError:
-        return []
-    checks = []
-    for n in names:
-        path = os.path.join(CONVERGE_DIR, n)
-        chk = dr.load_json(path)  # a damaged check is an error naming the file, never skipped
-        scenes = chk.get("scenes") if isinstance(chk, dict) else None
-        if not isinstance(scenes, list) or not all(
-                isinstance(s, dict) and isinstance(s.get("frames"), list) and isinstance(s.get("summary"), dict)
-                and all(isinstance(v, (int, float)) for v in s["summary"].values()) for s in scenes):
-            raise BadResults(f"{path}: not the convergence.json of `dhrbench converge` (scenes: a list of "
-                             "{scene, frames, summary of numbers})")
-        checks.append((n, chk))
-    return checks
-
-
-def convergence_checks(ok):
-    """Per scene of the runs, the committed check (reports/converge/*.json, `dhrbench converge`)
-    of the ground truth the runs were scored against: {scene: (file name, the check, its scene
-    entry)}, for the scenes a check with the same size, samples and sampling covers."""
+def convergence_checks(ok, checks):
+    """Per scene of the runs, the committed check (`checks`: [(file name, check)] of
+    reports/converge/*.json, `dhrbench converge`) of the ground truth the runs were scored against:
+    {scene: (file name, the check, its scene entry)}, for the scenes a check with the same size,
+    samples and sampling covers."""
     found = {}
-    checks = committed_convergence_checks()
     for r in ok:
         c = r.get("config", {})
         if r["scene"] in found or not c.get("ground_truth_every"):
@@ -368,13 +348,13 @@ def convergence_checks(ok):
     return found
 
 
-def convergence_section(ok):
+def convergence_section(ok, checks):
     """The ground truth shown converged: per scene, the committed check against factor x its
     samples, or how to make one."""
     scored = [r for r in ok if r.get("config", {}).get("ground_truth_every")]
     if not scored:
         return []
-    found = convergence_checks(scored)
+    found = convergence_checks(scored, checks)
     out = ["## Ground truth convergence\n",
            "Each figure scores the ground truth these runs were scored against (same size, samples and sampling; "
            "an independent seed) against one with factor x its samples (`dhrbench converge`): the difference bounds "
@@ -403,12 +383,12 @@ def convergence_section(ok):
     return out
 
 
-def answer_lines(question, rows, ok, figure=None):
+def answer_lines(question, rows, ok, checks, figure=None):
     """The answer block's lines: the question, one row per scene (joined into one line past six
     scenes, so that the block stays within ten lines), the scale, and the figure if any."""
     out = ["## The answer\n", f"Question: {question}\n"]
     out += rows if len(rows) <= 6 else ["- " + "; ".join(r[2:].rstrip(".") for r in rows) + "."]
-    out.append("\n" + scale_line(ok) + "\n")
+    out.append("\n" + scale_line(ok, checks) + "\n")
     if figure:
         out.append(figure)
     return out
@@ -425,7 +405,7 @@ class Answer(NamedTuple):
     sentence: str
 
 
-def regime_answer(ok, regimes, replicates=()):
+def regime_answer(ok, regimes, checks, replicates=()):
     """The answer of a report that holds both sides at constant latencies: the question, one
     sentence per scene from the regime map (how many of the cells where both sides have a run
     each side wins, over which budgets, and where only one side exists), the scale, and the
@@ -461,7 +441,7 @@ def regime_answer(ok, regimes, replicates=()):
     (scene, rest), _ = sorted(table.items())[0]
     title = scene + (f" ({', '.join(f'{k}={v}' for k, v in rest)})" if rest else "")
     out = answer_lines(f"at a given bitrate budget and round-trip time, does hybrid rendering or remote rendering "
-                       f"give the better image ({name} against the ground truth)?", rows, ok,
+                       f"give the better image ({name} against the ground truth)?", rows, ok, checks,
                        f"![regime map {title}](plots/{regime_file(title)})\n")
     sentence = (f"At matched bitrate and RTT, cells where hybrid : remote gives the better {name} against the ground "
                 f"truth: " + "; ".join(short) + ".")
@@ -481,7 +461,7 @@ def scene_values(ok, scene, im):
 REFERENCE_WORDS = {"ground_truth": "the ground truth", "local": "the local reference"}
 
 
-def front_answer(ok, metrics, spec):
+def front_answer(ok, metrics, spec, checks):
     """The answer of a report without both sides at constant latencies: per scene, the best run on
     the lead metric, the cheapest run (bandwidth, or the server's time where the experiment's
     answer.cost says so), and how many runs lie on the front of quality against that cost."""
@@ -513,12 +493,12 @@ def front_answer(ok, metrics, spec):
     question = spec.get("question") or f"which configuration gives the best image for the {what} it costs?"
     plot = "quality_vs_server_time" if by_time else "quality_vs_bandwidth"
     out = answer_lines(f"{question} ({name} against {against}; {'higher' if higher else 'lower'} is better; the front: "
-                       f"the runs no other run of the scene beats on both quality and {what}.)", rows, ok,
+                       f"the runs no other run of the scene beats on both quality and {what}.)", rows, ok, checks,
                        f"![quality against {what}](plots/{plot}.png)\n")
     return Answer(out, f"Best {name} against {against} per scene: " + "; ".join(short) + ".")
 
 
-def range_answer(ok, metrics, spec):
+def range_answer(ok, metrics, spec, checks):
     """The answer of a report that compares groups (answer.group, e.g. the predictor) along a
     condition (answer.along, e.g. the network): per scene and group, the lead metric at the best and
     the worst value of the condition."""
@@ -550,11 +530,11 @@ def range_answer(ok, metrics, spec):
     against = against_words(refs)
     question = spec.get("question") or f"how does the image change with {along}, for each {group}?"
     out = answer_lines(f"{question} ({name} against {against}, {'higher' if higher else 'lower'} is better: each "
-                       f"{group}'s best and worst run over the values of {along}.)", rows, ok)
+                       f"{group}'s best and worst run over the values of {along}.)", rows, ok, checks)
     return Answer(out, f"{name} against {against}, best to worst over {along}: " + " | ".join(short) + ".")
 
 
-def budget_answer(ok, metrics, spec):
+def budget_answer(ok, metrics, spec, checks):
     """The answer of an error budget (answer.terms): per scene, each term's share of the lead
     metric, the run of the configuration with the effect minus the run without it."""
     im = lead_metric(metrics)
@@ -585,26 +565,27 @@ def budget_answer(ok, metrics, spec):
     question = spec.get("question") or "how much does each effect cost the image?"
     out = answer_lines(f"{question} (each term: {name} against {against} of the configuration with the effect "
                        f"minus the one without it, signed so that a positive term is error the effect adds; a term "
-                       f"without a configuration to subtract is that configuration's own {name}.)", rows, ok)
+                       f"without a configuration to subtract is that configuration's own {name}.)", rows, ok, checks)
     return Answer(out, f"{name} added by each effect: " + " | ".join(short) + ".")
 
 
-def answer(exp, ok, metrics, regimes):
+def answer(exp, ok, metrics, regimes, checks):
     """The answer first (at most ten lines): the error budget or the comparison along a condition
     that the experiment's "answer" declares; else the regime map where the report holds both
-    sides at constant latencies; else the Pareto fronts."""
+    sides at constant latencies; else the Pareto fronts. `checks`: the committed convergence
+    checks its scale line cites."""
     if not ok or not metrics:
         return Answer([], "")
     spec = exp.get("answer") if isinstance(exp.get("answer"), dict) else {}
     if isinstance(spec.get("terms"), list):
-        return budget_answer(ok, metrics, spec)
+        return budget_answer(ok, metrics, spec, checks)
     if isinstance(spec.get("group"), str) and isinstance(spec.get("along"), str):
-        return range_answer(ok, metrics, spec)
+        return range_answer(ok, metrics, spec, checks)
     if regimes:
         curves = exp.get("curves") if isinstance(exp.get("curves"), dict) else {}
         replicates = [k for k in curves.get("replicates", []) if isinstance(k, str)]
-        return regime_answer(ok, regimes, replicates)
-    return front_answer(ok, metrics, spec)
+        return regime_answer(ok, regimes, checks, replicates)
+    return front_answer(ok, metrics, spec, checks)
 
 
 def regime_section(plot, d, regimes):
@@ -704,14 +685,15 @@ def size_line(runs):
     return ("Size: " + "; ".join(parts) + " per run.\n") if parts else ""
 
 
-def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
+def bd_section(rq, cm, anchor, im, equal_bandwidth=False):
     """The BD-rate table (equal quality) or, with `equal_bandwidth`, the BD-quality table of every
     family against `anchor` on image metric `im` (rate_quality.bd_checked: PCHIP, its flags marked
-    in the cells and explained below the table)."""
+    in the cells and explained below the table): the lines."""
     higher = im.get("higher_is_better", True)
     table = rq.bd_table(cm, anchor, "quality" if equal_bandwidth else "rate", "pchip", higher)
     if not table:
-        return
+        return []
+    out = []
     fams = sorted({f for row in table.values() for f in row})
     name = im["name"].upper()
     results = [((scene, cond), f, row[f]) for (scene, cond), row in sorted(table.items()) for f in fams if f in row]
@@ -761,13 +743,15 @@ def bd_section(rq, cm, anchor, im, out, equal_bandwidth=False):
         out.append(f"Why a cell has no {'BD-' + name if equal_bandwidth else 'BD-rate'}:\n")
         out.extend(reasons)
         out.append("")
+    return out
 
 
-def replicate_section(rq, cm, anchor, im, replicates, out, equal_bandwidth=False):
+def replicate_section(rq, cm, anchor, im, replicates, equal_bandwidth=False):
     """BD-rate (or BD-quality) of every family against `anchor` over the replicates (the swept
     keys in curves.replicates, e.g. seed and camera_speed): per scene, remaining conditions and
     family, the mean of its per-replicate BD figures with Student's t 95 % interval (the
-    replicates taken as independent draws), their range and how many replicates gave a number."""
+    replicates taken as independent draws), their range and how many replicates gave a number.
+    Returns the lines."""
     import intervals
     higher = im.get("higher_is_better", True)
     table = rq.bd_table(cm, anchor, "quality" if equal_bandwidth else "rate", "pchip", higher)
@@ -778,9 +762,10 @@ def replicate_section(rq, cm, anchor, im, replicates, out, equal_bandwidth=False
         for fam, res in row.items():
             groups.setdefault((scene, rest, fam), []).append((reps, res.value))
     if not groups:
-        return
+        return []
     name = im["name"].upper()
     what = f"BD-{name}" if equal_bandwidth else f"BD-rate on {name}"
+    out = []
     out.append(f"{what} against **{anchor}** over the replicates ({', '.join(f'`{k}`' for k in replicates)}): the mean "
                "of the per-replicate figures (PCHIP, as above) with Student's t 95 % interval, the replicates taken as "
                "independent draws of the scene's noise and motion; n: replicates with a number (of those run).\n")
@@ -803,6 +788,7 @@ def replicate_section(rq, cm, anchor, im, replicates, out, equal_bandwidth=False
         out.append(f"| {scene} | {', '.join(f'{k}={v}' for k, v in rest) or '–'} | {fam} | {len(xs)} of {len(vals)} | "
                    f"{mean:+.{digits}f}{unit} | {ci} | {min(xs):+.{digits}f} .. {max(xs):+.{digits}f}{unit} |")
     out.append("")
+    return out
 
 
 def scatter_with_front(plot, headline, runs, xkey, xlabel, title, path, logx=False):
@@ -1079,35 +1065,44 @@ def notes_section(exp):
     return ["## Notes\n", notes if isinstance(notes, str) else "\n".join(notes), ""]
 
 
-def main(d):
+def write_report(d):
+    """Reads DIR's results and writes DIR/report.md, its plots and grids, and DIR/report.html: each
+    section from what it is given, in the order report.md shows them."""
     loaded = dr.load(d)  # checked: a damaged file is one BadResults, before matplotlib loads
     plot = load_matplotlib()
     for sub in ("plots", "grids"):
         os.makedirs(os.path.join(d, sub), exist_ok=True)
     res, metrics, headline = loaded.results, loaded.declared["image_metrics"], loaded.headline
+    exp = res["experiment"]
     ok = [r for r in res["runs"] if "metrics" in r]
     failed = [r for r in res["runs"] if "error" in r]
-    regimes = regime_tables(res["experiment"], ok, metrics)
-    header = header_section(res)
-    header = header[:1] + answer(res["experiment"], ok, metrics, regimes).lines + header[1:]
-    out = header + context_section(res["context"])
-    out += results_section(ok, failed, metrics, loaded.frames)
-    out += stages_section(ok) + plots_section(plot, d, ok, loaded.frames, headline, lead_metric(metrics))
-    out += rate_quality_section(plot, d, res["experiment"], ok, metrics)
-    out += regime_section(plot, d, regimes)
-    out += convergence_section(ok)
-    out += grids_section(plot, d, ok) + notes_section(res["experiment"])
+    regimes = regime_tables(exp, ok, metrics)
+    head = header_section(res)
+    checks = dr.load_convergence_checks(CONVERGE_DIR)
+    header = head[:1] + answer(exp, ok, metrics, regimes, checks).lines + head[1:]
+    sections = [header,
+                context_section(res["context"]),
+                results_section(ok, failed, metrics, loaded.frames),
+                stages_section(ok),
+                plots_section(plot, d, ok, loaded.frames, headline, lead_metric(metrics)),
+                rate_quality_section(plot, d, exp, ok, metrics),
+                regime_section(plot, d, regimes),
+                convergence_section(ok, checks),
+                grids_section(plot, d, ok),
+                notes_section(exp)]
     with open(os.path.join(d, "report.md"), "w") as f:
-        f.write("\n".join(out) + "\n")
+        f.write("\n".join(line for lines in sections for line in lines) + "\n")
     import report_html
     report_html.write(d, header, res, ok, failed, metrics, metric_value)
 
 
-if __name__ == "__main__":
-    if len(sys.argv) != 2:
+def main(argv):
+    """report.py RESULTS_DIR; damaged input exits 2 with one line naming the folder, never a traceback."""
+    if len(argv) != 2:
         sys.exit("usage: report.py RESULTS_DIR")
+    d = argv[1]
     try:
-        main(sys.argv[1])
+        write_report(d)
     except BadResults as e:
         print(f"dhrbench report: error: {e}", file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
@@ -1116,6 +1111,10 @@ if __name__ == "__main__":
         tb = e.__traceback__
         while tb.tb_next:
             tb = tb.tb_next
-        print(f"dhrbench report: error: {sys.argv[1]}: results.json or frames.csv holds content the report cannot "
+        print(f"dhrbench report: error: {d}: results.json or frames.csv holds content the report cannot "
               f"use ({type(e).__name__}: {str(e)[:160]}; report.py line {tb.tb_lineno})", file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
+
+
+if __name__ == "__main__":
+    main(sys.argv)

@@ -55,15 +55,16 @@ CHANGELOG.md.
 """
 
 
-def entry(name):
-    """The index lines of one `dhrbench run` report: (sort key, lines)."""
+def entry(name, checks):
+    """The index lines of one `dhrbench run` report: (sort key, lines); `checks`: the committed
+    convergence checks (dr.load_convergence_checks)."""
     d = os.path.join(REPORTS, name)
     loaded = dr.load(d)
     res = loaded.results
     metrics = loaded.declared["image_metrics"]
     ok = [r for r in res["runs"] if "metrics" in r]
     regimes = report.regime_tables(res["experiment"], ok, metrics)
-    ans = report.answer(res["experiment"], ok, metrics, regimes)
+    ans = report.answer(res["experiment"], ok, metrics, regimes, checks)
     ctx = res["context"]
     command = ctx.get("command", f"dhrbench run {res.get('experiment_path', '')}")
     first = ok[0]["config"] if ok else {}
@@ -71,7 +72,7 @@ def entry(name):
     lines = [f"### [{name}]({name}/report.md)\n",
              ans.sentence or "(no answer: the report has no successful run)",
              "",
-             report.scale_line(ok) if ok else "",
+             report.scale_line(ok, checks) if ok else "",
              "",
              f"Command: `{command} --out reports/{name}`; wall time {res.get('wall_s', float('nan')):.0f} s on "
              f"{ctx.get('cpu_model')} ({ctx.get('hardware_threads')} hardware threads), commit "
@@ -81,7 +82,7 @@ def entry(name):
     return (name != HEADLINE, not regimes, -pixels, name), lines
 
 
-def converge_lines():
+def converge_lines(checks):
     """The committed convergence checks: per file, its command and each scene's distance to the
     larger estimate."""
     d = os.path.join(REPORTS, "converge")
@@ -92,7 +93,7 @@ def converge_lines():
            "samples: the distance bounds the ground truth's own error. Reports scored against a ground truth of "
            "the same settings cite it in their \"Ground truth convergence\" section.\n",
            "| file | scenes: FLIP mean (SSIM mean) | command |", "|---|---|---|"]
-    for n, chk in report.committed_convergence_checks():
+    for n, chk in checks:
         scenes = "; ".join(f"{s['scene']} {s['summary']['flip_mean']:.4f} ({s['summary']['ssim_mean']:.4f})"
                            for s in chk["scenes"])
         out.append(f"| `converge/{n}` | {scenes} | `{report.converge_command(chk)} --out DIR` |")
@@ -100,13 +101,14 @@ def converge_lines():
 
 
 def build():
+    checks = dr.load_convergence_checks(os.path.join(REPORTS, "converge"))
     entries, others = [], []
     for name in sorted(os.listdir(REPORTS)):
         d = os.path.join(REPORTS, name)
         if not os.path.isdir(d) or name == "converge":
             continue
         if os.path.exists(os.path.join(d, "results.json")):
-            entries.append(entry(name))
+            entries.append(entry(name, checks))
         elif name in OTHER:
             what, command = OTHER[name]
             others += [f"### [{name}]({name}/report.md)\n", what, "", f"Command: `{command}`.\n"]
@@ -117,7 +119,7 @@ def build():
         out += lines
     if others:
         out += ["## Other reports\n"] + others
-    out += converge_lines()
+    out += converge_lines(checks)
     return "\n".join(out).rstrip("\n") + "\n"
 
 

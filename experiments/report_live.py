@@ -12,54 +12,32 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import dhrbench_results as dr  # noqa: E402
 
 
-def get(d, path, where):
-    """d[a][b]... for path "a.b...", a BadResults naming the file and the field when it is missing."""
-    v = d
-    for k in path.split("."):
-        if not isinstance(v, dict) or k not in v:
-            raise dr.BadResults(f"{where}: {path}: missing")
-        v = v[k]
-    return v
-
-
-def num(d, path, where):
-    v = get(d, path, where)
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise dr.BadResults(f"{where}: {path}: must be a number, got {dr.excerpt(v)}")
-    return v
-
-
 def build(d):
-    cpath, spath, rpath = (os.path.join(d, p) for p in ("client/live.json", "server/server.json", "relay.json"))
-    c, s, r = dr.load_json(cpath), dr.load_json(spath), dr.load_json(rpath)
-    sessions = get(s, "sessions", spath)
-    if not isinstance(sessions, list) or len(sessions) != 1:
-        raise dr.BadResults(f"{spath}: sessions: must hold the one session of the run, got {dr.excerpt(sessions)}")
-    ss = sessions[0]
-    C = lambda p: num(c, p, cpath)  # noqa: E731
-    S = lambda p: num(ss, p, spath + ": sessions[0]")  # noqa: E731
-    R = lambda p: num(r, p, rpath)  # noqa: E731
-    offer = get(c, "offer", cpath)
-    passes = sorted(get(c, "passes", cpath))
+    live = dr.load_live(d)
+    c, ss, r = live.client, live.session, live.relay
+    cpath, spath, rpath = live.client_path, live.server_path, live.relay_path
+    C = lambda p: dr.number(c, p, cpath)  # noqa: E731
+    S = lambda p: dr.number(ss, p, spath + ": sessions[0]")  # noqa: E731
+    R = lambda p: dr.number(r, p, rpath)  # noqa: E731
+    offer = dr.field(c, "offer", cpath)
+    passes = sorted(dr.field(c, "passes", cpath))
 
     def link(name):
-        x = get(r, name, rpath)
-        parts = [f"{get(x, 'latency', rpath + ': ' + name)} latency {num(x, 'latency_ms', rpath + ': ' + name):g} ms"]
-        if num(x, "jitter_ms", rpath + ": " + name):
+        x, where = dr.field(r, name, rpath), rpath + ": " + name
+        parts = [f"{dr.field(x, 'latency', where)} latency {dr.number(x, 'latency_ms', where):g} ms"]
+        if dr.number(x, "jitter_ms", where):
             parts.append(f"± {x['jitter_ms']:g} ms")
-        if get(x, "loss", rpath + ": " + name) != "none":
-            parts.append(f"{x['loss']} loss {100 * num(x, 'loss_rate', rpath + ': ' + name):g} %")
+        if dr.field(x, "loss", where) != "none":
+            parts.append(f"{x['loss']} loss {100 * dr.number(x, 'loss_rate', where):g} %")
         if not x.get("preserve_order", True):
             parts.append("reordering")
         return " ".join(parts)
 
     codecs = ", ".join(f"{p} {offer.get(p + '_codec', {}).get('name')}" for p in passes)
     denoisers = ", ".join(f"{p} {offer.get(p + '_denoiser', {}).get('name')}" for p in passes)
-    predictors = ", ".join(f"{p} {get(c, 'predictor.' + p + '.name', cpath)}" for p in passes)
+    predictors = ", ".join(f"{p} {dr.field(c, 'predictor.' + p + '.name', cpath)}" for p in passes)
     q = lambda m, k: C(f"quality.{m}.{k}")  # noqa: E731
-    q = lambda m, k: C(f"quality.{m}.{k}")  # noqa: E731
-    saved = sorted(f for f in os.listdir(os.path.join(d, "client", "frames")) if f.endswith(".png")) \
-        if os.path.isdir(os.path.join(d, "client", "frames")) else []
+    saved = live.saved_frames
     ages = [C(f"passes.{p}.age_ms.median") for p in passes]
     out = [
         "# Live mode on loopback: server, relay and client as three processes\n",

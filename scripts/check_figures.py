@@ -45,8 +45,8 @@ sys.path.insert(0, os.path.join(ROOT, "experiments"))
 import dhrbench_results as dr  # noqa: E402  (results.json and frames.csv(.gz) readers, errors naming the file)
 
 # Metric keys measured on the wall clock: they depend on the machine and its load.
-TIMING_KEYS = {"stages_wall", "client_frame_ms_median", "client_frame_ms_p95", "client_fps_wall", "wall_s"}
-TIMING_COLUMNS = {"client_wall_ms"}
+TIMING_KEYS = frozenset({"stages_wall", "client_frame_ms_median", "client_frame_ms_p95", "client_fps_wall", "wall_s"})
+TIMING_COLUMNS = frozenset({"client_wall_ms"})
 # Renamed keys and columns: new name -> the name in older results.
 ALIASES = {
     # the backends record's keys are the run settings' keys (core/run_config.cpp); older results
@@ -58,23 +58,12 @@ ALIASES = {
 }
 
 
-def declared_wall_clock(results_path):
-    """The wall-clock run metrics and frames.csv columns a results.json declares (none if older)."""
+def load_results(path):
+    """(results.json parsed, None), or (None, the BadResults that says why it cannot be read)."""
     try:
-        declared = dr.load_json(results_path).get("declared", {})
-    except (OSError, ValueError, AttributeError):
-        return set(), set()
-    keys = {m["key"] for m in declared.get("run_metrics", []) if m.get("wall_clock")}
-    return keys, set(declared.get("frames_csv_wall_clock_columns", []))
-
-
-def pass_names_of_runs(results_path):
-    """Per run id, the names of the passes it sent (metrics.passes[].pass)."""
-    try:
-        runs = dr.load_json(results_path)["runs"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return {}
-    return {r["id"]: [p["pass"] for p in r.get("metrics", {}).get("passes", [])] for r in runs}
+        return dr.load_json(path), None
+    except dr.BadResults as e:
+        return None, e
 
 
 def old_frame_columns(row, passes):
@@ -91,17 +80,19 @@ def old_frame_columns(row, passes):
     return out
 
 
-def flatten(value, prefix, out):
+def flatten(value, prefix, out, skip):
+    """{path: value} of every leaf under `value`, keys in `skip` left out, renamed keys under
+    their old names (ALIASES)."""
     if isinstance(value, dict):
         for k, v in value.items():
-            if k in TIMING_KEYS:
+            if k in skip:
                 continue
-            flatten(v, f"{prefix}.{ALIASES.get(k, k)}" if prefix else ALIASES.get(k, k), out)
+            flatten(v, f"{prefix}.{ALIASES.get(k, k)}" if prefix else ALIASES.get(k, k), out, skip)
     elif isinstance(value, list):
         for i, v in enumerate(value):
             # lists of records with a "pass" name are matched by that name, not by position
             key = v.get("pass") if isinstance(v, dict) and "pass" in v else str(i)
-            flatten(v, f"{prefix}[{key}]", out)
+            flatten(v, f"{prefix}[{key}]", out, skip)
     else:
         out[prefix] = value
 
@@ -132,15 +123,9 @@ def match_runs(new_runs, old_runs):
     return {new_ids[k]: old_ids.get(k) for k in new_ids}
 
 
-def compare_results(new_path, old_path, problems, notes, run_map):
-    """Compares results.json run by run; fills `run_map` (new run id -> baseline run id) for
-    compare_frames."""
-    try:
-        new = dr.load_json(new_path)
-        old = dr.load_json(old_path)
-    except (OSError, ValueError) as e:  # dr.BadResults is a ValueError naming the file
-        problems.append(f"cannot read results: {e}")
-        return 0
+def compare_results(new, old, problems, notes, run_map, skip):
+    """Compares two parsed results.json run by run, the metrics in `skip` left out; fills
+    `run_map` (new run id -> baseline run id) for compare_frames."""
     run_map.clear()
     run_map.update(match_runs(new["runs"], old["runs"]))
     old_runs = {r["id"]: r for r in old["runs"]}
@@ -157,8 +142,8 @@ def compare_results(new_path, old_path, problems, notes, run_map):
     for rid in sorted(set(new_runs) & set(old_runs)):  # the baseline's ids
         for part in ("metrics", "backends"):
             a, b = {}, {}
-            flatten(new_runs[rid].get(part, {}), part, a)
-            flatten(old_runs[rid].get(part, {}), part, b)
+            flatten(new_runs[rid].get(part, {}), part, a, skip)
+            flatten(old_runs[rid].get(part, {}), part, b, skip)
             for k in sorted(set(a) | set(b)):
                 compared += 1
                 if k not in b and part == "backends" and ".params." in k:
@@ -178,24 +163,24 @@ def compare_results(new_path, old_path, problems, notes, run_map):
     return compared
 
 
-def read_frames(path, passes_of_run):
+def read_frames(path, passes_of_run, skip):
     """frames.csv, or frames.csv.gz beside it (how a published report larger than 4 MB keeps it:
-    scripts/regenerate_reports.sh), keyed by (run, frame), wall-clock columns left out."""
+    scripts/regenerate_reports.sh), keyed by (run, frame), the columns in `skip` left out."""
     rows = [old_frame_columns(r, passes_of_run.get(r["run"], [])) for r in dr.read_csv_rows(path)]
-    return {(r["run"], r["frame"]): {ALIASES.get(k, k): v for k, v in r.items() if k not in TIMING_COLUMNS}
+    return {(r["run"], r["frame"]): {ALIASES.get(k, k): v for k, v in r.items() if k not in skip}
             for r in rows}
 
 
-def compare_frames(new_path, old_path, problems, run_map, notes=None):
+def compare_frames(new_path, old_path, new_passes, old_passes, problems, run_map, notes, skip):
+    """Compares two frames.csv row by row (dr.pass_names of each side's results for the older
+    column names), the columns in `skip` left out."""
     try:
-        passes = pass_names_of_runs(os.path.join(os.path.dirname(old_path), "results.json"))
-        old = read_frames(old_path, passes)
-        new_passes = pass_names_of_runs(os.path.join(os.path.dirname(new_path), "results.json"))
+        old = read_frames(old_path, old_passes, skip)
         # The new rows under the baseline's run ids (run_map); rows of runs newer than the
         # baseline are left out (compare_results notes those runs).
         old_runs = {run for run, _ in old}
         new = {}
-        for (run, frame), row in read_frames(new_path, new_passes).items():
+        for (run, frame), row in read_frames(new_path, new_passes, skip).items():
             old_id = run_map.get(run, run)
             if old_id in old_runs:
                 new[(old_id, frame)] = dict(row, run=old_id)
@@ -209,7 +194,7 @@ def compare_frames(new_path, old_path, problems, run_map, notes=None):
         a, b = new[key], old[key]
         for col in sorted(set(a) | set(b)):
             compared += 1
-            if col not in b and notes is not None:
+            if col not in b:
                 # a column added after the baseline (a new pass's group): new, nothing changed
                 notes.add(f"frames.csv column {col} (newer than the baseline)")
             elif a.get(col) != b.get(col):
@@ -217,14 +202,29 @@ def compare_frames(new_path, old_path, problems, run_map, notes=None):
     return compared
 
 
-def compare_folders(new, old):
+def compare(new, old):
+    """(figures compared, differences, notes) of results folder NEW against OLD: results.json and
+    frames.csv, without the wall-clock figures (TIMING_KEYS, TIMING_COLUMNS and those NEW's
+    results declare)."""
     problems, notes = [], set()
-    keys, columns = declared_wall_clock(os.path.join(new, "results.json"))
-    TIMING_KEYS.update(keys)
-    TIMING_COLUMNS.update(columns)
+    new_res, new_error = load_results(os.path.join(new, "results.json"))
+    old_res, old_error = load_results(os.path.join(old, "results.json"))
+    keys, columns = dr.wall_clock_fields(new_res)
     run_map = {}
-    n = compare_results(os.path.join(new, "results.json"), os.path.join(old, "results.json"), problems, notes, run_map)
-    n += compare_frames(os.path.join(new, "frames.csv"), os.path.join(old, "frames.csv"), problems, run_map, notes)
+    if new_error or old_error:
+        problems.append(f"cannot read results: {new_error or old_error}")
+        n = 0
+    else:
+        n = compare_results(new_res, old_res, problems, notes, run_map, TIMING_KEYS | keys)
+    n += compare_frames(os.path.join(new, "frames.csv"), os.path.join(old, "frames.csv"), dr.pass_names(new_res),
+                        dr.pass_names(old_res), problems, run_map, notes, TIMING_COLUMNS | columns)
+    return n, problems, notes
+
+
+def compare_folders(new, old):
+    """--compare NEW OLD: prints the differences (at most 40) or that all figures are identical;
+    1 when any differ."""
+    n, problems, _ = compare(new, old)
     if problems:
         print(f"{new} against {old}: {len(problems)} of {n} figures differ")
         for p in problems[:40]:
@@ -297,14 +297,7 @@ def main():
                 failed = True
                 continue
             print(f"{name}: ran in {time.time() - t0:.0f} s")
-        problems, notes = [], set()
-        base = os.path.join(args.baseline, name)
-        keys, columns = declared_wall_clock(os.path.join(out, "results.json"))
-        TIMING_KEYS.update(keys)
-        TIMING_COLUMNS.update(columns)
-        run_map = {}
-        n = compare_results(os.path.join(out, "results.json"), os.path.join(base, "results.json"), problems, notes, run_map)
-        n += compare_frames(os.path.join(out, "frames.csv"), os.path.join(base, "frames.csv"), problems, run_map, notes)
+        n, problems, notes = compare(out, os.path.join(args.baseline, name))
         for note in sorted(notes):
             print(f"{name}: note: only in the new results: {note}")
         if problems:

@@ -20,6 +20,9 @@ import subprocess
 import sys
 import tempfile
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments"))
+import dhrbench_results as dr  # noqa: E402
+
 
 def converge(dhrbench, scene, args, sampling, ao_rays, spl, factor, out, cache):
     cmd = [dhrbench, "converge", "--scene", scene, "--width", str(args.width), "--height", str(args.height),
@@ -30,8 +33,10 @@ def converge(dhrbench, scene, args, sampling, ao_rays, spl, factor, out, cache):
     r = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if r.returncode != 0:
         sys.exit(f"ground_truth_sampling: {' '.join(cmd)} failed:\n{r.stdout}")
-    with open(os.path.join(out, "convergence.json")) as f:
-        return json.load(f)["scenes"][0]["summary"]
+    try:
+        return dr.load_convergence_check(os.path.join(out, "convergence.json"))["scenes"][0]["summary"]
+    except dr.BadResults as e:
+        sys.exit(f"ground_truth_sampling: {e}")
 
 
 def main():

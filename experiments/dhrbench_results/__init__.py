@@ -1,11 +1,15 @@
 """Reads what 'dhrbench run' wrote in a results folder: results.json and frames.csv (or the
 frames.csv.gz a published report keeps), checked field by field the way experiments/report.py
 needs them; every problem is one BadResults naming the file and the field, never a traceback.
+Also the other results the reports read: the convergence checks of 'dhrbench converge'
+(reports/converge/*.json) and the three files of a live run (reports/live).
 
     import dhrbench_results as dr
     res = dr.load("reports/quick")          # checked: res.results, res.declared, res.frames (rows)
     runs = dr.runs_frame(res)               # pandas: one row per run, units in runs.attrs["units"]
     frames = dr.frames_frame(res)           # pandas: one row per displayed frame
+    checks = dr.load_convergence_checks("reports/converge")  # [(file name, check)]
+    live = dr.load_live("reports/live")     # client, server session and relay records
 
     python3 -m dhrbench_results DIR         # a short summary table (PYTHONPATH=experiments)
 
@@ -334,6 +338,93 @@ def load(d):
     frames = load_frames(path, checker.declared["image_metrics"][0]["columns"]["local"])
     check_frames_against_runs(frames, res["runs"], os.path.join(d, "frames.csv"))
     return Results(res, checker.declared, frames, results_path, path)
+
+
+def wall_clock_fields(results):
+    """(run metric keys, frames.csv columns) that a parsed results.json declares measured on the
+    wall clock; empty sets for results written before the "declared" record."""
+    declared = results.get("declared", {}) if isinstance(results, dict) else {}
+    keys = {m["key"] for m in declared.get("run_metrics", []) if m.get("wall_clock")}
+    return keys, set(declared.get("frames_csv_wall_clock_columns", []))
+
+
+def pass_names(results):
+    """{run id: the names of the passes it sent (metrics.passes[].pass)} of a parsed results.json;
+    {} where it holds no list of runs with ids."""
+    try:
+        return {r["id"]: [p["pass"] for p in r.get("metrics", {}).get("passes", [])] for r in results["runs"]}
+    except (KeyError, TypeError):
+        return {}
+
+
+def load_convergence_check(path):
+    """One convergence.json of 'dhrbench converge', checked: "scenes" a list of {scene, frames,
+    summary of numbers}; BadResults naming the file otherwise."""
+    chk = load_json(path)
+    scenes = chk.get("scenes") if isinstance(chk, dict) else None
+    if not isinstance(scenes, list) or not all(
+            isinstance(s, dict) and isinstance(s.get("frames"), list) and isinstance(s.get("summary"), dict)
+            and all(isinstance(v, (int, float)) for v in s["summary"].values()) for s in scenes):
+        raise BadResults(f"{path}: not the convergence.json of `dhrbench converge` (scenes: a list of "
+                         "{scene, frames, summary of numbers})")
+    return chk
+
+
+def load_convergence_checks(folder):
+    """[(file name, check)] of FOLDER/*.json in name order, each checked (load_convergence_check):
+    a damaged check is an error naming the file, never skipped. [] when the folder cannot be
+    listed."""
+    try:
+        names = sorted(n for n in os.listdir(folder) if n.endswith(".json"))
+    except OSError:
+        return []
+    return [(n, load_convergence_check(os.path.join(folder, n))) for n in names]
+
+
+def field(d, path, where):
+    """d[a][b]... for path "a.b...", a BadResults naming `where` and the field when it is missing."""
+    v = d
+    for k in path.split("."):
+        if not isinstance(v, dict) or k not in v:
+            raise BadResults(f"{where}: {path}: missing")
+        v = v[k]
+    return v
+
+
+def number(d, path, where):
+    """field() that must be a number (not a boolean)."""
+    v = field(d, path, where)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise BadResults(f"{where}: {path}: must be a number, got {excerpt(v)}")
+    return v
+
+
+class LiveResults(NamedTuple):
+    """A live run's folder (scripts/live_loopback.sh DIR): the client's summary (client/live.json),
+    the server's one session (server/server.json sessions[0]), the relay's record (relay.json),
+    the paths they were read from, and the names of the client's saved frames (client/frames/*.png,
+    sorted)."""
+    client: dict
+    session: dict
+    relay: dict
+    client_path: str
+    server_path: str
+    relay_path: str
+    saved_frames: list
+
+
+def load_live(d):
+    """Reads DIR/client/live.json, DIR/server/server.json and DIR/relay.json (LiveResults); the
+    server must hold exactly one session. The fields are checked where they are read (field,
+    number)."""
+    cpath, spath, rpath = (os.path.join(d, p) for p in ("client/live.json", "server/server.json", "relay.json"))
+    c, s, r = load_json(cpath), load_json(spath), load_json(rpath)
+    sessions = field(s, "sessions", spath)
+    if not isinstance(sessions, list) or len(sessions) != 1:
+        raise BadResults(f"{spath}: sessions: must hold the one session of the run, got {excerpt(sessions)}")
+    frames = os.path.join(d, "client", "frames")
+    saved = sorted(f for f in os.listdir(frames) if f.endswith(".png")) if os.path.isdir(frames) else []
+    return LiveResults(c, sessions[0], r, cpath, spath, rpath, saved)
 
 
 def _pandas():

@@ -11,13 +11,14 @@ N machines like the one that measured RESULTS_JSON), the speed-up and the idle s
 and merge are not included (see README.md, "On a Slurm cluster").
 """
 import argparse
-import json
 import os
 import re
 import subprocess
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.join(ROOT, "experiments"))
+import dhrbench_results as dr  # noqa: E402
 
 
 def main():
@@ -29,7 +30,10 @@ def main():
     ap.add_argument("--shards", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32])
     ap.add_argument("--dhrbench", default=os.path.join(ROOT, "build/experiments/dhrbench"))
     args = ap.parse_args()
-    runs = {r["id"]: r for r in json.load(open(args.results))["runs"]}
+    try:
+        runs = {r["id"]: r for r in dr.load_json(args.results)["runs"]}
+    except dr.BadResults as e:
+        sys.exit(f"plan_time: {e}")
     total = None
     for n in args.shards:
         cmd = [args.dhrbench, "validate", args.experiment, "--shards", str(n)]
