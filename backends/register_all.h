@@ -3,7 +3,7 @@
 // backend (docs/architecture.md, "The frame loop").
 #pragma once
 
-#include "core/backend.h"
+#include "core/backend/backend.h"
 
 namespace dhr {
 

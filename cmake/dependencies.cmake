@@ -36,9 +36,9 @@ dhr_find_pkgconfig(AVCODEC libavcodec libavcodec-dev)
 dhr_find_pkgconfig(AVUTIL libavutil libavutil-dev)
 dhr_find_pkgconfig(SWSCALE libswscale libswscale-dev)
 dhr_find_pkgconfig(X264 x264 libx264-dev)
-# Reed-Solomon erasure codes for the packets' forward error correction (core/fec.h).
+# Reed-Solomon erasure codes for the packets' forward error correction (core/net/fec.h).
 dhr_find_pkgconfig(ISAL libisal libisal-dev)
-# HMAC-SHA256 for live mode's optional datagram authentication (--key-file, core/live_protocol.h).
+# HMAC-SHA256 for live mode's optional datagram authentication (--key-file, core/live/live_protocol.h).
 dhr_find_pkgconfig(CRYPTO libcrypto libssl-dev)
 if(DHR_BUILD_TESTS)
   dhr_find_config(GTest "libgtest-dev libgmock-dev" CONFIG)

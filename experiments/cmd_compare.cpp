@@ -1,10 +1,10 @@
 // dhrbench compare A.png B.png [--map OUT.png]: the benchmark's frame metrics between any two
 // images, so that a user can score any pair exactly the way the benchmark does.
-#include "core/error.h"
-#include "core/image_io.h"
-#include "core/flip.h"
-#include "core/metrics.h"
-#include "core/results.h"
+#include "core/base/error.h"
+#include "core/buffers/image_io.h"
+#include "core/metrics/flip.h"
+#include "core/metrics/metrics.h"
+#include "core/results/results.h"
 #include "experiments/commands.h"
 
 #include <fmt/format.h>

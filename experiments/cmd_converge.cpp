@@ -1,18 +1,18 @@
-// dhrbench converge: is the ground truth converged? Renders the ground truth (core/reference.h)
+// dhrbench converge: is the ground truth converged? Renders the ground truth (core/pass/reference.h)
 // of a few frames per scene with N samples (AO rays and rays per area light) and again with
 // factor x N and an independent seed, and scores one against the other with every image metric
-// (core/results.h). With independent estimates, the difference's variance is the N estimate's
+// (core/results/results.h). With independent estimates, the difference's variance is the N estimate's
 // plus the larger one's (1 + 1/factor times the N estimate's own), so these figures bound the
 // ground truth's own error from above (docs/architecture.md, "The references").
-#include "core/error.h"
-#include "core/json_io.h"
-#include "core/image_io.h"
-#include "core/metrics.h"
-#include "core/raster.h"
-#include "core/reference.h"
-#include "core/results.h"
-#include "core/rt_scene.h"
-#include "core/scene_load.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/buffers/image_io.h"
+#include "core/metrics/metrics.h"
+#include "core/pass/reference.h"
+#include "core/raster/raster.h"
+#include "core/results/results.h"
+#include "core/scene/scene_load.h"
+#include "core/trace/rt_scene.h"
 #include "experiments/commands.h"
 
 #include <fmt/format.h>

@@ -1,7 +1,7 @@
 // dhrbench list: every registered backend with its parameters, defaults and ranges, and an
 // example of each in the syntax experiment files and --set accept (experiments/list_examples.h).
 #include "backends/register_all.h"
-#include "core/backend.h"
+#include "core/backend/backend.h"
 #include "experiments/commands.h"
 #include "experiments/list_examples.h"
 

@@ -1,13 +1,13 @@
-// dhrbench serve / client / relay: live mode over real UDP (core/live.h). Server and client
+// dhrbench serve / client / relay: live mode over real UDP (core/live/live.h). Server and client
 // take the same settings (a JSON object shaped like an experiment's "run", from --config,
 // plus --set overrides) and refuse to start a session when they disagree.
-#include "core/error.h"
-#include "core/experiment.h"
 #include "backends/register_all.h"
-#include "core/json_io.h"
-#include "core/live.h"
-#include "core/reference.h"
-#include "core/scene_load.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/experiment/experiment.h"
+#include "core/live/live.h"
+#include "core/pass/reference.h"
+#include "core/scene/scene_load.h"
 #include "experiments/commands.h"
 
 #include <fmt/format.h>
@@ -47,7 +47,7 @@ void add_common(CLI::App* cmd, Common& c) {
   cmd->add_option("--config", c.config,
                   "JSON file with the run settings, shaped like an experiment's \"run\" object: width, height, "
                   "display_hz, seed, trace {...}, passes {visibility, ao: {codec, denoiser, predictor}} each {name, params}, "
-                  "max_payload_bytes, ... (see core/experiment.h)");
+                  "max_payload_bytes, ... (see core/experiment/experiment.h)");
   cmd->add_option("--set", c.sets, "Override one setting: dotted.key=value (repeatable), e.g. --set width=640 --set passes.ao.codec.name=zstd "
                   "(every key: dhrbench settings; the version-1 keys such as ao_codec are accepted too)");
   cmd->add_option("--scene-path", c.scene_path, "Folder to look for scene assets in (repeatable)");
@@ -204,7 +204,7 @@ Runner add_relay_command(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "relay",
       "An impairment relay between client and server (this kernel has no netem): every datagram goes through a\n"
-      "seeded link per direction (the simulator's core/network.h: loss, latency with jitter or a trace,\n"
+      "seeded link per direction (the simulator's core/net/network.h: loss, latency with jitter or a trace,\n"
       "reordering when order is not preserved, a bandwidth cap with a bounded queue) and may be duplicated.\n"
       "Links are JSON objects with the simulator's keys (latency: constant|normal|trace, latency_ms, jitter_ms,\n"
       "loss: none|independent|gilbert_elliott, loss_rate, bandwidth_mbps, queue_limit_bytes, preserve_order, ...),\n"

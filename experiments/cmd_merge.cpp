@@ -1,15 +1,15 @@
 // dhrbench merge OUT SHARD_DIR...: joins the folders of a sharded sweep (`dhrbench run
-// EXPERIMENT --shard K/N`, core/shard.h) into one results folder, as an unsharded run writes it.
+// EXPERIMENT --shard K/N`, core/experiment/shard.h) into one results folder, as an unsharded run writes it.
 // Works on the files: each shard's shard.json, results.json, frames.csv and images/. Checks
 // first, and reports every problem at once before writing anything: the shards belong to the
 // same experiment (hash of its JSON after --set overrides and its runs) and commit, every shard
 // of 1..N is there once, each finished ("complete"), and together they hold every run once.
 // A failed or unfinished shard is reported with its error and the runs it held.
-#include "core/error.h"
-#include "core/experiment.h"
-#include "core/json_io.h"
-#include "core/results_check.h"
-#include "core/shard.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/experiment/experiment.h"
+#include "core/experiment/shard.h"
+#include "core/results/results_check.h"
 #include "experiments/commands.h"
 
 #include <fmt/format.h>

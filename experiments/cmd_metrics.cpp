@@ -1,7 +1,7 @@
-// dhrbench metrics: every figure dhrbench writes (core/results.cpp's tables): the image metrics
+// dhrbench metrics: every figure dhrbench writes (core/results/results.cpp's tables): the image metrics
 // scored per displayed frame, the per-run and per-pass metrics of results.json, with units and
 // meaning; the same record results.json carries as "declared".
-#include "core/results.h"
+#include "core/results/results.h"
 #include "experiments/commands.h"
 
 #include <fmt/format.h>

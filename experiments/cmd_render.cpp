@@ -1,16 +1,16 @@
 // dhrbench render: one frame of a scene to images -- the client's G-buffer, the server's
 // passes, the composite and the references -- with each stage's wall time.
-#include "core/composite.h"
-#include "core/error.h"
-#include "core/json_io.h"
-#include "core/passes.h"
-#include "core/image_io.h"
-#include "core/raster.h"
-#include "core/reference.h"
-#include "core/rt_scene.h"
-#include "core/scene_load.h"
-#include "core/trace.h"
-#include "core/visualize.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/buffers/image_io.h"
+#include "core/buffers/visualize.h"
+#include "core/pass/composite.h"
+#include "core/pass/passes.h"
+#include "core/pass/reference.h"
+#include "core/raster/raster.h"
+#include "core/scene/scene_load.h"
+#include "core/trace/rt_scene.h"
+#include "core/trace/trace.h"
 #include "experiments/commands.h"
 
 #include <fmt/format.h>

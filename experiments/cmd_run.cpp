@@ -1,23 +1,23 @@
-// dhrbench run / validate / report: the experiment runner (core/experiment.h describes the
+// dhrbench run / validate / report: the experiment runner (core/experiment/experiment.h describes the
 // file). A run validates the whole sweep first and reports every problem at once; then it
 // runs each configuration on each scene, records a failing configuration with its error and
 // goes on, and writes results.json, frames.csv, images and the report.
-#include "core/error.h"
 #include "backends/register_all.h"
-#include "core/experiment.h"
-#include "core/frame_loop.h"
-#include "core/flip.h"
-#include "core/image_io.h"
-#include "core/json_io.h"
-#include "core/metrics.h"
-#include "core/passes.h"
-#include "core/process.h"
-#include "core/reference.h"
-#include "core/results.h"
-#include "core/results_check.h"
-#include "core/run_check.h"
-#include "core/scene_load.h"
-#include "core/shard.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/base/process.h"
+#include "core/buffers/image_io.h"
+#include "core/config/run_check.h"
+#include "core/experiment/experiment.h"
+#include "core/experiment/shard.h"
+#include "core/metrics/flip.h"
+#include "core/metrics/metrics.h"
+#include "core/pass/passes.h"
+#include "core/pass/reference.h"
+#include "core/results/results.h"
+#include "core/results/results_check.h"
+#include "core/scene/scene_load.h"
+#include "core/sim/frame_loop.h"
 #include "experiments/commands.h"
 #include "experiments/context.h"
 
@@ -168,7 +168,7 @@ int write_report(const std::string& dir) {
 namespace {
 
 // Reads DIR/results.json the way every JSON is read (depth-bounded, errors naming the file) and
-// checks it and DIR/frames.csv against each other (core/results_check.h); report.py checks every
+// checks it and DIR/frames.csv against each other (core/results/results_check.h); report.py checks every
 // field it reads besides. A published report may hold frames.csv.gz instead (report.py reads it).
 void check_results_folder(const std::string& dir) {
   const fs::path path = fs::path(dir) / "results.json";
@@ -272,7 +272,7 @@ Runner add_run_command(CLI::App& app) {
                                      [&](int f, int total) { progress.update(i, spec.label, f, total); });
         record["config"] = r.config;
         // Effective backend parameters (defaults filled in), one entry per backend setting of
-        // core/run_config.cpp, under its key ("passes.ao.codec").
+        // core/config/run_config.cpp, under its key ("passes.ao.codec").
         const Registries& reg = registries();
         record["backends"] = nlohmann::json::object();
         for (const RunSetting& s : run_settings()) {

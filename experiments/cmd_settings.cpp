@@ -1,7 +1,7 @@
-// dhrbench settings: every run setting (core/run_config.cpp's table) with its type, range or
+// dhrbench settings: every run setting (core/config/run_config.cpp's table) with its type, range or
 // choices, default, doc and flags: what an experiment's "run" object, --set and live mode's
 // --config accept.
-#include "core/run_config.h"
+#include "core/config/run_config.h"
 #include "experiments/commands.h"
 
 #include <fmt/format.h>

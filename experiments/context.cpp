@@ -2,8 +2,8 @@
 // result (after Google Benchmark's context): the code, the build, the machine, the libraries.
 #include "experiments/context.h"
 
-#include "core/process.h"
-#include "core/rt_scene.h"
+#include "core/base/process.h"
+#include "core/trace/rt_scene.h"
 
 #include <OpenImageIO/imageio.h>
 #include <lz4.h>
@@ -30,7 +30,7 @@ namespace dhr::cli {
 namespace {
 
 // A command's standard output without its trailing newlines; empty when it fails. Run from an
-// argument vector (core/process.h), never a shell: the source folder may hold any character.
+// argument vector (core/base/process.h), never a shell: the source folder may hold any character.
 std::string run_command(const std::vector<std::string>& argv) {
   ProcessResult r = run_process(argv, {.capture_out = true, .err = ProcessOptions::Err::Discard, .max_out = 1 << 16});
   if (!r.ok()) return "";
@@ -84,7 +84,7 @@ nlohmann::json run_context(const std::string& build_type) {
   c["sanitizers"] = false;
 #endif
   c["cpu_model"] = cpu_model();
-  // Embree's kernels: results differ between ISAs on rays that graze an edge (core/rt_scene.h).
+  // Embree's kernels: results differ between ISAs on rays that graze an edge (core/trace/rt_scene.h).
   c["embree_isa"] = embree_isa();
   c["hardware_threads"] = std::thread::hardware_concurrency();
   utsname u{};

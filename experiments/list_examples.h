@@ -1,5 +1,5 @@
 // The backend examples that `dhrbench list` prints, in the one syntax that experiment files,
-// --config files and --set accept (core/run_config.cpp, the Backend settings):
+// --config files and --set accept (core/config/run_config.cpp, the Backend settings):
 //
 //   "passes": {"ao": {"codec": {"name": "zstd", "params": {"level": 3}}}}   in an experiment's "run"
 //   --set run.passes.ao.codec='{"name":"zstd","params":{"level":3}}'         on the command line
@@ -8,8 +8,8 @@
 // loader and creates its backend, without a library of its own.
 #pragma once
 
-#include "core/backend.h"
-#include "core/run_config.h"
+#include "core/backend/backend.h"
+#include "core/config/run_config.h"
 
 #include <nlohmann/json.hpp>
 
@@ -49,7 +49,7 @@ struct BackendExample {
 };
 
 // The keys of an experiment's "run" that take a backend of each kind (the Backend settings of
-// core/run_config.cpp).
+// core/config/run_config.cpp).
 inline std::vector<std::string> run_keys(const std::string& kind) {
   std::vector<std::string> keys;
   for (const RunSetting& s : run_settings())

@@ -1,5 +1,5 @@
 // dhrbench: the command-line entry point. Subcommands live in cmd_*.cpp.
-#include "core/error.h"
+#include "core/base/error.h"
 #include "experiments/commands.h"
 
 #include <cstdio>

@@ -13,7 +13,7 @@ then compares OUT/NAME against reports/NAME (or against --baseline DIR/NAME):
 Runs are matched by what they are (scene, configuration, settings), not by position, so a
 configuration inserted into an experiment still compares the runs it did not change; a run only in
 the new results is a note, one only in the baseline a difference.
-The wall-clock keys and columns are read from the new results' "declared" record (core/results.h),
+The wall-clock keys and columns are read from the new results' "declared" record (core/results/results.h),
 joined with TIMING_KEYS / TIMING_COLUMNS for results older than that record.
 Values must be equal bit for bit (floats as written); a figure only in the new results (a metric,
 a backend setting or a frames.csv column added since the baseline) is listed as a note, one only
@@ -49,7 +49,7 @@ TIMING_KEYS = frozenset({"stages_wall", "client_frame_ms_median", "client_frame_
 TIMING_COLUMNS = frozenset({"client_wall_ms"})
 # Renamed keys and columns: new name -> the name in older results.
 ALIASES = {
-    # the backends record's keys are the run settings' keys (core/run_config.cpp); older results
+    # the backends record's keys are the run settings' keys (core/config/run_config.cpp); older results
     # have these names, with one "predictor" for the visibility and the AO pass.
     "passes.visibility.codec": "visibility_codec", "passes.ao.codec": "ao_codec",
     "passes.colour.codec": "colour_codec", "passes.visibility.denoiser": "visibility_denoiser",

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Writes the capacity traces in experiments/traces/ (LinkConfig::capacity_trace_file, Mb/s per
-sample; core/network.h), deterministically:
+sample; core/net/network.h), deterministically:
 
   capacity_step.txt    10 Mb/s for 1 s, 2 Mb/s for 1 s, 10 Mb/s for 1 s (a step down and back)
   capacity_ramp.txt    10 Mb/s falling linearly to 1 Mb/s over 2 s, then rising back over 2 s

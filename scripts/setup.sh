@@ -16,7 +16,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev
   # live mode's datagram authentication (HMAC-SHA256, --key-file)
   libssl-dev
-  # Reed-Solomon forward error correction of the packets (core/fec.h)
+  # Reed-Solomon forward error correction of the packets (core/net/fec.h)
   libisal-dev
   # tests: the broken models that the loader must reject
   assimp-testmodels

@@ -12,8 +12,8 @@
 //
 // Run: build-codec/tests/bench_codecs [--benchmark_repetitions=5 --benchmark_report_aggregates_only=true]
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/buffer_layout.h"
+#include "core/backend/backend.h"
+#include "core/buffers/buffer_layout.h"
 #include "tests/support_buffers.h"
 
 #include <benchmark/benchmark.h>

@@ -3,7 +3,7 @@
 // measured"). Goal: svgf_ao costs less than one extra AO ray per pixel.
 //
 // Scene: scenes/room.json (the built-in PINK ROOM stand-in), G-buffer by the rasterizer
-// (core/raster.h) at t = 1 s of its camera path, AO traced by core/trace.h with the scene's
+// (core/raster/raster.h) at t = 1 s of its camera path, AO traced by core/trace/trace.h with the scene's
 // radius. Denoiser input: 8-ray AO counts (full_scale 8), four noise realisations (frames
 // 0..3) cycled so every frame brings new noise.
 //   BM_TraceAoOneRay            : trace_ao with 1 ray per pixel (the ceiling)
@@ -30,7 +30,7 @@
 // history {1, 8}: SSIM and MAE (8-bit levels) of the denoised AO against
 // converged AO (1024 rays; --reference_rays=N), with trace and denoise wall time. The camera is
 // static at t = 1 s of the scene's path; frame f traces a fresh noise realisation (frame
-// index f of core/rng.h) and the denoiser keeps its history, so "frame 8" is the best case of
+// index f of core/base/rng.h) and the denoiser keeps its history, so "frame 8" is the best case of
 // the temporal denoisers (a still camera) and "frame 1" their worst (no history; a camera
 // cut). The spatial denoisers (none, atrous) have no history: their frame-8 row is just
 // another noise realisation. Times are the fastest of several runs on the shared machine:
@@ -50,15 +50,15 @@
 //      build-*/tests/bench_denoise --accuracy [--scenes=room,temple] [--csv=PATH] [--reference_rays=1024]
 //          [--frames=8] [--denoisers='svgf_ao svgf_ao{"light_history":8}']
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/error.h"
-#include "core/gbuffer.h"
-#include "core/metrics.h"
-#include "core/raster.h"
-#include "core/rt_scene.h"
-#include "core/scene.h"
-#include "core/scene_load.h"
-#include "core/trace.h"
+#include "core/backend/backend.h"
+#include "core/base/error.h"
+#include "core/buffers/gbuffer.h"
+#include "core/metrics/metrics.h"
+#include "core/raster/raster.h"
+#include "core/scene/scene.h"
+#include "core/scene/scene_load.h"
+#include "core/trace/rt_scene.h"
+#include "core/trace/trace.h"
 
 #include <benchmark/benchmark.h>
 #include <tbb/parallel_for.h>

@@ -1,12 +1,12 @@
 // Image metrics at 1280x720, each beside a ceiling or floor timed in the same run:
-//  - SSIM (luma) in both conventions, SsimBorder::Mirrored (core/metrics.h's default) and
+//  - SSIM (luma) in both conventions, SsimBorder::Mirrored (core/metrics/metrics.h's default) and
 //    SsimBorder::Valid (the reference convention), against OpenCV's quality module
 //    (cv::quality::QualitySSIM) on the same plane;
 //  - FLIP against a memory-bandwidth floor of the same image size: one pass that reads both
 //    8-bit RGB inputs and writes a float per pixel, the least any full-image error map costs;
 //    whole (both images) and its test half (the reference's features computed once, as the
 //    runner scores every frame of a run against one reference);
-//  - FLIP's powers (core/pow_row.h) against the library's powf called per element, and FLIP's
+//  - FLIP's powers (core/base/pow_row.h) against the library's powf called per element, and FLIP's
 //    test half with each;
 //  - the temporal stability scores of one frame step against their previous sequential loop;
 //  - the metrics' filter taps alone at this CPU's peak rate (BM_Metrics_taps_floor): the least
@@ -15,12 +15,12 @@
 // (the metrics use all cores through TBB) and process CPU ms per iteration summed over all
 // threads (on a shared, loaded machine the wall time mostly measures the neighbours; the CPU
 // time a metric consumes varies much less).
-#include "core/avx512.h"
-#include "core/flip.h"
-#include "core/metrics.h"
-#include "core/pow_row.h"
-#include "core/rng.h"
-#include "core/temporal.h"
+#include "core/base/avx512.h"
+#include "core/base/pow_row.h"
+#include "core/base/rng.h"
+#include "core/metrics/flip.h"
+#include "core/metrics/metrics.h"
+#include "core/metrics/temporal.h"
 #include "tests/support.h"
 
 #include <benchmark/benchmark.h>
@@ -192,7 +192,7 @@ void BM_Flip_floor(benchmark::State& state) {
 BENCHMARK(BM_Flip_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // The metrics' filter taps alone, per 1280x720 frame, at this CPU's peak rate: the taps of SSIM
-// (luma; five moments x 11 taps across, in float, and down, in double, as core/metrics.cpp sums
+// (luma; five moments x 11 taps across, in float, and down, in double, as core/metrics/metrics.cpp sums
 // them) and of FLIP's test half (flip_detail::test_half_taps: 301 at the default 67 pixels per
 // degree). Every kernel is symmetric or antisymmetric, so two taps can share one product: each
 // pair of taps is taken as one sum (or difference) of the two inputs and one fused multiply-add
@@ -282,7 +282,7 @@ void BM_Metrics_taps_floor(benchmark::State& state) {
 }
 BENCHMARK(BM_Metrics_taps_floor)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// Temporal stability of one frame step (core/temporal.h) against the sequential loop it was
+// Temporal stability of one frame step (core/metrics/temporal.h) against the sequential loop it was
 // until its per-pixel terms ran in vectorized chunks (tests/support.h; the same bits:
 // Temporal.SameBitsAsOneSequentialLoop).
 void BM_Temporal(benchmark::State& state) {

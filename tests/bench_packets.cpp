@@ -1,15 +1,15 @@
 // Speed of the packet layer: CRC-32C (hardware and portable), packetize, the assembler
 // reassembling a 1 MB pass whose packets arrive in reverse order, and forward error correction
-// (core/fec.h: 20 % parity on 1200-byte shards) against ISA-L's own calls on the same buffers
+// (core/net/fec.h: 20 % parity on 1200-byte shards) against ISA-L's own calls on the same buffers
 // with tables made once (the floor; "of_isal" = its time over ours). Each case reports bytes/s and, as "of_memcpy", its rate
 // as a fraction of memcpy over the same bytes measured in the same run (the ceiling: the
 // packet layer copies every byte at least once on each side).
 //   build-packet/tests/bench_packets --benchmark_min_time=0.2
-#include "core/assembler.h"
-#include "core/checksum.h"
-#include "core/fec.h"
-#include "core/packet.h"
-#include "core/rng.h"
+#include "core/base/checksum.h"
+#include "core/base/rng.h"
+#include "core/net/assembler.h"
+#include "core/net/fec.h"
+#include "core/net/packet.h"
 
 #include <benchmark/benchmark.h>
 #include <isa-l/erasure_code.h>
@@ -115,7 +115,7 @@ void BM_Assemble1MB(benchmark::State& state) {
 }
 BENCHMARK(BM_Assemble1MB);
 
-// ---- FEC: the 1 MB pass as 1200-byte shards, its blocks as core/fec.h lays them out.
+// ---- FEC: the 1 MB pass as 1200-byte shards, its blocks as core/net/fec.h lays them out.
 struct FecCase {
   std::vector<uint8_t> data = pass_bytes();
   FecLayout layout;

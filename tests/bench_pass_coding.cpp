@@ -39,13 +39,13 @@
 // bytes zstd (level 3) spends on it: the residual coded with every other region zeroed, less
 // the all-zero residual's size. The regions' bytes need not add up to the whole frame's.
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/raster.h"
-#include "core/passes.h"
-#include "core/rt_scene.h"
-#include "core/run_config.h"
-#include "core/scene_load.h"
-#include "core/trace.h"
+#include "core/backend/backend.h"
+#include "core/config/run_config.h"
+#include "core/pass/passes.h"
+#include "core/raster/raster.h"
+#include "core/scene/scene_load.h"
+#include "core/trace/rt_scene.h"
+#include "core/trace/trace.h"
 #include "tests/support_buffers.h"
 
 #include <benchmark/benchmark.h>

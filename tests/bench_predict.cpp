@@ -17,16 +17,16 @@
 // a synthetic visibility bitmask and AO) reads object_id, normal, albedo, position and both
 // passes and writes the RGB8 image (45 B/px; geo_normal only where the normal is zero, not
 // counted).
+#include "core/base/avx512.h"
 #include "backends/register_all.h"
-#include "core/avx512.h"
-#include "core/backend.h"
-#include "core/composite.h"
-#include "core/cpu_isa.h"
-#include "core/depth_pass.h"
-#include "core/raster.h"
-#include "core/scene_load.h"
-#include "core/upsample.h"
-#include "core/rng.h"
+#include "core/backend/backend.h"
+#include "core/base/cpu_isa.h"
+#include "core/base/rng.h"
+#include "core/buffers/depth_pass.h"
+#include "core/buffers/upsample.h"
+#include "core/pass/composite.h"
+#include "core/raster/raster.h"
+#include "core/scene/scene_load.h"
 
 #include <benchmark/benchmark.h>
 #include <tbb/global_control.h>
@@ -366,7 +366,7 @@ BENCHMARK(BM_RotationWarp_Colour)->Unit(benchmark::kMillisecond)->UseRealTime();
 void BM_DepthWarp_Colour(benchmark::State& state) { run_warp(state, true); }
 BENCHMARK(BM_DepthWarp_Colour)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// The client's upsampling of an AO pass traced at 1/scale (core/upsample.h) to 1280x720, guided
+// The client's upsampling of an AO pass traced at 1/scale (core/buffers/upsample.h) to 1280x720, guided
 // by the dst frame's G-buffer (joint_bilateral) or not (bilinear). Memory floor: the full-res
 // G-buffer planes it reads (joint_bilateral: object_id, position, normal, depth, 32 B/px;
 // bilinear: object_id, 4 B/px) and the 1 B/px it writes; the low-res pass it reads (1/scale^2

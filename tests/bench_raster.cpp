@@ -1,4 +1,4 @@
-// The CPU rasterizer (core/raster.h) at 1280x720 on every built-in scene (scenes/*.json) and
+// The CPU rasterizer (core/raster/raster.h) at 1280x720 on every built-in scene (scenes/*.json) and
 // every real scene (scenes/real/*.json; skipped when ../shared/scenes is missing), with all
 // cores and with one thread. Counters: the scene's triangle count, triangles per second,
 // fragments, and `x_fill`: the frame time over the ceiling measured in the same run -- the
@@ -9,11 +9,11 @@
 // a frame consumes much less (docs/performance.md).
 //
 //   build-*/tests/bench_raster --benchmark_min_time=0.5
-#include "core/error.h"
-#include "core/gbuffer.h"
-#include "core/raster.h"
-#include "core/scene.h"
-#include "core/scene_load.h"
+#include "core/base/error.h"
+#include "core/buffers/gbuffer.h"
+#include "core/raster/raster.h"
+#include "core/scene/scene.h"
+#include "core/scene/scene_load.h"
 #include "tests/support.h"
 
 #include <benchmark/benchmark.h>

@@ -1,4 +1,4 @@
-// Speed of the server's passes (core/trace.h) against a raw Embree ceiling measured in the same
+// Speed of the server's passes (core/trace/trace.h) against a raw Embree ceiling measured in the same
 // run on the SAME rays: for each scene and pass, the rays the pass traces are collected into an
 // array first (collect_*_rays), then traced by the simplest loops -- rtcOccluded1 per ray,
 // rtcOccluded8 and rtcOccluded16 packets, rtcOccluded1M streams of 256 with the incoherent
@@ -24,11 +24,11 @@
 // least.
 //
 // Run: build-x/tests/bench_trace --benchmark_counters_tabular=true
-#include "core/error.h"
-#include "core/rt_scene.h"
-#include "core/scene_load.h"
-#include "core/trace.h"
-#include "core/trace_rays.h"
+#include "core/base/error.h"
+#include "core/scene/scene_load.h"
+#include "core/trace/rt_scene.h"
+#include "core/trace/trace.h"
+#include "core/trace/trace_rays.h"
 
 #include <benchmark/benchmark.h>
 #include <fmt/format.h>

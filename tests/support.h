@@ -1,8 +1,8 @@
 // Helpers shared by the tests: where the repository and the real scenes are.
 #pragma once
 
-#include "core/scene.h"
-#include "core/temporal.h"
+#include "core/metrics/temporal.h"
+#include "core/scene/scene.h"
 
 #include <cstddef>
 #include <cstdint>
@@ -26,7 +26,7 @@ Object make_object(uint32_t id, Mesh mesh, glm::vec3 offset, uint32_t material =
 Light sphere_light(glm::vec3 p, float radius_m, float intensity);
 Light distant_light(glm::vec3 dir, float angular_radius_deg = 0.0f);
 
-// Calls fn(name, scene) for every built-in and real scene (core/scene_load.h) that loads; name is
+// Calls fn(name, scene) for every built-in and real scene (core/scene/scene_load.h) that loads; name is
 // the file's stem. One that does not load (a real scene whose assets are not here) is skipped and
 // said so on stdout.
 void for_each_scene(const std::function<void(const std::string& name, const Scene& scene)>& fn);
@@ -49,8 +49,8 @@ struct Fnv1a {
   }
 };
 
-// temporal_scores (core/temporal.h) as one sequential loop over the pixels, the way
-// core/temporal.cpp computed them before its per-pixel terms ran in vectorized chunks: the
+// temporal_scores (core/metrics/temporal.h) as one sequential loop over the pixels, the way
+// core/metrics/temporal.cpp computed them before its per-pixel terms ran in vectorized chunks: the
 // definition of the bits it keeps (tests/test_temporal.cpp) and the "before" of bench_metrics.
 TemporalScores temporal_scores_one_loop(const ImageRGB8& reference_prev, const ImageRGB8& reference,
                                         const ImageRGB8& test_prev, const ImageRGB8& test, double static_threshold);

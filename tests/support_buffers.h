@@ -1,6 +1,6 @@
 // Realistic synthetic pass buffers for codec tests and benchmarks (and any other test that
 // needs plausible server output without tracing rays). Everything is a deterministic function
-// of its arguments (random numbers from core/rng.h only).
+// of its arguments (random numbers from core/base/rng.h only).
 //
 // The synthetic scene, in reference pixels of a 1280x720 frame (scaled to the buffer size): a
 // wall (top) meeting a floor (bottom) along a horizontal crease, wall panels with vertical
@@ -11,8 +11,8 @@
 // content moves left/up by that much, and newly exposed parts come in from the right/bottom.
 #pragma once
 
-#include "core/gbuffer.h"
-#include "core/pass_buffer.h"
+#include "core/buffers/gbuffer.h"
+#include "core/buffers/pass_buffer.h"
 
 #include <cstdint>
 

@@ -11,13 +11,13 @@
 // codec itself: refuses(desc) skips the pass layouts it cannot carry, lossless() picks
 // bit-exact or bounded-error checks, stateful() the loss and keyframe behaviour.
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/depth_pass.h"
-#include "core/gbuffer.h"
-#include "core/buffer_layout.h"
-#include "core/checksum.h"
-#include "core/rng.h"
-#include "core/stream_dump.h"
+#include "core/backend/backend.h"
+#include "core/base/checksum.h"
+#include "core/base/rng.h"
+#include "core/base/stream_dump.h"
+#include "core/buffers/buffer_layout.h"
+#include "core/buffers/depth_pass.h"
+#include "core/buffers/gbuffer.h"
 #include "tests/support_buffers.h"
 
 #include <gtest/gtest.h>
@@ -536,7 +536,7 @@ TEST_P(CodecConformance, BitFlipsAreDetectedOrHarmless) {
   }
 }
 
-// A frame lost on the link, handled as the frame loop does (core/pass_receiver.cpp): a
+// A frame lost on the link, handled as the frame loop does (core/pipeline/pass_receiver.cpp): a
 // stateless codec decodes every later frame as if nothing happened, and every frame on a
 // fresh decoder too; a stateful one, reset at the gap, may fail (never with wrong bytes)
 // until the keyframe its receiver asked for, which decodes on a fresh decoder and from which
@@ -967,7 +967,7 @@ TEST(VideoCodecs, HevcAndAv1BytesDoNotDependOnThreads) {
   }
 }
 
-// --dump-streams writes a video pass with core/stream_dump.h; the ffmpeg command-line tool must
+// --dump-streams writes a video pass with core/base/stream_dump.h; the ffmpeg command-line tool must
 // decode such a file to the pictures our decoder gives: gray AO (values as coded: full scale
 // 255, so no mapping) over 8 frames of a pan with a forced keyframe, bit for bit.
 TEST(VideoCodecs, DumpedStreamsDecodeWithFfmpegToOurPictures) {

@@ -1,10 +1,10 @@
 // Images, camera and the counter-based random numbers.
-#include "core/camera.h"
-#include "core/error.h"
-#include "core/image.h"
-#include "core/image_io.h"
-#include "core/pass_buffer.h"
-#include "core/rng.h"
+#include "core/base/error.h"
+#include "core/base/rng.h"
+#include "core/buffers/camera.h"
+#include "core/buffers/image.h"
+#include "core/buffers/image_io.h"
+#include "core/buffers/pass_buffer.h"
 
 #include <gtest/gtest.h>
 

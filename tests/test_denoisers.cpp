@@ -2,18 +2,18 @@
 // behaviour tests of the SVGF family (svgf_ao, atrous, single_iteration, temporal) on small
 // synthetic G-buffers built here: a background plane with a smooth AO field, a foreground box
 // at another depth and object id, a depth step, camera pans and moving objects expressed as
-// motion vectors, and binomial AO counts around the known converged AO (core/rng.h).
+// motion vectors, and binomial AO counts around the known converged AO (core/base/rng.h).
 //
 // Measured figures the assertions are built on (Release, 64x48; printed by the tests): see
 // the comments at each test.
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/error.h"
-#include "core/gbuffer.h"
-#include "core/image.h"
-#include "core/rng.h"
+#include "core/backend/backend.h"
+#include "core/base/error.h"
+#include "core/base/rng.h"
+#include "core/buffers/gbuffer.h"
+#include "core/buffers/image.h"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>

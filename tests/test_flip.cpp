@@ -1,12 +1,12 @@
-// LDR-FLIP (core/flip.h): the properties the paper's definition implies, closed-form cases, and,
+// LDR-FLIP (core/metrics/flip.h): the properties the paper's definition implies, closed-form cases, and,
 // when the authors' example images are on this machine, their published mean
 // (docs/metrics.md says what was reproduced).
-#include "core/error.h"
-#include "core/flip.h"
-#include "core/flip_magma.h"
-#include "core/image_io.h"
-#include "core/rng.h"
-#include "core/workspace.h"
+#include "core/base/error.h"
+#include "core/base/rng.h"
+#include "core/base/workspace.h"
+#include "core/buffers/image_io.h"
+#include "core/metrics/flip.h"
+#include "core/metrics/flip_magma.h"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
@@ -153,7 +153,7 @@ TEST(Flip, IndependentOfThreadCount) {
   EXPECT_EQ(one.mean, two.mean);
 }
 
-// flip() keeps its scratch planes per thread between calls (core/workspace.h); a call nested in
+// flip() keeps its scratch planes per thread between calls (core/base/workspace.h); a call nested in
 // another on the same thread (a task picked up while waiting in its own parallel loop) takes
 // fresh ones, which the lease's own test below checks directly. Calls made concurrently from
 // many tasks, and a small image after a larger one, score as each does alone.
@@ -277,7 +277,7 @@ TEST(Flip, PartlyEqualPairKeepsItsBits) {
   EXPECT_EQ(std::bit_cast<uint64_t>(r.mean), 0x3facdd00c7946a0aull);
 }
 
-// CIELAB's f over a row (four values at a time in double, core/flip.cpp) against the scalar
+// CIELAB's f over a row (four values at a time in double, core/metrics/flip.cpp) against the scalar
 // function, bit for bit: every float of [0.5, 1] (FLIP's inputs are X/Xn, Y/Yn, Z/Zn of colours
 // in [0, 1]), every 997th float of [0, 4], 2,000 floats around the linear segment's edge
 // (6/29)^3, and the inputs that are not positive numbers; at every offset in a row of 4 and in

@@ -1,10 +1,10 @@
 // The frame loop end to end on the built-in scenes at small sizes: bit-exactness without a
 // network, the paper's latency claim (prediction beats none), determinism across runs and
 // thread counts, and survival under loss.
-#include "core/frame_loop.h"
 #include "backends/register_all.h"
-#include "core/rt_scene.h"
-#include "core/scene_load.h"
+#include "core/scene/scene_load.h"
+#include "core/sim/frame_loop.h"
+#include "core/trace/rt_scene.h"
 #include "support.h"
 
 #include <fmt/format.h>
@@ -151,7 +151,7 @@ TEST(FrameLoop, DeterministicAcrossRunsAndThreadCounts) {
 }
 
 // A run whose traced passes and denoisers match an earlier run's takes that run's local reference
-// from the cache instead of computing its own (core/frame_loop.cpp, local_key): it must score
+// from the cache instead of computing its own (core/sim/frame_loop.cpp, local_key): it must score
 // exactly as a run that computes its own, and runs that differ in the denoiser or in the traced
 // passes must never take another's.
 TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
@@ -352,9 +352,9 @@ TEST(FrameLoop, SceneDefaultsNamedOrLeftShareTheCache) {
   EXPECT_GT(shared.bytes(), filled);
 }
 
-// The ground truth is the scene's converged image (core/reference.h): the run's AO rays and
+// The ground truth is the scene's converged image (core/pass/reference.h): the run's AO rays and
 // radius and its seed do not change it. The AO settings are not in its key (kInTruthKey), so
-// runs that differ in them share it; the seed is, for the shards (core/run_config.h). Each run
+// runs that differ in them share it; the seed is, for the shards (core/config/run_config.h). Each run
 // here computes its own (a disk cache folder of its own); what the truth does depend on (its
 // own AO rays) changes it.
 TEST(FrameLoop, GroundTruthDoesNotDependOnTheRunsAoSettingsOrSeed) {
@@ -605,7 +605,7 @@ TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
 }
 
 // Every video codec (h264, hevc, av1) through bursty loss: lost frames, a keyframe request,
-// recovery (core/pass_receiver.cpp).
+// recovery (core/pipeline/pass_receiver.cpp).
 TEST(FrameLoop, SurvivesFivePercentLossAndBufferAgeRecovers) {
   for (const char* codec : {"h264", "hevc", "av1"}) {
     SCOPED_TRACE(codec);

@@ -1,4 +1,4 @@
-// The client's rasterized G-buffer (core/raster.h) and the server's Embree primary-ray
+// The client's rasterized G-buffer (core/raster/raster.h) and the server's Embree primary-ray
 // G-buffer (RtScene::primary_gbuffer) must agree: the server traces from the G-buffer it
 // recomputes, the client composites on its own (docs/architecture.md, "The frame loop"). For each built-in scene
 // at 160x90 and three times along its camera path: depth within 1e-3 relative, the same
@@ -8,9 +8,9 @@
 // relative), or lies on another triangle whose normal differs (a crease). Pixels where two
 // objects' surfaces coincide (same depth to 1e-5 and normal: z-fighting in the scene itself)
 // count as agreeing -- either answer is right -- and are reported; at most 2% are tolerated.
-#include "core/raster.h"
-#include "core/rt_scene.h"
-#include "core/scene_load.h"
+#include "core/raster/raster.h"
+#include "core/scene/scene_load.h"
+#include "core/trace/rt_scene.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>

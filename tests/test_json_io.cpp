@@ -1,11 +1,11 @@
-// Reading JSON from outside (core/json_io.h) and the readers built on it: the depth scan
+// Reading JSON from outside (core/base/json_io.h) and the readers built on it: the depth scan
 // (brackets inside strings and escaped quotes do not count), parse errors that name their
 // source, bounded excerpts in messages, --set values, experiment files and link configs.
-#include "core/error.h"
-#include "core/experiment.h"
-#include "core/json_io.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/experiment/experiment.h"
+#include "core/net/network.h"
 #include "tests/support.h"
-#include "core/network.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>

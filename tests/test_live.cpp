@@ -1,19 +1,19 @@
-// Live mode (core/live.h): the control protocol, the session offer, and server, relay and client
+// Live mode (core/live/live.h): the control protocol, the session offer, and server, relay and client
 // as three real processes over loopback UDP -- through loss, jitter, reordering and
 // duplication -- checked against the simulator's accounting of the same frames. Then the trust
 // checks (docs/live-security.md): every malformed control message class refused with its
 // reason, the pass-packet windows, the MAC, and a session that a third socket attacks with
 // forged, malformed and random datagrams while it runs, ending exactly as a clean one.
-#include "core/experiment.h"
-#include "core/frame_loop.h"
 #include "backends/register_all.h"
-#include "core/json_io.h"
-#include "core/live.h"
-#include "core/live_protocol.h"
-#include "core/packet.h"
-#include "core/reference.h"
-#include "core/scene_load.h"
-#include "core/udp.h"
+#include "core/base/json_io.h"
+#include "core/experiment/experiment.h"
+#include "core/live/live.h"
+#include "core/live/live_protocol.h"
+#include "core/net/packet.h"
+#include "core/net/udp.h"
+#include "core/pass/reference.h"
+#include "core/scene/scene_load.h"
+#include "core/sim/frame_loop.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>

@@ -1,9 +1,9 @@
 // SSIM / PSNR as the benchmark scores frames: checked against OpenCV's quality module (the
 // mirrored convention), scikit-image (the valid-interior reference convention) and
 // closed-form cases.
-#include "core/error.h"
-#include "core/metrics.h"
-#include "core/rng.h"
+#include "core/base/error.h"
+#include "core/base/rng.h"
+#include "core/metrics/metrics.h"
 
 #include <gtest/gtest.h>
 #include <opencv2/quality/qualityssim.hpp>
@@ -235,7 +235,7 @@ TEST(Metrics, ValidSsimMapIsTheMirroredMapAndIdenticalScoresOne) {
   EXPECT_EQ(compare_images(a, a, SsimChannel::RgbMean, nullptr, SsimBorder::Valid).ssim, 1.0);
 }
 
-// The two-pass SSIM as it was computed before the fused version of core/metrics.cpp (one
+// The two-pass SSIM as it was computed before the fused version of core/metrics/metrics.cpp (one
 // horizontal pass over the whole image into five interleaved planes, then one vertical pass):
 // the definition of the bits the fused version must reproduce.
 double two_pass_ssim(const ImageU8& ia, const ImageU8& ib, ImageF* map, SsimBorder border) {

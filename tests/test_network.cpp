@@ -1,7 +1,7 @@
 // The simulated link: each effect alone against its closed form, determinism, and the shipped
 // 5G-shaped trace's statistics.
-#include "core/error.h"
-#include "core/network.h"
+#include "core/base/error.h"
+#include "core/net/network.h"
 
 #include <gtest/gtest.h>
 

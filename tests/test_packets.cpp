@@ -1,12 +1,12 @@
 // Packets and the assembler: checksums, header checks, corruption and truncation, limits before
 // allocation, reordering, duplicates, timeouts, loss counted from sequence numbers, and
 // frames rebuilt by forward error correction.
-#include "core/assembler.h"
-#include "core/checksum.h"
-#include "core/error.h"
-#include "core/fec.h"
-#include "core/packet.h"
-#include "core/rng.h"
+#include "core/base/checksum.h"
+#include "core/base/error.h"
+#include "core/base/rng.h"
+#include "core/net/assembler.h"
+#include "core/net/fec.h"
+#include "core/net/packet.h"
 
 #include <gtest/gtest.h>
 
@@ -661,7 +661,7 @@ TEST(Assembler, IndependentLossIsReportedConsistently) {
   }
 }
 
-// ---- Forward error correction (core/fec.h)
+// ---- Forward error correction (core/net/fec.h)
 
 // Feeds the packets whose bit in `keep` is set (in a shuffled order) to a fresh assembler and
 // returns the one frame it completes, or nothing.

@@ -8,8 +8,8 @@
 // reprojection predicts them everywhere except where a surface comes into view. That makes the
 // savings a property of the prediction, and every decode is checked bit for bit.
 #include "backends/register_all.h"
-#include "core/raster.h"
-#include "core/scene_load.h"
+#include "core/raster/raster.h"
+#include "core/scene/scene_load.h"
 #include "tests/support_buffers.h"
 
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// pow_row (core/pow_row.h) gives std::pow's bits on every input: its wide kernel's own value
+// pow_row (core/base/pow_row.h) gives std::pow's bits on every input: its wide kernel's own value
 // only where the library's is certain to round the same way, std::pow elsewhere.
 #include <gtest/gtest.h>
 
@@ -10,8 +10,8 @@
 #include <sstream>
 #include <vector>
 
-#include "core/avx512.h"
-#include "core/pow_row.h"
+#include "core/base/avx512.h"
+#include "core/base/pow_row.h"
 
 namespace {
 

@@ -4,10 +4,10 @@
 // Camera::primary_ray, so no rasterizer is needed and every pixel's world point is known exactly.
 #include "backends/predict/warp.h"
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/checksum.h"
-#include "core/depth_pass.h"
-#include "core/rng.h"
+#include "core/backend/backend.h"
+#include "core/base/checksum.h"
+#include "core/base/rng.h"
+#include "core/buffers/depth_pass.h"
 
 #include <fmt/format.h>
 #include <glm/gtc/matrix_transform.hpp>

@@ -1,14 +1,14 @@
-// The CPU rasterizer (core/raster.h): coverage rules, clipping, robustness, consistency with
+// The CPU rasterizer (core/raster/raster.h): coverage rules, clipping, robustness, consistency with
 // the camera's primary rays, every G-buffer field, motion vectors and thread-count
 // independence. Small images, so that the suite stays fast under AddressSanitizer.
-#include "core/raster.h"
+#include "core/raster/raster.h"
 
-#include "core/camera.h"
-#include "core/error.h"
-#include "core/gbuffer.h"
-#include "core/rt_scene.h"
-#include "core/scene.h"
-#include "core/shapes.h"
+#include "core/base/error.h"
+#include "core/buffers/camera.h"
+#include "core/buffers/gbuffer.h"
+#include "core/scene/scene.h"
+#include "core/scene/shapes.h"
+#include "core/trace/rt_scene.h"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>

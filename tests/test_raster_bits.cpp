@@ -1,14 +1,14 @@
 // The rasterizer's output bits, pinned: on every built-in scene and every real scene (skipped
 // when ../shared/scenes is missing), at 321x181 (odd sizes: partial tiles and spans) and
 // 1280x720, the FNV-1a hash of every G-buffer plane and of the statistics must equal the values
-// recorded from the rasterizer (core/raster.cpp) of commit 9b6eb01, the code without the vector
-// kernels (core/raster_avx512.cpp), with one thread and with all of them. A
-// change of core/raster*.cpp that moves any pixel of any plane by one bit fails here; a
+// recorded from the rasterizer (core/raster/raster.cpp) of commit 9b6eb01, the code without the vector
+// kernels (core/raster/raster_avx512.cpp), with one thread and with all of them. A
+// change of core/raster/raster*.cpp that moves any pixel of any plane by one bit fails here; a
 // deliberate change of the output must update the table and say so.
 // Run with DHR_PRINT_RASTER_HASHES=1 to print the table's rows for the current code.
-#include "core/error.h"
-#include "core/raster.h"
-#include "core/scene_load.h"
+#include "core/base/error.h"
+#include "core/raster/raster.h"
+#include "core/scene/scene_load.h"
 
 #include "tests/support.h"
 
@@ -105,7 +105,7 @@ TEST(RasterBits, GBufferIsPinned) {
 // tiny or so large their length overflows; a sliver seen edge-on (barycentrics clamped); and a
 // previous camera turned away, so that some surface points lie behind it, on its plane or at
 // huge offsets (motion clamped). Recorded with DHR_PRINT_RASTER_HASHES=1 under DHR_MAX_ISA=avx2,
-// the scalar resolve of core/raster.cpp; the AVX-512 one (core/raster_avx512.cpp) must give the
+// the scalar resolve of core/raster/raster.cpp; the AVX-512 one (core/raster/raster_avx512.cpp) must give the
 // same bits (this test runs under both: tests/CMakeLists.txt).
 Scene damaged_scene() {
   Scene s;

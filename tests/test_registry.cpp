@@ -2,8 +2,8 @@
 // every backend of every kind can be created with its defaults, and every example that
 // `dhrbench list` prints is accepted by the experiment loader and by --set.
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/experiment.h"
+#include "core/backend/backend.h"
+#include "core/experiment/experiment.h"
 #include "experiments/list_examples.h"
 
 #include <gtest/gtest.h>

@@ -1,9 +1,9 @@
-// Results declared once (core/results.h): the image metrics score frames as their functions do,
+// Results declared once (core/results/results.h): the image metrics score frames as their functions do,
 // aggregates follow the declaration (PSNR of identical frames counts as 100 dB), and the
 // frames.csv writer's rows match its header, with empty cells for a pass a run does not have.
-#include "core/flip.h"
-#include "core/metrics.h"
-#include "core/results.h"
+#include "core/metrics/flip.h"
+#include "core/metrics/metrics.h"
+#include "core/results/results.h"
 
 #include <gtest/gtest.h>
 

@@ -1,9 +1,9 @@
-// The table of run settings (core/run_config.h): every test here loops over run_settings(), so
+// The table of run settings (core/config/run_config.h): every test here loops over run_settings(), so
 // that a new setting is covered without editing it.
 #include "backends/register_all.h"
-#include "core/experiment.h"
-#include "core/live.h"
-#include "core/run_config.h"
+#include "core/config/run_config.h"
+#include "core/experiment/experiment.h"
+#include "core/live/live.h"
 
 #include <gtest/gtest.h>
 

@@ -1,8 +1,8 @@
 // The experiment runner end to end: a tiny experiment through the dhrbench command, then the
 // results schema, the CSV and the report files; and its validation of bad experiments.
-#include "core/error.h"
-#include "core/experiment.h"
-#include "core/frame_loop.h"
+#include "core/base/error.h"
+#include "core/experiment/experiment.h"
+#include "core/sim/frame_loop.h"
 #include "tests/support.h"
 
 #include <gtest/gtest.h>
@@ -68,7 +68,7 @@ TEST(Runner, TinyExperimentEndToEnd) {
     EXPECT_EQ(run.at("config").at("downlink").at("latency_ms"), 40.0);
   }
   EXPECT_EQ(r.at("runs")[2].at("backends").at("passes.ao.codec").at("params").at("level"), 3);
-  // Results declared once (core/results.h): every declared figure is in every run's record and
+  // Results declared once (core/results/results.h): every declared figure is in every run's record and
   // every declared column in frames.csv; `dhrbench metrics --json` prints the same declaration.
   const nlohmann::json& declared = r.at("declared");
   std::string printed;

@@ -1,12 +1,12 @@
 // The scene layer: the JSON format (strictness, error collection), procedural shapes,
 // animation and camera-path interpolation, texture lookup, the built-in scenes, model import
 // (good models load, every broken model in assimp's test set is rejected) and the real scenes.
-#include "core/error.h"
-#include "core/image_io.h"
-#include "core/mesh_import.h"
-#include "core/scene.h"
-#include "core/scene_load.h"
-#include "core/shapes.h"
+#include "core/base/error.h"
+#include "core/buffers/image_io.h"
+#include "core/scene/mesh_import.h"
+#include "core/scene/scene.h"
+#include "core/scene/scene_load.h"
+#include "core/scene/shapes.h"
 #include "tests/support.h"
 
 #include <OpenImageIO/imageio.h>

@@ -1,14 +1,14 @@
-// Sharded sweeps (core/shard.h, experiments/cmd_merge.cpp) and the disk caches several
-// processes share (core/frame_loop.h, TraceCache): the plan, a sharded run merged against an
+// Sharded sweeps (core/experiment/shard.h, experiments/cmd_merge.cpp) and the disk caches several
+// processes share (core/sim/frame_loop.h, TraceCache): the plan, a sharded run merged against an
 // unsharded one in every non-timing figure, the merge's refusals, a failed shard rerun alone,
 // and two processes writing and reading one cache entry at once.
-#include "core/error.h"
-#include "core/experiment.h"
-#include "core/frame_loop.h"
-#include "core/json_io.h"
-#include "core/results.h"
-#include "core/rt_scene.h"
-#include "core/shard.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/experiment/experiment.h"
+#include "core/experiment/shard.h"
+#include "core/results/results.h"
+#include "core/sim/frame_loop.h"
+#include "core/trace/rt_scene.h"
 #include "support.h"
 
 #include <gtest/gtest.h>
@@ -51,7 +51,7 @@ std::string read_text(const fs::path& p) {
 }
 
 // The figures measured on the wall clock (they vary from run to run): the run metrics that
-// core/results.cpp declares wall-clock, and each run's and shard's wall_s; everything else must
+// core/results/results.cpp declares wall-clock, and each run's and shard's wall_s; everything else must
 // be equal.
 bool is_timing_key(const std::string& k) {
   if (k == "wall_s") return true;

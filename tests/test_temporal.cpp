@@ -1,9 +1,9 @@
-// Temporal stability (core/temporal.h): a sequence that flickers scores worse than one that
+// Temporal stability (core/metrics/temporal.h): a sequence that flickers scores worse than one that
 // does not, at equal per-frame SSIM; closed-form cases; bad input.
-#include "core/error.h"
-#include "core/metrics.h"
-#include "core/rng.h"
-#include "core/temporal.h"
+#include "core/base/error.h"
+#include "core/base/rng.h"
+#include "core/metrics/metrics.h"
+#include "core/metrics/temporal.h"
 #include "tests/support.h"
 
 #include <gtest/gtest.h>

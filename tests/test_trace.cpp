@@ -1,18 +1,18 @@
 // The server's passes against analytic answers: AO (paper Eq. 1-3) on an open plane, at the
 // foot of a wall and far from everything; hard and soft shadows (section 3.1) of simple
 // occluders; ray counts and pass plans; determinism across thread counts; the composite.
-#include "core/avx512.h"
-#include "core/composite.h"
-#include "core/cpu_isa.h"
-#include "core/error.h"
-#include "core/passes.h"
-#include "core/reference.h"
-#include "core/rng.h"
-#include "core/rt_scene.h"
-#include "core/shapes.h"
-#include "core/trace.h"
-#include "core/trace_rays.h"
-#include "core/trace_kernels.h"
+#include "core/base/avx512.h"
+#include "core/base/cpu_isa.h"
+#include "core/base/error.h"
+#include "core/base/rng.h"
+#include "core/pass/composite.h"
+#include "core/pass/passes.h"
+#include "core/pass/reference.h"
+#include "core/scene/shapes.h"
+#include "core/trace/rt_scene.h"
+#include "core/trace/trace.h"
+#include "core/trace/trace_kernels.h"
+#include "core/trace/trace_rays.h"
 
 #include "tests/support.h"
 
@@ -151,7 +151,7 @@ TEST(TraceBlocks, OrthonormalBasis) {
   }
 }
 
-// origin_offset_m (core/trace.h): every term scales with the triangle's coordinates (no floor
+// origin_offset_m (core/trace/trace.h): every term scales with the triangle's coordinates (no floor
 // near the world origin), an axis-aligned sliver gets a few ULPs of its coordinates and a
 // tilted one its float normal's error, and the rounded origin lies on the normal's side.
 TEST(TraceBlocks, OriginOffsetFollowsTheErrorBound) {
@@ -513,7 +513,7 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
 }
 
 // One ray per light and pixel (hard shadows, and soft ones with one sample), for every light
-// count up to past the listing's vector ones (core/trace_avx512.cpp's list_pairs_x16: a block
+// count up to past the listing's vector ones (core/trace/trace_avx512.cpp's list_pairs_x16: a block
 // whose traced pairs lie on 1 to 4 lights in registers, on more pair by pair, and past
 // kListPairsMaxLights visibility_rows' own loop): the baseline kernels' counts, statistics and
 // rays, in their order, bit for bit. The lights lie on both sides of the plane, some out of
@@ -765,7 +765,7 @@ TEST(TraceShadows, FractionFormatCarriesTheBitmaskBits) {
   EXPECT_EQ(plan_passes(s, frac).visibility_kind(), PassKind::SoftVisibility);
 }
 
-// The jittered rays are the cone sampling of core/trace.h, ray by ray: sample k of light l at
+// The jittered rays are the cone sampling of core/trace/trace.h, ray by ray: sample k of light l at
 // pixel p draws (u0, u1) from the key (seed, p, frame, k, kStreamLightBase + l) and goes
 // 1 - cos = u0 (1 - cos theta_max) off the light's direction at angle 2 pi u1 in the basis of
 // orthonormal_basis. Checked against a double-precision reference for a sphere and a distant
@@ -781,7 +781,7 @@ TEST(TraceShadows, JitteredRaysFollowTheConeSampling) {
   RtScene rt(s);
   const int n = 37;  // not a multiple of the SIMD widths
   // Directions within 3e-5 of the double-precision reference: the polynomial sincos's error
-  // bound is 2.5e-5 (core/trace.cpp, sincos_2pi).
+  // bound is 2.5e-5 (core/trace/trace.cpp, sincos_2pi).
   const glm::vec3 point(0.3f, 0.0f, 0.2f);
   const GBuffer g = point_gbuffer(s, 1, point, {0, 1, 0}, n);
   TraceSettings one, four;
@@ -951,7 +951,7 @@ TEST(Composite, ToneMapIsExactSrgb) {
 }
 
 // The code is the number of boundaries <= the value (std::upper_bound over the table of
-// core/composite.cpp, rebuilt here the same way): at every boundary, the floats next to it and
+// core/pass/composite.cpp, rebuilt here the same way): at every boundary, the floats next to it and
 // a million random floats (half over every finite positive float, half over [0, 1.2)).
 TEST(Composite, ToneMapCountsBoundariesLikeUpperBound) {
   std::array<float, 255> b{};
@@ -1061,7 +1061,7 @@ TEST(Composite, ShadowRemovesExactlyThatLight) {
 }
 
 // The composite shades eight pixels at a time on its row path and sixteen where the CPU has
-// AVX-512 (core/composite.cpp); every pixel of both must be what the scalar kernel,
+// AVX-512 (core/pass/composite.cpp); every pixel of both must be what the scalar kernel,
 // shade_lambert, gives it, bit for bit, also in the hard cases: points inside or at the centre
 // of a sphere light, beyond its range, facing away, zero normals (the geometric normal then), a
 // distant light without a direction, zero and tiny radii, huge and tiny distances, odd widths
@@ -1197,7 +1197,7 @@ TEST(Composite, ToneMapManyMatchesOneAtATime) {
 
 // ---- references ----
 
-// DHR_MAX_ISA caps the kernels Embree traverses with (core/rt_scene.h); embree_isa()
+// DHR_MAX_ISA caps the kernels Embree traverses with (core/trace/rt_scene.h); embree_isa()
 // names the ones it picks, and Embree agrees: its native 16-wide packets exist only with AVX-512.
 TEST(EmbreeIsa, CapIsCheckedAndApplied) {
   Scene s = base_scene();

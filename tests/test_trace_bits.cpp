@@ -10,11 +10,11 @@
 //   for isa in avx512 avx2 avx sse4.2; do DHR_MAX_ISA=$isa DHR_PRINT_TRACE_HASHES=1
 //     build/tests/test_trace_bits --gtest_filter=TraceBits.VisibilityPassIsPinned; done
 // (one command: the loop's body is one line).
-#include "core/error.h"
-#include "core/rt_scene.h"
-#include "core/scene_load.h"
-#include "core/trace.h"
-#include "core/trace_rays.h"
+#include "core/base/error.h"
+#include "core/scene/scene_load.h"
+#include "core/trace/rt_scene.h"
+#include "core/trace/trace.h"
+#include "core/trace/trace_rays.h"
 
 #include "tests/support.h"
 
@@ -34,14 +34,14 @@ namespace {
 // The G-buffer these hashes start from is Embree's (primary rays), and Embree's kernels of
 // different ISAs give hit points that differ in their last bits (their reciprocal
 // approximations and FMAs differ), so the table depends on which kernels Embree runs:
-// dhr::embree_isa(), the CPU's best or DHR_MAX_ISA's cap (core/rt_scene.h). ctest runs
+// dhr::embree_isa(), the CPU's best or DHR_MAX_ISA's cap (core/trace/rt_scene.h). ctest runs
 // this binary once as it is and once per other table with the cap (tests/CMakeLists.txt), so a
 // machine with AVX-512 checks every table. The tables of the ISAs before AVX-512 were recorded
 // on AMD EPYCs: those kernels start from rcpps, whose bits the x86 vendors do not share, so an
 // Intel CPU without AVX-512 may give other hashes (not checked: no such machine here).
 
 // scene/mode -> hash, by the ISA Embree runs (dhr::embree_isa(); SSE2 and SSE4.2 agree). Every
-// row of every table is the tracer's with ray origins from an error bound (core/trace.h,
+// row of every table is the tracer's with ray origins from an error bound (core/trace/trace.h,
 // origin_offset_m) and scenes with moving objects in Embree's two-level layout
 // (RtSceneOptions::static_child), recorded with the loop in this file's header (every ISA by
 // DHR_MAX_ISA on one AVX-512 machine) in commit 9db9702, whose message lists the counts that
@@ -51,7 +51,7 @@ namespace {
 // AMD Zen 4's (family 25); the "@b1456c31" ones an AMD Zen 5's (family 26, the same loop), whose
 // rcpps differs: every row below AVX-512 differs, the AVX-512 table is the same.
 // The table's name: the ISA Embree runs (SSE2 reads SSE4.2's), and below AVX-512 "@" and the
-// CPU's rcpps signature (core/rt_scene.h, cpu_rcp_signature). A CPU whose signature has no table
+// CPU's rcpps signature (core/trace/rt_scene.h, cpu_rcp_signature). A CPU whose signature has no table
 // reads the plain ISA's, recorded on AMD Zen 4 (family 25).
 std::string table_key() {
   const std::string isa = embree_isa() == "sse2" ? "sse4.2" : embree_isa();

@@ -1,13 +1,13 @@
-// Numerically hard cases for the server's tracing (the rules are in core/trace.h): surfaces far
+// Numerically hard cases for the server's tracing (the rules are in core/trace/trace.h): surfaces far
 // from the origin, large tilted surfaces, grazing lights, degenerate and non-finite triangles,
 // lights touching or inside geometry, zero-radius lights, a camera inside geometry, an empty
 // view and invalid rays. Every case asserts no NaN, no crash and the documented answer.
-#include "core/composite.h"
-#include "core/error.h"
-#include "core/passes.h"
-#include "core/rt_scene.h"
-#include "core/shapes.h"
-#include "core/trace.h"
+#include "core/base/error.h"
+#include "core/pass/composite.h"
+#include "core/pass/passes.h"
+#include "core/scene/shapes.h"
+#include "core/trace/rt_scene.h"
+#include "core/trace/trace.h"
 
 #include "tests/support.h"
 
@@ -260,7 +260,7 @@ std::pair<size_t, size_t> box_shadow(glm::vec3 offset, float scale, glm::vec3 bo
 // coordinate of the scene is a multiple of 1/16 m, so it is exactly representable up to
 // 1000 km (float spacing 6.25 cm there; at 100 km 7.8 mm) and the G-buffers match the
 // origin-placed one; what differs is the origin's rounding: it must start at least one float
-// spacing above the plane, and starts at most a few (origin_offset_m, core/trace.h), which moves
+// spacing above the plane, and starts at most a few (origin_offset_m, core/trace/trace.h), which moves
 // the shadow's outline by a fraction of that. Tolerance: 2 % of the shadow plus 2 pixels up to
 // 100 km; 15 % at 1000 km, where the origins start two float spacings (12.5 cm) up, half the
 // box's 25 cm gap, and the shadow measured 11-13 % smaller (one spacing is the least any float

@@ -1,9 +1,9 @@
-// Reduced-resolution passes (core/upsample.h): the sampled G-buffer, and the client's upsampling
+// Reduced-resolution passes (core/buffers/upsample.h): the sampled G-buffer, and the client's upsampling
 // on analytic G-buffers: exact on one surface, no bleeding across a silhouette where bilinear
 // bleeds, refusals, and the same bytes at any thread count.
-#include "core/upsample.h"
+#include "core/buffers/upsample.h"
 
-#include "core/error.h"
+#include "core/base/error.h"
 #include "support.h"
 
 #include <gtest/gtest.h>

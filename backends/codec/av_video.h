@@ -26,7 +26,7 @@
 // buffer description starts a new stream; reset() drops encoder and decoder.
 #pragma once
 
-#include "core/backend.h"
+#include "core/backend/backend.h"
 
 extern "C" {
 #include <libavcodec/avcodec.h>

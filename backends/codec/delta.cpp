@@ -62,8 +62,8 @@
 // Example: {"name": "delta", "params": {"inner": "zstd", "level": 1, "predictor": "reprojection"}}
 #include "backends/codec/reference_frames.h"
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/checksum.h"
+#include "core/backend/backend.h"
+#include "core/base/checksum.h"
 
 #include <algorithm>
 #include <cstring>

@@ -52,7 +52,7 @@
 #include "backends/codec/av_video.h"
 #include "backends/codec/reference_frames.h"
 #include "backends/register_all.h"
-#include "core/checksum.h"
+#include "core/base/checksum.h"
 
 #include <algorithm>
 #include <cstring>

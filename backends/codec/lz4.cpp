@@ -5,7 +5,7 @@
 // `CodecConformance.BitFlipsAreDetectedOrHarmless` holds lz4 to detecting them). The paper
 // names LZ4 as the lossless codec for its bitmasks; fast mode is its choice for speed.
 //
-// Visibility bitmasks are coded as one bit-plane per light by default (core/buffer_layout.h);
+// Visibility bitmasks are coded as one bit-plane per light by default (core/buffers/buffer_layout.h);
 // the layout is not stored in the frame: encoder and decoder take it from the same
 // parameters, and the frame stays a standard LZ4 frame of the (planar) bytes.
 //
@@ -20,8 +20,8 @@
 // Decoding checks, before writing anything, that the frame declares checksums and exactly
 // the content size the buffer description implies; any library error, trailing bytes after
 // the frame, or a short frame returns false with a message.
-#include "core/backend.h"
-#include "core/buffer_layout.h"
+#include "core/backend/backend.h"
+#include "core/buffers/buffer_layout.h"
 
 #include <lz4frame.h>
 

@@ -2,7 +2,7 @@
 // against, and the paper's uncompressed remote-rendering frame.
 //
 // Parameters: none.   Example: {"name": "raw"}
-#include "core/backend.h"
+#include "core/backend/backend.h"
 
 #include <algorithm>
 

@@ -1,7 +1,7 @@
 // The reference frames of the predicting codecs: see reference_frames.h.
 #include "backends/codec/reference_frames.h"
 
-#include "core/upsample.h"
+#include "core/buffers/upsample.h"
 
 #include <algorithm>
 

@@ -2,10 +2,10 @@
 // docs/architecture.md, "Pass coding against what the client holds"): the frames either end
 // keeps as references, the little-endian fields of their headers, the check that a decoder
 // has the G-buffers a reprojected prediction needs, and the carrying of a reference to this
-// frame by the registered predictor, at full or reduced resolution (core/upsample.h).
+// frame by the registered predictor, at full or reduced resolution (core/buffers/upsample.h).
 #pragma once
 
-#include "core/backend.h"
+#include "core/backend/backend.h"
 
 #include <cstdint>
 #include <deque>

@@ -4,7 +4,7 @@
 // kept for the codec's life: creating them per frame costs more than coding a small frame.
 //
 // Level 1 is the default: on noisy 8-ray AO it is both smaller and faster than level 3.
-// Visibility bitmasks are coded as one bit-plane per light by default (core/buffer_layout.h);
+// Visibility bitmasks are coded as one bit-plane per light by default (core/buffers/buffer_layout.h);
 // the layout is not stored in the frame: encoder and decoder take it from the same
 // parameters, and the frame stays a standard Zstandard frame.
 //
@@ -16,8 +16,8 @@
 // Decoding checks, before writing anything, that the frame declares exactly the content
 // size the buffer description implies (unknown or unreadable sizes are rejected), that it
 // carries a checksum and that no bytes follow it.
-#include "core/backend.h"
-#include "core/buffer_layout.h"
+#include "core/backend/backend.h"
+#include "core/buffers/buffer_layout.h"
 
 #include <zstd.h>
 

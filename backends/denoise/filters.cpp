@@ -13,8 +13,8 @@
 // each step saved: `git show aec67ef:docs/performance.md`, "svgf_ao".
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
-#include "core/error.h"
-#include "core/gbuffer.h"
+#include "core/base/error.h"
+#include "core/buffers/gbuffer.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

@@ -20,9 +20,9 @@
 // Internal to backends/denoise/ (and its tests): not a public API.
 #pragma once
 
-#include "core/backend.h"
-#include "core/image.h"
-#include "core/params.h"
+#include "core/backend/backend.h"
+#include "core/base/params.h"
+#include "core/buffers/image.h"
 
 #include <cstdint>
 #include <vector>

@@ -17,7 +17,7 @@
 // floor"); what each step saved: `git show aec67ef:docs/performance.md`, "svgf_ao".
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"
-#include "core/cpu_isa.h"
+#include "core/base/cpu_isa.h"
 
 #include <algorithm>
 #include <atomic>
@@ -770,7 +770,7 @@ void force_portable_kernels(bool on) { g_portable_only.store(on, std::memory_ord
 
 bool cpu_has_avx512() {
 #if DHR_DENOISE_AVX512
-  static const bool has = __builtin_cpu_supports("avx512f") && kernels_may_use(Isa::kAvx512);  // core/cpu_isa.h
+  static const bool has = __builtin_cpu_supports("avx512f") && kernels_may_use(Isa::kAvx512);  // core/base/cpu_isa.h
   return has && !g_portable_only.load(std::memory_order_relaxed);
 #else
   return false;

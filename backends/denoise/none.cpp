@@ -2,7 +2,7 @@
 // N rays stay 0..N, full scale N), as the paper sends them; clamped to the scale.
 //
 // Parameters: none.   Example: {"name": "none"}
-#include "core/backend.h"
+#include "core/backend/backend.h"
 
 namespace dhr {
 namespace {

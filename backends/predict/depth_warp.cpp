@@ -1,5 +1,5 @@
 // depth_warp: the remote-rendering baseline's best client-side prediction: the colour frame is
-// reprojected with the depth the server sent beside it (core/depth_pass.h), so the camera's
+// reprojected with the depth the server sent beside it (core/buffers/depth_pass.h), so the camera's
 // translation is corrected as well as its rotation, as production XR streaming does
 // (positional timewarp). rotation_warp corrects the rotation only. Choosing this predictor for
 // passes.colour makes remote mode send the depth pass; its bytes count in the run's bandwidth.
@@ -28,7 +28,7 @@
 // Accepts any 8-bit pass (colour RGB interleaved, ao, soft_visibility per plane); bitmasks are
 // refused. src.depth must be the received buffer's size when present.
 //
-// Parameters: depth_bits (8..16, default 12: the depth pass's precision, core/depth_pass.h),
+// Parameters: depth_bits (8..16, default 12: the depth pass's precision, core/buffers/depth_pass.h),
 // crack_ratio (1.01..10, default 1.1).
 // Example: {"name": "depth_warp", "params": {"depth_bits": 14}}
 #include "backends/predict/warp.h"
@@ -239,7 +239,7 @@ PredictorEntry make_depth_warp_predictor() {
           "remote-rendering baseline: reproject the last colour frame with the depth sent beside it (rotation "
           "and translation; remote mode then sends a depth pass, counted)",
           {ParamSpec::integer("depth_bits", 12, 8, 16,
-                              "the precision of the inverse depth the server sends (core/depth_pass.h): more bits, "
+                              "the precision of the inverse depth the server sends (core/buffers/depth_pass.h): more bits, "
                               "less parallax error and more bytes"),
            ParamSpec::real("crack_ratio", 1.1, 1.01, 10.0,
                            "a kept point this many times as far as both neighbours (row or column) is a crack and "

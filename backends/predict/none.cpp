@@ -2,7 +2,7 @@
 // old it is (the paper's Fig. 6, "without prediction").
 //
 // Parameters: none.   Example: {"name": "none"}
-#include "core/backend.h"
+#include "core/backend/backend.h"
 
 namespace dhr {
 namespace {

@@ -47,7 +47,7 @@
 // nearest_valid), fill_radius_px (1..16, default 3), depth_tolerance (0.0001..1, default
 // 0.02), normal_threshold (-1..1, default 0.9).
 // Example: {"name": "reprojection", "params": {"filter": "nearest", "fill": "local"}}
-#include "core/avx512.h"
+#include "core/base/avx512.h"
 #include "backends/predict/warp.h"
 
 #include <algorithm>
@@ -145,7 +145,7 @@ DHR_AVX512_TARGET inline bool side_by_side16(__m512i j0, int32_t& lane0) {
   return _mm512_cmpeq_epi32_mask(j0, _mm512_add_epi32(_mm512_set1_epi32(lane0), lane)) == 0xFFFF;
 }
 
-// x, y and z of 16 consecutive vec3 (core/avx512.h's load_xyz16).
+// x, y and z of 16 consecutive vec3 (core/base/avx512.h's load_xyz16).
 DHR_AVX512_TARGET inline Xyz16 load_xyz16(const glm::vec3* v) {
   static_assert(sizeof(glm::vec3) == 3 * sizeof(float));
   return dhr::load_xyz16(&v->x);

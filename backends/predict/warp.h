@@ -5,11 +5,11 @@
 // Internal to backends/predict/: not a public API.
 #pragma once
 
-#include "core/backend.h"
-#include "core/camera.h"
-#include "core/error.h"
-#include "core/gbuffer.h"
-#include "core/pass_buffer.h"
+#include "core/backend/backend.h"
+#include "core/base/error.h"
+#include "core/buffers/camera.h"
+#include "core/buffers/gbuffer.h"
+#include "core/buffers/pass_buffer.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

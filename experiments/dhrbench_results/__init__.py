@@ -27,11 +27,11 @@ import os
 import zlib
 from typing import NamedTuple
 
-MAX_JSON_DEPTH = 64  # core/json_io.h kMaxJsonDepth: the limit for every JSON dhrbench reads
+MAX_JSON_DEPTH = 64  # core/base/json_io.h kMaxJsonDepth: the limit for every JSON dhrbench reads
 
 
 # The image metrics of results written before results.json declared them ("declared", from
-# core/results.cpp): SSIM and PSNR, with the same names.
+# core/results/results.cpp): SSIM and PSNR, with the same names.
 DECLARED_BEFORE_RECORD = {"image_metrics": [
     {"name": "ssim", "unit": "", "higher_is_better": True,
      "columns": {"local": "ssim_local", "ground_truth": "ssim_ground_truth"},

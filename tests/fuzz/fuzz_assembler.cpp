@@ -4,8 +4,8 @@
 // and advances the virtual clock. Checked after every step: memory stays within the limits;
 // every completed frame of a generated stream has exactly the bytes that were sent (injected
 // datagrams are confined to stream ids >= 0x8000, so they can never be mistaken for them).
-#include "core/assembler.h"
-#include "core/rng.h"
+#include "core/base/rng.h"
+#include "core/net/assembler.h"
 #include "tests/fuzz/fuzz_common.h"
 
 #include <deque>

@@ -9,7 +9,7 @@
 // round trip: the bytes, made a valid buffer of the first description, are encoded and
 // decoded, and a lossless codec must give them back exactly.
 #include "backends/register_all.h"
-#include "core/backend.h"
+#include "core/backend/backend.h"
 #include "tests/fuzz/fuzz_common.h"
 
 #include <algorithm>
@@ -57,7 +57,7 @@ PassDesc desc_from(uint8_t b0, uint8_t b1, uint8_t b2, uint8_t b3) {
     d.kind = PassKind::Depth;
     d.full_scale = 8 + (b0 >> 2) % 9;
   }
-  // Channels within the kind's range (core/pass_buffer.cpp), at most 8 planes of 8 bits.
+  // Channels within the kind's range (core/buffers/pass_buffer.cpp), at most 8 planes of 8 bits.
   const PassKindInfo& k = *find_pass_kind(uint8_t(d.kind));
   const int most = k.layout == PassLayout::Bitmask ? k.max_channels : std::min(k.max_channels, 8);
   d.channels = k.min_channels + b3 % (most - k.min_channels + 1);

@@ -3,8 +3,8 @@
 // settings are in range) or throws one dhr::Error whose message names the file or the --set
 // key with no overlong line; any other exception, a crash, a hang or a sanitizer report is a
 // finding.
-#include "core/error.h"
-#include "core/experiment.h"
+#include "core/base/error.h"
+#include "core/experiment/experiment.h"
 #include "tests/fuzz/fuzz_files.h"
 
 #include <string>

@@ -1,9 +1,9 @@
-// libFuzzer target: the image reader (core/image_io.h) on arbitrary PNG bytes, as it reads
+// libFuzzer target: the image reader (core/buffers/image_io.h) on arbitrary PNG bytes, as it reads
 // scene textures and 'dhrbench compare' inputs: the chunk structure and CRCs are checked before
 // the decoder sees them. Every input either decodes (a width x height RGBA image of the size it
 // says) or throws one dhr::Error naming the image; anything else is a finding.
-#include "core/error.h"
-#include "core/image_io.h"
+#include "core/base/error.h"
+#include "core/buffers/image_io.h"
 #include "tests/fuzz/fuzz_files.h"
 
 #include <string>

@@ -17,11 +17,11 @@
 // range and re-encodes to the same typed values; Refuse/Bye reasons are printable ASCII that
 // a JSON writer accepts; offer_mismatches never throws for any shape; a sealed datagram
 // verifies and a flipped one does not.
-#include "core/frame_loop.h"
 #include "backends/register_all.h"
-#include "core/json_io.h"
-#include "core/live.h"
-#include "core/live_protocol.h"
+#include "core/base/json_io.h"
+#include "core/live/live.h"
+#include "core/live/live_protocol.h"
+#include "core/sim/frame_loop.h"
 #include "tests/fuzz/fuzz_common.h"
 
 #include <cmath>

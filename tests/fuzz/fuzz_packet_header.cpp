@@ -4,9 +4,9 @@
 // datagram: the fields are in range, and the datagram is byte for byte the one packetize()
 // (encode_control()) makes for those fields, i.e. the parsers accept exactly the canonical
 // encoding (data packets; a parity packet's payload depends on the whole pass).
-#include "core/fec.h"
-#include "core/live_protocol.h"
-#include "core/packet.h"
+#include "core/live/live_protocol.h"
+#include "core/net/fec.h"
+#include "core/net/packet.h"
 #include "tests/fuzz/fuzz_common.h"
 
 #include <algorithm>

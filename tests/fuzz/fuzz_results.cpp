@@ -1,11 +1,11 @@
 // libFuzzer target: the checks 'dhrbench report' and 'dhrbench merge' run on a results folder
-// (core/results_check.h). The input is results.json, then a line "#frames.csv", then frames.csv.
+// (core/results/results_check.h). The input is results.json, then a line "#frames.csv", then frames.csv.
 // Every input either passes (and then every run has its metrics or its error, and frames.csv
 // holds exactly one row per displayed frame of each run) or throws one dhr::Error naming the
 // file; any other exception, a crash, a hang or a sanitizer report is a finding.
-#include "core/error.h"
-#include "core/json_io.h"
-#include "core/results_check.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/results/results_check.h"
 #include "tests/fuzz/fuzz_files.h"
 
 #include <string>

@@ -5,9 +5,9 @@
 // the input's empty folder (absolute, or with ".."), which would import any model or image on
 // the machine; and large repeat counts or shape resolutions, legal but building millions of
 // triangles.
-#include "core/error.h"
-#include "core/json_io.h"
-#include "core/scene_load.h"
+#include "core/base/error.h"
+#include "core/base/json_io.h"
+#include "core/scene/scene_load.h"
 #include "tests/fuzz/fuzz_files.h"
 
 #include <string>

@@ -3,10 +3,10 @@
 // header parser, programs that exercise every assembler operation, and each codec's own
 // output for the decoders. Usage: make_fuzz_corpus DIR (rerun after a format change).
 #include "backends/register_all.h"
-#include "core/backend.h"
-#include "core/live_protocol.h"
-#include "core/packet.h"
-#include "core/rng.h"
+#include "core/backend/backend.h"
+#include "core/base/rng.h"
+#include "core/live/live_protocol.h"
+#include "core/net/packet.h"
 
 #include <cstdio>
 #include <filesystem>

@@ -1,8 +1,8 @@
 #include "tests/support_buffers.h"
 
-#include "core/error.h"
-#include "core/image.h"
-#include "core/rng.h"
+#include "core/base/error.h"
+#include "core/base/rng.h"
+#include "core/buffers/image.h"
 
 #include <tbb/parallel_for.h>
 

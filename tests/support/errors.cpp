@@ -1,5 +1,5 @@
-#include "core/error.h"
-#include "core/process.h"
+#include "core/base/error.h"
+#include "core/base/process.h"
 #include "tests/support.h"
 
 namespace dhr::test {

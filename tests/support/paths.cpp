@@ -1,7 +1,7 @@
 #include "tests/support.h"
 
-#include "core/error.h"
-#include "core/scene_load.h"
+#include "core/base/error.h"
+#include "core/scene/scene_load.h"
 
 #include <cstdio>
 #include <cstdlib>

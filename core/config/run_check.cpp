@@ -1,0 +1,117 @@
+#include "core/config/run_check.h"
+
+#include "core/base/error.h"
+#include "core/net/network.h"
+#include "core/net/packet.h"
+#include "core/pass/passes.h"
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace dhr {
+
+int remote_depth_bits(const SimConfig& c, const Registries& r) {
+  if (c.mode != "remote") return 0;
+  const BackendChoice& p = c.pass(kColourPassName).predictor;
+  return r.predictors.create(p.name, p.params)->depth_bits();
+}
+
+std::string warmup_problem(const SimConfig& c) {
+  // A datagram's latency when sent at virtual time t.
+  auto latency_at = [](const LinkConfig& l, double t_ms) {
+    switch (l.latency_model) {
+      case LinkConfig::Latency::Constant: return l.latency_ms;
+      case LinkConfig::Latency::Normal: return std::max(l.latency_floor_ms, l.latency_ms + 3.0 * l.jitter_ms);
+      case LinkConfig::Latency::Trace:
+        try {
+          return load_latency_trace(l.trace_file).at(t_ms + l.trace_offset_ms);
+        } catch (const Error&) {
+          return 0.0;  // validate_sim_config reports the trace
+        }
+    }
+    return 0.0;
+  };
+  const double server_ms = c.server_timing == SimConfig::ServerTiming::Fixed ? c.server_fixed_ms : 0.0;
+  const double up_ms = latency_at(c.uplink, 0.0);
+  const double down_ms = latency_at(c.downlink, up_ms + server_ms);
+  const double first_ms = up_ms + server_ms + down_ms;
+  const double interval_ms = 1000.0 / c.display_hz;
+  const double warmup_ms = c.warmup_frames * interval_ms;
+  if (c.score_startup || warmup_ms + 1e-9 >= first_ms) return {};
+  const int need = int(std::ceil(first_ms / interval_ms - 1e-9));
+  return fmt::format("warmup_frames {} ({:.1f} ms) ends before the first server frame can arrive ({:.1f} ms: uplink {:.1f} + "
+                     "server {:.1f} + downlink {:.1f} ms), so the first scored frames would show no server data; "
+                     "use warmup_frames >= {} (or score_startup true to measure the startup)",
+                     c.warmup_frames, warmup_ms, first_ms, up_ms, server_ms, down_ms, need);
+}
+
+void validate_sim_config(const SimConfig& c, const Scene& scene, const Registries& r) {
+  std::vector<std::string> problems;
+  auto check = [&](bool ok, std::string what) {
+    if (!ok) problems.push_back(std::move(what));
+  };
+  // Ranges and choices: the table of settings (core/config/run_config.cpp).
+  for (std::string& p : setting_range_problems(c)) problems.push_back(std::move(p));
+  check(c.max_payload_bytes + kPacketHeaderBytes + kIpUdpOverheadBytes <= size_t(c.downlink.mtu_bytes),
+        fmt::format("max_payload_bytes {} + {} header + {} IP/UDP exceeds the downlink MTU {}", c.max_payload_bytes,
+                    kPacketHeaderBytes, kIpUdpOverheadBytes, c.downlink.mtu_bytes));
+  for (const LinkConfig* link : {&c.uplink, &c.downlink}) {
+    try {
+      if (link->latency_model == LinkConfig::Latency::Trace) load_latency_trace(link->trace_file);
+      if (!link->capacity_trace_file.empty()) load_capacity_trace(link->capacity_trace_file);
+    } catch (const Error& e) {
+      problems.push_back(fmt::format("{}: {}", link == &c.uplink ? "uplink" : "downlink", e.what()));
+    }
+  }
+  std::optional<PassPlan> plan;
+  try {
+    plan = plan_passes(scene, c.trace);
+  } catch (const Error& e) {
+    problems.push_back(e.what());
+  }
+  auto backend = [&](const auto& registry, const BackendChoice& b, const char* role) {
+    try {
+      registry.create(b.name, b.params);
+    } catch (const Error& e) {
+      problems.push_back(fmt::format("{}: {}", role, e.what()));
+    }
+  };
+  for (const RunSetting& s : run_settings()) {
+    if (s.type != SettingType::Backend) continue;
+    const nlohmann::json v = s.get(c);
+    const BackendChoice b{v.at("name").get<std::string>(), v.at("params")};
+    if (s.kind == "codec") backend(r.codecs, b, s.key.c_str());
+    else if (s.kind == "denoiser") backend(r.denoisers, b, s.key.c_str());
+    else backend(r.predictors, b, s.key.c_str());
+  }
+  if (problems.empty()) {
+    // A lossy codec must not be asked to carry a bitmask.
+    std::string sent;
+    bool budgeted = false;
+    for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)) {
+      const BackendChoice codec = c.pass(p.name).codec;
+      const std::unique_ptr<Codec> made = r.codecs.create(codec.name, codec.params);
+      if (std::string why = made->refuses(p.desc); !why.empty())
+        problems.push_back(fmt::format("passes.{}.codec '{}' cannot carry the {} pass: {}", p.name, codec.name,
+                                       pass_kind_name(p.desc.kind), why));
+      budgeted = budgeted || made->takes_target_kbps();
+      sent += fmt::format("{}passes.{}.codec '{}'", sent.empty() ? "" : ", ", p.name, codec.name);
+    }
+    if (c.stream_kbps > 0.0 && !budgeted)
+      problems.push_back(fmt::format("stream_kbps {}: no pass's codec takes a target bitrate ({}); give one pass "
+                                     "h264 with rate_control bitrate",
+                                     c.stream_kbps, sent));
+  }
+  if (!problems.empty()) {
+    std::string msg = problems.front();
+    for (size_t i = 1; i < problems.size(); ++i) msg += "\n" + problems[i];
+    throw Error(msg);
+  }
+}
+
+}  // namespace dhr
