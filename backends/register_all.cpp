@@ -4,9 +4,21 @@
 #include "backends/register_all.h"
 
 // Declares the entry function and adds what it returns to the registry (one line each).
-#define DHR_CODEC(fn)     do { extern ::dhr::CodecEntry fn();  r.codecs.add(fn()); } while (0)
-#define DHR_DENOISER(fn)  do { extern ::dhr::DenoiserEntry fn();  r.denoisers.add(fn()); } while (0)
-#define DHR_PREDICTOR(fn) do { extern ::dhr::PredictorEntry fn();  r.predictors.add(fn()); } while (0)
+#define DHR_CODEC(fn)              \
+  do {                             \
+    extern ::dhr::CodecEntry fn(); \
+    r.codecs.add(fn());            \
+  } while (0)
+#define DHR_DENOISER(fn)              \
+  do {                                \
+    extern ::dhr::DenoiserEntry fn(); \
+    r.denoisers.add(fn());            \
+  } while (0)
+#define DHR_PREDICTOR(fn)              \
+  do {                                 \
+    extern ::dhr::PredictorEntry fn(); \
+    r.predictors.add(fn());            \
+  } while (0)
 
 namespace dhr {
 

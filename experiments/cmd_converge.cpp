@@ -41,34 +41,48 @@ Runner add_converge_command(CLI::App& app) {
       "(`dhrbench metrics`). The difference bounds the N estimate's own error from above. Examples:\n"
       "  dhrbench converge --scene room --scene street\n"
       "  dhrbench converge --scene living-room --ao-rays 128 --samples-per-light 32 --factor 4 --out out/converge");
-  cmd->add_option("--scene", o->scenes, "Scene (repeatable): a file, a built-in name or a real scene's name")->required();
+  cmd->add_option("--scene", o->scenes, "Scene (repeatable): a file, a built-in name or a real scene's name")
+      ->required();
   cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
   cmd->add_option("--width", o->width, "Image width")->check(CLI::Range(8, 7680))->capture_default_str();
   cmd->add_option("--height", o->height, "Image height")->check(CLI::Range(8, 4320))->capture_default_str();
-  cmd->add_option("--frames", o->frames, "Frames per scene, evenly spread over the duration")->check(CLI::Range(1, 100))->capture_default_str();
-  cmd->add_option("--start", o->start_s, "Scene time of the first frame (s)")->check(CLI::NonNegativeNumber)->capture_default_str();
-  cmd->add_option("--duration", o->duration_s, "Scene time the frames span (s)")->check(CLI::NonNegativeNumber)->capture_default_str();
-  cmd->add_option("--ao-rays", o->ao_rays, "N: the ground truth's AO rays per pixel (experiments: ground_truth_ao_rays)")
-      ->check(CLI::Range(1, 16383))->capture_default_str();
+  cmd->add_option("--frames", o->frames, "Frames per scene, evenly spread over the duration")
+      ->check(CLI::Range(1, 100))
+      ->capture_default_str();
+  cmd->add_option("--start", o->start_s, "Scene time of the first frame (s)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  cmd->add_option("--duration", o->duration_s, "Scene time the frames span (s)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  cmd->add_option("--ao-rays", o->ao_rays,
+                  "N: the ground truth's AO rays per pixel (experiments: ground_truth_ao_rays)")
+      ->check(CLI::Range(1, 16383))
+      ->capture_default_str();
   cmd->add_option("--samples-per-light", o->samples_per_light,
                   "N: the ground truth's rays per area light (experiments: ground_truth_samples_per_light)")
-      ->check(CLI::Range(1, 16383))->capture_default_str();
-  cmd->add_option("--sampling", o->sampling,
-                  "The ground truth's samples of a pixel (the larger estimate's too, unless --large-sampling): lattice (a "
-                  "shifted R2 lattice per pixel and light) or random (independent uniforms); experiments: "
-                  "ground_truth_sampling")
+      ->check(CLI::Range(1, 16383))
+      ->capture_default_str();
+  cmd->add_option(
+         "--sampling", o->sampling,
+         "The ground truth's samples of a pixel (the larger estimate's too, unless --large-sampling): lattice (a "
+         "shifted R2 lattice per pixel and light) or random (independent uniforms); experiments: "
+         "ground_truth_sampling")
       ->check(CLI::IsMember(sampling_names()))
       ->capture_default_str();
   cmd->add_option("--large-sampling", o->large_sampling,
                   "The factor x N estimate's samples (default: --sampling's). Two candidates scored against one "
                   "estimate: e.g. lattice N against random 8N, then random 2N against random 8N (factor 4)")
       ->check(CLI::IsMember(sampling_names()));
-  cmd->add_option("--factor", o->factor, "The larger estimate's samples: factor x N")->check(CLI::Range(2, 64))->capture_default_str();
+  cmd->add_option("--factor", o->factor, "The larger estimate's samples: factor x N")
+      ->check(CLI::Range(2, 64))
+      ->capture_default_str();
   cmd->add_option("--out", o->out, "Write convergence.json here (and the larger estimates' images)");
   cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")->check(CLI::NonNegativeNumber);
   return [o] {
     std::unique_ptr<tbb::global_control> limit;
-    if (o->threads > 0) limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(o->threads));
+    if (o->threads > 0)
+      limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(o->threads));
     if (int64_t(o->ao_rays) * o->factor > 65535 || int64_t(o->samples_per_light) * o->factor > 65535)
       fail("converge: factor {} x N (AO rays {}, rays per light {}) exceeds 65535, the ground truth's limit", o->factor,
            o->ao_rays, o->samples_per_light);
@@ -81,13 +95,13 @@ Runner add_converge_command(CLI::App& app) {
                           {"factor", o->factor},
                           {"sampling", o->sampling},
                           {"large_sampling", large_sampling},
-                          {"note", "each figure scores the N-sample ground truth against the factor x N one (independent "
-                                   "seeds); the difference bounds the N estimate's own error from above"},
+                          {"note",
+                           "each figure scores the N-sample ground truth against the factor x N one (independent "
+                           "seeds); the difference bounds the N estimate's own error from above"},
                           {"scenes", nlohmann::json::array()}};
     const auto& metrics = image_metrics();
-    fmt::print("ground truth at N = {} AO rays, {} rays per light ({} samples) against {} x N ({}); {}x{}\n", o->ao_rays,
-               o->samples_per_light, o->sampling, o->factor, large_sampling,
-               o->width, o->height);
+    fmt::print("ground truth at N = {} AO rays, {} rays per light ({} samples) against {} x N ({}); {}x{}\n",
+               o->ao_rays, o->samples_per_light, o->sampling, o->factor, large_sampling, o->width, o->height);
     fmt::print("{:<24} {:>7}", "scene", "time s");
     for (const ImageMetric& m : metrics)
       if (m.score) fmt::print(" {:>10}", m.name + (m.unit.empty() ? "" : " " + m.unit));
@@ -127,7 +141,9 @@ Runner add_converge_command(CLI::App& app) {
         rows.push_back(row);
         if (!o->out.empty()) {
           make_output_dir(o->out, "--out");
-          write_png((fs::path(o->out) / fmt::format("{}_t{:.3f}_x{}.png", fs::path(name).stem().string(), t, o->factor)).string(), b);
+          write_png((fs::path(o->out) / fmt::format("{}_t{:.3f}_x{}.png", fs::path(name).stem().string(), t, o->factor))
+                        .string(),
+                    b);
         }
       }
       nlohmann::json summary = nlohmann::json::object();

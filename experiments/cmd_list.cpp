@@ -23,8 +23,7 @@ void print_kind(const Registry<Interface>& reg, const std::string& title) {
     const auto& e = reg.entries()[i];
     fmt::print("  {:<18} {}\n", e.name, e.description);
     for (const auto& p : e.params) {
-      fmt::print("      {:<22} default {:<10} {}; {}\n", p.name, p.default_value.dump(), p.range_text(),
-                 p.description);
+      fmt::print("      {:<22} default {:<10} {}; {}\n", p.name, p.default_value.dump(), p.range_text(), p.description);
     }
     fmt::print("      example: {}\n", examples[i].file_text());
   }
@@ -33,8 +32,9 @@ void print_kind(const Registry<Interface>& reg, const std::string& title) {
 }  // namespace
 
 Runner add_list_command(CLI::App& app) {
-  auto* cmd = app.add_subcommand("list", "List every registered backend (codecs, denoisers, predictors) "
-                                         "with its parameters, defaults and valid ranges");
+  auto* cmd = app.add_subcommand("list",
+                                 "List every registered backend (codecs, denoisers, predictors) "
+                                 "with its parameters, defaults and valid ranges");
   auto kind = std::make_shared<std::string>("all");
   cmd->add_option("kind", *kind, "Only this kind")->check(CLI::IsMember({"all", "codec", "denoiser", "predictor"}));
   return [kind] {
@@ -47,16 +47,18 @@ Runner add_list_command(CLI::App& app) {
     const BackendExample* shown = nullptr;
     for (const auto& e : codecs)
       if (!shown && e.value.contains("params")) shown = &e;
-    fmt::print("\nA backend is {{\"name\": ..., \"params\": {{...}}}} (\"params\" may be left out for the defaults),\n"
-               "set at one of the run keys above: in an experiment file's \"run\" (or a --config file)\n");
+    fmt::print(
+        "\nA backend is {{\"name\": ..., \"params\": {{...}}}} (\"params\" may be left out for the defaults),\n"
+        "set at one of the run keys above: in an experiment file's \"run\" (or a --config file)\n");
     if (shown) {
       const std::string assignment = shown->set_assignment();
       const size_t eq = assignment.find('=');
-      fmt::print("  {}\n"
-                 "or on the command line (dhrbench run/validate; serve and client drop the \"run.\"):\n"
-                 "  --set {}='{}'    or one parameter: --set run.{}.params.{}=...\n",
-                 shown->file_text(), assignment.substr(0, eq), assignment.substr(eq + 1), shown->run_key,
-                 shown->value["params"].begin().key());
+      fmt::print(
+          "  {}\n"
+          "or on the command line (dhrbench run/validate; serve and client drop the \"run.\"):\n"
+          "  --set {}='{}'    or one parameter: --set run.{}.params.{}=...\n",
+          shown->file_text(), assignment.substr(0, eq), assignment.substr(eq + 1), shown->run_key,
+          shown->value["params"].begin().key());
     }
     return 0;
   };

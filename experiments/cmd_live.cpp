@@ -42,14 +42,18 @@ struct Common {
 };
 
 void add_common(CLI::App* cmd, Common& c) {
-  cmd->add_option("--scene", c.scene, "Scene: a built-in name (room, temple, street, living-room, ...), a .json file or a model")
+  cmd->add_option("--scene", c.scene,
+                  "Scene: a built-in name (room, temple, street, living-room, ...), a .json file or a model")
       ->required();
-  cmd->add_option("--config", c.config,
-                  "JSON file with the run settings, shaped like an experiment's \"run\" object: width, height, "
-                  "display_hz, seed, trace {...}, passes {visibility, ao: {codec, denoiser, predictor}} each {name, params}, "
-                  "max_payload_bytes, ... (see core/experiment/experiment.h)");
-  cmd->add_option("--set", c.sets, "Override one setting: dotted.key=value (repeatable), e.g. --set width=640 --set passes.ao.codec.name=zstd "
-                  "(every key: dhrbench settings; the version-1 keys such as ao_codec are accepted too)");
+  cmd->add_option(
+      "--config", c.config,
+      "JSON file with the run settings, shaped like an experiment's \"run\" object: width, height, "
+      "display_hz, seed, trace {...}, passes {visibility, ao: {codec, denoiser, predictor}} each {name, params}, "
+      "max_payload_bytes, ... (see core/experiment/experiment.h)");
+  cmd->add_option(
+      "--set", c.sets,
+      "Override one setting: dotted.key=value (repeatable), e.g. --set width=640 --set passes.ao.codec.name=zstd "
+      "(every key: dhrbench settings; the version-1 keys such as ao_codec are accepted too)");
   cmd->add_option("--scene-path", c.scene_path, "Folder to look for scene assets in (repeatable)");
   cmd->add_flag("--quiet", c.quiet, "Only errors on stderr");
 }
@@ -107,7 +111,8 @@ Runner add_serve_command(CLI::App& app) {
       "  (then on the client machine: dhrbench client --scene living-room --set width=640 --set height=360 \\\n"
       "     --server SERVER_IP:47000)");
   add_common(cmd, o->common);
-  cmd->add_option("--bind", o->bind, "Address and UDP port to listen on (port 0: any free port)")->capture_default_str();
+  cmd->add_option("--bind", o->bind, "Address and UDP port to listen on (port 0: any free port)")
+      ->capture_default_str();
   cmd->add_option("--port-file", o->port_file, "Write the bound port to this file (for scripts using port 0)");
   cmd->add_option("--out", o->out, "Folder for server.json and server_frames.csv (what was sent per frame)");
   cmd->add_option("--idle-timeout", o->idle_timeout_s, "Seconds of client silence that end a session")
@@ -173,7 +178,8 @@ Runner add_client_command(CLI::App& app) {
   cmd->add_option("--key-file", o->key_file,
                   "Authenticate every datagram with HMAC-SHA256 keyed by this file's bytes (the server's --key-file). "
                   "See docs/live-security.md");
-  cmd->add_option("--port-file", o->port_file, "Write the client's local UDP port to this file once the session started");
+  cmd->add_option("--port-file", o->port_file,
+                  "Write the client's local UDP port to this file once the session started");
   return [o]() {
     auto loaded = load(o->common, "client");
     ClientOptions co;
@@ -227,7 +233,8 @@ Runner add_relay_command(CLI::App& app) {
   cmd->add_option("--max-queue-mb", o->max_queue_mb, "Datagrams waiting for their arrival time, at most (MB)")
       ->check(CLI::Range(1, 4096))
       ->capture_default_str();
-  cmd->add_option("--idle-timeout", o->idle_timeout_s, "Seconds without traffic (after the first datagram) that end the relay")
+  cmd->add_option("--idle-timeout", o->idle_timeout_s,
+                  "Seconds without traffic (after the first datagram) that end the relay")
       ->check(CLI::Range(0.1, 3600.0))
       ->capture_default_str();
   cmd->add_option("--port-file", o->port_file, "Write the bound port to this file (for scripts using port 0)");

@@ -109,36 +109,39 @@ Runner add_merge_command(CLI::App& app) {
       const ShardManifest& m = s.manifest;
       if (m.experiment_hash != first->manifest.experiment_hash || m.all_runs != first->manifest.all_runs)
         problems.push_back(fmt::format("{}: another experiment (hash {}, {}) than {} (hash {}, {})", s.dir,
-                                       m.experiment_hash, m.experiment_path, first->dir, first->manifest.experiment_hash,
-                                       first->manifest.experiment_path));
+                                       m.experiment_hash, m.experiment_path, first->dir,
+                                       first->manifest.experiment_hash, first->manifest.experiment_path));
       else if (m.git_commit != first->manifest.git_commit)
-        problems.push_back(fmt::format("{}: run at commit {}, {} at commit {}: shards of one result come from one commit",
-                                       s.dir, m.git_commit.dump(), first->dir, first->manifest.git_commit.dump()));
+        problems.push_back(
+            fmt::format("{}: run at commit {}, {} at commit {}: shards of one result come from one commit", s.dir,
+                        m.git_commit.dump(), first->dir, first->manifest.git_commit.dump()));
       else if (m.count != first->manifest.count)
-        problems.push_back(fmt::format("{}: shard {}/{}, but {} is one of {} shards", s.dir, m.index, m.count, first->dir,
-                                       first->manifest.count));
+        problems.push_back(fmt::format("{}: shard {}/{}, but {} is one of {} shards", s.dir, m.index, m.count,
+                                       first->dir, first->manifest.count));
       else if (auto [it, added] = seen.emplace(m.index, s.dir); !added)
         problems.push_back(fmt::format("shard {}/{} given twice: {} and {}", m.index, m.count, it->second, s.dir));
     }
     if (first && problems.empty())
       for (int k = 1; k <= first->manifest.count; ++k)
         if (!seen.count(k))
-          problems.push_back(fmt::format("shard {}/{} is missing (none of the folders given holds it)", k,
-                                         first->manifest.count));
+          problems.push_back(
+              fmt::format("shard {}/{} is missing (none of the folders given holds it)", k, first->manifest.count));
     // Each shard finished, and its files agree with its manifest.
     for (Shard& s : shards) {
       const ShardManifest& m = s.manifest;
       const std::string runs = join(m.run_ids);
       if (m.status == "failed") {
-        problems.push_back(fmt::format("shard {}/{} ({}) failed: {}\n    its runs: {}\n    rerun it: dhrbench run {} --shard {}/{} --out {}",
-                                       m.index, m.count, s.dir, m.error, runs, m.experiment_path, m.index, m.count, s.dir));
+        problems.push_back(fmt::format(
+            "shard {}/{} ({}) failed: {}\n    its runs: {}\n    rerun it: dhrbench run {} --shard {}/{} --out {}",
+            m.index, m.count, s.dir, m.error, runs, m.experiment_path, m.index, m.count, s.dir));
         continue;
       }
       if (m.status == "running") {
-        problems.push_back(fmt::format("shard {}/{} ({}) did not finish (status \"running\": still running, or stopped "
-                                       "from outside, e.g. a time limit; see its log)\n    its runs: {}\n    rerun it: "
-                                       "dhrbench run {} --shard {}/{} --out {}",
-                                       m.index, m.count, s.dir, runs, m.experiment_path, m.index, m.count, s.dir));
+        problems.push_back(
+            fmt::format("shard {}/{} ({}) did not finish (status \"running\": still running, or stopped "
+                        "from outside, e.g. a time limit; see its log)\n    its runs: {}\n    rerun it: "
+                        "dhrbench run {} --shard {}/{} --out {}",
+                        m.index, m.count, s.dir, runs, m.experiment_path, m.index, m.count, s.dir));
         continue;
       }
       try {
@@ -162,9 +165,10 @@ Runner add_merge_command(CLI::App& app) {
           const nlohmann::json isa = s.results.at("context").value("embree_isa", none);
           const nlohmann::json first_isa = first->results.at("context").value("embree_isa", none);
           if (isa != first_isa)
-            fail("{}: traced with Embree's {} kernels, {} with its {}: the figures of one result come from one "
-                 "ISA (run every shard with the same DHR_MAX_ISA, e.g. avx2, the best all nodes have)",
-                 results_path.string(), isa.dump(), first->dir, first_isa.dump());
+            fail(
+                "{}: traced with Embree's {} kernels, {} with its {}: the figures of one result come from one "
+                "ISA (run every shard with the same DHR_MAX_ISA, e.g. avx2, the best all nodes have)",
+                results_path.string(), isa.dump(), first->dir, first_isa.dump());
         }
         const fs::path frames_path = fs::path(s.dir) / "frames.csv";
         if (!fs::exists(frames_path)) fail("{}: missing, though shard.json says complete", frames_path.string());
@@ -219,8 +223,11 @@ Runner add_merge_command(CLI::App& app) {
     for (const Shard* s : by_index) {
       const double w = s->results.value("wall_s", 0.0);
       wall += w;
-      merged["shards"].push_back({{"shard", s->manifest.index}, {"folder", s->dir}, {"runs", s->manifest.run_ids},
-                                  {"wall_s", w}, {"context", s->results.at("context")}});
+      merged["shards"].push_back({{"shard", s->manifest.index},
+                                  {"folder", s->dir},
+                                  {"runs", s->manifest.run_ids},
+                                  {"wall_s", w},
+                                  {"context", s->results.at("context")}});
     }
     merged["wall_s"] = wall;  // the sum over the shards (each shard's own is under "shards")
     make_output_dir((fs::path(o->out) / "images").string(), "OUT");
@@ -242,11 +249,12 @@ Runner add_merge_command(CLI::App& app) {
       if (!fs::is_directory(images)) continue;
       for (const auto& f : fs::directory_iterator(images))
         if (f.is_regular_file())
-          fs::copy_file(f.path(), fs::path(o->out) / "images" / f.path().filename(), fs::copy_options::overwrite_existing);
+          fs::copy_file(f.path(), fs::path(o->out) / "images" / f.path().filename(),
+                        fs::copy_options::overwrite_existing);
     }
     std::ofstream(fs::path(o->out) / "results.json") << merged.dump(1) << '\n';
-    fmt::print(stderr, "merged {} shard(s), {} runs ({} failed): {}/results.json\n", shards.size(), merged["runs"].size(),
-               failed, o->out);
+    fmt::print(stderr, "merged {} shard(s), {} runs ({} failed): {}/results.json\n", shards.size(),
+               merged["runs"].size(), failed, o->out);
     int rc = 0;
     if (!o->no_report) {
       rc = write_report(o->out);

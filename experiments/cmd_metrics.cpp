@@ -11,8 +11,9 @@
 namespace dhr::cli {
 
 Runner add_metrics_command(CLI::App& app) {
-  auto* cmd = app.add_subcommand("metrics", "List every figure a run writes: image metrics per displayed frame (frames.csv "
-                                            "columns, results.json means), run and pass metrics, units and meaning");
+  auto* cmd = app.add_subcommand("metrics",
+                                 "List every figure a run writes: image metrics per displayed frame (frames.csv "
+                                 "columns, results.json means), run and pass metrics, units and meaning");
   auto json = std::make_shared<bool>(false);
   cmd->add_flag("--json", *json, "Print the declarations as JSON (what results.json holds as \"declared\")");
   return [json] {
@@ -20,8 +21,9 @@ Runner add_metrics_command(CLI::App& app) {
       fmt::print("{}\n", declared_json().dump(2));
       return 0;
     }
-    fmt::print("Image metrics, scored per displayed frame against the local reference and the ground truth\n"
-               "(frames.csv columns; results.json keys per run):\n");
+    fmt::print(
+        "Image metrics, scored per displayed frame against the local reference and the ground truth\n"
+        "(frames.csv columns; results.json keys per run):\n");
     for (const ImageMetric& m : image_metrics()) {
       fmt::print("  {:<10} {}\n", m.name + (m.unit.empty() ? "" : " (" + m.unit + ")"), m.doc);
       fmt::print("             columns {}, {}; per run", m.column(Against::Local), m.column(Against::GroundTruth));
@@ -31,7 +33,8 @@ Runner add_metrics_command(CLI::App& app) {
     }
     fmt::print("\nStatistics over a run's scored frames:\n");
     for (const ImageStatistic& s : image_statistics()) fmt::print("  {:<10} {}\n", s.name, s.doc);
-    fmt::print("\nRun metrics (results.json runs[].metrics; [wall] = measured on the wall clock, varies run to run):\n");
+    fmt::print(
+        "\nRun metrics (results.json runs[].metrics; [wall] = measured on the wall clock, varies run to run):\n");
     for (const RunMetric& m : run_metrics())
       fmt::print("  {:<26} {:<9} {}{}\n", m.one_key_per_pass ? m.key + "_PASS" : m.key, m.unit, m.doc,
                  m.wall_clock ? " [wall]" : "");

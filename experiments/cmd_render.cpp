@@ -74,8 +74,12 @@ Runner add_render_command(CLI::App& app) {
                   "Scene file (.json), a built-in scene's name (room, temple, street, living-room, ...) or a model "
                   "file (OBJ, glTF, GLB) framed with a default camera and light")
       ->required();
-  cmd->add_option("--frame", o->frame, "Frame index on the scene's camera path")->check(CLI::NonNegativeNumber)->capture_default_str();
-  cmd->add_option("--fps", o->fps, "Frames per second of the path (time = frame / fps)")->check(CLI::PositiveNumber)->capture_default_str();
+  cmd->add_option("--frame", o->frame, "Frame index on the scene's camera path")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  cmd->add_option("--fps", o->fps, "Frames per second of the path (time = frame / fps)")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
   cmd->add_option("--width", o->width, "Image width")->check(CLI::Range(8, 7680))->capture_default_str();
   cmd->add_option("--height", o->height, "Image height")->check(CLI::Range(8, 4320))->capture_default_str();
   cmd->add_option("--out", o->out, "Output folder")->capture_default_str();
@@ -84,16 +88,27 @@ Runner add_render_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--scene-path", o->scene_path,
                   "Folder to look for scene assets in (repeatable; then $DHR_SCENE_PATH, then ../shared/scenes)");
-  cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")->check(CLI::NonNegativeNumber)->capture_default_str();
+  cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   cmd->add_option("--seed", o->seed, "Random seed")->capture_default_str();
-  cmd->add_option("--ao-rays", o->ao_rays, "AO rays per pixel (0 = the scene's ao block)")->check(CLI::Range(0, 255))->capture_default_str();
-  cmd->add_option("--ao-radius", o->ao_radius_m, "AO radius in metres (0 = the scene's)")->check(CLI::NonNegativeNumber)->capture_default_str();
+  cmd->add_option("--ao-rays", o->ao_rays, "AO rays per pixel (0 = the scene's ao block)")
+      ->check(CLI::Range(0, 255))
+      ->capture_default_str();
+  cmd->add_option("--ao-radius", o->ao_radius_m, "AO radius in metres (0 = the scene's)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   cmd->add_flag("--hard", o->hard, "Hard shadows even for area lights (one ray to each light's centre)");
   cmd->add_option("--samples-per-light", o->samples_per_light,
                   "Soft shadows: rays per area light (1 = the paper's one-bit jittered ray; more = 8-bit fraction)")
-      ->check(CLI::Range(1, 1024))->capture_default_str();
-  cmd->add_option("--reference-ao-rays", o->reference_ao_rays, "Ground truth: AO rays per pixel")->check(CLI::Range(1, 65535))->capture_default_str();
-  cmd->add_option("--reference-samples", o->reference_samples, "Ground truth: rays per area light")->check(CLI::Range(1, 65535))->capture_default_str();
+      ->check(CLI::Range(1, 1024))
+      ->capture_default_str();
+  cmd->add_option("--reference-ao-rays", o->reference_ao_rays, "Ground truth: AO rays per pixel")
+      ->check(CLI::Range(1, 65535))
+      ->capture_default_str();
+  cmd->add_option("--reference-samples", o->reference_samples, "Ground truth: rays per area light")
+      ->check(CLI::Range(1, 65535))
+      ->capture_default_str();
   cmd->add_option("--reference-sampling", o->reference_sampling,
                   "Ground truth: samples of a pixel, random (independent uniforms) or lattice (a shifted R2 lattice)")
       ->check(CLI::IsMember(sampling_names()))
@@ -101,7 +116,8 @@ Runner add_render_command(CLI::App& app) {
 
   return [o] {
     std::unique_ptr<tbb::global_control> limit;
-    if (o->threads > 0) limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(o->threads));
+    if (o->threads > 0)
+      limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(o->threads));
     std::set<std::string> want(o->passes.begin(), o->passes.end());
     auto wants = [&](const char* p) { return want.count(p) || want.count("all"); };
     namespace fs = std::filesystem;
@@ -134,8 +150,8 @@ Runner add_render_command(CLI::App& app) {
     if (need_trace) {
       t0 = std::chrono::steady_clock::now();
       RtScene rt(scene);
-      fmt::print("bvh       {:8.2f} ms  ({} triangles built, {} skipped)\n", ms_since(t0), rt.build_stats().triangles_built,
-                 rt.build_stats().skipped());
+      fmt::print("bvh       {:8.2f} ms  ({} triangles built, {} skipped)\n", ms_since(t0),
+                 rt.build_stats().triangles_built, rt.build_stats().skipped());
       TraceSettings ts;
       ts.seed = o->seed;
       ts.frame = uint32_t(o->frame);
@@ -148,19 +164,23 @@ Runner add_render_command(CLI::App& app) {
       for (const TracedPass& p : tr.passes) {
         const bool shadows = p.meaning == PassMeaning::Visibility;
         const uint64_t rays = shadows ? tr.stats.shadow_rays : tr.stats.ao_rays;
-        fmt::print("{:<9} {:8.2f} ms  {} rays ({:.1f} Mrays/s)", p.name, p.ms, rays, double(rays) / std::max(p.ms, 1e-9) / 1e3);
+        fmt::print("{:<9} {:8.2f} ms  {} rays ({:.1f} Mrays/s)", p.name, p.ms, rays,
+                   double(rays) / std::max(p.ms, 1e-9) / 1e3);
         if (shadows)
-          fmt::print(", {} skipped facing away, {} beyond range", tr.stats.shadow_skipped_facing, tr.stats.shadow_skipped_range);
+          fmt::print(", {} skipped facing away, {} beyond range", tr.stats.shadow_skipped_facing,
+                     tr.stats.shadow_skipped_range);
         fmt::print("\n");
       }
-      if (tr.stats.invalid_rays) fmt::print("warning   {} invalid rays were counted and not traced\n", tr.stats.invalid_rays);
+      if (tr.stats.invalid_rays)
+        fmt::print("warning   {} invalid rays were counted and not traced\n", tr.stats.invalid_rays);
       if (wants("visibility") && tr.find("visibility")) {
         const PassBuffer& v = *tr.find("visibility");
         ImageU8 combined(v.desc.width, v.desc.height, 0);
         for (int l = 0; l < v.desc.channels; ++l) {
           const ImageU8 p = v.desc.layout() == PassLayout::Bitmask ? bit_plane(v, l) : viewable_plane(v, l);
           write_png(prefix + fmt::format("visibility_light{:02d}.png", l), p);
-          for (size_t i = 0; i < p.size(); ++i) combined[i] = uint8_t(std::min(255, combined[i] + p[i] / v.desc.channels));
+          for (size_t i = 0; i < p.size(); ++i)
+            combined[i] = uint8_t(std::min(255, combined[i] + p[i] / v.desc.channels));
         }
         write_png(prefix + "visibility.png", combined);
       }
@@ -179,7 +199,8 @@ Runner add_render_command(CLI::App& app) {
         t0 = std::chrono::steady_clock::now();
         const ReferenceResult r = ground_truth(rt, gbuf, ref);
         fmt::print("reference {:8.2f} ms  ({}; {} AO rays, {} samples per area light)\n", ms_since(t0),
-                   r.from_cache ? "from the cache " + r.path : fmt::format("{} rays traced", r.stats.ao_rays + r.stats.shadow_rays),
+                   r.from_cache ? "from the cache " + r.path
+                                : fmt::format("{} rays traced", r.stats.ao_rays + r.stats.shadow_rays),
                    ref.ao_rays, ref.samples_per_light);
         write_png(prefix + "reference.png", r.image);
       }

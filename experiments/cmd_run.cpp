@@ -93,9 +93,9 @@ class Progress {
     const double eta = done > 0 ? elapsed / done - elapsed : 0;
     if (tty_) {
       const int width = 24, filled = int(done * width);
-      std::fprintf(stderr, "\r[%s%s] config %zu/%zu frame %d/%d  ETA %s  %-40.40s", std::string(size_t(filled), '#').c_str(),
-                   std::string(size_t(width - filled), '.').c_str(), run + 1, runs_, frame, total, eta_text(eta).c_str(),
-                   label.c_str());
+      std::fprintf(stderr, "\r[%s%s] config %zu/%zu frame %d/%d  ETA %s  %-40.40s",
+                   std::string(size_t(filled), '#').c_str(), std::string(size_t(width - filled), '.').c_str(), run + 1,
+                   runs_, frame, total, eta_text(eta).c_str(), label.c_str());
       std::fflush(stderr);
     } else if (frame == total || frame % std::max(1, total / 4) == 0) {
       std::fprintf(stderr, "progress: config %zu/%zu (%s) frame %d/%d, elapsed %.0f s, ETA %s\n", run + 1, runs_,
@@ -108,7 +108,8 @@ class Progress {
 
  private:
   static std::string eta_text(double s) {
-    return s < 90 ? fmt::format("{:.0f} s", s) : fmt::format("{:.0f} min {:02.0f} s", std::floor(s / 60), std::fmod(s, 60));
+    return s < 90 ? fmt::format("{:.0f} s", s)
+                  : fmt::format("{:.0f} min {:02.0f} s", std::floor(s / 60), std::fmod(s, 60));
   }
   size_t runs_;
   bool tty_;
@@ -205,10 +206,13 @@ Runner add_run_command(CLI::App& app) {
       "is recorded with its error and the sweep goes on. Examples:\n"
       "  dhrbench run experiments/quick.json\n"
       "  dhrbench run experiments/paper.json --out out/paper --set run.frames=30 --threads 2");
-  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1 or 2)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1 or 2)")
+      ->required()
+      ->check(CLI::ExistingFile);
   cmd->add_option("--out", o->out, "Output folder (default: out/<experiment name>)");
-  cmd->add_option("--set", o->sets, "Override a key of the experiment: key=value, dotted from the top (repeatable), "
-                                    "e.g. --set run.frames=10 --set 'scenes=[\"room\"]'");
+  cmd->add_option("--set", o->sets,
+                  "Override a key of the experiment: key=value, dotted from the top (repeatable), "
+                  "e.g. --set run.frames=10 --set 'scenes=[\"room\"]'");
   cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
   cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")->check(CLI::NonNegativeNumber);
   cmd->add_flag("--no-disk-cache", o->no_disk_cache,
@@ -239,7 +243,8 @@ Runner add_run_command(CLI::App& app) {
     results["context"] = run_context(DHR_BUILD_TYPE);
     results["context"]["threads"] = o->threads;
     results["context"]["command"] = "dhrbench run " + o->experiment;
-    for (const auto& s : o->sets) results["context"]["command"] = results["context"]["command"].get<std::string>() + " --set " + s;
+    for (const auto& s : o->sets)
+      results["context"]["command"] = results["context"]["command"].get<std::string>() + " --set " + s;
     results["experiment"] = e.source;
     results["experiment_path"] = e.path;
     results["declared"] = declared_json();
@@ -253,13 +258,15 @@ Runner add_run_command(CLI::App& app) {
     // Every FLIP score the sweep will compute, so that the cache keeps a reference's features
     // only while a later score needs them (a reference one run scores is never kept).
     for (const RunSpec& spec : e.runs)
-      for (const std::string& key : flip_reference_keys(loaded.keys.at(spec.scene), spec.config, loaded.scenes.at(spec.scene)))
+      for (const std::string& key :
+           flip_reference_keys(loaded.keys.at(spec.scene), spec.config, loaded.scenes.at(spec.scene)))
         cache.expect_flip_reads(key, 1);
     Progress progress(e.runs.size());
     int failed = 0;
     for (size_t i = 0; i < e.runs.size(); ++i) {
       const RunSpec& spec = e.runs[i];
-      nlohmann::json record = {{"id", spec.id}, {"scene", spec.scene}, {"label", spec.label}, {"settings", spec.settings}};
+      nlohmann::json record = {
+          {"id", spec.id}, {"scene", spec.scene}, {"label", spec.label}, {"settings", spec.settings}};
       if (!spec.configuration.empty()) record["configuration"] = spec.configuration;
       if (!spec.family.empty()) record["family"] = spec.family;
       const auto run_start = Clock::now();
@@ -280,15 +287,19 @@ Runner add_run_command(CLI::App& app) {
           const nlohmann::json v = s.get(config);
           const std::string name = v.at("name").get<std::string>();
           Params p;
-          if (s.kind == "codec") reg.codecs.create(name, v.at("params"), &p);
-          else if (s.kind == "denoiser") reg.denoisers.create(name, v.at("params"), &p);
-          else reg.predictors.create(name, v.at("params"), &p);
+          if (s.kind == "codec")
+            reg.codecs.create(name, v.at("params"), &p);
+          else if (s.kind == "denoiser")
+            reg.denoisers.create(name, v.at("params"), &p);
+          else
+            reg.predictors.create(name, v.at("params"), &p);
           record["backends"][s.key] = {{"name", name}, {"params", p.effective()}};
         }
         record["metrics"] = r.metrics();
-        record["server_time_model"] = config.server_timing == SimConfig::ServerTiming::Fixed
-                                          ? fmt::format("fixed {} ms per server frame (virtual)", config.server_fixed_ms)
-                                          : std::string("measured wall time of the server's stages");
+        record["server_time_model"] =
+            config.server_timing == SimConfig::ServerTiming::Fixed
+                ? fmt::format("fixed {} ms per server frame (virtual)", config.server_fixed_ms)
+                : std::string("measured wall time of the server's stages");
         for (const auto& f : r.frames)
           csv << frames_csv_row({spec.id, csv_quote(spec.scene), csv_quote(spec.label)}, f, pass_names);
         // Images of the last scored frame (downscaled): what was shown, the local reference,
@@ -312,7 +323,8 @@ Runner add_run_command(CLI::App& app) {
           }
           write_png((img_dir / (spec.id + "_error.png")).string(), downscale(grey, 480));
           // FLIP's error map against the same reference, on FLIP's colour map.
-          write_png((img_dir / (spec.id + "_flip.png")).string(), downscale(flip_colour_map(flip(against, shown).map), 480));
+          write_png((img_dir / (spec.id + "_flip.png")).string(),
+                    downscale(flip_colour_map(flip(against, shown).map), 480));
           record["images"] = {{"frame", r.kept_frame},
                               {"error_against", &against == &local ? "local reference" : "ground truth"},
                               {"error_scale", "|luma difference| 0..32 levels"}};
@@ -364,7 +376,9 @@ Runner add_validate_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("validate",
                                  "Check an experiment without running it: the file, every backend name and parameter, "
                                  "every scene and path. Prints every problem at once.");
-  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1 or 2)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1 or 2)")
+      ->required()
+      ->check(CLI::ExistingFile);
   cmd->add_option("--set", o->sets, "Override a key (as for run)");
   cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
   cmd->add_option("--shards", o->shards, "Also print the plan of 'run --shard K/N' for N shards: each shard's runs")
@@ -375,10 +389,12 @@ Runner add_validate_command(CLI::App& app) {
     if (o->shards > 0) print_shard_plan(e, o->shards);
     int frames = 0;
     for (const auto& r : e.runs) frames += r.config.frames + r.config.warmup_frames;
-    fmt::print("{}: valid: {} runs over {} scene(s), {} frames in all\n", o->experiment, e.runs.size(), e.scenes.size(), frames);
+    fmt::print("{}: valid: {} runs over {} scene(s), {} frames in all\n", o->experiment, e.runs.size(), e.scenes.size(),
+               frames);
     if (!e.hints.empty()) {
-      fmt::print("hint: this is a version-1 file; version 2 writes the per-pass backends under \"passes\" "
-                 "(`dhrbench settings` lists every key):\n");
+      fmt::print(
+          "hint: this is a version-1 file; version 2 writes the per-pass backends under \"passes\" "
+          "(`dhrbench settings` lists every key):\n");
       for (const auto& h : e.hints) fmt::print("  {}\n", h);
     }
     for (const auto& r : e.runs) fmt::print("  {}  {:<22} {}\n", r.id, r.scene, r.label);
@@ -388,9 +404,11 @@ Runner add_validate_command(CLI::App& app) {
 
 Runner add_report_command(CLI::App& app) {
   auto dir = std::make_shared<std::string>();
-  auto* cmd = app.add_subcommand("report", "Rebuild DIR/report.md and its plots from DIR/results.json and DIR/frames.csv, "
-                                           "without running anything again. A damaged results.json (not JSON, nested deeper than\n"
-                                           "64 levels, a field of the wrong type) is reported naming the file and the field, with exit code 2.");
+  auto* cmd = app.add_subcommand(
+      "report",
+      "Rebuild DIR/report.md and its plots from DIR/results.json and DIR/frames.csv, "
+      "without running anything again. A damaged results.json (not JSON, nested deeper than\n"
+      "64 levels, a field of the wrong type) is reported naming the file and the field, with exit code 2.");
   cmd->add_option("dir", *dir, "A folder written by 'dhrbench run'")->required()->check(CLI::ExistingDirectory);
   return [dir] {
     try {

@@ -68,15 +68,20 @@ nlohmann::json run_context(const std::string& build_type) {
   const std::string src = DHR_SOURCE_DIR;
   const std::string commit = run_command({"git", "-C", src, "rev-parse", "HEAD"});
   c["git_commit"] = commit.empty() ? nlohmann::json(nullptr) : nlohmann::json(commit);
-  c["git_dirty"] = commit.empty() ? nlohmann::json(nullptr)
-                                  : nlohmann::json(!run_command({"git", "-C", src, "status", "--porcelain", "--untracked-files=no"}).empty());
-  c["compiler"] = fmt::format("{} {}", __GNUC__ ? (
+  c["git_dirty"] =
+      commit.empty()
+          ? nlohmann::json(nullptr)
+          : nlohmann::json(!run_command({"git", "-C", src, "status", "--porcelain", "--untracked-files=no"}).empty());
+  c["compiler"] = fmt::format("{} {}",
+                              __GNUC__ ? (
 #ifdef __clang__
-      "clang"
+                                             "clang"
 #else
-      "gcc"
+                                             "gcc"
 #endif
-      ) : "unknown", __VERSION__);
+                                             )
+                                       : "unknown",
+                              __VERSION__);
   c["build_type"] = build_type;
 #ifdef __SANITIZE_ADDRESS__
   c["sanitizers"] = true;
@@ -101,8 +106,8 @@ nlohmann::json run_context(const std::string& build_type) {
       {"libaom", wrapped_version("aom_codec_version_str", true)},
       {"dav1d", wrapped_version("dav1d_version", true)},
       {"opencv", cv::getVersionString()},
-      {"openimageio", fmt::format("{}.{}.{}", OIIO::openimageio_version() / 10000, OIIO::openimageio_version() / 100 % 100,
-                                  OIIO::openimageio_version() % 100)},
+      {"openimageio", fmt::format("{}.{}.{}", OIIO::openimageio_version() / 10000,
+                                  OIIO::openimageio_version() / 100 % 100, OIIO::openimageio_version() % 100)},
       {"tbb", TBB_runtime_version()},
   };
   return c;

@@ -66,8 +66,7 @@ void set_counters(benchmark::State& state, size_t raw_bytes, size_t coded_bytes,
   const double frames = double(state.iterations());
   state.SetBytesProcessed(int64_t(raw_bytes) * state.iterations());  // MB/s of raw buffer
   state.counters["ratio"] = double(coded_bytes) / double(raw_bytes);
-  state.counters["coded_MBps"] =
-      benchmark::Counter(double(coded_bytes) * frames / 1e6, benchmark::Counter::kIsRate);
+  state.counters["coded_MBps"] = benchmark::Counter(double(coded_bytes) * frames / 1e6, benchmark::Counter::kIsRate);
   state.SetLabel(encode ? "encode" : "decode");
 }
 
@@ -363,7 +362,8 @@ void report_delta() {
         }
         seq->push_back(std::move(crop));
       }
-      if (pan == 0 || pan == 2) noisy_seq.push_back(test::make_noisy_ao({kWidth, kHeight, double(pan * f), 0.0, uint32_t(f)}, 8));
+      if (pan == 0 || pan == 2)
+        noisy_seq.push_back(test::make_noisy_ao({kWidth, kHeight, double(pan * f), 0.0, uint32_t(f)}, 8));
     }
     for (auto [label, seq] : {std::pair{"smooth_ao", &ao_seq}, {"hard_vis4", &vis_seq}, {"noisy_ao8", &noisy_seq}}) {
       if (seq->empty()) continue;
@@ -377,8 +377,8 @@ void report_delta() {
           sizes[k] += double(out.size()) / double(seq->size());
         }
       }
-      std::printf("  pan %d px/frame %-10s zstd %9.0f B/frame  delta %9.0f B/frame  (%3.0f%%)\n", pan, label,
-                  sizes[0], sizes[1], 100.0 * sizes[1] / sizes[0]);
+      std::printf("  pan %d px/frame %-10s zstd %9.0f B/frame  delta %9.0f B/frame  (%3.0f%%)\n", pan, label, sizes[0],
+                  sizes[1], 100.0 * sizes[1] / sizes[0]);
     }
   }
   std::printf("\n");
@@ -412,7 +412,8 @@ void register_all() {
           encode ? bench_encode(s, codec, params, in.seq) : bench_decode(s, codec, params, in.seq);
         })->Unit(benchmark::kMillisecond);
         benchmark::RegisterBenchmark((name + "/ceiling").c_str(), [=](benchmark::State& s) {
-          std::string(codec) == "lz4" ? ceiling_lz4(s, buffer, layout, encode) : ceiling_zstd(s, buffer, layout, encode);
+          std::string(codec) == "lz4" ? ceiling_lz4(s, buffer, layout, encode)
+                                      : ceiling_zstd(s, buffer, layout, encode);
         })->Unit(benchmark::kMillisecond);
       }
   for (const BareVideo& v : kBareVideos)
@@ -427,9 +428,8 @@ void register_all() {
         auto* ours = benchmark::RegisterBenchmark(name.c_str(), [=](benchmark::State& s) {
           encode ? bench_encode(s, codec, json::object(), seq) : bench_decode(s, codec, json::object(), seq);
         });
-        auto* ceiling = benchmark::RegisterBenchmark((name + "/ceiling").c_str(), [=, &v](benchmark::State& s) {
-          ceiling_video(s, v, seq, encode);
-        });
+        auto* ceiling = benchmark::RegisterBenchmark(
+            (name + "/ceiling").c_str(), [=, &v](benchmark::State& s) { ceiling_video(s, v, seq, encode); });
         for (auto* b : {ours, ceiling}) {
           b->Unit(benchmark::kMillisecond);
           if (process_cpu) b->MeasureProcessCPUTime();

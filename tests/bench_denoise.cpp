@@ -214,8 +214,7 @@ void BM_Denoise(benchmark::State& state, const std::string& name, bool reset_eve
   ImageU8 out;
   uint32_t frame = 0;
   // Warm up to a full history (history cap 32).
-  for (; frame < 40; ++frame)
-    d->denoise(DenoiseInput{s.gbuf, s.noisy[frame % 4], s.rays, frame, true}, out);
+  for (; frame < 40; ++frame) d->denoise(DenoiseInput{s.gbuf, s.noisy[frame % 4], s.rays, frame, true}, out);
   for (auto _ : state) {
     d->denoise(DenoiseInput{s.gbuf, s.noisy[frame % 4], s.rays, frame, !reset_every_frame}, out);
     ++frame;
@@ -270,7 +269,8 @@ std::vector<Minima> interleaved_minima(int rounds) {
   // What svgf_ao's accuracy costs: its default (five 5x5 iterations, as SVGF) against a 3x3
   // kernel and fewer iterations (the paper's section 3.3 suggests both once history is long).
   configs.push_back({"svgf_ao 3x3 kernel (steady)", "svgf_ao", false, {{"kernel_radius", 1}}});
-  configs.push_back({"svgf_ao 3x3 kernel, 3 iterations (steady)", "svgf_ao", false, {{"kernel_radius", 1}, {"iterations", 3}}});
+  configs.push_back(
+      {"svgf_ao 3x3 kernel, 3 iterations (steady)", "svgf_ao", false, {{"kernel_radius", 1}, {"iterations", 3}}});
   configs.push_back({"svgf_ao 5x5 kernel, 1 iteration (steady)", "svgf_ao", false, {{"iterations", 1}}});
   // The same filter with its a-trous weights by separate products and sums and a degree-4
   // exponential (fast_weights false), the filter without the default fast weights.
@@ -290,7 +290,8 @@ std::vector<Minima> interleaved_minima(int rounds) {
   for (const auto& c : configs) {
     dens.push_back(c.denoiser.empty() ? nullptr : registries().denoisers.create(c.denoiser, c.params));
     if (dens.back())
-      for (uint32_t f = 0; f < 40; ++f) dens.back()->denoise(DenoiseInput{s.gbuf, s.noisy[f % 4], s.rays, f, true}, out);
+      for (uint32_t f = 0; f < 40; ++f)
+        dens.back()->denoise(DenoiseInput{s.gbuf, s.noisy[f % 4], s.rays, f, true}, out);
   }
   TraceSettings ts;
   ts.ao_rays = 1;
@@ -324,7 +325,7 @@ struct AccuracyOptions {
   // empty: none, single_iteration, atrous, svgf_ao with defaults; an entry is a name, or a name
   // followed by its parameters as JSON: svgf_ao{"kernel_radius":1}
   std::vector<std::string> denoisers;
-  std::string csv_path;             // empty: no CSV
+  std::string csv_path;  // empty: no CSV
   int reference_rays = 1024;
   int frames = 8;  // the frames of history scored: the first and this one
 };
@@ -523,10 +524,9 @@ void accuracy_table(const AccuracyOptions& opt) {
       std::printf("| %d | %s | %d | %.4f | %.2f | %.2f | %.2f | %.2f |\n", r.rays, labels[r.dn].c_str(), r.frame,
                   r.ssim, r.mae, tms, dms, tms + dms);
       if (csv)
-        csv << name << ',' << w << ',' << h << ',' << opt.reference_rays << ',' << r.rays << ',' << labels[r.dn]
-            << ',' << r.frame << ',' << std::to_string(r.ssim) << ',' << std::to_string(r.mae) << ','
-            << std::to_string(tms) << ',' << std::to_string(dms) << ',' << std::to_string(tms + dms) << ','
-            << threads << '\n';
+        csv << name << ',' << w << ',' << h << ',' << opt.reference_rays << ',' << r.rays << ',' << labels[r.dn] << ','
+            << r.frame << ',' << std::to_string(r.ssim) << ',' << std::to_string(r.mae) << ',' << std::to_string(tms)
+            << ',' << std::to_string(dms) << ',' << std::to_string(tms + dms) << ',' << threads << '\n';
     }
     std::fflush(stdout);
   }
@@ -543,8 +543,9 @@ void accuracy_table(const AccuracyOptions& opt) {
 void fast_weights_diff(const AccuracyOptions& opt, int frames) {
   const int w = 1280, h = 720, rays = 8;
   const SceneList list = scene_list(opt);
-  std::printf("svgf_ao (fast_weights) against fast_weights = false: %dx%d, %d AO rays, %d frames at 60 fps from t = 1 s\n",
-              w, h, rays, frames);
+  std::printf(
+      "svgf_ao (fast_weights) against fast_weights = false: %dx%d, %d AO rays, %d frames at 60 fps from t = 1 s\n", w,
+      h, rays, frames);
   std::printf("| scene | pixels | equal | 1 level | 2 or more | most levels | mean levels |\n");
   std::printf("| --- | ---: | ---: | ---: | ---: | ---: | ---: |\n");
   for (const auto& name : list.names) {
@@ -572,8 +573,9 @@ void fast_weights_diff(const AccuracyOptions& opt, int frames) {
       }
     }
     const double n = double(counts[0] + counts[1] + counts[2]);
-    std::printf("| %s | %.0f | %.4f %% | %.4f %% | %.6f %% | %d | %.6f |\n", name.c_str(), n, 100.0 * double(counts[0]) / n,
-                100.0 * double(counts[1]) / n, 100.0 * double(counts[2]) / n, most, double(sum) / n);
+    std::printf("| %s | %.0f | %.4f %% | %.4f %% | %.6f %% | %d | %.6f |\n", name.c_str(), n,
+                100.0 * double(counts[0]) / n, 100.0 * double(counts[1]) / n, 100.0 * double(counts[2]) / n, most,
+                double(sum) / n);
     std::fflush(stdout);
   }
 }
@@ -595,8 +597,7 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "bench_denoise: --fast_weights_diff=%s must be a frame count, 1..10000\n", argv[i] + 20);
         return 2;
       }
-    }
-    else if (std::strncmp(argv[i], "--rounds=", 9) == 0)
+    } else if (std::strncmp(argv[i], "--rounds=", 9) == 0)
       rounds = std::max(1, std::atoi(argv[i] + 9));
     else if (std::strncmp(argv[i], "--scenes=", 9) == 0) {
       std::string list = argv[i] + 9;
@@ -660,10 +661,12 @@ int main(int argc, char** argv) {
   const auto minima = dhr::interleaved_minima(rounds);
   std::printf("\n1280x720, room, 8-ray AO input, %d threads; fastest of %d interleaved rounds\n",
               int(tbb::this_task_arena::max_concurrency()), rounds);
-  std::printf("(wall: elapsed ms; CPU: process CPU ms over all threads, the work done, which the\n"
-              "load of other processes disturbs less)\n");
-  std::printf("| configuration | wall ms | wall ratio to one AO ray | CPU ms | CPU ratio |\n"
-              "| --- | ---: | ---: | ---: | ---: |\n");
+  std::printf(
+      "(wall: elapsed ms; CPU: process CPU ms over all threads, the work done, which the\n"
+      "load of other processes disturbs less)\n");
+  std::printf(
+      "| configuration | wall ms | wall ratio to one AO ray | CPU ms | CPU ratio |\n"
+      "| --- | ---: | ---: | ---: | ---: |\n");
   for (const auto& m : minima)
     std::printf("| %s | %.2f | %.2f | %.2f | %.2f |\n", m.label.c_str(), m.wall_ms, m.wall_ms / minima.front().wall_ms,
                 m.cpu_ms, m.cpu_ms / minima.front().cpu_ms);
@@ -673,10 +676,12 @@ int main(int argc, char** argv) {
     for (int k = 0; k < 3; ++k) rate = std::max(rate, dhr::vector_op_rate());
     const double blocks = 1280.0 * 720.0 / 16.0, taps = 24.0, iterations = 5.0;
     const double ray_cpu = minima.front().cpu_ms;
-    std::printf("\nArithmetic floor of svgf_ao's five 5x5 a-trous iterations (1280x720, 16-lane blocks):\n"
-                "measured rate %.3g 16-lane ops per CPU second (independent multiplies and adds)\n",
-                rate);
-    std::printf("| taps as | ops per tap | CPU ms per frame | ratio to one AO ray (CPU) |\n| --- | ---: | ---: | ---: |\n");
+    std::printf(
+        "\nArithmetic floor of svgf_ao's five 5x5 a-trous iterations (1280x720, 16-lane blocks):\n"
+        "measured rate %.3g 16-lane ops per CPU second (independent multiplies and adds)\n",
+        rate);
+    std::printf(
+        "| taps as | ops per tap | CPU ms per frame | ratio to one AO ray (CPU) |\n| --- | ---: | ---: | ---: |\n");
     for (const auto& [label, ops] :
          {std::pair<const char*, int>{"compiled kernel (fast weights)", dhr::kTapOpsCompiled},
           std::pair<const char*, int>{"fewest with the same bits (fast weights)", dhr::kTapOpsMinimal},

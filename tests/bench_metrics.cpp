@@ -58,7 +58,8 @@ struct CpuCounter {
   benchmark::State& state;
   double start = process_cpu_ms();
   ~CpuCounter() {
-    state.counters["proc_cpu_ms"] = (process_cpu_ms() - start) / double(std::max<benchmark::IterationCount>(state.iterations(), 1));
+    state.counters["proc_cpu_ms"] =
+        (process_cpu_ms() - start) / double(std::max<benchmark::IterationCount>(state.iterations(), 1));
   }
 };
 
@@ -75,7 +76,7 @@ void BM_SsimLuma_dhrbench(benchmark::State& state) {
   const auto &a = frame_a(), &b = frame_b();
   CpuCounter cpu{state};
   for (auto _ : state) benchmark::DoNotOptimize(dhr::compare_images(a, b).ssim);
-  state.counters["Mpix/s"] = benchmark::Counter(1280.0 * 720, benchmark::Counter::kIsIterationInvariantRate) ;
+  state.counters["Mpix/s"] = benchmark::Counter(1280.0 * 720, benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_SsimLuma_dhrbench)->Unit(benchmark::kMillisecond)->UseRealTime();
 
@@ -83,8 +84,7 @@ void BM_SsimLuma_valid(benchmark::State& state) {
   const auto &a = frame_a(), &b = frame_b();
   CpuCounter cpu{state};
   for (auto _ : state)
-    benchmark::DoNotOptimize(
-        dhr::compare_images(a, b, dhr::SsimChannel::Luma, nullptr, dhr::SsimBorder::Valid).ssim);
+    benchmark::DoNotOptimize(dhr::compare_images(a, b, dhr::SsimChannel::Luma, nullptr, dhr::SsimBorder::Valid).ssim);
   state.counters["Mpix/s"] = benchmark::Counter(1280.0 * 720, benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_SsimLuma_valid)->Unit(benchmark::kMillisecond)->UseRealTime();
@@ -160,8 +160,9 @@ void BM_PowRow(benchmark::State& state) {
     }
   }
   const dhr::PowRowCounts after = dhr::pow_row_counts();
-  state.counters["fallback_pct"] =
-      after.lanes > before.lanes ? 100.0 * double(after.fallbacks - before.fallbacks) / double(after.lanes - before.lanes) : 100.0;
+  state.counters["fallback_pct"] = after.lanes > before.lanes ? 100.0 * double(after.fallbacks - before.fallbacks) /
+                                                                    double(after.lanes - before.lanes)
+                                                              : 100.0;
 }
 BENCHMARK(BM_PowRow)->Unit(benchmark::kMillisecond)->UseRealTime();
 void BM_PowLibm(benchmark::State& state) {
@@ -319,9 +320,10 @@ class Summary : public benchmark::ConsoleReporter {
         if (o == table->end() || b == table->end()) return;
         std::printf("%-48s %10.2f %10.2f %9.2fx\n", label, o->second, b->second, o->second / b->second);
       };
-      std::printf("\n%-48s %10s %10s %10s\n",
-                  table == &ms_ ? "1280x720, fastest repetition: wall ms" : "1280x720, fastest repetition: process CPU ms",
-                  "ours", "base", "ours/base");
+      std::printf(
+          "\n%-48s %10s %10s %10s\n",
+          table == &ms_ ? "1280x720, fastest repetition: wall ms" : "1280x720, fastest repetition: process CPU ms",
+          "ours", "base", "ours/base");
       row("SSIM valid / SSIM mirrored (today's)", "BM_SsimLuma_valid", "BM_SsimLuma_dhrbench");
       row("SSIM mirrored / OpenCV QualitySSIM", "BM_SsimLuma_dhrbench", "BM_SsimLuma_OpenCvQuality");
       row("SSIM valid / OpenCV QualitySSIM", "BM_SsimLuma_valid", "BM_SsimLuma_OpenCvQuality");

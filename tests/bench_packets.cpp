@@ -253,7 +253,8 @@ void BM_FecDecode(benchmark::State& state) {
       rows.clear();
       for (int r = m; r < k; ++r) rows.push_back(r);
       for (int j = 0; j < m; ++j) rows.push_back(k + j);
-      if (!rs_decode(k, m, c.shard, rows, present[size_t(b)].data(), missing, o.data())) state.SkipWithError("rs_decode");
+      if (!rs_decode(k, m, c.shard, rows, present[size_t(b)].data(), missing, o.data()))
+        state.SkipWithError("rs_decode");
       benchmark::ClobberMemory();
     }
   const double s = std::chrono::duration<double>(Clock::now() - start).count() / double(state.iterations());

@@ -78,7 +78,6 @@ struct Frames {
   PassBuffer pass[2][2];  // [AO, visibility][frame]
 };
 
-
 const Frames& frames() {
   static const Frames f = [] {
     Frames r;
@@ -124,7 +123,8 @@ void run_codec(benchmark::State& state, const std::string& key, int pass, const 
     const double c0 = process_cpu_ms();
     enc->encode(in, o, bytes);
     const double c1 = process_cpu_ms();
-    if (!dec->decode_in_context(bytes, in.desc, context_of(i), out, error) || (enc->lossless() && out.bytes != in.bytes))
+    if (!dec->decode_in_context(bytes, in.desc, context_of(i), out, error) ||
+        (enc->lossless() && out.bytes != in.bytes))
       state.SkipWithError(("decode failed: " + error).c_str());
     const double c2 = process_cpu_ms();
     ++i;
@@ -145,9 +145,12 @@ void run_codec(benchmark::State& state, const std::string& key, int pass, const 
 
 std::string key_of(int pass, const char* what) { return std::to_string(pass) + "/" + what; }
 
-void BM_Inner(benchmark::State& s, int pass) { run_codec(s, key_of(pass, "inner"), pass, "zstd", {{"level", 1}}, false); }
+void BM_Inner(benchmark::State& s, int pass) {
+  run_codec(s, key_of(pass, "inner"), pass, "zstd", {{"level", 1}}, false);
+}
 void BM_DeltaNone(benchmark::State& s, int pass) {
-  run_codec(s, key_of(pass, "delta_none"), pass, "delta", {{"inner", "zstd"}, {"level", 1}, {"predictor", "none"}}, false);
+  run_codec(s, key_of(pass, "delta_none"), pass, "delta", {{"inner", "zstd"}, {"level", 1}, {"predictor", "none"}},
+            false);
 }
 void BM_DeltaReproj(benchmark::State& s, int pass, bool decode) {
   const std::string self = key_of(pass, decode ? "delta_reproj_decode" : "delta_reproj");
@@ -221,7 +224,9 @@ void register_all() {
   for (int pass : {0, 1}) {
     const std::string p = pass == 0 ? "ao" : "visibility";
     auto reg = [&](const std::string& what, auto fn) {
-      benchmark::RegisterBenchmark(("pass_coding/" + p + "/" + what).c_str(), fn)->Unit(benchmark::kMillisecond)->UseRealTime();
+      benchmark::RegisterBenchmark(("pass_coding/" + p + "/" + what).c_str(), fn)
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime();
     };
     reg("inner", [pass](benchmark::State& s) { BM_Inner(s, pass); });
     reg("predict", [pass](benchmark::State& s) { BM_Predict(s, pass); });
@@ -237,7 +242,6 @@ void register_all() {
     }
   }
 }
-
 
 // ---- --regions: where the residual's bits go
 
@@ -313,7 +317,8 @@ int run_regions(const std::vector<std::string>& scenes, int frames) {
           PassBuffer residual = buf;
           const size_t px_bytes = buf.desc.pixel_bytes();
           for (size_t b = 0; b < buf.bytes.size(); ++b)
-            residual.bytes[b] = pass == "ao" ? uint8_t(buf.bytes[b] - pred.bytes[b]) : uint8_t(buf.bytes[b] ^ pred.bytes[b]);
+            residual.bytes[b] =
+                pass == "ao" ? uint8_t(buf.bytes[b] - pred.bytes[b]) : uint8_t(buf.bytes[b] ^ pred.bytes[b]);
           RegionTally& tl = tally[pass];
           std::vector<uint8_t> coded;
           zstd->encode(residual, {}, coded);
@@ -350,7 +355,8 @@ int run_regions(const std::vector<std::string>& scenes, int frames) {
         std::printf("%-12s %-10s %-12s %7.1f%% %8.1f%% %9.0f %8.1f%%\n", name.c_str(), pass.c_str(), kRegionNames[r],
                     100.0 * double(t.pixels[r]) / double(std::max<uint64_t>(px, 1)),
                     100.0 * double(t.nonzero[r]) / double(std::max<uint64_t>(nz, 1)),
-                    double(t.bytes[r]) / double(t.frames), 100.0 * double(t.bytes[r]) / double(std::max<uint64_t>(by, 1)));
+                    double(t.bytes[r]) / double(t.frames),
+                    100.0 * double(t.bytes[r]) / double(std::max<uint64_t>(by, 1)));
       std::printf("%-12s %-10s %-12s %8s %8.1f%% %9.0f   (whole residual coded at once; B/frame)\n", name.c_str(),
                   pass.c_str(), "all", "", 100.0 * double(nz) / double(std::max<uint64_t>(px, 1)),
                   double(t.frame_bytes) / double(t.frames));

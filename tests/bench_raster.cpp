@@ -43,9 +43,7 @@ void fill_gbuffer(dhr::GBuffer& g, float v) {
   std::fill(g.motion.pixels().begin(), g.motion.pixels().end(), glm::vec2(v));
 }
 
-double gbuffer_bytes() {
-  return double(kWidth) * kHeight * (4 + 12 * 4 + 4 + 4 + 8 + 8);
-}
+double gbuffer_bytes() { return double(kWidth) * kHeight * (4 + 12 * 4 + 4 + 4 + 8 + 8); }
 
 // The ceiling: one thread writing every G-buffer byte (the rasterizer's own output cost).
 void BM_GBufferFill(benchmark::State& state) {
@@ -109,7 +107,8 @@ const dhr::Scene& cached_scene(const std::string& path) {
   static std::map<std::string, std::unique_ptr<dhr::Scene>> cache;
   auto it = cache.find(path);
   if (it == cache.end())
-    it = cache.emplace(path, std::make_unique<dhr::Scene>(dhr::load_scene(path, dhr::SceneSearchPath::standard()))).first;
+    it = cache.emplace(path, std::make_unique<dhr::Scene>(dhr::load_scene(path, dhr::SceneSearchPath::standard())))
+             .first;
   return *it->second;
 }
 
@@ -130,7 +129,8 @@ void BM_Raster(benchmark::State& state, const std::string& path, bool real) {
   if (threads > 0) limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, threads);
   // The first frames of the scene's camera path, one frame apart (camera and object motion).
   const double t = 1.0 / 30.0;
-  const dhr::RasterFrame frame{scene, scene->camera.at(t, kWidth, kHeight), t, scene->camera.at(0.0, kWidth, kHeight), 0.0};
+  const dhr::RasterFrame frame{scene, scene->camera.at(t, kWidth, kHeight), t, scene->camera.at(0.0, kWidth, kHeight),
+                               0.0};
   dhr::GBuffer g;
   dhr::RasterStats stats = dhr::rasterize(frame, g);  // warm-up, allocates the G-buffer
   double wall_ms = 0.0;
@@ -167,7 +167,8 @@ std::string stem(const std::string& path) { return std::filesystem::path(path).s
 }  // namespace
 
 int main(int argc, char** argv) {
-  for (const auto& [files, real] : {std::pair{dhr::builtin_scene_files(), false}, std::pair{dhr::real_scene_files(), true}}) {
+  for (const auto& [files, real] :
+       {std::pair{dhr::builtin_scene_files(), false}, std::pair{dhr::real_scene_files(), true}}) {
     for (const std::string& f : files) {
       const std::string name = std::string("BM_Raster/") + (real ? "real/" : "") + stem(f);
       benchmark::RegisterBenchmark(name.c_str(), BM_Raster, f, real)

@@ -70,7 +70,7 @@ struct PassCase {
   std::string name;  // hard, soft, soft16, ao8
   TraceSettings settings;
   PassPlan plan;
-  std::vector<RTCRay> rays;  // exactly what the pass traces
+  std::vector<RTCRay> rays;    // exactly what the pass traces
   uint64_t expected_rays = 0;  // where `rays` is not collected (scene_layout rows): their number
   double ceiling_mrays = 0.0;
   std::string ceiling_kind;
@@ -144,8 +144,7 @@ BenchScene* load_or_skip(benchmark::State& state, const std::string& file, const
     return &load(file, name, layout);
   } catch (const Error& e) {
     state.SkipWithError(e.what());
-    for (auto _ : state) {
-    }
+    for (auto _ : state) {}
     return nullptr;
   }
 }
@@ -285,8 +284,8 @@ double run_pass(BenchScene& b, PassCase& c, benchmark::State& state) {
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const uint64_t want = c.rays.empty() ? c.expected_rays : c.rays.size();
   if (rays != want) state.SkipWithError(fmt::format("pass traced {} rays, expected {}", rays, want).c_str());
-  state.counters["Mrays_per_s"] = benchmark::Counter(double(rays) * 1e-6 * double(state.iterations()),
-                                                     benchmark::Counter::kIsRate);
+  state.counters["Mrays_per_s"] =
+      benchmark::Counter(double(rays) * 1e-6 * double(state.iterations()), benchmark::Counter::kIsRate);
   state.counters["rays"] = double(rays);
   const double cpu = cpu_seconds() - c0;
   (void)s;
@@ -305,92 +304,104 @@ void register_scene(const std::string& file) {
     const std::string key = name + "/" + pass;
     // Ceilings first (registration order is run order), then the pass itself.
     for (const std::string kind : {"occluded1", "occluded8", "occluded16", "occluded1M", "occluded1M_coherent"}) {
-      benchmark::RegisterBenchmark(("ceiling/" + key + "/" + kind).c_str(), [=](benchmark::State& state) {
-        BenchScene* b = load_or_skip(state, file, name);
-        if (!b) return;
-        auto& cs = cases();
-        if (!cs.count(key)) cs[key] = make_case(*b, pass);
-        PassCase& c = cs[key];
-        if (c.rays.empty()) {
-          state.SkipWithError("no rays (the scene has no such pass)");
-          for (auto _ : state) {
-          }
-          return;
-        }
-        const RTCScene scene = b->rt->handle();
-        const auto t0 = std::chrono::steady_clock::now();
-        const double c0 = cpu_seconds();
-        b->rt->arena().execute([&] {
-          for (auto _ : state) {
-            if (kind == "occluded1") trace_1(scene, c.rays);
-            if (kind == "occluded8") trace_8(scene, c.rays);
-            if (kind == "occluded16") trace_16(scene, c.rays);
-            if (kind == "occluded1M") trace_1m(scene, c.rays);
-            if (kind == "occluded1M_coherent") trace_1m_coherent(scene, c.rays);
-          }
-        });
-        const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-        const double mrays = double(c.rays.size()) * 1e-6 * double(state.iterations());
-        state.counters["Mrays_per_s"] = benchmark::Counter(mrays, benchmark::Counter::kIsRate);
-        state.counters["rays"] = double(c.rays.size());
-        const double cpu = cpu_seconds() - c0;
-        state.counters["Mrays_per_cpu_s"] = mrays / cpu;
-        (void)s;
-        const double rate = mrays / cpu;  // kept for the pass's ratio (per CPU second)
-        auto& [iterations, kind_rate] = c.loop_rates[kind];
-        if (int64_t(state.iterations()) >= iterations) {
-          iterations = int64_t(state.iterations());
-          kind_rate = rate;
-        }
-        c.ceiling_mrays = 0.0;
-        for (const auto& [k, r] : c.loop_rates) {
-          if (r.second > c.ceiling_mrays) {
-            c.ceiling_mrays = r.second;
-            c.ceiling_kind = k;
-          }
-        }
-      })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+      benchmark::RegisterBenchmark(
+          ("ceiling/" + key + "/" + kind).c_str(),
+          [=](benchmark::State& state) {
+            BenchScene* b = load_or_skip(state, file, name);
+            if (!b) return;
+            auto& cs = cases();
+            if (!cs.count(key)) cs[key] = make_case(*b, pass);
+            PassCase& c = cs[key];
+            if (c.rays.empty()) {
+              state.SkipWithError("no rays (the scene has no such pass)");
+              for (auto _ : state) {}
+              return;
+            }
+            const RTCScene scene = b->rt->handle();
+            const auto t0 = std::chrono::steady_clock::now();
+            const double c0 = cpu_seconds();
+            b->rt->arena().execute([&] {
+              for (auto _ : state) {
+                if (kind == "occluded1") trace_1(scene, c.rays);
+                if (kind == "occluded8") trace_8(scene, c.rays);
+                if (kind == "occluded16") trace_16(scene, c.rays);
+                if (kind == "occluded1M") trace_1m(scene, c.rays);
+                if (kind == "occluded1M_coherent") trace_1m_coherent(scene, c.rays);
+              }
+            });
+            const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+            const double mrays = double(c.rays.size()) * 1e-6 * double(state.iterations());
+            state.counters["Mrays_per_s"] = benchmark::Counter(mrays, benchmark::Counter::kIsRate);
+            state.counters["rays"] = double(c.rays.size());
+            const double cpu = cpu_seconds() - c0;
+            state.counters["Mrays_per_cpu_s"] = mrays / cpu;
+            (void)s;
+            const double rate = mrays / cpu;  // kept for the pass's ratio (per CPU second)
+            auto& [iterations, kind_rate] = c.loop_rates[kind];
+            if (int64_t(state.iterations()) >= iterations) {
+              iterations = int64_t(state.iterations());
+              kind_rate = rate;
+            }
+            c.ceiling_mrays = 0.0;
+            for (const auto& [k, r] : c.loop_rates) {
+              if (r.second > c.ceiling_mrays) {
+                c.ceiling_mrays = r.second;
+                c.ceiling_kind = k;
+              }
+            }
+          })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(1.0);
     }
-    benchmark::RegisterBenchmark(("floor/" + key).c_str(), [=](benchmark::State& state) {
-      BenchScene* b = load_or_skip(state, file, name);
-      if (!b) return;
-      auto& cs = cases();
-      if (!cs.count(key)) cs[key] = make_case(*b, pass);
-      PassCase& c = cs[key];
-      const int outputs = pass == "ao8" ? 1 : std::max(1, c.plan.lights);
-      std::vector<uint16_t> out;
-      const double c0 = cpu_seconds();
-      b->rt->arena().execute([&] {
-        for (auto _ : state) {
-          floor_pass(b->gbuf, outputs, out);
-          benchmark::DoNotOptimize(out.data());
-        }
-      });
-      c.floor_cpu_s = (cpu_seconds() - c0) / double(state.iterations());
-      state.counters["cpu_ms"] = c.floor_cpu_s * 1e3;
-    })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
-    benchmark::RegisterBenchmark(("pass/" + key).c_str(), [=](benchmark::State& state) {
-      auto& cs = cases();
-      BenchScene* bp = load_or_skip(state, file, name);
-      if (!bp) return;
-      BenchScene& b = *bp;
-      if (!cs.count(key)) cs[key] = make_case(b, pass);  // filtered run without the ceilings
-      PassCase& c = cs[key];
-      if (c.rays.empty()) {
-        state.SkipWithError("no rays (the scene has no such pass)");
-        for (auto _ : state) {
-        }
-        return;
-      }
-      const double rate = run_pass(b, c, state);
-      state.counters["ceiling_Mrays_per_s"] = c.ceiling_mrays;
-      state.counters["ratio"] = rate / c.ceiling_mrays;
-      if (c.floor_cpu_s > 0.0 && c.ceiling_mrays > 0.0) {
-        const double ceiling_s = double(c.rays.size()) * 1e-6 / c.ceiling_mrays;
-        state.counters["bound"] = ceiling_s / (ceiling_s + c.floor_cpu_s);
-      }
-      state.SetLabel("ceiling: " + c.ceiling_kind);
-    })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+    benchmark::RegisterBenchmark(("floor/" + key).c_str(),
+                                 [=](benchmark::State& state) {
+                                   BenchScene* b = load_or_skip(state, file, name);
+                                   if (!b) return;
+                                   auto& cs = cases();
+                                   if (!cs.count(key)) cs[key] = make_case(*b, pass);
+                                   PassCase& c = cs[key];
+                                   const int outputs = pass == "ao8" ? 1 : std::max(1, c.plan.lights);
+                                   std::vector<uint16_t> out;
+                                   const double c0 = cpu_seconds();
+                                   b->rt->arena().execute([&] {
+                                     for (auto _ : state) {
+                                       floor_pass(b->gbuf, outputs, out);
+                                       benchmark::DoNotOptimize(out.data());
+                                     }
+                                   });
+                                   c.floor_cpu_s = (cpu_seconds() - c0) / double(state.iterations());
+                                   state.counters["cpu_ms"] = c.floor_cpu_s * 1e3;
+                                 })
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime()
+        ->MinTime(0.5);
+    benchmark::RegisterBenchmark(("pass/" + key).c_str(),
+                                 [=](benchmark::State& state) {
+                                   auto& cs = cases();
+                                   BenchScene* bp = load_or_skip(state, file, name);
+                                   if (!bp) return;
+                                   BenchScene& b = *bp;
+                                   if (!cs.count(key))
+                                     cs[key] = make_case(b, pass);  // filtered run without the ceilings
+                                   PassCase& c = cs[key];
+                                   if (c.rays.empty()) {
+                                     state.SkipWithError("no rays (the scene has no such pass)");
+                                     for (auto _ : state) {}
+                                     return;
+                                   }
+                                   const double rate = run_pass(b, c, state);
+                                   state.counters["ceiling_Mrays_per_s"] = c.ceiling_mrays;
+                                   state.counters["ratio"] = rate / c.ceiling_mrays;
+                                   if (c.floor_cpu_s > 0.0 && c.ceiling_mrays > 0.0) {
+                                     const double ceiling_s = double(c.rays.size()) * 1e-6 / c.ceiling_mrays;
+                                     state.counters["bound"] = ceiling_s / (ceiling_s + c.floor_cpu_s);
+                                   }
+                                   state.SetLabel("ceiling: " + c.ceiling_kind);
+                                 })
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime()
+        ->MinTime(1.0);
   }
 }
 
@@ -439,13 +450,14 @@ void register_layouts(const std::string& file) {
             BenchScene* b = load_or_skip(state, file, name, layout);
             if (!b) return;
             LayoutDefault& d = layout_defaults()[name];
-            if (layout == "default") d.gbuf = b->gbuf;
-            else if (d.gbuf.width() == b->gbuf.width()) b->gbuf = d.gbuf;
+            if (layout == "default")
+              d.gbuf = b->gbuf;
+            else if (d.gbuf.width() == b->gbuf.width())
+              b->gbuf = d.gbuf;
             PassCase c = case_settings(*b, pass);
             if (pass != "ao8" && !c.plan.visibility()) {
               state.SkipWithError("the scene has no lights");
-              for (auto _ : state) {
-              }
+              for (auto _ : state) {}
               return;
             }
             TraceStats st;

@@ -23,7 +23,7 @@ struct SyntheticView {
   int height = 48;
   double shift_x_px = 0.0;  // camera pan in pixels of this buffer
   double shift_y_px = 0.0;
-  uint32_t frame = 0;       // frame index of the noise (Monte Carlo samples differ per frame)
+  uint32_t frame = 0;  // frame index of the noise (Monte Carlo samples differ per frame)
   uint64_t seed = 1;
 };
 

@@ -75,8 +75,8 @@ const std::multimap<std::string, json>& extra_params() {
 // codec needs no entry: it is held to every promise (checksummed frames, exact framing,
 // validated input) until an entry here says why it cannot be.
 struct Exemption {
-  bool no_checksum = false;      // a corrupt frame may decode into wrong bytes
-  bool loose_framing = false;    // trailing bytes and some prefixes of a frame still decode
+  bool no_checksum = false;        // a corrupt frame may decode into wrong bytes
+  bool loose_framing = false;      // trailing bytes and some prefixes of a frame still decode
   bool accepts_any_bytes = false;  // decodes any right-sized bytes; copies any input unchecked
   const char* why = "";
   bool half_frame_decodes = false;  // the first half of a one-slice frame may decode (wrongly)
@@ -84,12 +84,15 @@ struct Exemption {
 const std::map<std::string, Exemption>& exemptions() {
   static const std::map<std::string, Exemption> m{
       {"raw", {true, false, true, "the baseline: the buffer's bytes as they are, no header"}},
-      {"h264", {true, true, false, "a standard Annex-B stream: no checksum, trailing zeros are legal, "
-                                   "a prefix holds whole slices"}},
-      {"hevc", {true, true, false,
-                "a standard Annex-B stream: no checksum, trailing zeros are legal, a prefix holds whole slices; "
-                "libavcodec's HEVC decoder does not notice a slice cut short inside its CABAC data",
-                true}},
+      {"h264",
+       {true, true, false,
+        "a standard Annex-B stream: no checksum, trailing zeros are legal, "
+        "a prefix holds whole slices"}},
+      {"hevc",
+       {true, true, false,
+        "a standard Annex-B stream: no checksum, trailing zeros are legal, a prefix holds whole slices; "
+        "libavcodec's HEVC decoder does not notice a slice cut short inside its CABAC data",
+        true}},
       {"av1", {true, true, false, "standard OBUs: no checksum, trailing bits and padding OBUs are legal"}},
   };
   return m;
@@ -159,7 +162,8 @@ class CrcCopyCodec final : public Codec {
   void encode(const PassBuffer& in, const EncodeOptions&, std::vector<uint8_t>& out) override {
     if (std::string why = refuses(in.desc); !why.empty()) fail("crc_copy: {}", why);
     if (std::string why = in.desc.validate(); !why.empty()) fail("crc_copy: {}", why);
-    if (in.bytes.size() != in.desc.byte_size()) fail("crc_copy: {} bytes for a {}-byte buffer", in.bytes.size(), in.desc.byte_size());
+    if (in.bytes.size() != in.desc.byte_size())
+      fail("crc_copy: {} bytes for a {}-byte buffer", in.bytes.size(), in.desc.byte_size());
     out.assign(kHeader, 0);
     out[0] = 'T';
     put32(out.data() + 1, crc32c(in.bytes));
@@ -193,8 +197,9 @@ class CrcCopyCodec final : public Codec {
 };
 
 CodecEntry make_crc_copy_codec() {
-  return {"crc_copy", "bytes behind a CRC-32C header (a throwaway test codec)", {},
-          [](const Params&) { return std::make_unique<CrcCopyCodec>(); }};
+  return {"crc_copy", "bytes behind a CRC-32C header (a throwaway test codec)", {}, [](const Params&) {
+            return std::make_unique<CrcCopyCodec>();
+          }};
 }
 
 // A registry of its own holding only the throwaway codec (the real codecs run under Defaults).
@@ -217,8 +222,8 @@ struct Case {
 // The depth pass (12 bits) of a floor seen by a rolled camera (so that depth varies along rows
 // and columns), with background above its horizon.
 PassBuffer planar_depth(int w, int h) {
-  const Camera cam = Camera::look_at({0.0f, 1.5f, 0.0f}, {0.0f, 0.0f, -4.0f}, glm::normalize(glm::vec3(0.4f, 1.0f, 0.0f)),
-                                     60.0f, w, h, 0.05f, 100.0f);
+  const Camera cam = Camera::look_at({0.0f, 1.5f, 0.0f}, {0.0f, 0.0f, -4.0f},
+                                     glm::normalize(glm::vec3(0.4f, 1.0f, 0.0f)), 60.0f, w, h, 0.05f, 100.0f);
   ImageF depth(w, h, kBackgroundDepth);
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) {
@@ -280,10 +285,13 @@ void expect_round_trip(Codec& codec, const std::string& label, const Case& c, bo
   refused = false;
   if (std::string why = codec.refuses(c.buffer.desc); !why.empty()) {
     refused = true;
-    EXPECT_THROW({
-      std::vector<uint8_t> bytes;
-      codec.encode(c.buffer, {}, bytes);
-    }, Error) << label << " " << c.name << ": encode of a refused buffer must throw";
+    EXPECT_THROW(
+        {
+          std::vector<uint8_t> bytes;
+          codec.encode(c.buffer, {}, bytes);
+        },
+        Error)
+        << label << " " << c.name << ": encode of a refused buffer must throw";
     return;
   }
   std::vector<uint8_t> bytes;
@@ -411,8 +419,9 @@ TEST_P(CodecConformance, EmptyBuffersRoundTripOrAreRefused) {
                                PassDesc{PassKind::Colour, 7, 0, 3, 255}}) {
     bool refused = false;
     expect_round_trip(*codec, v.label(), {"empty", test::make_constant(desc, 0)}, refused);
-    if (refused) std::printf("%-45s refuses %dx%d %s: %s\n", v.label().c_str(), desc.width, desc.height,
-                             pass_kind_name(desc.kind), codec->refuses(desc).c_str());
+    if (refused)
+      std::printf("%-45s refuses %dx%d %s: %s\n", v.label().c_str(), desc.width, desc.height, pass_kind_name(desc.kind),
+                  codec->refuses(desc).c_str());
   }
 }
 
@@ -500,8 +509,9 @@ TEST_P(CodecConformance, BitFlipsAreDetectedOrHarmless) {
   const Exemption ex = exemption(v.name);
   const SyntheticView view{33, 21};
   auto codec = v.create();
-  for (const Case& c : {Case{"smooth_ao", test::make_smooth_ao(view)}, Case{"hard_vis_4", test::make_hard_visibility(view, 4)},
-                        Case{"noisy_ao_8", test::make_noisy_ao(view, 8)}}) {
+  for (const Case& c :
+       {Case{"smooth_ao", test::make_smooth_ao(view)}, Case{"hard_vis_4", test::make_hard_visibility(view, 4)},
+        Case{"noisy_ao_8", test::make_noisy_ao(view, 8)}}) {
     const PassBuffer& in = c.buffer;
     if (!codec->refuses(in.desc).empty()) continue;
     codec->reset();
@@ -548,8 +558,8 @@ TEST_P(CodecConformance, LostFrameRecoversThroughAKeyframe) {
   const bool stateful = enc->stateful();
   auto frame = [&](int f, PassKind kind) {
     const SyntheticView view{64, 40, 1.5 * f, 0.5 * f, uint32_t(f)};
-    return kind == PassKind::Ao ? test::make_smooth_ao(view)
-           : kind == PassKind::Colour ? test::make_colour(view)
+    return kind == PassKind::Ao               ? test::make_smooth_ao(view)
+           : kind == PassKind::Colour         ? test::make_colour(view)
            : kind == PassKind::SoftVisibility ? test::make_soft_visibility(view, 3)
                                               : test::make_hard_visibility(view, 4);
   };
@@ -870,8 +880,8 @@ TEST(VideoCodecs, CountPlaneKeepsItsPsnrWhenTheRangeChanges) {
         }
         db[range] = range_psnr_db(squared_error, values, range);
       }
-      std::printf("%-5s %-15s PSNR relative to the range: 0..255 %.2f dB, 0..64 %.2f dB, 0..8 %.2f dB\n",
-                  name.c_str(), pass_kind_name(kind), db[255], db[64], db[8]);
+      std::printf("%-5s %-15s PSNR relative to the range: 0..255 %.2f dB, 0..64 %.2f dB, 0..8 %.2f dB\n", name.c_str(),
+                  pass_kind_name(kind), db[255], db[64], db[8]);
       EXPECT_GE(db[255], kLossyFloorDb) << name;
       for (int range : {64, 8})
         EXPECT_GE(db[range], db[255] - 3.0) << name << " " << pass_kind_name(kind) << " 0.." << range;
@@ -928,7 +938,8 @@ TEST(VideoCodecs, VbvBoundsFrameSizesAndMaxKbpsCapsCrf) {
   for (const std::string& name : names) {
     const double budget = 300.0 * 1000 / 8 / 60;  // bytes per frame at 300 kbit/s and 60 Hz
     auto loose = registries().codecs.create(name, {{"rate_control", "bitrate"}, {"bitrate_kbps", 300}});
-    auto tight = registries().codecs.create(name, {{"rate_control", "bitrate"}, {"bitrate_kbps", 300}, {"vbv_buffer_ms", 17}});
+    auto tight =
+        registries().codecs.create(name, {{"rate_control", "bitrate"}, {"bitrate_kbps", 300}, {"vbv_buffer_ms", 17}});
     const std::vector<size_t> a = stream(*loose), b = stream(*tight);
     const size_t max_a = *std::max_element(a.begin(), a.end()), max_b = *std::max_element(b.begin(), b.end());
     std::printf("%-5s bitrate 300 kbit/s: largest frame %zu B with a 1 s VBV, %zu B with 17 ms (budget %.0f B)\n",
@@ -1003,8 +1014,8 @@ TEST(VideoCodecs, DumpedStreamsDecodeWithFfmpegToOurPictures) {
     ASSERT_EQ(std::system(cmd.c_str()), 0) << name << ": " << cmd;
     std::ifstream in(raw, std::ios::binary);
     const std::vector<uint8_t> theirs((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    ASSERT_EQ(theirs.size(), ours.size()) << name << ": ffmpeg decoded " << theirs.size() / (kW * kH) << " frames of "
-                                          << kFrames;
+    ASSERT_EQ(theirs.size(), ours.size())
+        << name << ": ffmpeg decoded " << theirs.size() / (kW * kH) << " frames of " << kFrames;
     EXPECT_TRUE(theirs == ours) << name << ": ffmpeg's pictures differ from ours";
   }
   fs::remove_all(dir);
@@ -1020,7 +1031,8 @@ TEST(H264, LossyQualityOnSmoothAoAndColour) {
     codec->encode(buffer, {}, bytes);
     const PassBuffer out = decode_or_fail(*codec, bytes, buffer.desc);
     const double db = test::buffer_psnr_db(buffer, out);
-    std::printf("h264 crf 23 %s 256x144: %zu bytes, PSNR %.2f dB\n", pass_kind_name(buffer.desc.kind), bytes.size(), db);
+    std::printf("h264 crf 23 %s 256x144: %zu bytes, PSNR %.2f dB\n", pass_kind_name(buffer.desc.kind), bytes.size(),
+                db);
     EXPECT_GE(db, min_db) << pass_kind_name(buffer.desc.kind);
   }
 }
@@ -1155,8 +1167,8 @@ TEST(H264, TinyAndOddPicturesWork) {
   auto codec = h264();
   for (auto [w, h] : {std::pair{1, 1}, {17, 13}, {2, 1}, {1, 3}}) {
     const SyntheticView view{w, h};
-    for (const PassBuffer& in : {test::make_smooth_ao(view), test::make_colour(view), test::make_soft_visibility(view, 3),
-                                 test::make_noisy_ao(view, 8)}) {
+    for (const PassBuffer& in : {test::make_smooth_ao(view), test::make_colour(view),
+                                 test::make_soft_visibility(view, 3), test::make_noisy_ao(view, 8)}) {
       std::vector<uint8_t> bytes;
       codec->encode(in, {}, bytes);
       const PassBuffer out = decode_or_fail(*codec, bytes, in.desc);
@@ -1194,7 +1206,8 @@ TEST(Delta, SavesOnAStaticCameraAndReportsAMovingOne) {
       noisy.push_back(test::make_noisy_ao(view, 8));
     }
     for (auto& [label, frames] : {std::pair<const char*, std::vector<PassBuffer>&>{"smooth_ao", ao},
-                                  {"hard_vis_4", vis}, {"noisy_ao_8", noisy}}) {
+                                  {"hard_vis_4", vis},
+                                  {"noisy_ao_8", noisy}}) {
       const double plain = mean_bytes("zstd", json::object(), frames);
       const double delta = mean_bytes("delta", json::object(), frames);
       std::printf("160x90 %-10s pan %.0f px/frame: zstd %.0f B/frame, delta+zstd %.0f B/frame (%.0f%%)\n", label,

@@ -100,11 +100,21 @@ TEST(Rng, DeterministicAndKeySensitive) {
   EXPECT_EQ(rng_bits(k), rng_bits(k));
   std::set<uint64_t> seen;
   seen.insert(rng_bits(k));
-  RngKey a = k; a.seed = 43; seen.insert(rng_bits(a));
-  RngKey b = k; b.pixel = 1001; seen.insert(rng_bits(b));
-  RngKey c = k; c.frame = 8; seen.insert(rng_bits(c));
-  RngKey d = k; d.sample = 4; seen.insert(rng_bits(d));
-  RngKey e = k; e.stream = kStreamLightBase; seen.insert(rng_bits(e));
+  RngKey a = k;
+  a.seed = 43;
+  seen.insert(rng_bits(a));
+  RngKey b = k;
+  b.pixel = 1001;
+  seen.insert(rng_bits(b));
+  RngKey c = k;
+  c.frame = 8;
+  seen.insert(rng_bits(c));
+  RngKey d = k;
+  d.sample = 4;
+  seen.insert(rng_bits(d));
+  RngKey e = k;
+  e.stream = kStreamLightBase;
+  seen.insert(rng_bits(e));
   seen.insert(rng_bits(k, 1));
   EXPECT_EQ(seen.size(), 7u);
 }
@@ -135,7 +145,11 @@ TEST(Rng, NeighbouringPixelsUncorrelated) {
   for (int i = 0; i < n; ++i) {
     double x = rng_uniform({5, uint32_t(i), 2, 0, 1});
     double y = rng_uniform({5, uint32_t(i + 1), 2, 0, 1});
-    sxy += x * y; sx += x; sy += y; sxx += x * x; syy += y * y;
+    sxy += x * y;
+    sx += x;
+    sy += y;
+    sxx += x * x;
+    syy += y * y;
   }
   const double cov = sxy / n - sx / n * sy / n;
   const double corr = cov / std::sqrt((sxx / n - sx * sx / n / n) * (syy / n - sy * sy / n / n));

@@ -45,8 +45,8 @@ struct Frame {
 // box (id 2, depth 3 m, AO 0.9) spanning screen x [box_x0 - fg_speed f, box_x1 - fg_speed f)
 // and y [8, 40). Motion vectors point to where each surface point was in frame f - 1. Rows
 // y >= 44 are background (no object) when with_background is set.
-Frame make_frame(int f, int bg_speed, int fg_speed, bool with_box = true, bool with_background = true,
-                 int box_x0 = 40, int box_x1 = 56) {
+Frame make_frame(int f, int bg_speed, int fg_speed, bool with_box = true, bool with_background = true, int box_x0 = 40,
+                 int box_x1 = 56) {
   Frame fr;
   fr.gbuf.resize(kW, kH);
   fr.truth.resize(kW, kH, 1.0f);
@@ -312,11 +312,10 @@ TEST(Denoisers, ResetAndInvalidHistoryGiveTheSpatialOnlyPath) {
 // +0.0008 at frame 3, where the variance switches from spatial to temporal); temporal 0.183
 // 0.128 0.104 0.090 0.080 0.073 0.069 0.066; single_iteration 0.079 ... 0.021.
 TEST(Denoisers, StaticCameraErrorFallsFrameByFrame) {
-  const std::vector<std::pair<std::string, nlohmann::json>> configs = {
-      {"svgf_ao", nlohmann::json::object()},
-      {"svgf_ao", {{"feedback", "accumulated"}}},
-      {"temporal", nlohmann::json::object()},
-      {"single_iteration", nlohmann::json::object()}};
+  const std::vector<std::pair<std::string, nlohmann::json>> configs = {{"svgf_ao", nlohmann::json::object()},
+                                                                       {"svgf_ao", {{"feedback", "accumulated"}}},
+                                                                       {"temporal", nlohmann::json::object()},
+                                                                       {"single_iteration", nlohmann::json::object()}};
   for (const auto& [name, params] : configs) {
     SCOPED_TRACE(name + params.dump());
     // Averaged over seeds: a heavily filtered 64x48 image holds few independent error blobs,
@@ -391,8 +390,9 @@ TEST(Denoisers, GhostingAtDisocclusionsDiesOut) {
         strip_bias[size_t(j)] += b / n / (kLast - kFirst + 1);
         // Reference: the plane above and below the box (rows 0..5 and 42..43), long history
         // except at the right border where the pan brings in new columns.
-        ref_err[size_t(j)] += mae(out, fr.truth, [](int x, int y) { return x < 48 && (y < 6 || (y >= 42 && y < 44)); }) /
-                              (kLast - kFirst + 1);
+        ref_err[size_t(j)] +=
+            mae(out, fr.truth, [](int x, int y) { return x < 48 && (y < 6 || (y >= 42 && y < 44)); }) /
+            (kLast - kFirst + 1);
       }
     }
     std::printf("%-16s disocclusion strip MAE / bias / reference MAE, frames after appearing:\n", ex.name.c_str());
@@ -524,44 +524,44 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
   // (w = 75 is no multiple of 16, so the last block overlaps its neighbour; at step 16 every
   // block reaches past an end).
   for (bool fast : {false, true})
-  for (int radius : {1, 2})
-    for (int step : {1, 2, 4, 8, 16})
-      for (int nsq : {7, 3}) {
-        SCOPED_TRACE("radius " + std::to_string(radius) + " step " + std::to_string(step) + " squarings " +
-                     std::to_string(nsq) + " fast_weights " + std::to_string(fast));
-        denoise::AtrousArgs a = args(radius, step);
-        a.normal_squarings = nsq;
-        a.inv_phi_l = ipl.data();
-        a.fast_weights = fast;
-        std::vector<float> acc(size_t(w) * 4), v8(n), var8(n), v16(n), var16(n);
-        a.v_out = v8.data();
-        a.var_out = var8.data();
-        denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/false);
-        a.v_out = v16.data();
-        a.var_out = var16.data();
-        denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/true);
-        EXPECT_EQ(std::memcmp(v8.data(), v16.data(), n * sizeof(float)), 0);
-        EXPECT_EQ(std::memcmp(var8.data(), var16.data(), n * sizeof(float)), 0);
-        // Not a vacuous comparison: the filter changed the values.
-        int changed = 0;
-        for (size_t i = 0; i < n; ++i) changed += valid[i] && v8[i] != v[i];
-        EXPECT_GT(changed, int(n) / 2);
-        if (fast) {  // the fast weights are other weights: close to the default's, not the same
-          std::vector<float> exact(n), exact_var(n);
-          a.fast_weights = false;
-          a.v_out = exact.data();
-          a.var_out = exact_var.data();
+    for (int radius : {1, 2})
+      for (int step : {1, 2, 4, 8, 16})
+        for (int nsq : {7, 3}) {
+          SCOPED_TRACE("radius " + std::to_string(radius) + " step " + std::to_string(step) + " squarings " +
+                       std::to_string(nsq) + " fast_weights " + std::to_string(fast));
+          denoise::AtrousArgs a = args(radius, step);
+          a.normal_squarings = nsq;
+          a.inv_phi_l = ipl.data();
+          a.fast_weights = fast;
+          std::vector<float> acc(size_t(w) * 4), v8(n), var8(n), v16(n), var16(n);
+          a.v_out = v8.data();
+          a.var_out = var8.data();
           denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/false);
-          int differ = 0;
-          float worst = 0.0f;
-          for (size_t i = 0; i < n; ++i) {
-            differ += exact[i] != v8[i];
-            worst = std::max(worst, std::fabs(exact[i] - v8[i]));
+          a.v_out = v16.data();
+          a.var_out = var16.data();
+          denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/true);
+          EXPECT_EQ(std::memcmp(v8.data(), v16.data(), n * sizeof(float)), 0);
+          EXPECT_EQ(std::memcmp(var8.data(), var16.data(), n * sizeof(float)), 0);
+          // Not a vacuous comparison: the filter changed the values.
+          int changed = 0;
+          for (size_t i = 0; i < n; ++i) changed += valid[i] && v8[i] != v[i];
+          EXPECT_GT(changed, int(n) / 2);
+          if (fast) {  // the fast weights are other weights: close to the default's, not the same
+            std::vector<float> exact(n), exact_var(n);
+            a.fast_weights = false;
+            a.v_out = exact.data();
+            a.var_out = exact_var.data();
+            denoise::atrous_rows(a, 0, h, acc.data(), /*use_avx512=*/false);
+            int differ = 0;
+            float worst = 0.0f;
+            for (size_t i = 0; i < n; ++i) {
+              differ += exact[i] != v8[i];
+              worst = std::max(worst, std::fabs(exact[i] - v8[i]));
+            }
+            EXPECT_GT(differ, int(n) / 4);
+            EXPECT_LT(worst, 1e-3f);
           }
-          EXPECT_GT(differ, int(n) / 4);
-          EXPECT_LT(worst, 1e-3f);
         }
-      }
   // The same with the options of svgf_ao's light_history path: only the pixels of one class
   // filtered (the others left as they are), the AO phi computed inside the rows from the
   // variance, copies of the output and the 8-bit output. Classes come in runs of random length
@@ -579,56 +579,56 @@ TEST(Denoisers, AtrousKernelSameBitsOnEveryVectorWidth) {
       ivk[i] = valid[i] ? 1.0f / (0.25f + 0.75f * u(i, 9)) : 0.0f;
     }
     for (bool fast : {false, true})
-    for (int radius : {1, 2})
-      for (int step : {1, 8, 16})
-        for (uint8_t active : {0, 1}) {
-          SCOPED_TRACE("classes: radius " + std::to_string(radius) + " step " + std::to_string(step) + " active " +
-                       std::to_string(active) + " fast_weights " + std::to_string(fast));
-          denoise::AtrousArgs a = args(radius, step);
-          a.fast_weights = fast;
-          a.inv_valid_k = ivk.data();
-          a.sigma_l = 4.0f;
-          a.cls = cls.data();
-          a.active_cls = active;
-          std::vector<float> acc(size_t(w) * 4);
-          struct Out {
-            std::vector<float> v, var, v2, var2;
-            std::vector<uint8_t> u8;
-          };
-          auto run_width = [&](bool wide) {
-            Out o{std::vector<float>(n, -1.0f), std::vector<float>(n, -2.0f), std::vector<float>(n, -3.0f),
-                  std::vector<float>(n, -4.0f), std::vector<uint8_t>(n, 7)};
-            a.v_out = o.v.data();
-            a.var_out = o.var.data();
-            a.v_out2 = o.v2.data();
-            a.var_out2 = o.var2.data();
-            a.u8_out = o.u8.data();
-            denoise::atrous_rows(a, 0, h, acc.data(), wide);
-            return o;
-          };
-          const Out o8 = run_width(false), o16 = run_width(true);
-          a.cls = nullptr;  // every pixel filtered: a filtered pixel's result must not change
-          const Out all = run_width(false);
-          a.cls = cls.data();
-          EXPECT_TRUE(o8.v == o16.v);
-          EXPECT_TRUE(o8.var == o16.var);
-          EXPECT_TRUE(o8.u8 == o16.u8);
-          EXPECT_TRUE(o8.v2 == o16.v2);
-          EXPECT_TRUE(o8.var2 == o16.var2);
-          int filtered = 0, untouched = 0;
-          for (size_t i = 0; i < n; ++i) {
-            if (cls[i] != active) {  // left as it was; the 8-bit output is of that value
-              untouched += o8.v[i] == -1.0f && o8.var[i] == -2.0f && o8.v2[i] == -3.0f && o8.u8[i] == 0;
-            } else {
-              filtered += o8.v[i] >= 0.0f && o8.v2[i] == o8.v[i] && o8.var2[i] == o8.var[i] &&
-                          o8.u8[i] == denoise::to_u8(o8.v[i]) && o8.v[i] == all.v[i] && o8.var[i] == all.var[i];
+      for (int radius : {1, 2})
+        for (int step : {1, 8, 16})
+          for (uint8_t active : {0, 1}) {
+            SCOPED_TRACE("classes: radius " + std::to_string(radius) + " step " + std::to_string(step) + " active " +
+                         std::to_string(active) + " fast_weights " + std::to_string(fast));
+            denoise::AtrousArgs a = args(radius, step);
+            a.fast_weights = fast;
+            a.inv_valid_k = ivk.data();
+            a.sigma_l = 4.0f;
+            a.cls = cls.data();
+            a.active_cls = active;
+            std::vector<float> acc(size_t(w) * 4);
+            struct Out {
+              std::vector<float> v, var, v2, var2;
+              std::vector<uint8_t> u8;
+            };
+            auto run_width = [&](bool wide) {
+              Out o{std::vector<float>(n, -1.0f), std::vector<float>(n, -2.0f), std::vector<float>(n, -3.0f),
+                    std::vector<float>(n, -4.0f), std::vector<uint8_t>(n, 7)};
+              a.v_out = o.v.data();
+              a.var_out = o.var.data();
+              a.v_out2 = o.v2.data();
+              a.var_out2 = o.var2.data();
+              a.u8_out = o.u8.data();
+              denoise::atrous_rows(a, 0, h, acc.data(), wide);
+              return o;
+            };
+            const Out o8 = run_width(false), o16 = run_width(true);
+            a.cls = nullptr;  // every pixel filtered: a filtered pixel's result must not change
+            const Out all = run_width(false);
+            a.cls = cls.data();
+            EXPECT_TRUE(o8.v == o16.v);
+            EXPECT_TRUE(o8.var == o16.var);
+            EXPECT_TRUE(o8.u8 == o16.u8);
+            EXPECT_TRUE(o8.v2 == o16.v2);
+            EXPECT_TRUE(o8.var2 == o16.var2);
+            int filtered = 0, untouched = 0;
+            for (size_t i = 0; i < n; ++i) {
+              if (cls[i] != active) {  // left as it was; the 8-bit output is of that value
+                untouched += o8.v[i] == -1.0f && o8.var[i] == -2.0f && o8.v2[i] == -3.0f && o8.u8[i] == 0;
+              } else {
+                filtered += o8.v[i] >= 0.0f && o8.v2[i] == o8.v[i] && o8.var2[i] == o8.var[i] &&
+                            o8.u8[i] == denoise::to_u8(o8.v[i]) && o8.v[i] == all.v[i] && o8.var[i] == all.var[i];
+              }
             }
+            int n_active = 0;
+            for (size_t i = 0; i < n; ++i) n_active += cls[i] == active;
+            EXPECT_EQ(filtered, n_active);
+            EXPECT_EQ(untouched, int(n) - n_active);
           }
-          int n_active = 0;
-          for (size_t i = 0; i < n; ++i) n_active += cls[i] == active;
-          EXPECT_EQ(filtered, n_active);
-          EXPECT_EQ(untouched, int(n) - n_active);
-        }
   }
   // The spatial moments (variance estimate where history is short), over spans that start
   // anywhere in the row; m2 from a plane and m2 = m1^2.
@@ -830,8 +830,9 @@ TEST(LightHistory, StaticCameraSwitchesToTheSingleIterationLevel) {
 // values. The same bits, frame by frame. On a CPU without AVX2 (or in a sanitizer build) both
 // runs are portable.
 TEST(Denoisers, SameBitsWithPortableKernels) {
-  std::printf("kernels compared with the portable ones: %s\n",
-              denoise::cpu_has_avx512() ? "AVX-512" : denoise::cpu_has_avx2() ? "AVX2" : "none (portable only)");
+  std::printf("kernels compared with the portable ones: %s\n", denoise::cpu_has_avx512() ? "AVX-512"
+                                                               : denoise::cpu_has_avx2() ? "AVX2"
+                                                                                         : "none (portable only)");
   auto rough = [](int f) {
     Frame fr = (f == 5 || f == 11) ? garbage_frame(f) : make_frame(f, 1, 3);
     auto u = [&](int x, int y, uint32_t dim) {

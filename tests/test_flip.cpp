@@ -84,8 +84,8 @@ TEST(Flip, MonotoneInAddedNoise) {
 
 TEST(Flip, MapStaysInUnitRangeOnExtremeColours) {
   // Saturated primaries, black and white against each other: the largest differences there are.
-  const Rgb8 colours[] = {{0, 0, 0}, {255, 255, 255}, {255, 0, 0}, {0, 255, 0}, {0, 0, 255},
-                          {255, 255, 0}, {0, 255, 255}, {255, 0, 255}};
+  const Rgb8 colours[] = {{0, 0, 0},   {255, 255, 255}, {255, 0, 0},   {0, 255, 0},
+                          {0, 0, 255}, {255, 255, 0},   {0, 255, 255}, {255, 0, 255}};
   ImageRGB8 a(64, 64), b(64, 64);
   for (int y = 0; y < 64; ++y)
     for (int x = 0; x < 64; ++x) {
@@ -220,12 +220,9 @@ TEST(Flip, SameBitsAsTheOneTapAtATimeFilters) {
     uint64_t want_map, want_mean;
   };
   const Case cases[] = {
-      {150, 90, 67.0, 0xaa6700c3f5f60499, 0x3fc1e2f32bad04a1},
-      {31, 7, 67.0, 0xed23d4a8e8de4d8c, 0x3fc5b01fa04b8097},
-      {33, 40, 67.0, 0x9615d716ef00e692, 0x3fc36f5679eebd49},
-      {97, 61, 20.0, 0xd29bbde0e5cafb1c, 0x3fd527fdcd918032},
-      {64, 64, 150.0, 0x79273f9cdada919e, 0x3fb7c409be018000},
-      {5, 300, 67.0, 0x0db4aa95c269e53e, 0x3fc45b5db5dbd194},
+      {150, 90, 67.0, 0xaa6700c3f5f60499, 0x3fc1e2f32bad04a1}, {31, 7, 67.0, 0xed23d4a8e8de4d8c, 0x3fc5b01fa04b8097},
+      {33, 40, 67.0, 0x9615d716ef00e692, 0x3fc36f5679eebd49},  {97, 61, 20.0, 0xd29bbde0e5cafb1c, 0x3fd527fdcd918032},
+      {64, 64, 150.0, 0x79273f9cdada919e, 0x3fb7c409be018000}, {5, 300, 67.0, 0x0db4aa95c269e53e, 0x3fc45b5db5dbd194},
   };
   for (const Case& c : cases) {
     const ImageRGB8 a = scene_like(c.w, c.h, 11), b = with_noise(a, 30, 12);
@@ -308,7 +305,8 @@ TEST(Flip, LabRowMatchesLabF) {
       r[at] = 0.7f;
       flip_detail::lab_f_values(r.data(), n);
       for (size_t i = 0; i < n; ++i)
-        EXPECT_EQ(std::bit_cast<uint32_t>(r[i]), std::bit_cast<uint32_t>(flip_detail::lab_f_value(i == at ? 0.7f : 0.3f)))
+        EXPECT_EQ(std::bit_cast<uint32_t>(r[i]),
+                  std::bit_cast<uint32_t>(flip_detail::lab_f_value(i == at ? 0.7f : 0.3f)))
             << "row of " << n << ", value " << i;
     }
   }
@@ -397,7 +395,8 @@ TEST(Flip, ColourMapIsMagma) {
 std::vector<double> naive_flip(const ImageRGB8& ref, const ImageRGB8& test, double ppd) {
   const int w = ref.width(), h = ref.height();
   const double pi = 3.14159265358979323846;
-  const double m[9] = {0.4124564, 0.3575761, 0.1804375, 0.2126729, 0.7151522, 0.0721750, 0.0193339, 0.1191920, 0.9503041};
+  const double m[9] = {0.4124564, 0.3575761, 0.1804375, 0.2126729, 0.7151522,
+                       0.0721750, 0.0193339, 0.1191920, 0.9503041};
   double white[3];
   for (int r = 0; r < 3; ++r) white[r] = m[3 * r] + m[3 * r + 1] + m[3 * r + 2];
   auto lin = [](uint8_t v) {
@@ -486,7 +485,8 @@ std::vector<double> naive_flip(const ImageRGB8& ref, const ImageRGB8& test, doub
       lum[i] = (opp[3 * i] + 16) / 116;
     }
     auto at = [&](int x, int y) { return size_t(std::clamp(y, 0, h - 1)) * w + size_t(std::clamp(x, 0, w - 1)); };
-    Planes p{std::vector<double>(size_t(w) * h * 3), std::vector<double>(size_t(w) * h), std::vector<double>(size_t(w) * h)};
+    Planes p{std::vector<double>(size_t(w) * h * 3), std::vector<double>(size_t(w) * h),
+             std::vector<double>(size_t(w) * h)};
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {
         double f[3] = {0, 0, 0};
@@ -495,7 +495,8 @@ std::vector<double> naive_flip(const ImageRGB8& ref, const ImageRGB8& test, doub
             for (int i = -rc; i <= rc; ++i, ++k) f[c] += csf[c][size_t(k)] * opp[3 * at(x + i, y + j) + size_t(c)];
         const double yl = (f[0] + 16) / 116, xl = f[1] / 500 + yl, zl = yl - f[2] / 200;
         double rgb[3];
-        for (int c = 0; c < 3; ++c) rgb[c] = std::clamp(inv[3 * c] * xl + inv[3 * c + 1] * yl + inv[3 * c + 2] * zl, 0.0, 1.0);
+        for (int c = 0; c < 3; ++c)
+          rgb[c] = std::clamp(inv[3 * c] * xl + inv[3 * c + 1] * yl + inv[3 * c + 2] * zl, 0.0, 1.0);
         hunt_lab(rgb[0], rgb[1], rgb[2], &p.lab[3 * (size_t(y) * w + x)]);
         double ex = 0, ey = 0, px = 0, py = 0;
         for (int j = -rf, k = 0; j <= rf; ++j)

@@ -27,8 +27,10 @@ const Scene& scene(const std::string& name) {
   static std::map<std::string, Scene> scenes;
   auto it = scenes.find(name);
   if (it == scenes.end())
-    it = scenes.emplace(name, load_scene(std::string(DHR_SOURCE_DIR) + "/scenes/" + name + ".json",
-                                         SceneSearchPath::standard())).first;
+    it = scenes
+             .emplace(name, load_scene(std::string(DHR_SOURCE_DIR) + "/scenes/" + name + ".json",
+                                       SceneSearchPath::standard()))
+             .first;
   return it->second;
 }
 
@@ -87,7 +89,8 @@ TEST(FrameLoop, ReprojectionBeatsNoneUnderLatencyOnEveryBuiltinScene) {
         RunResult r = run_simulation(c, scene(name), name, cache(), registries());
         ssim[i++] = r.metrics()["ssim_local_mean"].get<double>();
       }
-      EXPECT_GT(ssim[1], ssim[0]) << name << " at " << latency << " ms: reprojection " << ssim[1] << " none " << ssim[0];
+      EXPECT_GT(ssim[1], ssim[0]) << name << " at " << latency << " ms: reprojection " << ssim[1] << " none "
+                                  << ssim[0];
     }
   }
 }
@@ -169,7 +172,7 @@ TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
   a.warmup_frames = 4;
   a.score_every = 3;
   a.pass("ao").denoiser = {"svgf_ao"};  // keeps history: the reference depends on every frame before
-  SimConfig same = a;  // another network and codec: the same local reference
+  SimConfig same = a;                   // another network and codec: the same local reference
   same.uplink.latency_ms = same.downlink.latency_ms = 50;
   same.pass("ao").codec = {"zstd"};
   SimConfig other_denoiser = same;
@@ -182,7 +185,8 @@ TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
   (void)scores(a, shared);
   for (const SimConfig* c : {&same, &other_denoiser, &other_trace, &remote}) {
     TraceCache fresh;
-    EXPECT_EQ(scores(*c, shared), scores(*c, fresh)) << c->pass("ao").denoiser.name << " " << c->trace.ao_rays << " " << c->mode;
+    EXPECT_EQ(scores(*c, shared), scores(*c, fresh))
+        << c->pass("ao").denoiser.name << " " << c->trace.ao_rays << " " << c->mode;
   }
   // And a run does take it: a cache holding black images under its keys changes its scores;
   // a run missing one frame's key computes its own for every frame.
@@ -312,7 +316,8 @@ TEST(FrameLoop, SharedFlipFeaturesScoreAsTheirOwn) {
   TraceCache shared;
   (void)both_scores(a, shared);
   for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
-    EXPECT_NE(shared.find_flip(local_reference_key("room", keyed_config(a, scene("room")), f)), nullptr) << "frame " << f;
+    EXPECT_NE(shared.find_flip(local_reference_key("room", keyed_config(a, scene("room")), f)), nullptr)
+        << "frame " << f;
   TraceCache fresh;
   const std::string own = both_scores(late, fresh);
   EXPECT_EQ(both_scores(late, shared), own);
@@ -419,7 +424,9 @@ TEST(DenoiseSharing, SkippedFramesAreFedAgainWhenTheSequenceDiverges) {
   auto run = [&](const std::vector<int>& frames, CountingMemo* memo, size_t odd = 0) {
     DenoiseStage stage(c, traced, registries());
     if (memo)
-      stage.share({memo, {"ao-key", "visibility-key"}, [&](const RasterFrame& f) {
+      stage.share({memo,
+                   {"ao-key", "visibility-key"},
+                   [&](const RasterFrame& f) {
                      ++rasters;
                      return rasterize_now(f);
                    },
@@ -514,7 +521,8 @@ TEST(FrameLoop, SharedDenoisedPassesScoreAsTheirOwn) {
   // The lossy run's server skips frame 12 (its first lost camera): it takes frames 0-11 from the
   // memo, then feeds them to its denoiser.
   TraceCache nothing(0);
-  EXPECT_GT(nlohmann::json::parse(run_outcome(lossy, nothing))["cameras_lost"].get<int>(), 0) << "the server skips frames";
+  EXPECT_GT(nlohmann::json::parse(run_outcome(lossy, nothing))["cameras_lost"].get<int>(), 0)
+      << "the server skips frames";
 }
 
 // The runs of a sweep share their clients' G-buffers (TraceCache::find_raster): the first
@@ -546,7 +554,8 @@ TEST(FrameLoop, SharedClientGBuffersScoreAsTheirOwn) {
     TraceCache shared;
     (void)run_outcome(a, shared);
     EXPECT_EQ(shared.raster_hits(), 0u) << "the first run finds nothing";
-    EXPECT_EQ(run_outcome(*c, shared), own) << c->mode << " " << c->start_time_s << " " << c->display_hz << " " << c->width;
+    EXPECT_EQ(run_outcome(*c, shared), own)
+        << c->mode << " " << c->start_time_s << " " << c->display_hz << " " << c->width;
     // The same frames: the first 16; at 90 Hz only the first frame (same time, no motion yet).
     const uint64_t want = c == &lossy || c == &remote ? 16u : c == &faster ? 1u : 0u;
     EXPECT_EQ(shared.raster_hits(), want)
@@ -661,7 +670,8 @@ TEST(FrameLoop, ReprojectedDeltaIsLosslessEndToEndAndSmaller) {
     const nlohmann::json m = r.metrics();
     for (const FrameRecord& f : r.frames) EXPECT_EQ(f.score("ssim"), 1.0) << predictor << " frame " << f.frame;
     for (const auto& p : m["passes"]) EXPECT_EQ(p["decode_errors"].get<uint64_t>(), 0u) << predictor;
-    bytes[predictor] = {m["passes"][0]["bytes_per_frame"].get<double>(), m["passes"][1]["bytes_per_frame"].get<double>()};
+    bytes[predictor] = {m["passes"][0]["bytes_per_frame"].get<double>(),
+                        m["passes"][1]["bytes_per_frame"].get<double>()};
     std::printf("room 128x72, delta %-12s: visibility %.0f B/frame, AO %.0f B/frame\n", predictor,
                 bytes[predictor].first, bytes[predictor].second);
   }
@@ -684,11 +694,13 @@ TEST(FrameLoop, ReducedResolutionAoIsCheaperAndExactEndToEnd) {
       c.height = 72;
       c.trace.ao_scale = scale;
       c.pass("ao").denoiser = {"svgf_ao"};
-      c.pass("ao").codec = codec == std::string("zstd") ? BackendChoice{"zstd"}
-                                                        : BackendChoice{"delta", {{"inner", "zstd"}, {"predictor", "reprojection"}}};
+      c.pass("ao").codec = codec == std::string("zstd")
+                               ? BackendChoice{"zstd"}
+                               : BackendChoice{"delta", {{"inner", "zstd"}, {"predictor", "reprojection"}}};
       RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
       const nlohmann::json m = r.metrics();
-      for (const FrameRecord& f : r.frames) EXPECT_EQ(f.score("ssim"), 1.0) << scale << " " << codec << " frame " << f.frame;
+      for (const FrameRecord& f : r.frames)
+        EXPECT_EQ(f.score("ssim"), 1.0) << scale << " " << codec << " frame " << f.frame;
       for (const auto& p : m["passes"]) EXPECT_EQ(p["decode_errors"].get<uint64_t>(), 0u) << scale << " " << codec;
       EXPECT_EQ(r.frames_without_data, 0u);
       if (codec == std::string("zstd")) {
@@ -754,8 +766,8 @@ TEST(FrameLoop, StreamBudgetIsSharedByTheCodecsThatTakeATargetBitrate) {
     c.stream_kbps = visibility_kbps + ao_kbps;
     const nlohmann::json m = run_simulation(c, scene("room"), "room", cache(), registries()).metrics();
     const double got = m["passes"][1]["bandwidth_mbps"].get<double>() * 1000.0;
-    std::printf("hybrid, visibility lz4 %.0f kbit/s + AO h264: stream_kbps %.0f gives AO %.0f kbit/s\n", visibility_kbps,
-                c.stream_kbps, got);
+    std::printf("hybrid, visibility lz4 %.0f kbit/s + AO h264: stream_kbps %.0f gives AO %.0f kbit/s\n",
+                visibility_kbps, c.stream_kbps, got);
     EXPECT_NEAR(got, ao_kbps, 0.3 * ao_kbps);
   }
 
@@ -848,7 +860,8 @@ TEST(FrameLoop, ReprojectedDeltaRecoversFromTheFrameTheClientHolds) {
   for (int references : {1, 8}) {
     SimConfig c = lossy_room_config(0.05);
     c.pass("ao").denoiser = {"svgf_ao"};
-    c.pass("visibility").codec = {"delta", {{"inner", "lz4"}, {"predictor", "reprojection"}, {"references", references}}};
+    c.pass("visibility").codec = {"delta",
+                                  {{"inner", "lz4"}, {"predictor", "reprojection"}, {"references", references}}};
     c.pass("ao").codec = {"delta", {{"inner", "zstd"}, {"predictor", "reprojection"}, {"references", references}}};
     RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
     const nlohmann::json m = r.metrics();
@@ -861,7 +874,8 @@ TEST(FrameLoop, ReprojectedDeltaRecoversFromTheFrameTheClientHolds) {
     for (const auto& f : r.frames) EXPECT_TRUE(std::isfinite(f.score("ssim")));
     ao_bytes[references] = ao["bytes_per_frame"].get<double>();
     std::printf("room 96x54, 5%% loss, %d reference(s): AO %.0f B/frame, lost %llu, decode errors %llu\n", references,
-                ao_bytes[references], (unsigned long long)lost, (unsigned long long)ao["decode_errors"].get<uint64_t>());
+                ao_bytes[references], (unsigned long long)lost,
+                (unsigned long long)ao["decode_errors"].get<uint64_t>());
   }
   EXPECT_LT(ao_bytes[8], ao_bytes[1]) << "recovery from a held frame should cost less than keyframes";
 }
@@ -879,10 +893,11 @@ TEST(FrameLoop, LossyDeltaDecodesEveryFrameAndRecoversFromLoss) {
     const nlohmann::json m = r.metrics();
     const auto& ao = m["passes"][1];
     const uint64_t lost = ao["frames_lost"], sent = ao["server_frames"], errors = ao["decode_errors"];
-    std::printf("room 96x54, delta_video h264 crf 23, %.0f%% loss: AO %.0f B/frame, lost %llu, decode errors %llu, "
-                "SSIM %.4f\n",
-                100 * loss, ao["bytes_per_frame"].get<double>(), (unsigned long long)lost, (unsigned long long)errors,
-                m["ssim_local_mean"].get<double>());
+    std::printf(
+        "room 96x54, delta_video h264 crf 23, %.0f%% loss: AO %.0f B/frame, lost %llu, decode errors %llu, "
+        "SSIM %.4f\n",
+        100 * loss, ao["bytes_per_frame"].get<double>(), (unsigned long long)lost, (unsigned long long)errors,
+        m["ssim_local_mean"].get<double>());
     for (const auto& f : r.frames) EXPECT_TRUE(std::isfinite(f.score("ssim")));
     if (loss == 0) {
       EXPECT_EQ(errors, 0u);
@@ -983,8 +998,10 @@ namespace {
 TEST(FrameLoop, EveryCodecUnderOneAndFivePercentLoss) {
   for (const auto& entry : registries().codecs.entries()) {
     const char* codec = entry.name.c_str();
-    const bool carries_bitmask =
-        registries().codecs.create(entry.name, nlohmann::json::object())->refuses({PassKind::Visibility, 96, 54, 1, 1}).empty();
+    const bool carries_bitmask = registries()
+                                     .codecs.create(entry.name, nlohmann::json::object())
+                                     ->refuses({PassKind::Visibility, 96, 54, 1, 1})
+                                     .empty();
     for (double loss : {0.01, 0.05}) {
       SimConfig c = small_config(40);
       c.width = 96;
@@ -1001,11 +1018,12 @@ TEST(FrameLoop, EveryCodecUnderOneAndFivePercentLoss) {
       const nlohmann::json m = r.metrics();
       const auto& ao = m["passes"][1];
       const uint64_t sent = ao["server_frames"], lost = ao["frames_lost"], completed = ao["frames_completed"];
-      std::printf("%-5s loss %.0f%%: AO frames sent %llu, lost %llu, completed %llu, decode errors %llu, "
-                  "keyframe requests %llu, SSIM %.4f\n",
-                  codec, loss * 100, (unsigned long long)sent, (unsigned long long)lost, (unsigned long long)completed,
-                  (unsigned long long)ao["decode_errors"].get<uint64_t>(),
-                  (unsigned long long)ao["keyframe_requests"].get<uint64_t>(), m["ssim_local_mean"].get<double>());
+      std::printf(
+          "%-5s loss %.0f%%: AO frames sent %llu, lost %llu, completed %llu, decode errors %llu, "
+          "keyframe requests %llu, SSIM %.4f\n",
+          codec, loss * 100, (unsigned long long)sent, (unsigned long long)lost, (unsigned long long)completed,
+          (unsigned long long)ao["decode_errors"].get<uint64_t>(),
+          (unsigned long long)ao["keyframe_requests"].get<uint64_t>(), m["ssim_local_mean"].get<double>());
       EXPECT_GT(completed, sent / 2) << codec;
       // A stateful decoder that lost a frame resets and asks for a keyframe: it fails at most
       // until the keyframe arrives (one uplink and one downlink trip, two server frames here).
@@ -1032,7 +1050,7 @@ TEST(TraceCache, EvictsTheLeastRecentlyUsedOfEveryKind) {
   ao.desc = {PassKind::Ao, 10, 10, 1, 8};
   ao.bytes.assign(100, 7);
   entry->passes.push_back({"ao", PassMeaning::Ao, ao, 1.0});
-  auto image = std::make_shared<const ImageRGB8>(10, 10);                          // 300 bytes
+  auto image = std::make_shared<const ImageRGB8>(10, 10);                       // 300 bytes
   auto features = std::make_shared<const FlipFeatures>(flip_features(*image));  // 2,000 bytes
   TraceCache cache(2500);
   cache.insert_flip("f", features);

@@ -28,9 +28,8 @@ constexpr int kW = 160, kH = 90;
 
 // Why two pixels disagree (kAgree when they do not).
 enum Mismatch { kAgree, kCoverage, kObject, kDepth, kGeoNormal, kShadingNormal, kCoincident, kMismatchKinds };
-const char* const kMismatchNames[] = {"agree",         "coverage",      "object id",
-                                      "depth",         "geometric normal", "shading normal",
-                                      "coincident surfaces"};
+const char* const kMismatchNames[] = {"agree",          "coverage",           "object id", "depth", "geometric normal",
+                                      "shading normal", "coincident surfaces"};
 
 Mismatch compare_pixel(const GBuffer& a, const GBuffer& b, int x, int y) {
   const bool ca = a.covered(x, y), cb = b.covered(x, y);
@@ -39,8 +38,8 @@ Mismatch compare_pixel(const GBuffer& a, const GBuffer& b, int x, int y) {
   if (a.object_id(x, y) != b.object_id(x, y)) {
     // Two objects' coincident surfaces (z-fighting in the scene itself): the rasterizer breaks
     // the tie by the smaller (object id, prim id), Embree by traversal order. Both are right.
-    const bool tie = std::abs(da - db) <= 1e-5f * std::max(da, db) &&
-                     glm::dot(a.geo_normal(x, y), b.geo_normal(x, y)) > 0.99f;
+    const bool tie =
+        std::abs(da - db) <= 1e-5f * std::max(da, db) && glm::dot(a.geo_normal(x, y), b.geo_normal(x, y)) > 0.99f;
     return tie ? kCoincident : kObject;
   }
   if (!(std::abs(da - db) <= 1e-3f * std::max(da, db))) return kDepth;

@@ -109,8 +109,8 @@ TEST(ApplyOverride, BoundsTheDepthOfValues) {
   EXPECT_EQ(j["run"]["frames"], 10);
   EXPECT_EQ(j["run"]["ao_codec"]["name"], "zstd");
   EXPECT_EQ(j["notes"], "[[not json");
-  for (const std::string& value : {std::string(100000, '[') + std::string(100000, ']'), std::string(100000, '['),
-                                   std::string(65, '{')}) {
+  for (const std::string& value :
+       {std::string(100000, '[') + std::string(100000, ']'), std::string(100000, '['), std::string(65, '{')}) {
     const std::string e = error_of([&] { apply_override(j, "scenes=" + value); });
     EXPECT_TRUE(starts_with(e, "--set 'scenes': the value is nested deeper than 64 levels")) << e.substr(0, 200);
     EXPECT_LT(e.size(), 300u);
@@ -155,7 +155,8 @@ TEST_F(ExperimentFiles, DeepNestingIsAClearError) {
   // Through --set, on a valid file.
   const std::string ok = write("ok.json", R"({"version": 1, "scenes": ["room"]})");
   EXPECT_NO_THROW(load_experiment(ok));
-  const std::string e = error_of([&] { load_experiment(ok, {"run.uplink=" + std::string(n, '[') + std::string(n, ']')}); });
+  const std::string e =
+      error_of([&] { load_experiment(ok, {"run.uplink=" + std::string(n, '[') + std::string(n, ']')}); });
   EXPECT_TRUE(starts_with(e, "--set 'run.uplink': the value is nested deeper than 64")) << e.substr(0, 300);
 }
 
@@ -176,18 +177,18 @@ TEST_F(ExperimentFiles, HugeNumbersNameTheFile) {
 
 TEST_F(ExperimentFiles, MessagesPrintOnlyAnExcerptOfAValue) {
   const std::string big = "\"" + std::string(1 << 20, 'x') + "\"";
-  const std::string file = write("long.json", R"({"version": )" + big + R"(, "scenes": [)" + big + R"(], "run": {"frames": )" +
-                                                  big + R"(, "trace": {"soft_shadows": )" + big + R"(}, "mode": )" + big +
-                                                  R"(, "uplink": {"latency": )" + big + R"(, "loss_rate": )" + big +
-                                                  R"(}, "downlink": )" + big + R"(}})");
+  const std::string file = write("long.json", R"({"version": )" + big + R"(, "scenes": [)" + big +
+                                                  R"(], "run": {"frames": )" + big + R"(, "trace": {"soft_shadows": )" +
+                                                  big + R"(}, "mode": )" + big + R"(, "uplink": {"latency": )" + big +
+                                                  R"(, "loss_rate": )" + big + R"(}, "downlink": )" + big + R"(}})");
   const std::string e = error_of([&] { load_experiment(file); });
   EXPECT_NE(e.find("version \"xxx"), std::string::npos) << e.substr(0, 400);
   EXPECT_LT(e.size(), 2000u) << e.substr(0, 2000);
   const std::string e2 = error_of([&] { load_experiment(file, {"scenes=[\"room\"]", "version=1"}); });
   EXPECT_LT(e2.size(), 2000u) << e2.substr(0, 2000);
-  for (const char* key : {"run.frames = \"xxx", "run.trace.soft_shadows = \"xxx", "run.mode = \"xxx",
-                          "run.uplink.latency = \"xxx", "run.uplink.loss_rate = \"xxx",
-                          "run.downlink: a link must be a JSON object, got \"xxx"})
+  for (const char* key :
+       {"run.frames = \"xxx", "run.trace.soft_shadows = \"xxx", "run.mode = \"xxx", "run.uplink.latency = \"xxx",
+        "run.uplink.loss_rate = \"xxx", "run.downlink: a link must be a JSON object, got \"xxx"})
     EXPECT_NE(e2.find(key), std::string::npos) << key << "\n" << e2;
 }
 

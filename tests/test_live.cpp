@@ -56,7 +56,8 @@ CameraUpdate sample_camera() {
 }
 
 TEST(LiveProtocol, EveryMessageRoundTripsBitForBit) {
-  for (ControlType t : {ControlType::Hello, ControlType::Welcome, ControlType::Refuse, ControlType::Camera, ControlType::Bye}) {
+  for (ControlType t :
+       {ControlType::Hello, ControlType::Welcome, ControlType::Refuse, ControlType::Camera, ControlType::Bye}) {
     ControlMessage m;
     m.type = t;
     m.session = 0xdeadbeef;
@@ -127,8 +128,10 @@ TEST(LiveOffer, MismatchesNameEveryField) {
   SimConfig a, b;
   b.width = 640;
   b.pass("ao").codec.name = "zstd";
-  const json oa = session_offer(a, registries(), "room", "abc"), ob = session_offer(b, registries(), "scenes/room.json", "abc");
-  EXPECT_TRUE(offer_mismatches(oa, session_offer(a, registries(), "other-name", "abc")).empty()) << "the name alone may differ";
+  const json oa = session_offer(a, registries(), "room", "abc"),
+             ob = session_offer(b, registries(), "scenes/room.json", "abc");
+  EXPECT_TRUE(offer_mismatches(oa, session_offer(a, registries(), "other-name", "abc")).empty())
+      << "the name alone may differ";
   const auto why = offer_mismatches(oa, ob);
   // width, ao_codec.name, and each of the codecs' parameters that differ (lz4 and zstd have
   // different ones): every line names its dotted field.
@@ -150,7 +153,6 @@ TEST(LiveOffer, MismatchesNameEveryField) {
   ASSERT_FALSE(scene.empty());
   EXPECT_NE(scene[0].find("different content"), std::string::npos);
 }
-
 
 // ---- trust: typed control messages ----------------------------------------------------------
 
@@ -192,9 +194,12 @@ std::string with_field(const std::string& dotted, const json& value) {
   json o = good_offer();
   json* at = &o;
   std::string rest = dotted;
-  for (size_t dot; (dot = rest.find('.')) != std::string::npos; rest = rest.substr(dot + 1)) at = &(*at)[rest.substr(0, dot)];
-  if (value.is_discarded()) at->erase(rest);
-  else (*at)[rest] = value;
+  for (size_t dot; (dot = rest.find('.')) != std::string::npos; rest = rest.substr(dot + 1))
+    at = &(*at)[rest.substr(0, dot)];
+  if (value.is_discarded())
+    at->erase(rest);
+  else
+    (*at)[rest] = value;
   return o.dump();
 }
 
@@ -226,7 +231,8 @@ TEST(LiveTrust, EveryMalformedControlMessageClassIsRefusedWithItsReason) {
       {ControlType::Hello, with_field("ao_codec", "lz4"), "hello_wrong_type", "ao_codec"},
       {ControlType::Hello, with_field("ao_codec.name", json::array({1})), "hello_wrong_type", "ao_codec.name"},
       {ControlType::Hello, with_field("ao_codec.params", json::array()), "hello_wrong_type", "ao_codec.params"},
-      {ControlType::Hello, with_field("visibility_denoiser.name", drop), "hello_missing_field", "visibility_denoiser.name"},
+      {ControlType::Hello, with_field("visibility_denoiser.name", drop), "hello_missing_field",
+       "visibility_denoiser.name"},
       {ControlType::Hello, with_field("display_hz", nullptr), "hello_wrong_type", "display_hz"},
       {ControlType::Hello, with_field("width", -96), "hello_bad_value", "width"},
       {ControlType::Hello, with_field("width", 18446744073709551615ull), "hello_bad_value", "width"},
@@ -238,13 +244,17 @@ TEST(LiveTrust, EveryMalformedControlMessageClassIsRefusedWithItsReason) {
       {ControlType::Welcome, welcome_for(9), "welcome_bad_value", "session"},  // the header says 7
       {ControlType::Welcome, "{\"session\": 7}", "welcome_missing_field", "client_nonce"},
       {ControlType::Welcome, "{\"session\": \"7\"}", "welcome_wrong_type", "session"},
-      {ControlType::Welcome, R"({"session": 7, "client_nonce": 1, "first_sequence": {"visibility": 0, "ao": "x"}, "offer": {}})",
+      {ControlType::Welcome,
+       R"({"session": 7, "client_nonce": 1, "first_sequence": {"visibility": 0, "ao": "x"}, "offer": {}})",
        "welcome_wrong_type", "first_sequence.ao"},
-      {ControlType::Welcome, R"({"session": 7, "client_nonce": 1, "first_sequence": {"visibility": 0, "ao": 4294967296}, "offer": {}})",
+      {ControlType::Welcome,
+       R"({"session": 7, "client_nonce": 1, "first_sequence": {"visibility": 0, "ao": 4294967296}, "offer": {}})",
        "welcome_bad_value", "first_sequence.ao"},
-      {ControlType::Welcome, R"({"session": 7, "client_nonce": 1, "first_sequence": {"visibility": 0, "ao": 1}, "offer": {}})",
+      {ControlType::Welcome,
+       R"({"session": 7, "client_nonce": 1, "first_sequence": {"visibility": 0, "ao": 1}, "offer": {}})",
        "welcome_missing_field", "offer.protocol"},
-      {ControlType::Welcome, R"({"session": 7, "client_nonce": 1, "first_sequence": {"visibility": 0, "ao": 1}, "offer": 5})",
+      {ControlType::Welcome,
+       R"({"session": 7, "client_nonce": 1, "first_sequence": {"visibility": 0, "ao": 1}, "offer": 5})",
        "welcome_wrong_type", "offer"},
   };
   for (const Case& c : cases) {
@@ -303,8 +313,8 @@ TEST(LiveTrust, OfferComparisonNeverThrowsWhateverTheShapes) {
 }
 
 // A pass packet of the session's stream, parsed (its payload points into `storage`).
-ParsedPacket pass_packet(std::vector<uint8_t>& storage, uint16_t stream, PassKind kind, uint32_t frame, uint32_t sequence,
-                         const char* codec = "lz4") {
+ParsedPacket pass_packet(std::vector<uint8_t>& storage, uint16_t stream, PassKind kind, uint32_t frame,
+                         uint32_t sequence, const char* codec = "lz4") {
   PacketMeta m;
   m.stream_id = stream;
   m.desc = {kind, 96, 64, 1, kind == PassKind::Ao ? 8 : 1};
@@ -334,7 +344,8 @@ TEST(LiveTrust, ThePassGateRefusesWhatTheSessionDidNotAskFor) {
   EXPECT_EQ(check(pass_packet(b, stream, PassKind::Ao, 4, 1000)), "packet_frame_ahead");
   EXPECT_EQ(check(pass_packet(b, stream, PassKind::Ao, 999670, 1000)), "packet_frame_ahead");
   EXPECT_EQ(check(pass_packet(b, stream, PassKind::Ao, 3, 999)), "packet_sequence_out_of_window");  // before the first
-  EXPECT_EQ(check(pass_packet(b, stream, PassKind::Ao, 3, 1000 + PassGate::kSequenceWindow)), "packet_sequence_out_of_window");
+  EXPECT_EQ(check(pass_packet(b, stream, PassKind::Ao, 3, 1000 + PassGate::kSequenceWindow)),
+            "packet_sequence_out_of_window");
   EXPECT_EQ(check(pass_packet(b, stream, PassKind::Ao, 3, 1000 + 5)), "ok");
   EXPECT_EQ(check(pass_packet(b, stream, PassKind::Ao, 2, 1000)), "ok");  // behind the newest: the assembler judges
   // The window moves with what was accepted, and nothing refused moved it.
@@ -347,7 +358,8 @@ TEST(LiveTrust, ThePassGateRefusesWhatTheSessionDidNotAskFor) {
   wrap.camera_sent(0);
   EXPECT_EQ(name_of(wrap.check(pass_packet(b, stream, PassKind::Visibility, 0, 4294967000u))), "ok");
   EXPECT_EQ(name_of(wrap.check(pass_packet(b, stream, PassKind::Visibility, 0, 100))), "ok");
-  EXPECT_STREQ(wrap.check(pass_packet(b, stream, PassKind::Visibility, 0, 4294966000u)), "packet_sequence_out_of_window");
+  EXPECT_STREQ(wrap.check(pass_packet(b, stream, PassKind::Visibility, 0, 4294966000u)),
+               "packet_sequence_out_of_window");
 }
 
 TEST(LiveTrust, TheMacRefusesTamperedReflectedAndOtherSessionsDatagrams) {
@@ -530,17 +542,18 @@ fs::path fresh_dir(const std::string& name) {
 // dhrbench serve with the test's settings on a loopback port the kernel picks, its port in
 // DIR/server.port and its output in DIR/server.log; `extra` options are appended.
 Process start_server(const fs::path& dir, const std::vector<std::string>& extra = {}) {
-  return Process::start(with({"serve"}, with(kSettings, with({"--bind", "127.0.0.1:0", "--port-file",
-                                                              (dir / "server.port").string()}, extra))),
-                        (dir / "server.log").string());
+  return Process::start(
+      with({"serve"},
+           with(kSettings, with({"--bind", "127.0.0.1:0", "--port-file", (dir / "server.port").string()}, extra))),
+      (dir / "server.log").string());
 }
 
 // dhrbench client with the test's settings and `extra` options, to 127.0.0.1:port, its output in
 // DIR/client.log.
 Process start_client(const fs::path& dir, int port, const std::vector<std::string>& extra) {
   return Process::start(
-      with({"client"}, with(kSettings, with({"--server", "127.0.0.1:" + std::to_string(port), "--connect-timeout", "30"},
-                                            extra))),
+      with({"client"},
+           with(kSettings, with({"--server", "127.0.0.1:" + std::to_string(port), "--connect-timeout", "30"}, extra))),
       (dir / "client.log").string());
 }
 
@@ -548,11 +561,12 @@ Process start_client(const fs::path& dir, int port, const std::vector<std::strin
 // port in DIR/relay.port, its results in DIR/relay.json, its output in DIR/relay.log.
 Process start_relay(const fs::path& dir, int server_port, const std::string& downlink, const std::string& uplink,
                     const std::vector<std::string>& extra) {
-  return Process::start(with({"relay", "--listen", "127.0.0.1:0", "--server", "127.0.0.1:" + std::to_string(server_port),
-                              "--port-file", (dir / "relay.port").string(), "--out", (dir / "relay.json").string(),
-                              "--downlink", downlink, "--uplink", uplink, "--idle-timeout", "20"},
-                             extra),
-                        (dir / "relay.log").string());
+  return Process::start(
+      with({"relay", "--listen", "127.0.0.1:0", "--server", "127.0.0.1:" + std::to_string(server_port), "--port-file",
+            (dir / "relay.port").string(), "--out", (dir / "relay.json").string(), "--downlink", downlink, "--uplink",
+            uplink, "--idle-timeout", "20"},
+           extra),
+      (dir / "relay.log").string());
 }
 
 TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
@@ -576,13 +590,15 @@ TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
 
   const std::string downlink =
       R"({"latency": "normal", "latency_ms": 15, "jitter_ms": 4, "preserve_order": false, "loss": "independent", "loss_rate": 0.05})";
-  Process relay = start_relay(dir, server_port, downlink, R"({"latency_ms": 10})", {"--duplicate-rate", "0.03", "--seed", "5"});
+  Process relay =
+      start_relay(dir, server_port, downlink, R"({"latency_ms": 10})", {"--duplicate-rate", "0.03", "--seed", "5"});
   const int relay_port = wait_port(dir / "relay.port", relay);
   ASSERT_GT(relay_port, 0);
 
   constexpr int kFrames = 90;  // 1.5 s at 60 Hz
-  Process client = start_client(dir, relay_port, {"--frames", std::to_string(kFrames), "--out", (dir / "client").string(),
-                                                   "--score-every", "15", "--save-every", "45"});
+  Process client = start_client(dir, relay_port,
+                                {"--frames", std::to_string(kFrames), "--out", (dir / "client").string(),
+                                 "--score-every", "15", "--save-every", "45"});
   ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
   ASSERT_TRUE(server.wait(30)) << "the server did not end after the client's bye:\n" << server.output();
   ASSERT_TRUE(relay.wait(30)) << "the relay did not end after the bye:\n" << relay.output();
@@ -648,7 +664,8 @@ TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
   sim.score_every = 1000000;
   const Scene scene = load_scene_or_model("room", SceneSearchPath::standard());
   TraceCache cache;
-  const RunResult rr = run_simulation(sim, scene, fmt::format("{:016x}", scene_content_hash(scene)), cache, registries());
+  const RunResult rr =
+      run_simulation(sim, scene, fmt::format("{:016x}", scene_content_hash(scene)), cache, registries());
   std::map<std::pair<int, std::string>, ServerPassRecord> simulated;
   for (const ServerPassRecord& p : rr.server_log) simulated[{p.frame, p.pass}] = p;
   int compared = 0;
@@ -672,8 +689,8 @@ TEST(LiveMode, AReducedResolutionAoPassStreamsAndIsUpsampled) {
   Process server = start_server(dir, with({"--out", (dir / "server").string(), "--idle-timeout", "20"}, half));
   const int port = wait_port(dir / "server.port", server);
   ASSERT_GT(port, 0);
-  Process client =
-      start_client(dir, port, with(half, {"--frames", "40", "--out", (dir / "client").string(), "--score-every", "10"}));
+  Process client = start_client(
+      dir, port, with(half, {"--frames", "40", "--out", (dir / "client").string(), "--score-every", "10"}));
   ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
   ASSERT_TRUE(server.wait(30)) << server.output();
   EXPECT_EQ(client.exit_code, 0) << client.output();
@@ -709,8 +726,8 @@ TEST(LiveMode, AfterALossTheServerHearsWhichFrameTheClientHolds) {
                               R"({"latency_ms": 10})", {"--seed", "3"});
   const int relay_port = wait_port(dir / "relay.port", relay);
   ASSERT_GT(relay_port, 0);
-  Process client =
-      start_client(dir, relay_port, with(delta, {"--frames", "90", "--out", (dir / "client").string(), "--score-every", "0"}));
+  Process client = start_client(
+      dir, relay_port, with(delta, {"--frames", "90", "--out", (dir / "client").string(), "--score-every", "0"}));
   ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
   ASSERT_TRUE(server.wait(30)) << server.output();
   ASSERT_TRUE(relay.wait(30)) << relay.output();
@@ -732,8 +749,8 @@ TEST(LiveMode, AMismatchedOfferIsRefusedWithTheReason) {
   const int port = wait_port(dir / "server.port", server);
   ASSERT_GT(port, 0);
   Process client = Process::start({"client", "--scene", "room", "--set", "width=128", "--set", "height=64", "--set",
-                                   "ao_codec.name=zstd", "--server", "127.0.0.1:" + std::to_string(port), "--frames", "5",
-                                   "--out", (dir / "client").string(), "--connect-timeout", "30"},
+                                   "ao_codec.name=zstd", "--server", "127.0.0.1:" + std::to_string(port), "--frames",
+                                   "5", "--out", (dir / "client").string(), "--connect-timeout", "30"},
                                   (dir / "client.log").string());
   ASSERT_TRUE(client.wait(60)) << client.output();
   EXPECT_EQ(client.exit_code, 2) << client.output();
@@ -752,11 +769,11 @@ TEST(LiveMode, TheClientEndsCleanlyWhenTheServerDies) {
   Process server = start_server(dir);
   const int port = wait_port(dir / "server.port", server);
   ASSERT_GT(port, 0);
-  Process client = Process::start(with({"client"}, with(kSettings, {"--server", "127.0.0.1:" + std::to_string(port),
-                                                                     "--frames", "100000", "--out", (dir / "client").string(),
-                                                                     "--idle-timeout", "1", "--score-every", "0",
-                                                                     "--connect-timeout", "30"})),
-                                  (dir / "client.log").string());
+  Process client =
+      Process::start(with({"client"}, with(kSettings, {"--server", "127.0.0.1:" + std::to_string(port), "--frames",
+                                                       "100000", "--out", (dir / "client").string(), "--idle-timeout",
+                                                       "1", "--score-every", "0", "--connect-timeout", "30"})),
+                     (dir / "client.log").string());
   // Let the session run, then kill the server without a word (no bye).
   const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(60);
   while (!fs::exists(dir / "client.log") || client.output().find("session") == std::string::npos) {
@@ -800,19 +817,19 @@ TEST(LiveTrust, ASessionUnderAttackFromAThirdSocketEndsAsACleanOne) {
   ASSERT_GT(server_port, 0);
   // A relay that impairs nothing: the loopback link loses nothing, so a clean session counts
   // no loss and receives every datagram the server sent.
-  Process relay = Process::start({"relay", "--listen", "127.0.0.1:0", "--server", "127.0.0.1:" + std::to_string(server_port),
-                                  "--port-file", (dir / "relay.port").string(), "--out", (dir / "relay.json").string(),
-                                  "--idle-timeout", "20"},
-                                 (dir / "relay.log").string());
+  Process relay = Process::start(
+      {"relay", "--listen", "127.0.0.1:0", "--server", "127.0.0.1:" + std::to_string(server_port), "--port-file",
+       (dir / "relay.port").string(), "--out", (dir / "relay.json").string(), "--idle-timeout", "20"},
+      (dir / "relay.log").string());
   const int relay_port = wait_port(dir / "relay.port", relay);
   ASSERT_GT(relay_port, 0);
   constexpr int kFrames = 120;  // 2 s at 60 Hz
-  Process client = Process::start(with({"client"}, with(kSettings, {"--server", "127.0.0.1:" + std::to_string(relay_port),
-                                                                     "--frames", std::to_string(kFrames), "--out",
-                                                                     (dir / "client").string(), "--score-every", "0",
-                                                                     "--save-every", "0", "--connect-timeout", "30",
-                                                                     "--port-file", (dir / "client.port").string()})),
-                                  (dir / "client.log").string());
+  Process client = Process::start(
+      with({"client"},
+           with(kSettings, {"--server", "127.0.0.1:" + std::to_string(relay_port), "--frames", std::to_string(kFrames),
+                            "--out", (dir / "client").string(), "--score-every", "0", "--save-every", "0",
+                            "--connect-timeout", "30", "--port-file", (dir / "client.port").string()})),
+      (dir / "client.log").string());
   const int client_port = wait_port(dir / "client.port", client);
   ASSERT_GT(client_port, 0);
   const uint32_t token = wait_token(server);
@@ -902,7 +919,8 @@ TEST(LiveTrust, ASessionUnderAttackFromAThirdSocketEndsAsACleanOne) {
     sim.width = 96;
     sim.height = 64;
     const Scene scene = load_scene_or_model("room", SceneSearchPath::standard());
-    send(control(ControlType::Hello, 77, session_offer(sim, registries(), "room", fmt::format("{:016x}", scene_content_hash(scene))).dump()),
+    send(control(ControlType::Hello, 77,
+                 session_offer(sim, registries(), "room", fmt::format("{:016x}", scene_content_hash(scene))).dump()),
          to_server);
   }
   UdpSocket* probe = &attacker;
@@ -958,7 +976,8 @@ TEST(LiveTrust, ASessionUnderAttackFromAThirdSocketEndsAsACleanOne) {
   const json& sock = c["socket"];
   EXPECT_EQ(sock["wire_bytes"].get<uint64_t>(),
             sock["session_bytes"].get<uint64_t>() + kIpUdpOverheadBytes * sock["session_datagrams"].get<uint64_t>());
-  EXPECT_NEAR(sock["mbps"].get<double>(), sock["wire_bytes"].get<double>() * 8e-6 / sock["duration_s"].get<double>(), 1e-9);
+  EXPECT_NEAR(sock["mbps"].get<double>(), sock["wire_bytes"].get<double>() * 8e-6 / sock["duration_s"].get<double>(),
+              1e-9);
   // AO never froze: every displayed frame after the first arrival has both passes, and the
   // last ones are recent.
   const auto frames = read_csv(dir / "client" / "frames.csv");
@@ -985,15 +1004,16 @@ TEST(LiveTrust, AKeyedSessionAuthenticatesEveryDatagram) {
   const fs::path key = dir / "live.key", other = dir / "other.key";
   std::ofstream(key, std::ios::binary) << "0123456789abcdef0123456789abcdef";
   std::ofstream(other, std::ios::binary) << "fedcba9876543210fedcba9876543210";
-  Process server = start_server(dir, {"--out", (dir / "server").string(), "--idle-timeout", "20", "--key-file", key.string()});
+  Process server =
+      start_server(dir, {"--out", (dir / "server").string(), "--idle-timeout", "20", "--key-file", key.string()});
   const int port = wait_port(dir / "server.port", server);
   ASSERT_GT(port, 0);
   const std::string at = "127.0.0.1:" + std::to_string(port);
   // Another key, and no key: the server never answers (every Hello fails its MAC).
-  Process wrong = Process::start(with({"client"}, with(kSettings, {"--server", at, "--frames", "5", "--out",
-                                                                    (dir / "wrong").string(), "--connect-timeout", "1",
-                                                                    "--key-file", other.string()})),
-                                 (dir / "wrong.log").string());
+  Process wrong = Process::start(
+      with({"client"}, with(kSettings, {"--server", at, "--frames", "5", "--out", (dir / "wrong").string(),
+                                        "--connect-timeout", "1", "--key-file", other.string()})),
+      (dir / "wrong.log").string());
   ASSERT_TRUE(wrong.wait(60)) << wrong.output();
   EXPECT_EQ(wrong.exit_code, 1) << wrong.output();
   EXPECT_NE(wrong.output().find("same --key-file"), std::string::npos) << wrong.output();
@@ -1002,11 +1022,11 @@ TEST(LiveTrust, AKeyedSessionAuthenticatesEveryDatagram) {
     probe.send_to(control(ControlType::Hello, 1, good_offer().dump()), resolve_endpoint(at));  // unauthenticated
   }
   constexpr int kFrames = 40;
-  Process client = Process::start(with({"client"}, with(kSettings, {"--server", at, "--frames", std::to_string(kFrames),
-                                                                     "--out", (dir / "client").string(), "--score-every",
-                                                                     "0", "--save-every", "0", "--connect-timeout", "30",
-                                                                     "--key-file", key.string()})),
-                                  (dir / "client.log").string());
+  Process client =
+      Process::start(with({"client"}, with(kSettings, {"--server", at, "--frames", std::to_string(kFrames), "--out",
+                                                       (dir / "client").string(), "--score-every", "0", "--save-every",
+                                                       "0", "--connect-timeout", "30", "--key-file", key.string()})),
+                     (dir / "client.log").string());
   ASSERT_TRUE(client.wait(120)) << client.output();
   ASSERT_TRUE(server.wait(30)) << server.output();
   EXPECT_EQ(client.exit_code, 0) << client.output();

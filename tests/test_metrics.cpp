@@ -107,8 +107,8 @@ TEST(Metrics, ErrorMapHasColourBarAndFixedScale) {
   e(3, 3) = 100.0f;
   ImageRGB8 m = error_map(e, 10.0f);
   EXPECT_EQ(m.height(), 48 + 4);
-  EXPECT_EQ(m(3, 3), m(9, 50));   // saturated value = right end of the bar
-  EXPECT_EQ(m(0, 0), m(0, 50));   // zero = left end of the bar
+  EXPECT_EQ(m(3, 3), m(9, 50));  // saturated value = right end of the bar
+  EXPECT_EQ(m(0, 0), m(0, 50));  // zero = left end of the bar
 }
 
 }  // namespace
@@ -186,10 +186,10 @@ TEST(Metrics, ValidSsimMatchesScikitImage) {
     ImageRGB8 a, b;
   };
   std::vector<Pair> pairs;
-  pairs.push_back({test_image(97, 61, 2), test_image(97, 61, 3)});              // independent
+  pairs.push_back({test_image(97, 61, 2), test_image(97, 61, 3)});                // independent
   pairs.push_back({test_image(128, 72, 4), shifted(test_image(128, 72, 4), 2)});  // a 2-pixel shift
   pairs.push_back({test_image(64, 48, 5), noisy(test_image(64, 48, 5), 12, 1)});  // added noise
-  pairs.push_back({test_image(11, 11, 6), test_image(11, 11, 7)});              // one window exactly
+  pairs.push_back({test_image(11, 11, 6), test_image(11, 11, 7)});                // one window exactly
   pairs.push_back({test_image(200, 13, 8), noisy(test_image(200, 13, 8), 40, 2)});
   const std::string dir = ::testing::TempDir();
   std::vector<std::string> files;
@@ -249,7 +249,8 @@ double two_pass_ssim(const ImageU8& ia, const ImageU8& ib, ImageF* map, SsimBord
   std::array<float, 2 * kRadius + 1> g{};
   double gsum = 0;
   for (int i = -kRadius; i <= kRadius; ++i) gsum += std::exp(-(i * i) / (2.0 * 1.5 * 1.5));
-  for (int i = -kRadius; i <= kRadius; ++i) g[size_t(i + kRadius)] = float(std::exp(-(i * i) / (2.0 * 1.5 * 1.5)) / gsum);
+  for (int i = -kRadius; i <= kRadius; ++i)
+    g[size_t(i + kRadius)] = float(std::exp(-(i * i) / (2.0 * 1.5 * 1.5)) / gsum);
   auto reflect101 = [](int i, int n) {
     if (n == 1) return 0;
     while (i < 0 || i >= n) {
@@ -296,8 +297,8 @@ double two_pass_ssim(const ImageU8& ia, const ImageU8& ib, ImageF* map, SsimBord
       const double var_b = std::max(0.0, s[3] - mu_b * mu_b);
       const double bound = std::sqrt(var_a * var_b);
       const double cov = std::clamp(s[4] - mu_a * mu_b, -bound, bound);
-      const double v = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
-                       ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a + var_b + kC2));
+      const double v =
+          ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) / ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a + var_b + kC2));
       if (map) (*map)(x, y) = float(v);
       if (!valid || (x >= kRadius && x < w - kRadius)) row += v;
     }
@@ -327,8 +328,8 @@ TEST(Metrics, SsimIsBitIdenticalToTheTwoPassDefinition) {
         ImageF map, ref_map;
         const double got = ssim_u8(la, lb, with_map ? &map : nullptr, border);
         const double want = two_pass_ssim(la, lb, with_map ? &ref_map : nullptr, border);
-        EXPECT_EQ(std::memcmp(&got, &want, sizeof got), 0) << w << "x" << h << " map " << with_map << ": " << got
-                                                         << " vs " << want;
+        EXPECT_EQ(std::memcmp(&got, &want, sizeof got), 0)
+            << w << "x" << h << " map " << with_map << ": " << got << " vs " << want;
         if (with_map) {
           ASSERT_EQ(map.size(), ref_map.size());
           EXPECT_EQ(std::memcmp(map.data(), ref_map.data(), map.size() * sizeof(float)), 0) << w << "x" << h;
@@ -348,8 +349,7 @@ TEST(Metrics, LumaRoundsAsLround) {
     const ImageU8 l = luma(img);
     int bad = 0;
     for (int g = 0; g < 256; ++g)
-      for (int b = 0; b < 256; ++b)
-        bad += l(b, g) != uint8_t(std::lround(0.299 * r + 0.587 * g + 0.114 * b));
+      for (int b = 0; b < 256; ++b) bad += l(b, g) != uint8_t(std::lround(0.299 * r + 0.587 * g + 0.114 * b));
     ASSERT_EQ(bad, 0) << "r = " << r;
   }
 }

@@ -111,8 +111,8 @@ TEST(Link, CapacityTraceChangesTheRateAndTheQueueDrops) {
   Link fresh(c, 1, 0);
   EXPECT_NEAR(fresh.send(1000, 40.0).arrival_ms, 41.0, 1e-9);
   // Both a fixed cap and a trace, or a trace without a queue limit: refused, naming the keys.
-  EXPECT_THROW(LinkConfig::from_json({{"bandwidth_mbps", 10}, {"capacity_trace_file", "x.txt"}, {"queue_limit_bytes", 1000}},
-                                     "downlink"),
+  EXPECT_THROW(LinkConfig::from_json(
+                   {{"bandwidth_mbps", 10}, {"capacity_trace_file", "x.txt"}, {"queue_limit_bytes", 1000}}, "downlink"),
                Error);
   try {
     LinkConfig::from_json({{"capacity_trace_file", "x.txt"}}, "downlink");
@@ -210,8 +210,9 @@ TEST(Link, SendTimesMustNotDecrease) {
 }
 
 TEST(LinkConfig, JsonRoundTripAndErrors) {
-  nlohmann::json j = {{"latency", "normal"}, {"latency_ms", 50}, {"jitter_ms", 5}, {"loss", "independent"},
-                      {"loss_rate", 0.01}, {"bandwidth_mbps", 100}, {"queue_limit_bytes", 1000000}};
+  nlohmann::json j = {{"latency", "normal"},         {"latency_ms", 50},  {"jitter_ms", 5},
+                      {"loss", "independent"},       {"loss_rate", 0.01}, {"bandwidth_mbps", 100},
+                      {"queue_limit_bytes", 1000000}};
   LinkConfig c = LinkConfig::from_json(j, "networks[0].downlink");
   EXPECT_EQ(LinkConfig::from_json(c.to_json(), "x").to_json(), c.to_json());
   try {

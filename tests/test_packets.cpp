@@ -157,16 +157,16 @@ TEST(Packet, FieldChecksOnSealedHeaders) {
   EXPECT_EQ(parse(good[2]), ParseResult::Ok);
   EXPECT_EQ(edit(0, [](auto& d) { d[0] = 'X'; }), ParseResult::BadMagic);
   EXPECT_EQ(edit(0, [](auto& d) { d[4] = kPacketVersion + 1; }), ParseResult::BadVersion);
-  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 38, 253); }), ParseResult::BadIndex);  // 3 + 253 shards > 255
-  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 24, 3); }), ParseResult::BadIndex);    // index == count
-  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 26, 0); }), ParseResult::BadIndex);    // count 0
-  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 26, 4); }), ParseResult::BadLength);   // count != ceil(total/chunk)
+  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 38, 253); }), ParseResult::BadIndex);    // 3 + 253 shards > 255
+  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 24, 3); }), ParseResult::BadIndex);      // index == count
+  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 26, 0); }), ParseResult::BadIndex);      // count 0
+  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 26, 4); }), ParseResult::BadLength);     // count != ceil(total/chunk)
   EXPECT_EQ(edit(0, [](auto& d) { put32(d, 20, 3100); }), ParseResult::BadLength);  // total
-  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 28, 0); }), ParseResult::BadLength);   // chunk 0
-  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 30, 999); }), ParseResult::BadLength);  // length field
-  EXPECT_EQ(edit(2, [](auto& d) { d.pop_back(); }), ParseResult::BadLength);      // sealed but short
-  EXPECT_EQ(edit(1, [](auto& d) { put16(d, 24, 2); }), ParseResult::BadLength);   // last would be 500
-  EXPECT_EQ(edit(0, [](auto& d) { d[5] = 0; }), ParseResult::BadDesc);            // pass kind
+  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 28, 0); }), ParseResult::BadLength);     // chunk 0
+  EXPECT_EQ(edit(0, [](auto& d) { put16(d, 30, 999); }), ParseResult::BadLength);   // length field
+  EXPECT_EQ(edit(2, [](auto& d) { d.pop_back(); }), ParseResult::BadLength);        // sealed but short
+  EXPECT_EQ(edit(1, [](auto& d) { put16(d, 24, 2); }), ParseResult::BadLength);     // last would be 500
+  EXPECT_EQ(edit(0, [](auto& d) { d[5] = 0; }), ParseResult::BadDesc);              // pass kind
   EXPECT_EQ(edit(0, [](auto& d) { d[5] = 9; }), ParseResult::BadDesc);
   EXPECT_EQ(edit(0, [](auto& d) { put16(d, 32, 20000); }), ParseResult::BadDesc);  // width
   EXPECT_EQ(edit(0, [](auto& d) { d[36] = 2; }), ParseResult::BadDesc);            // ao channels
@@ -284,8 +284,8 @@ TEST(Assembler, ReorderingAcrossFramesAndStreams) {
     std::vector<std::vector<uint8_t>> all;
     std::map<std::pair<uint16_t, int>, uint32_t> seq;
     for (uint32_t frame = 0; frame < 6; ++frame)
-      for (auto [stream, kind] : {std::pair<uint16_t, PassKind>{1, PassKind::Ao}, {1, PassKind::Colour},
-                                  {2, PassKind::Ao}}) {
+      for (auto [stream, kind] :
+           {std::pair<uint16_t, PassKind>{1, PassKind::Ao}, {1, PassKind::Colour}, {2, PassKind::Ao}}) {
         PacketMeta m = make_meta(frame, stream);
         if (kind == PassKind::Colour) m.desc = {PassKind::Colour, 32, 32, 3, 255};
         uint32_t& next = seq[{stream, int(kind)}];
@@ -777,7 +777,12 @@ TEST(Fec, DamagedOrForgedParityIsCaught) {
     return parse(d);
   };
   EXPECT_EQ(edit(0, [](auto& d) { put16(d, 24, 6); }), ParseResult::BadIndex);  // index >= count + parity
-  EXPECT_EQ(edit(4, [](auto& d) { put16(d, 30, 200); d.resize(kPacketHeaderBytes + 200); }), ParseResult::BadLength);
+  EXPECT_EQ(edit(4,
+                 [](auto& d) {
+                   put16(d, 30, 200);
+                   d.resize(kPacketHeaderBytes + 200);
+                 }),
+            ParseResult::BadLength);
   // Parity on an empty pass, and a parity count that is not a multiple of the blocks.
   auto empty = packetize(make_meta(3), {}, 250, 2);
   ASSERT_EQ(empty.size(), 1u);  // an empty pass gets no parity

@@ -26,8 +26,7 @@ using nlohmann::json;
 constexpr int kW = 160, kH = 90;
 
 const Scene& room() {
-  static const Scene s =
-      load_scene(std::string(DHR_SOURCE_DIR) + "/scenes/room.json", SceneSearchPath::standard());
+  static const Scene s = load_scene(std::string(DHR_SOURCE_DIR) + "/scenes/room.json", SceneSearchPath::standard());
   return s;
 }
 
@@ -46,7 +45,6 @@ const GBuffer& gbuffer(int frame, double speed = 1.0) {
   }
   return it->second;
 }
-
 
 FrameContext context(int frame, double speed = 1.0) {
   return {uint32_t(frame), &gbuffer(frame, speed), [speed](uint32_t f) { return &gbuffer(int(f), speed); }};
@@ -88,8 +86,8 @@ TEST(PassCoding, ReprojectedDeltaIsExactAndSmallerThanThePlainDelta) {
           ASSERT_EQ(out.bytes, in.bytes) << predictor << " frame " << f;
         }
       }
-      std::printf("%s, pan x%.0f: delta %zu B, delta + reprojection %zu B over 11 frames\n",
-                  pass_kind_name(kind), speed, bytes["none"], bytes["reprojection"]);
+      std::printf("%s, pan x%.0f: delta %zu B, delta + reprojection %zu B over 11 frames\n", pass_kind_name(kind),
+                  speed, bytes["none"], bytes["reprojection"]);
       // Sub-pixel motion resamples the pattern, so even an exact reprojection leaves a residual
       // (bilinear on 8-bit passes; bitmask edges cannot be interpolated): smaller, not zero.
       EXPECT_LT(bytes["reprojection"], bytes["none"])
@@ -226,10 +224,11 @@ TEST(PassCoding, LossyDeltaDecodesToTheEncodersReconstructionWithoutDrift) {
         worst_psnr[scheme] = std::min(worst_psnr[scheme], test::buffer_psnr_db(in, out));
       }
     }
-    std::printf("AO pan x%.0f, crf 23, %d frames after the keyframe: delta_video %zu B (worst %.1f dB), "
-                "delta_video + reprojection %zu B (worst %.1f dB), h264 %zu B (worst %.1f dB)\n",
-                speed, kFrames - 1, bytes["none"], worst_psnr["none"], bytes["reprojection"],
-                worst_psnr["reprojection"], bytes["h264"], worst_psnr["h264"]);
+    std::printf(
+        "AO pan x%.0f, crf 23, %d frames after the keyframe: delta_video %zu B (worst %.1f dB), "
+        "delta_video + reprojection %zu B (worst %.1f dB), h264 %zu B (worst %.1f dB)\n",
+        speed, kFrames - 1, bytes["none"], worst_psnr["none"], bytes["reprojection"], worst_psnr["reprojection"],
+        bytes["h264"], worst_psnr["h264"]);
     EXPECT_LT(bytes["reprojection"], bytes["none"]) << "pan x" << speed;
     // No drift: the worst frame of the prediction chain stays near plain h264's worst.
     EXPECT_GT(worst_psnr["reprojection"], worst_psnr["h264"] - 3.0) << "pan x" << speed;

@@ -26,7 +26,8 @@ void expect_std_pow_bits(const std::vector<float>& x, const std::vector<float>& 
   size_t bad = 0;
   for (size_t i = 0; i < x.size(); ++i) {
     const float want = std::pow(x[i], y[i]);
-    const bool same = std::isnan(want) ? std::isnan(out[i]) : std::bit_cast<uint32_t>(want) == std::bit_cast<uint32_t>(out[i]);
+    const bool same =
+        std::isnan(want) ? std::isnan(out[i]) : std::bit_cast<uint32_t>(want) == std::bit_cast<uint32_t>(out[i]);
     if (!same && bad++ < 5)
       ADD_FAILURE() << what << ": pow(" << std::hexfloat << x[i] << ", " << y[i] << ") = " << out[i] << ", std::pow "
                     << want;
@@ -40,9 +41,11 @@ void expect_std_pow_bits(const std::vector<float>& x, float y, const char* what)
   size_t bad = 0;
   for (size_t i = 0; i < x.size(); ++i) {
     const float want = std::pow(x[i], y);
-    const bool same = std::isnan(want) ? std::isnan(out[i]) : std::bit_cast<uint32_t>(want) == std::bit_cast<uint32_t>(out[i]);
+    const bool same =
+        std::isnan(want) ? std::isnan(out[i]) : std::bit_cast<uint32_t>(want) == std::bit_cast<uint32_t>(out[i]);
     if (!same && bad++ < 5)
-      ADD_FAILURE() << what << ": pow(" << std::hexfloat << x[i] << ", " << y << ") = " << out[i] << ", std::pow " << want;
+      ADD_FAILURE() << what << ": pow(" << std::hexfloat << x[i] << ", " << y << ") = " << out[i] << ", std::pow "
+                    << want;
   }
   EXPECT_EQ(bad, 0u) << what << ": " << bad << " of " << x.size() << " differ";
 }
@@ -97,9 +100,10 @@ TEST(PowRow, MidpointsAndExactCasesGiveStdPowBits) {
   // Exact powers, both signs of zero, subnormals, negatives, infinities, NaN, |y log2 x| past
   // the kernel's range.
   const float inf = std::numeric_limits<float>::infinity(), nan = std::numeric_limits<float>::quiet_NaN();
-  const float specials[] = {0.0f, -0.0f, 0x1p-149f, 0x1.8p-130f, 0x1p-126f, 0.5f, 1.0f, 2.0f, 4.0f, 1e30f, 3e38f,
-                            -1.0f, -2.0f, -0.5f, inf, -inf, nan};
-  const float powers[] = {0.0f, -0.0f, 0.5f, 0.7f, 1.0f, 2.0f, -1.0f, -0.5f, 3.0f, 1e-30f, 200.0f, -200.0f, inf, -inf, nan};
+  const float specials[] = {0.0f,  -0.0f, 0x1p-149f, 0x1.8p-130f, 0x1p-126f, 0.5f, 1.0f, 2.0f, 4.0f,
+                            1e30f, 3e38f, -1.0f,     -2.0f,       -0.5f,     inf,  -inf, nan};
+  const float powers[] = {0.0f, -0.0f,  0.5f,   0.7f,    1.0f, 2.0f, -1.0f, -0.5f,
+                          3.0f, 1e-30f, 200.0f, -200.0f, inf,  -inf, nan};
   for (float a : specials)
     for (float b : powers) x.push_back(a), y.push_back(b);
   expect_std_pow_bits(x, y, "midpoints and special cases");
@@ -147,16 +151,18 @@ TEST(PowRow, EveryPositiveFloatWhenAsked) {
       pow_row(x.data(), y, out.data(), chunk);
       for (size_t i = 0; i < chunk; ++i) {
         const float want = std::pow(x[i], y);
-        const bool same = std::isnan(want) ? std::isnan(out[i]) : std::bit_cast<uint32_t>(want) == std::bit_cast<uint32_t>(out[i]);
+        const bool same =
+            std::isnan(want) ? std::isnan(out[i]) : std::bit_cast<uint32_t>(want) == std::bit_cast<uint32_t>(out[i]);
         if (!same && bad++ < 5) ADD_FAILURE() << std::hexfloat << "pow(" << x[i] << ", " << y << ")";
       }
     }
     EXPECT_EQ(bad, 0u) << "y = " << y;
     const dhr::PowRowCounts c = dhr::pow_row_counts();
-    std::printf("y = %g: %llu of 2^31 positive floats differ from std::pow; lanes so far %llu, left to the scalar "
-                "path %llu\n",
-                double(y), static_cast<unsigned long long>(bad), static_cast<unsigned long long>(c.lanes),
-                static_cast<unsigned long long>(c.fallbacks));
+    std::printf(
+        "y = %g: %llu of 2^31 positive floats differ from std::pow; lanes so far %llu, left to the scalar "
+        "path %llu\n",
+        double(y), static_cast<unsigned long long>(bad), static_cast<unsigned long long>(c.lanes),
+        static_cast<unsigned long long>(c.fallbacks));
   }
 }
 

@@ -104,8 +104,7 @@ GBuffer render(const Scene& s, const Camera& cam) {
   return g;
 }
 
-Camera look(const glm::vec3& eye, const glm::vec3& target, const glm::vec3& up = {0, 1, 0}, int w = kW,
-            int h = kH) {
+Camera look(const glm::vec3& eye, const glm::vec3& target, const glm::vec3& up = {0, 1, 0}, int w = kW, int h = kH) {
   return Camera::look_at(eye, target, up, 60.0f, w, h, 0.05f, 100.0f);
 }
 
@@ -192,9 +191,12 @@ TEST(Reprojection, IdentityReturnsInputExactlyForEveryPassKind) {
     PassKind kind;
     int channels, full_scale;
   };
-  const Case cases[] = {{PassKind::Visibility, 4, 255}, {PassKind::Visibility, 40, 255},
-                        {PassKind::Visibility, 64, 255}, {PassKind::SoftVisibility, 3, 255},
-                        {PassKind::SoftVisibility, 2, 16}, {PassKind::Ao, 1, 8},
+  const Case cases[] = {{PassKind::Visibility, 4, 255},
+                        {PassKind::Visibility, 40, 255},
+                        {PassKind::Visibility, 64, 255},
+                        {PassKind::SoftVisibility, 3, 255},
+                        {PassKind::SoftVisibility, 2, 16},
+                        {PassKind::Ao, 1, 8},
                         {PassKind::Ao, 1, 255}};
   for (const char* filter : {"nearest", "bilinear"})
     for (const char* fill : {"nearest_valid", "local"}) {
@@ -203,8 +205,8 @@ TEST(Reprojection, IdentityReturnsInputExactlyForEveryPassKind) {
         const PassBuffer in = make_random(g, c.kind, c.channels, c.full_scale, 11);
         PassBuffer out;
         const PredictStats st = p->predict({in, g, g2}, out);
-        SCOPED_TRACE(fmt::format("{} {} ch {} fs {} {}", filter, fill, c.channels, c.full_scale,
-                                 pass_kind_name(c.kind)));
+        SCOPED_TRACE(
+            fmt::format("{} {} ch {} fs {} {}", filter, fill, c.channels, c.full_scale, pass_kind_name(c.kind)));
         EXPECT_EQ(out.desc, in.desc);
         EXPECT_TRUE(out.bytes == in.bytes);
         EXPECT_EQ(st.disoccluded, 0u);
@@ -223,7 +225,8 @@ TEST(Reprojection, CameraTranslationFindsWorldPaintedValuesAgain) {
   const GBuffer src = render(scene, c0), dst = render(scene, c1);
   const PassBuffer in = make_ao(src);
   PassBuffer out;
-  const PredictStats st = make("reprojection", {{"filter", "nearest"}, {"fill", "local"}})->predict({in, src, dst}, out);
+  const PredictStats st =
+      make("reprojection", {{"filter", "nearest"}, {"fill", "local"}})->predict({in, src, dst}, out);
   ASSERT_EQ(out.desc, in.desc);
   size_t kept = 0, exact = 0, filled = 0;
   for (size_t i = 0; i < out.bytes.size(); ++i) {
@@ -256,7 +259,8 @@ bool hidden_from(const Scene& s, const Camera& cam, const glm::vec3& p) {
 }
 
 struct Located {
-  size_t disoccluded = 0, explained = 0, visible_disoccluded = 0, deep_hidden = 0, deep_hidden_disoccluded = 0, offscreen = 0;
+  size_t disoccluded = 0, explained = 0, visible_disoccluded = 0, deep_hidden = 0, deep_hidden_disoccluded = 0,
+         offscreen = 0;
 };
 
 // Classifies every covered dst pixel: disoccluded (output 255), hidden from the src camera,
@@ -305,8 +309,7 @@ TEST(Reprojection, DisocclusionsLieWhereTheBoxUncoveredTheGround) {
   const GBuffer src = render(scene, c0), dst = render(scene, c1);
   const PassBuffer in = make_ao(src);
   PassBuffer local_out, nearest_out;
-  const PredictStats st_local =
-      make("reprojection", {{"fill", "local"}})->predict({in, src, dst}, local_out);
+  const PredictStats st_local = make("reprojection", {{"fill", "local"}})->predict({in, src, dst}, local_out);
   const Located loc = locate(scene, src, dst, local_out);
   EXPECT_EQ(loc.disoccluded, st_local.disoccluded);
   EXPECT_GT(st_local.disoccluded, loc.offscreen + 10) << "no disocclusion besides the screen edge";
@@ -506,8 +509,8 @@ TEST(Reprojection, HardTapTestsKeepTheirBits) {
       // Tilt about a random axis by up to 40 degrees (the threshold 0.9 is 25.8 degrees), or for
       // a quarter of the pixels by 90-125 degrees (-0.3 is 107.5), and scale the length across
       // the accepted [0.5, 2] (squared [0.25, 4]).
-      const glm::vec3 axis = glm::normalize(glm::vec3(u(seed, i, 1) - 0.5f, u(seed, i, 2) - 0.5f, u(seed, i, 3) - 0.5f) +
-                                            glm::vec3(1e-3f));
+      const glm::vec3 axis = glm::normalize(
+          glm::vec3(u(seed, i, 1) - 0.5f, u(seed, i, 2) - 0.5f, u(seed, i, 3) - 0.5f) + glm::vec3(1e-3f));
       const float tilt = u(seed, i, 12) < 0.25f ? 90.0f + 35.0f * u(seed, i, 4) : 40.0f * u(seed, i, 4);
       n = glm::rotate(n, glm::radians(tilt), axis) * (0.45f + 1.65f * u(seed, i, 5));
       if (pick < 0.03f) n = glm::vec3(0.0f);
@@ -537,10 +540,9 @@ TEST(Reprojection, HardTapTestsKeepTheirBits) {
       roughen(dst, seed + 10, false);
       const PassBuffer ao = make_random(src, PassKind::Ao, 1, 255, 40 + seed);
       const PassBuffer vis = make_random(src, PassKind::Visibility, 5, 1, 50 + seed);
-      for (const nlohmann::json& params :
-           {nlohmann::json::object(), nlohmann::json{{"normal_threshold", -0.3}},
-            nlohmann::json{{"normal_threshold", 0.0}, {"depth_tolerance", 0.005}},
-            nlohmann::json{{"filter", "nearest"}, {"fill", "local"}}}) {
+      for (const nlohmann::json& params : {nlohmann::json::object(), nlohmann::json{{"normal_threshold", -0.3}},
+                                           nlohmann::json{{"normal_threshold", 0.0}, {"depth_tolerance", 0.005}},
+                                           nlohmann::json{{"filter", "nearest"}, {"fill", "local"}}}) {
         PassBuffer out_ao, out_vis;
         const PassBuffer* received[2] = {&ao, &vis};
         PassBuffer* out[2] = {&out_ao, &out_vis};
@@ -563,8 +565,9 @@ TEST(Reprojection, HardTapTestsKeepTheirBits) {
 // One pass of each layout the client predicts together: bitmasks of one and two bytes (5 and 12
 // lights), soft visibility of three planes, AO; random bytes from seeds seed + 1 .. seed + 4.
 std::vector<PassBuffer> pass_layouts(const GBuffer& src, uint64_t seed) {
-  return {make_random(src, PassKind::Visibility, 5, 1, seed + 1), make_random(src, PassKind::Visibility, 12, 1, seed + 2),
-          make_random(src, PassKind::SoftVisibility, 3, 64, seed + 3), make_random(src, PassKind::Ao, 1, 255, seed + 4)};
+  return {
+      make_random(src, PassKind::Visibility, 5, 1, seed + 1), make_random(src, PassKind::Visibility, 12, 1, seed + 2),
+      make_random(src, PassKind::SoftVisibility, 3, 64, seed + 3), make_random(src, PassKind::Ao, 1, 255, seed + 4)};
 }
 
 // A camera turned about its view axis by `deg` degrees, its vertical field of view scaled by
@@ -623,7 +626,8 @@ TEST(Reprojection, PassesPredictedTogetherAreEachPredictedAlone) {
     EXPECT_TRUE(make("reprojection", params)->predicts_passes_together());
     std::vector<PassBuffer> alone(passes.size());
     std::vector<PredictStats> alone_stats;
-    for (size_t k = 0; k < passes.size(); ++k) alone_stats.push_back(make("reprojection", params)->predict({passes[k], src, dst}, alone[k]));
+    for (size_t k = 0; k < passes.size(); ++k)
+      alone_stats.push_back(make("reprojection", params)->predict({passes[k], src, dst}, alone[k]));
     // Each subset of two or more passes, the last one predicted in place.
     for (unsigned subset = 3; subset < (1u << passes.size()); ++subset) {
       if (std::popcount(subset) < 2) continue;
@@ -692,9 +696,9 @@ TEST(RotationWarp, IdentityIsExactForEveryAcceptedKind) {
   const GBuffer scene_g = render(Scene{}, c);  // for the fully-lit background of lighting passes
   for (const char* fill : {"clamp", "black"}) {
     auto p = make("rotation_warp", {{"fill", fill}});
-    for (const PassBuffer& in : {make_random(scene_g, PassKind::Colour, 3, 255, 2),
-                                 make_random(scene_g, PassKind::Ao, 1, 255, 2),
-                                 make_random(scene_g, PassKind::SoftVisibility, 3, 100, 2)}) {
+    for (const PassBuffer& in :
+         {make_random(scene_g, PassKind::Colour, 3, 255, 2), make_random(scene_g, PassKind::Ao, 1, 255, 2),
+          make_random(scene_g, PassKind::SoftVisibility, 3, 100, 2)}) {
       PassBuffer out;
       const PredictStats st = p->predict({in, g, g}, out);
       EXPECT_EQ(out.desc, in.desc);
@@ -730,8 +734,10 @@ TEST(RotationWarp, OutsideTheSourceIsClampedOrBlack) {
   const Camera c1 = yawed(c0, 20.0f);  // turned left: the left part of dst was never seen
   const PassBuffer in = ramp_colour(kW, kH);
   PassBuffer clamp_out, black_out;
-  const PredictStats sc = make("rotation_warp", {{"fill", "clamp"}})->predict({in, cameras_only(c0), cameras_only(c1)}, clamp_out);
-  const PredictStats sb = make("rotation_warp", {{"fill", "black"}})->predict({in, cameras_only(c0), cameras_only(c1)}, black_out);
+  const PredictStats sc =
+      make("rotation_warp", {{"fill", "clamp"}})->predict({in, cameras_only(c0), cameras_only(c1)}, clamp_out);
+  const PredictStats sb =
+      make("rotation_warp", {{"fill", "black"}})->predict({in, cameras_only(c0), cameras_only(c1)}, black_out);
   EXPECT_EQ(sc.disoccluded, sb.disoccluded);
   EXPECT_GT(sb.disoccluded, uint64_t(5 * kH));
   size_t black = 0;
@@ -816,8 +822,10 @@ TEST(DepthPass, CodesRoundTripWithinHalfAStepAndKeepTheBackground) {
   EXPECT_EQ(pass.bytes.size(), pass.desc.byte_size());
   const ImageF back = unpack_depth(pass, g.camera);
   for (size_t i = 0; i < back.size(); ++i) {
-    if (std::isinf(g.depth[i])) EXPECT_TRUE(std::isinf(back[i]));
-    else EXPECT_LE(std::fabs(double(back[i]) - g.depth[i]), half_step(g.depth[i]) * 1.001 + 1e-6 * g.depth[i]);
+    if (std::isinf(g.depth[i]))
+      EXPECT_TRUE(std::isinf(back[i]));
+    else
+      EXPECT_LE(std::fabs(double(back[i]) - g.depth[i]), half_step(g.depth[i]) * 1.001 + 1e-6 * g.depth[i]);
   }
   PassBuffer wrong = pass;
   wrong.bytes.pop_back();
@@ -952,9 +960,9 @@ struct ConformanceCase {
   PassKind kind;
   int channels, full_scale;
 };
-constexpr ConformanceCase kConformanceCases[] = {{PassKind::Visibility, 4, 255}, {PassKind::Visibility, 12, 255},
-                                                 {PassKind::SoftVisibility, 3, 255}, {PassKind::Ao, 1, 8},
-                                                 {PassKind::Ao, 1, 255}, {PassKind::Colour, 3, 255}};
+constexpr ConformanceCase kConformanceCases[] = {
+    {PassKind::Visibility, 4, 255}, {PassKind::Visibility, 12, 255}, {PassKind::SoftVisibility, 3, 255},
+    {PassKind::Ao, 1, 8},           {PassKind::Ao, 1, 255},          {PassKind::Colour, 3, 255}};
 
 std::string case_label(const ConformanceCase& c) {
   return std::string(pass_kind_name(c.kind)) + " " + std::to_string(c.channels) + "/" + std::to_string(c.full_scale);
@@ -1040,8 +1048,7 @@ std::string predictor_test_name(const ::testing::TestParamInfo<std::string>& inf
   return s;
 }
 
-INSTANTIATE_TEST_SUITE_P(Registered, PredictorConformance, ::testing::ValuesIn(predictor_names()),
-                         predictor_test_name);
+INSTANTIATE_TEST_SUITE_P(Registered, PredictorConformance, ::testing::ValuesIn(predictor_names()), predictor_test_name);
 
 // An empty registry would instantiate no conformance test at all, silently.
 TEST(PredictorRegistry, ConformanceSuiteIsNotEmpty) { EXPECT_GE(registries().predictors.entries().size(), 3u); }

@@ -147,7 +147,7 @@ TEST(Raster, SharedEdgesThroughPixelCentresCoverEachPixelOnce) {
   Scene s = empty_scene();
   Object fan;
   fan.id = 1;
-  fan.mesh.positions = {{c, cy, -1}, {-1, 1, -1}, {0, 1, -1}, {1, 1, -1}, {1, 0, -1},
+  fan.mesh.positions = {{c, cy, -1}, {-1, 1, -1}, {0, 1, -1},   {1, 1, -1}, {1, 0, -1},
                         {1, -1, -1}, {0, -1, -1}, {-1, -1, -1}, {-1, 0, -1}};
   for (uint32_t i = 1; i <= 8; ++i) fan.mesh.triangles.push_back({0, i, i % 8 + 1});
   s.objects.push_back(fan);
@@ -318,13 +318,14 @@ TEST(Raster, DegenerateAndNonFiniteTrianglesAreSkipped) {
   Object junk;
   junk.id = 2;
   const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
-  junk.mesh.positions = {{-1, -1, -2}, {1, 1, -2}, {0, 0, -2},        // collinear: zero area
-                         {0.5f, 0.5f, -2}, {0.5f, 0.5f, -2},           // repeated vertex
-                         {nan, 0, -2}, {inf, 1, -2}, {0, -inf, -2},    // non-finite
-                         {2e18f, 0, -2}, {0, 1e19f, -2},               // huge
-                         {-1, 0, -2}, {1, 0, -2}, {0, 0, -2}};         // a line through the eye's plane... collinear
-  junk.mesh.triangles = {{0, 1, 2}, {3, 4, 0}, {3, 3, 3}, {5, 0, 1}, {6, 0, 1}, {7, 1, 0}, {8, 0, 1},
-                         {9, 1, 0}, {10, 11, 12}, {0, 1, 99}};  // last: index out of range
+  junk.mesh.positions = {
+      {-1, -1, -2},     {1, 1, -2},       {0, 0, -2},     // collinear: zero area
+      {0.5f, 0.5f, -2}, {0.5f, 0.5f, -2},                 // repeated vertex
+      {nan, 0, -2},     {inf, 1, -2},     {0, -inf, -2},  // non-finite
+      {2e18f, 0, -2},   {0, 1e19f, -2},                   // huge
+      {-1, 0, -2},      {1, 0, -2},       {0, 0, -2}};    // a line through the eye's plane... collinear
+  junk.mesh.triangles = {{0, 1, 2}, {3, 4, 0}, {3, 3, 3}, {5, 0, 1},    {6, 0, 1},
+                         {7, 1, 0}, {8, 0, 1}, {9, 1, 0}, {10, 11, 12}, {0, 1, 99}};  // last: index out of range
   s.objects.push_back(junk);
   RasterStats st;
   const GBuffer g = render(s, cam, &st);
@@ -366,8 +367,9 @@ Scene shapes_scene_with_mover() {
 
 TEST(Raster, PositionsLieOnPrimaryRaysAndDepthIsViewDepth) {
   const Scene s = shapes_scene();
-  for (const Camera& cam : {make_camera({3, 2, 5}, {0, 0, 0}), make_camera({-2.5f, 0.4f, 3}, {0.3f, 0.1f, -1}, 61, 47, 75.0f),
-                            make_camera({0.2f, 5, 0.1f}, {0, 0, 0}, 64, 48, 30.0f)}) {
+  for (const Camera& cam :
+       {make_camera({3, 2, 5}, {0, 0, 0}), make_camera({-2.5f, 0.4f, 3}, {0.3f, 0.1f, -1}, 61, 47, 75.0f),
+        make_camera({0.2f, 5, 0.1f}, {0, 0, 0}, 64, 48, 30.0f)}) {
     RasterStats st;
     const GBuffer g = render(s, cam, &st);
     expect_well_formed(g);
@@ -407,11 +409,12 @@ TEST(Raster, BarycentricsReconstructPosition) {
       ASSERT_GE(b.x, 0.0f);
       ASSERT_GE(b.y, 0.0f);
       ASSERT_LE(b.x + b.y, 1.0f + 1e-6f);
-      const glm::vec3 p = (1 - b.x - b.y) * o->mesh.positions[t.x] + b.x * o->mesh.positions[t.y] + b.y * o->mesh.positions[t.z];
+      const glm::vec3 p =
+          (1 - b.x - b.y) * o->mesh.positions[t.x] + b.x * o->mesh.positions[t.y] + b.y * o->mesh.positions[t.z];
       ASSERT_LT(glm::length(p - g.position(x, y)), 1e-5f * (1.0f + glm::length(g.position(x, y))));
       // The geometric normal is the triangle's, up to the flip.
-      const glm::vec3 ng = glm::normalize(glm::cross(o->mesh.positions[t.y] - o->mesh.positions[t.x],
-                                                     o->mesh.positions[t.z] - o->mesh.positions[t.x]));
+      const glm::vec3 ng = glm::normalize(
+          glm::cross(o->mesh.positions[t.y] - o->mesh.positions[t.x], o->mesh.positions[t.z] - o->mesh.positions[t.x]));
       ASSERT_GT(std::abs(glm::dot(ng, g.geo_normal(x, y))), 0.9999f);
       ++checked;
     }
@@ -683,8 +686,8 @@ TEST(Raster, CameraInsideClosedBoxSeesInsideFaces) {
       for (int x = 0; x < 64; ++x) {
         const glm::vec3 p = g.position(x, y);
         // On the box's surface, normals point inwards (towards the camera inside).
-        const float on_face = std::min({std::abs(std::abs(p.x) - 2.0f), std::abs(std::abs(p.y) - 1.5f),
-                                        std::abs(std::abs(p.z) - 2.5f)});
+        const float on_face =
+            std::min({std::abs(std::abs(p.x) - 2.0f), std::abs(std::abs(p.y) - 1.5f), std::abs(std::abs(p.z) - 2.5f)});
         ASSERT_LT(on_face, 1e-4f);
         ASSERT_GT(glm::dot(g.geo_normal(x, y), -p), 0.0f);
         ASSERT_GT(glm::dot(g.normal(x, y), cam.position - p), 0.0f);

@@ -162,7 +162,8 @@ Scene damaged_scene() {
   floor.name = "floor";
   floor.id = id++;
   floor.material = 1;
-  floor.mesh.positions = {{-50.0f, -2.5f, 10.0f}, {50.0f, -2.5f, 10.0f}, {50.0f, -2.5f, -50.0f}, {-50.0f, -2.5f, -50.0f}};
+  floor.mesh.positions = {
+      {-50.0f, -2.5f, 10.0f}, {50.0f, -2.5f, 10.0f}, {50.0f, -2.5f, -50.0f}, {-50.0f, -2.5f, -50.0f}};
   floor.mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
   s.objects.push_back(std::move(floor));
   return s;
@@ -176,7 +177,8 @@ TEST(RasterBits, DamagedAttributesArePinned) {
       {"damaged/67x45", 0x17a676f2960ed374ull},
   };
   const bool print = std::getenv("DHR_PRINT_RASTER_HASHES") != nullptr;
-  for (const auto& [w, h, prev_fov] : {std::tuple{64, 48, 50.0f}, std::tuple{321, 181, 50.0f}, std::tuple{67, 45, 0.001f}}) {
+  for (const auto& [w, h, prev_fov] :
+       {std::tuple{64, 48, 50.0f}, std::tuple{321, 181, 50.0f}, std::tuple{67, 45, 0.001f}}) {
     const Camera cam = Camera::look_at({0.3f, 0.2f, 1.0f}, {0.0f, -0.2f, -3.0f}, {0, 1, 0}, 70.0f, w, h, 0.05f, 100.0f);
     // The previous camera stands among the quads, turned to the side; with a very narrow field
     // of view almost every offset is clamped.

@@ -23,8 +23,7 @@ std::set<std::string> names(const Registry<I>& r) {
   return s;
 }
 
-bool contains_all(const std::set<std::string>& have, std::initializer_list<const char*> want,
-                  std::string& missing) {
+bool contains_all(const std::set<std::string>& have, std::initializer_list<const char*> want, std::string& missing) {
   for (const char* w : want)
     if (!have.count(w)) missing += std::string(" ") + w;
   return missing.empty();
@@ -68,9 +67,7 @@ TEST(Registry, UnknownNameListsValidChoices) {
   }
 }
 
-TEST(Registry, UnknownParameterIsAnError) {
-  EXPECT_THROW(registries().codecs.create("raw", {{"level", 3}}), Error);
-}
+TEST(Registry, UnknownParameterIsAnError) { EXPECT_THROW(registries().codecs.create("raw", {{"level", 3}}), Error); }
 
 TEST(Registry, DuplicateRegistrationIsAnError) {
   Registry<Codec> r("codec");
@@ -80,8 +77,7 @@ TEST(Registry, DuplicateRegistrationIsAnError) {
 
 std::vector<ParamSpec> demo_specs() {
   return {ParamSpec::integer("level", 1, 1, 19, "compression level"),
-          ParamSpec::real("radius_m", 1.0, 0.0, 100.0, "radius"),
-          ParamSpec::boolean("checksum", true, "checksum on"),
+          ParamSpec::real("radius_m", 1.0, 0.0, 100.0, "radius"), ParamSpec::boolean("checksum", true, "checksum on"),
           ParamSpec::choice("mode", "fast", {"fast", "hc"}, "mode")};
 }
 
@@ -123,13 +119,9 @@ TEST(Params, EveryProblemReportedAtOnce) {
   }
 }
 
-TEST(Params, FloatForIntegerRejected) {
-  EXPECT_THROW(Params("demo", demo_specs(), {{"level", 2.5}}), Error);
-}
+TEST(Params, FloatForIntegerRejected) { EXPECT_THROW(Params("demo", demo_specs(), {{"level", 2.5}}), Error); }
 
-TEST(Params, NonObjectRejected) {
-  EXPECT_THROW(Params("demo", demo_specs(), nlohmann::json::array({1, 2})), Error);
-}
+TEST(Params, NonObjectRejected) { EXPECT_THROW(Params("demo", demo_specs(), nlohmann::json::array({1, 2})), Error); }
 
 // ---------------------------------------------------------------- dhrbench list's examples
 
@@ -152,10 +144,14 @@ BackendChoice choice_at(const SimConfig& c, const std::string& key) {
 
 void expect_created(const cli::BackendExample& ex, const nlohmann::json& params) {
   const Registries& r = registries();
-  if (ex.kind == "codec") EXPECT_NE(r.codecs.create(ex.name, params), nullptr);
-  else if (ex.kind == "denoiser") EXPECT_NE(r.denoisers.create(ex.name, params), nullptr);
-  else if (ex.kind == "predictor") EXPECT_NE(r.predictors.create(ex.name, params), nullptr);
-  else ADD_FAILURE() << "unknown kind " << ex.kind;
+  if (ex.kind == "codec")
+    EXPECT_NE(r.codecs.create(ex.name, params), nullptr);
+  else if (ex.kind == "denoiser")
+    EXPECT_NE(r.denoisers.create(ex.name, params), nullptr);
+  else if (ex.kind == "predictor")
+    EXPECT_NE(r.predictors.create(ex.name, params), nullptr);
+  else
+    ADD_FAILURE() << "unknown kind " << ex.kind;
 }
 
 TEST(ListExamples, OneExamplePerRegisteredBackend) {

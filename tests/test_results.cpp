@@ -102,7 +102,7 @@ TEST(Results, StatisticsOverFrames) {
   // Squared deviations from 0.84 sum to 0.037: sd = sqrt(0.037 / 4); t(4) = 2.776; half-width t sd / sqrt(5).
   EXPECT_NEAR(m.at("ssim_local_ci95").get<double>(), 2.776 * std::sqrt(0.037 / 4) / std::sqrt(5.0), 1e-12);
   EXPECT_EQ(m.at("psnr_local_ci95_db").get<double>(), 0.0);  // every frame 30 dB
-  EXPECT_TRUE(m.at("ssim_ground_truth_worst").is_null());   // never scored against the ground truth
+  EXPECT_TRUE(m.at("ssim_ground_truth_worst").is_null());    // never scored against the ground truth
   EXPECT_EQ(m.at("frames_scored").get<int>(), 5);
   EXPECT_EQ(m.at("frames_scored_ground_truth").get<int>(), 0);
   EXPECT_DOUBLE_EQ(student_t95(1), 12.706);
@@ -171,7 +171,7 @@ TEST(Results, FramesCsvRowsMatchTheHeader) {
   EXPECT_EQ(cell("ssim_ground_truth"), "");  // not scored against the ground truth
   EXPECT_EQ(cell("visibility_source_frame"), "5");
   EXPECT_EQ(cell("visibility_disoccluded"), "12");
-  EXPECT_EQ(cell("ao_source_frame"), "-1");   // planned, nothing received yet
+  EXPECT_EQ(cell("ao_source_frame"), "-1");    // planned, nothing received yet
   EXPECT_EQ(cell("colour_source_frame"), "");  // not a pass of this run
   EXPECT_EQ(csv_number(std::nan("")), "");
   EXPECT_EQ(csv_number(INFINITY), "inf");

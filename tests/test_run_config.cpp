@@ -127,23 +127,28 @@ TEST(RunSettings, UnknownKeysAreNamedWithTheValidOnes) {
   const std::string all = joined(problems);
   EXPECT_NE(all.find("run.widht: unknown key (valid: mode, width"), std::string::npos) << all;
   EXPECT_NE(all.find("run.trace.ao_ray: unknown key (valid: ao_rays"), std::string::npos) << all;
-  EXPECT_NE(all.find("run.passes.ao.codek: unknown key (valid: codec, denoiser, predictor, fec_parity, fec_min_parity)"), std::string::npos) << all;
-  EXPECT_NE(all.find("run.passes.normal: unknown key (valid: visibility, ao, colour, depth)"), std::string::npos) << all;
+  EXPECT_NE(
+      all.find("run.passes.ao.codek: unknown key (valid: codec, denoiser, predictor, fec_parity, fec_min_parity)"),
+      std::string::npos)
+      << all;
+  EXPECT_NE(all.find("run.passes.normal: unknown key (valid: visibility, ao, colour, depth)"), std::string::npos)
+      << all;
 }
 
 // The version-1 keys and the per-pass keys that replace them.
-const nlohmann::json kOld = {
-    {"visibility_codec", {{"name", "zstd"}, {"params", {{"level", 9}}}}},
-    {"ao_codec", {{"name", "h264"}}},
-    {"colour_codec", {{"name", "raw"}}},
-    {"visibility_denoiser", {{"name", "atrous"}}},
-    {"ao_denoiser", {{"name", "svgf_ao"}, {"params", {{"iterations", 2}}}}},
-    {"predictor", {{"name", "none"}}},
-    {"colour_predictor", {{"name", "rotation_warp"}}}};
+const nlohmann::json kOld = {{"visibility_codec", {{"name", "zstd"}, {"params", {{"level", 9}}}}},
+                             {"ao_codec", {{"name", "h264"}}},
+                             {"colour_codec", {{"name", "raw"}}},
+                             {"visibility_denoiser", {{"name", "atrous"}}},
+                             {"ao_denoiser", {{"name", "svgf_ao"}, {"params", {{"iterations", 2}}}}},
+                             {"predictor", {{"name", "none"}}},
+                             {"colour_predictor", {{"name", "rotation_warp"}}}};
 const nlohmann::json kNew = {
     {"passes",
      {{"visibility",
-       {{"codec", {{"name", "zstd"}, {"params", {{"level", 9}}}}}, {"denoiser", {{"name", "atrous"}}}, {"predictor", {{"name", "none"}}}}},
+       {{"codec", {{"name", "zstd"}, {"params", {{"level", 9}}}}},
+        {"denoiser", {{"name", "atrous"}}},
+        {"predictor", {{"name", "none"}}}}},
       {"ao",
        {{"codec", {{"name", "h264"}}},
         {"denoiser", {{"name", "svgf_ao"}, {"params", {{"iterations", 2}}}}},
@@ -173,8 +178,10 @@ TEST(RunSettings, OldKeysInVersion2AreErrorsNamingTheNewKey) {
   const std::string all = joined(problems);
   EXPECT_EQ(problems.size(), v1_run_keys().size()) << all;
   EXPECT_NE(all.find("run.ao_codec: a version-1 key; version 2 writes it passes.ao.codec"), std::string::npos) << all;
-  EXPECT_NE(all.find("run.predictor: a version-1 key; version 2 writes it passes.visibility.predictor and passes.ao.predictor"),
-            std::string::npos)
+  EXPECT_NE(
+      all.find(
+          "run.predictor: a version-1 key; version 2 writes it passes.visibility.predictor and passes.ao.predictor"),
+      std::string::npos)
       << all;
 }
 
@@ -202,9 +209,12 @@ TEST(RunSettings, CacheKeysChangeWithExactlyTheFlaggedSettings) {
 void flatten(const nlohmann::json& j, const std::string& prefix, std::set<std::string>& out) {
   for (const auto& [k, v] : j.items()) {
     const std::string key = prefix.empty() ? k : prefix + "." + k;
-    if ((k == "trace" || k == "passes") && prefix.empty()) flatten(v, key, out);
-    else if (prefix == "passes") flatten(v, key, out);
-    else out.insert(key);
+    if ((k == "trace" || k == "passes") && prefix.empty())
+      flatten(v, key, out);
+    else if (prefix == "passes")
+      flatten(v, key, out);
+    else
+      out.insert(key);
   }
 }
 
@@ -279,7 +289,8 @@ TEST(RunSettings, ExperimentVersions) {
   } catch (const Error& e) {
     const std::string m = e.what();
     EXPECT_NE(m.find("run.ao_codec: a version-1 key; version 2 writes it passes.ao.codec"), std::string::npos) << m;
-    EXPECT_NE(m.find("run.ao_denoiser: a version-1 key; version 2 writes it passes.ao.denoiser"), std::string::npos) << m;
+    EXPECT_NE(m.find("run.ao_denoiser: a version-1 key; version 2 writes it passes.ao.denoiser"), std::string::npos)
+        << m;
   }
   fs::remove_all(dir);
 }

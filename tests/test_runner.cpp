@@ -25,7 +25,8 @@ namespace fs = std::filesystem;
 
 int run(const std::string& args, std::string* output = nullptr) {
   // One log per process: two test runs at once (two checkouts) must not read each other's output.
-  const std::string log = (fs::temp_directory_path() / ("dhr_runner_test." + std::to_string(getpid()) + ".log")).string();
+  const std::string log =
+      (fs::temp_directory_path() / ("dhr_runner_test." + std::to_string(getpid()) + ".log")).string();
   const int rc = std::system((std::string(DHR_CLI) + " " + args + " >" + log + " 2>&1").c_str());
   if (output) {
     std::ifstream in(log);
@@ -47,7 +48,8 @@ TEST(Runner, TinyExperimentEndToEnd) {
   // Context block.
   const auto& ctx = r.at("context");
   EXPECT_EQ(ctx.at("schema_version"), 1);
-  for (const char* key : {"git_commit", "git_dirty", "compiler", "build_type", "cpu_model", "embree_isa", "hardware_threads", "kernel"})
+  for (const char* key :
+       {"git_commit", "git_dirty", "compiler", "build_type", "cpu_model", "embree_isa", "hardware_threads", "kernel"})
     EXPECT_TRUE(ctx.contains(key)) << key;
   for (const char* lib : {"embree", "lz4", "zstd", "libavcodec", "x264", "opencv", "openimageio"})
     EXPECT_FALSE(ctx.at("libraries").at(lib).get<std::string>().empty()) << lib;
@@ -82,8 +84,10 @@ TEST(Runner, TinyExperimentEndToEnd) {
         EXPECT_TRUE(m.contains(im.at("aggregates").at(ref).at("mean").get<std::string>())) << im.dump();
     for (const auto& rm : declared.at("run_metrics")) {
       const std::string key = rm.at("key");
-      if (key.ends_with("_PASS")) EXPECT_TRUE(m.contains(key.substr(0, key.size() - 5) + "_ao")) << key;
-      else EXPECT_TRUE(m.contains(key)) << key;
+      if (key.ends_with("_PASS"))
+        EXPECT_TRUE(m.contains(key.substr(0, key.size() - 5) + "_ao")) << key;
+      else
+        EXPECT_TRUE(m.contains(key)) << key;
     }
     for (const auto& p : m.at("passes"))
       for (const auto& pm : declared.at("pass_metrics")) EXPECT_TRUE(p.contains(pm.at("key").get<std::string>())) << pm;
@@ -101,9 +105,9 @@ TEST(Runner, TinyExperimentEndToEnd) {
   int rows = 0;
   while (std::getline(csv, line)) ++rows;
   EXPECT_EQ(rows, 4 * 6);
-  for (const char* f : {"report.md", "plots/quality_vs_bandwidth.png", "plots/quality_vs_server_time.png",
-                        "plots/ssim_per_frame.png", "grids/grid_room_0.png", "images/r000_shown.png",
-                        "images/r000_truth.png", "images/r000_error.png"})
+  for (const char* f :
+       {"report.md", "plots/quality_vs_bandwidth.png", "plots/quality_vs_server_time.png", "plots/ssim_per_frame.png",
+        "grids/grid_room_0.png", "images/r000_shown.png", "images/r000_truth.png", "images/r000_error.png"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
   // The report can be rebuilt without running again.
   fs::remove(out / "report.md");
@@ -149,7 +153,8 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
   std::ofstream(bad) << e.dump();
   EXPECT_NE(run("validate " + bad.string(), &log), 0);
   EXPECT_NE(log.find("curves.vary: \"trace.ao_rays\" is not a key of \"sweep\" or of a configuration's \"set\""),
-            std::string::npos) << log;
+            std::string::npos)
+      << log;
   EXPECT_NE(log.find("curves.anchor: 'remote x265' is not a family"), std::string::npos) << log;
   // In a list: the one that is no family is named; a list of numbers is refused.
   e["curves"] = {{"vary", {"passes.ao.codec"}}, {"anchor", {"remote h264", "hybrid x266"}}};
@@ -182,9 +187,11 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
   std::ofstream(bad) << e.dump();
   EXPECT_NE(run("validate " + bad.string(), &log), 0);
   // (the sweep's downlink.latency_ms = 60 runs; the others arrive in time)
-  EXPECT_NE(log.find("warmup_frames 6 (100.0 ms) ends before the first server frame can arrive (126.0 ms: uplink 50.0 + "
-                     "server 16.0 + downlink 60.0 ms)"),
-            std::string::npos) << log;
+  EXPECT_NE(
+      log.find("warmup_frames 6 (100.0 ms) ends before the first server frame can arrive (126.0 ms: uplink 50.0 + "
+               "server 16.0 + downlink 60.0 ms)"),
+      std::string::npos)
+      << log;
   EXPECT_NE(log.find("use warmup_frames >= 8"), std::string::npos) << log;
   e["run"]["warmup_frames"] = 8;
   std::ofstream(bad) << e.dump();
@@ -240,11 +247,14 @@ TEST(Runner, DumpStreamsWritesFilesThatFfmpegDecodes) {
 TEST(Runner, ValidateReportsEveryProblemAtOnceAndRunsNothing) {
   const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json";
   std::string log;
-  const int rc = run("validate " + exp + " --set run.ao_codec.name=lz5 --set run.width=3 --set 'scenes=[\"room\",\"nosuchscene\"]'", &log);
+  const int rc = run(
+      "validate " + exp + " --set run.ao_codec.name=lz5 --set run.width=3 --set 'scenes=[\"room\",\"nosuchscene\"]'",
+      &log);
   EXPECT_NE(rc, 0);
   EXPECT_NE(log.find("width = 3"), std::string::npos) << log;
   // Scene and backend problems are found in the second stage, once the file itself is valid.
-  const int rc2 = run("validate " + exp + " --set run.visibility_codec.name=lz5 --set 'scenes=[\"room\",\"nosuchscene\"]'", &log);
+  const int rc2 =
+      run("validate " + exp + " --set run.visibility_codec.name=lz5 --set 'scenes=[\"room\",\"nosuchscene\"]'", &log);
   EXPECT_NE(rc2, 0);
   EXPECT_NE(log.find("unknown codec 'lz5'"), std::string::npos) << log;
   EXPECT_NE(log.find("nosuchscene"), std::string::npos) << log;
@@ -252,8 +262,9 @@ TEST(Runner, ValidateReportsEveryProblemAtOnceAndRunsNothing) {
 }
 
 TEST(Experiment, SweepExpandsTheCartesianProduct) {
-  const Experiment e = load_experiment(std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json",
-                                       {R"(sweep={"ao_denoiser.name": ["none", "atrous"], "network": ["slow"], "trace.ao_rays": [1, 2, 4]})"});
+  const Experiment e = load_experiment(
+      std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json",
+      {R"(sweep={"ao_denoiser.name": ["none", "atrous"], "network": ["slow"], "trace.ao_rays": [1, 2, 4]})"});
   EXPECT_EQ(e.runs.size(), 2u * 2u * 1u * 3u);
   EXPECT_EQ(e.runs[0].config.downlink.latency_ms, 40.0);
   EXPECT_EQ(e.runs[0].config.pass("ao").codec.name, "lz4");
@@ -270,7 +281,9 @@ TEST(Experiment, BadFilesAreErrors) {
   EXPECT_THROW(load_experiment(write("v3.json", R"({"version": 3, "scenes": ["room"]})")), Error);
   EXPECT_THROW(load_experiment(write("notjson.json", "{")), Error);
   EXPECT_THROW(load_experiment(write("noscenes.json", R"({"version": 1, "scenes": []})")), Error);
-  EXPECT_THROW(load_experiment(write("badnet.json", R"({"version": 1, "scenes": ["room"], "sweep": {"network": ["x"]}})")), Error);
+  EXPECT_THROW(
+      load_experiment(write("badnet.json", R"({"version": 1, "scenes": ["room"], "sweep": {"network": ["x"]}})")),
+      Error);
   EXPECT_THROW(load_experiment((dir / "missing.json").string()), Error);
   fs::remove_all(dir);
 }
@@ -296,7 +309,8 @@ TEST(Runner, DeepNestingInAnExperimentOrASetValueIsAClearError) {
   }
   // A --set value (kept under the kernel's limit on one argument).
   const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json";
-  const int rc = run("validate " + exp + " --set 'run.uplink=" + std::string(50000, '[') + std::string(50000, ']') + "'", &log);
+  const int rc =
+      run("validate " + exp + " --set 'run.uplink=" + std::string(50000, '[') + std::string(50000, ']') + "'", &log);
   ASSERT_TRUE(WIFEXITED(rc)) << "killed by a signal: " << rc;
   EXPECT_EQ(WEXITSTATUS(rc), 1);
   EXPECT_NE(log.find("--set 'run.uplink': the value is nested deeper than 64 levels"), std::string::npos) << log;
@@ -312,11 +326,11 @@ TEST(Runner, NamesAndFoldersNeverReachAShell) {
   fs::create_directories(base);
   std::string log;
   auto cli = [&](const std::vector<std::string>& args) { return test::run_program(DHR_CLI, args, log); };
-  nlohmann::json e = nlohmann::json::parse(std::ifstream(std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json"),
-                                           nullptr, true, true);
+  nlohmann::json e = nlohmann::json::parse(
+      std::ifstream(std::string(DHR_SOURCE_DIR) + "/tests/data/tiny_experiment.json"), nullptr, true, true);
   e["configurations"] = nlohmann::json::array({e["configurations"][0]});
-  for (const std::string& name : std::vector<std::string>{"x'$(touch PWNED)'", "../../escaped", "a b", "`touch PWNED`", "x\ny", ".hidden",
-                                 std::string(65, 'a')}) {
+  for (const std::string& name : std::vector<std::string>{"x'$(touch PWNED)'", "../../escaped", "a b", "`touch PWNED`",
+                                                          "x\ny", ".hidden", std::string(65, 'a')}) {
     SCOPED_TRACE(name);
     e["name"] = name;
     const fs::path file = base / "named.json";
@@ -369,14 +383,17 @@ TEST(Experiment, HugeSweepsAndRepeatedNamesAreRefusedBeforeExpanding) {
   }
   const std::string e1 = test::error_of([&] { load_experiment(exp, {"sweep=" + sweep.dump()}); });
   EXPECT_NE(e1.find("more than 10000 runs (1 scene(s) x 2 configuration(s) x trace.ao_rays0 (256 values)"),
-            std::string::npos) << e1;
+            std::string::npos)
+      << e1;
   // Just past the limit (5001 seeds x 2 configurations).
   nlohmann::json seeds = nlohmann::json::array();
   for (int i = 0; i < 5001; ++i) seeds.push_back(i);
   const std::string over = nlohmann::json{{"seed", seeds}}.dump();
-  EXPECT_NE(test::error_of([&] { load_experiment(exp, {"sweep=" + over}); }).find("more than 10000 runs"), std::string::npos);
+  EXPECT_NE(test::error_of([&] { load_experiment(exp, {"sweep=" + over}); }).find("more than 10000 runs"),
+            std::string::npos);
   const std::string e2 = test::error_of([&] {
-    load_experiment(exp, {R"(configurations=[{"name": "a", "set": {}}, {"name": "b", "set": {}}, {"name": "a", "set": {}}])"});
+    load_experiment(
+        exp, {R"(configurations=[{"name": "a", "set": {}}, {"name": "b", "set": {}}, {"name": "a", "set": {}}])"});
   });
   EXPECT_NE(e2.find("configurations[2]: the name 'a' is given twice"), std::string::npos) << e2;
 }
@@ -407,19 +424,24 @@ TEST(Runner, ReportOnDamagedResultsIsAClearError) {
       {"truncated", text.substr(0, text.size() / 2), "", "results.json: not valid JSON"},
       {"empty", "", "", "results.json: not valid JSON"},
       {"not_json", "this is not JSON", "", "results.json: not valid JSON"},
-      {"deep", std::string(100000, '[') + std::string(100000, ']'), "", "results.json: JSON nested deeper than 64 levels"},
-      {"huge_number", "{\"x\": 1e400, " + text.substr(text.find('{') + 1), "",
-       "results.json: not valid JSON"},
+      {"deep", std::string(100000, '[') + std::string(100000, ']'), "",
+       "results.json: JSON nested deeper than 64 levels"},
+      {"huge_number", "{\"x\": 1e400, " + text.substr(text.find('{') + 1), "", "results.json: not valid JSON"},
       {"top_array", "[1, 2]", "", "results.json: must be a JSON object"},
       {"no_runs", with([](auto& r) { r.erase("runs"); }), "", "results.json: \"runs\" must be a list"},
-      {"runs_object", with([](auto& r) { r["runs"] = {{"a", 1}}; }), "", "results.json: \"runs\" must be a list"},
+      {"runs_object", with([](auto& r) {
+         r["runs"] = {{"a", 1}};
+       }),
+       "", "results.json: \"runs\" must be a list"},
       {"run_not_object", with([](auto& r) { r["runs"][0] = 42; }), "", "results.json: runs[0] must be a JSON object"},
-      {"context_string", with([](auto& r) { r["context"] = "x"; }), "", "results.json: \"context\" must be a JSON object"},
+      {"context_string", with([](auto& r) { r["context"] = "x"; }), "",
+       "results.json: \"context\" must be a JSON object"},
       {"metrics_wrong_type", with([](auto& r) { r["runs"][0]["metrics"]["bandwidth_mbps"] = "fast"; }), "",
        "results.json: runs[0].metrics.bandwidth_mbps: must be a finite number, got \"fast\""},
       {"metrics_missing_key", with([](auto& r) { r["runs"][0]["metrics"].erase("passes"); }), "",
        "results.json: runs[0].metrics.passes is missing"},
-      {"id_path", with([](auto& r) { r["runs"][0]["id"] = "../../x"; }), "", "results.json: runs[0].id \"../../x\" cannot name a run"},
+      {"id_path", with([](auto& r) { r["runs"][0]["id"] = "../../x"; }), "",
+       "results.json: runs[0].id \"../../x\" cannot name a run"},
       {"frames_csv", with([](auto& r) {
          r["runs"] = nlohmann::json::array({r["runs"][0]});
          r["runs"][0]["metrics"]["frames_displayed"] = 1;
@@ -434,8 +456,10 @@ TEST(Runner, ReportOnDamagedResultsIsAClearError) {
     fs::create_directories(dir);
     std::ofstream(dir / "results.json") << c.results;
     // The report's frames, so that each case fails on its own damage only.
-    if (!c.frames_csv.empty()) std::ofstream(dir / "frames.csv") << c.frames_csv;
-    else fs::copy_file(fs::path(DHR_SOURCE_DIR) / "reports/quick/frames.csv", dir / "frames.csv");
+    if (!c.frames_csv.empty())
+      std::ofstream(dir / "frames.csv") << c.frames_csv;
+    else
+      fs::copy_file(fs::path(DHR_SOURCE_DIR) / "reports/quick/frames.csv", dir / "frames.csv");
     std::string log;
     const int rc = run("report " + dir.string(), &log);
     ASSERT_TRUE(WIFEXITED(rc)) << "killed by a signal: " << rc;

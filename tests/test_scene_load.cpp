@@ -34,7 +34,8 @@ class TempDir {
  public:
   TempDir() {
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() / fmt::format("dhr_scene_{}_{}_{}", info->test_suite_name(), info->name(), ::getpid());
+    path_ = fs::temp_directory_path() /
+            fmt::format("dhr_scene_{}_{}_{}", info->test_suite_name(), info->name(), ::getpid());
     fs::remove_all(path_);
     fs::create_directories(path_);
   }
@@ -67,7 +68,9 @@ SceneSearchPath empty_search() { return SceneSearchPath{}; }
 double signed_volume(const Mesh& m) {
   double v = 0.0;
   for (const auto& t : m.triangles)
-    v += glm::dot(glm::dvec3(m.positions[t.x]), glm::cross(glm::dvec3(m.positions[t.y]), glm::dvec3(m.positions[t.z]))) / 6.0;
+    v +=
+        glm::dot(glm::dvec3(m.positions[t.x]), glm::cross(glm::dvec3(m.positions[t.y]), glm::dvec3(m.positions[t.z]))) /
+        6.0;
   return v;
 }
 
@@ -147,8 +150,11 @@ TEST(Animation, HitsKeysInterpolatesAndWraps) {
 CameraPath test_path(bool loop) {
   CameraPath p;
   p.loop = loop;
-  p.keys = {{0.0, {0, 1, 5}, {0, 1, 0}}, {2.0, {5, 1, 0}, {0, 1, 0}}, {5.0, {0, 2, -5}, {0, 0, 0}},
-            {6.0, {-5, 1, 0}, {0, 1, 0}}, {8.0, {0, 1, 5}, {0, 1, 0}}};
+  p.keys = {{0.0, {0, 1, 5}, {0, 1, 0}},
+            {2.0, {5, 1, 0}, {0, 1, 0}},
+            {5.0, {0, 2, -5}, {0, 0, 0}},
+            {6.0, {-5, 1, 0}, {0, 1, 0}},
+            {8.0, {0, 1, 5}, {0, 1, 0}}};
   return p;
 }
 
@@ -245,7 +251,9 @@ TEST(SceneFormat, VersionIsRequiredAndChecked) {
   v2.replace(v2.find("\"version\": 1"), 12, "\"version\": 2");
   const std::string e = error_of([&] { load_scene(dir.write("v2.json", v2), empty_search()); });
   EXPECT_NE(e.find("version: 2 is not a supported version"), std::string::npos) << e;
-  EXPECT_NE(error_of([&] { load_scene(dir.write("syntax.json", "{\"version\": 1,"), empty_search()); }).find("not valid JSON"),
+  EXPECT_NE(error_of([&] {
+              load_scene(dir.write("syntax.json", "{\"version\": 1,"), empty_search());
+            }).find("not valid JSON"),
             std::string::npos);
 }
 
@@ -256,9 +264,9 @@ TEST(SceneFormat, HostileJsonIsAClearErrorNamingTheFile) {
   TempDir dir;
   const int n = 100000;
   const std::string deep_cases[] = {
-      std::string(n, '[') + std::string(n, ']'),                                        // the whole file
+      std::string(n, '[') + std::string(n, ']'),                                            // the whole file
       "{\"version\": 1, \"geometry\": " + std::string(n, '[') + std::string(n, ']') + "}",  // inside a key
-      std::string(n, '['),                                                              // never closed
+      std::string(n, '['),                                                                  // never closed
   };
   int i = 0;
   for (const auto& text : deep_cases) {
@@ -296,12 +304,14 @@ TEST(SceneFormat, ErrorMessagesPrintOnlyAnExcerptOfAValue) {
   text.replace(text.find("[1, 1, 1]"), 9, long_value);
   const std::string file = dir.write("long.json", text);
   const std::string e = error_of([&] { load_scene(file, empty_search()); });
-  EXPECT_NE(e.find(file + ": geometry[0].size_m: must be an array of 3 numbers, got \"xxx"), std::string::npos) << e.substr(0, 300);
+  EXPECT_NE(e.find(file + ": geometry[0].size_m: must be an array of 3 numbers, got \"xxx"), std::string::npos)
+      << e.substr(0, 300);
   EXPECT_LT(e.size(), 400u);
   // A long key and a long string where a name belongs.
   const std::string name(1 << 20, 'k');
-  const std::string file2 = dir.write("long_key.json", R"({"version": 1, ")" + name + R"(": 1, "geometry": [{"type": ")" +
-                                                          name + R"("}], "camera": {"path": {"keys": []}}})");
+  const std::string file2 =
+      dir.write("long_key.json", R"({"version": 1, ")" + name + R"(": 1, "geometry": [{"type": ")" + name +
+                                     R"("}], "camera": {"path": {"keys": []}}})");
   const std::string e2 = error_of([&] { load_scene(file2, empty_search()); });
   EXPECT_NE(e2.find(file2 + ": kkkk"), std::string::npos) << e2.substr(0, 300);
   EXPECT_NE(e2.find(file2 + ": geometry[0].type: 'kkkk"), std::string::npos) << e2.substr(0, 300);
@@ -479,7 +489,8 @@ TEST(ModelImport, EveryBrokenModelIsRejectedNamingTheFile) {
       "invalid/emptyIrrMesh.xml",
   };
   for (const auto& e : fs::directory_iterator(kAssimpModels + "/invalid"))
-    if (e.path().filename().string().rfind("empty.", 0) == 0) broken.push_back("invalid/" + e.path().filename().string());
+    if (e.path().filename().string().rfind("empty.", 0) == 0)
+      broken.push_back("invalid/" + e.path().filename().string());
   for (const auto& rel : broken) {
     const std::string path = kAssimpModels + "/" + rel;
     if (!fs::exists(path)) {
@@ -531,7 +542,8 @@ TEST(ModelImport, ObjIndicesOutOfRangeAndMissingMtlAreErrorsNamingTheLine) {
   EXPECT_EQ(import_model(dir.write("relative.obj", tri + "f -3/-3/-1 -2/-2/-1 -1/-1/-1\n")).triangle_count(), 1u);
   const std::string uv = dir.write("uv.obj", tri + "f 1/1/1 2/5/1 3/3/1\n");
   EXPECT_NE(error_of([&] { import_model(uv); }).find(uv + ":8: texture coordinate (vt) index 5 is out of range"),
-            std::string::npos) << error_of([&] { import_model(uv); });
+            std::string::npos)
+      << error_of([&] { import_model(uv); });
   const std::string vn = dir.write("vn.obj", tri + "f 1/1/1 2/2/9 3/3/1\n");
   EXPECT_NE(error_of([&] { import_model(vn); }).find(vn + ":8: normal (vn) index 9"), std::string::npos);
   const std::string v0 = dir.write("v0.obj", tri + "f 0 2 3\n");
@@ -540,7 +552,8 @@ TEST(ModelImport, ObjIndicesOutOfRangeAndMissingMtlAreErrorsNamingTheLine) {
   EXPECT_NE(error_of([&] { import_model(back); }).find("index -4 is out of range"), std::string::npos);
   const std::string mtl = dir.write("mtl.obj", "mtllib missing.mtl\n" + tri + "f 1 2 3\n");
   EXPECT_NE(error_of([&] { import_model(mtl); }).find(mtl + ":1: mtllib 'missing.mtl': no such material file"),
-            std::string::npos) << error_of([&] { import_model(mtl); });
+            std::string::npos)
+      << error_of([&] { import_model(mtl); });
   dir.write("has.mtl", "newmtl m\nKd 1 0 0\n");
   EXPECT_EQ(import_model(dir.write("has.obj", "mtllib has.mtl\nusemtl m\n" + tri + "f 1 2 3\n")).triangle_count(), 1u);
 }
@@ -553,7 +566,9 @@ TEST(ModelImport, GlbThatClaimsMoreThanItHoldsIsRefusedBeforeAllocating) {
     std::string j = json;
     while (j.size() % 4) j += ' ';
     std::string bytes = "glTF";
-    auto u32 = [&](uint32_t v) { for (int k = 0; k < 4; ++k) bytes += char((v >> (8 * k)) & 255); };
+    auto u32 = [&](uint32_t v) {
+      for (int k = 0; k < 4; ++k) bytes += char((v >> (8 * k)) & 255);
+    };
     u32(2);
     u32(uint32_t(12 + 8 + j.size()));
     u32(claimed_chunk ? claimed_chunk : uint32_t(j.size()));
@@ -563,14 +578,21 @@ TEST(ModelImport, GlbThatClaimsMoreThanItHoldsIsRefusedBeforeAllocating) {
     std::ofstream(path, std::ios::binary) << bytes;
     return path;
   };
-  const std::string buffer = glb("buffer.glb", R"({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4294967295}]})", 0);
-  EXPECT_NE(error_of([&] { import_model(buffer); }).find(buffer + ": glTF buffers[0] claims 4294967295 bytes, more than the GLB's BIN chunk"),
-            std::string::npos) << error_of([&] { import_model(buffer); });
+  const std::string buffer =
+      glb("buffer.glb", R"({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4294967295}]})", 0);
+  EXPECT_NE(error_of([&] {
+              import_model(buffer);
+            }).find(buffer + ": glTF buffers[0] claims 4294967295 bytes, more than the GLB's BIN chunk"),
+            std::string::npos)
+      << error_of([&] { import_model(buffer); });
   const std::string chunk = glb("chunk.glb", R"({"asset": {"version": "2.0"}})", 0xFFFFFFF0u);
   EXPECT_NE(error_of([&] { import_model(chunk); }).find(chunk + ": the GLB chunk at byte 12 claims 4294967280 bytes"),
-            std::string::npos) << error_of([&] { import_model(chunk); });
-  const std::string gltf = dir.write("big.gltf", R"({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4000000000, "uri": "none.bin"}]})");
-  EXPECT_NE(error_of([&] { import_model(gltf); }).find("claims 4000000000 bytes, more than its file"), std::string::npos);
+            std::string::npos)
+      << error_of([&] { import_model(chunk); });
+  const std::string gltf = dir.write(
+      "big.gltf", R"({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4000000000, "uri": "none.bin"}]})");
+  EXPECT_NE(error_of([&] { import_model(gltf); }).find("claims 4000000000 bytes, more than its file"),
+            std::string::npos);
 }
 
 // Colour is read as stored, not premultiplied by alpha (OpenImageIO's default would read RGB 200
@@ -591,7 +613,8 @@ TEST(ImageRead, AlphaIsUnassociatedFloatsAreLinearNonFiniteIsRefused) {
   }
   const Rgba8Image a = read_rgba8(rgba);
   ASSERT_TRUE(a.has_alpha);
-  EXPECT_EQ(std::vector<uint8_t>(a.rgba.begin(), a.rgba.end()), (std::vector<uint8_t>{200, 100, 50, 128, 10, 20, 30, 0}));
+  EXPECT_EQ(std::vector<uint8_t>(a.rgba.begin(), a.rgba.end()),
+            (std::vector<uint8_t>{200, 100, 50, 128, 10, 20, 30, 0}));
   const ImageRGB8 rgb = read_rgb8(rgba);
   EXPECT_EQ(rgb(0, 0).r, 200);
   EXPECT_EQ(rgb(1, 0).b, 30);
@@ -647,7 +670,8 @@ TEST(RealScenes, EverySceneFileParses) {
   EXPECT_EQ(files.size(), 5u);
   for (const auto& f : files) {
     const std::string e = error_of([&] { load_scene(f, empty_search()); });
-    const bool only_missing_mesh = e.find("geometry[0].file: '") != std::string::npos && e.find("problems") == std::string::npos;
+    const bool only_missing_mesh =
+        e.find("geometry[0].file: '") != std::string::npos && e.find("problems") == std::string::npos;
     EXPECT_TRUE(only_missing_mesh || e.empty()) << f << ": " << e;
   }
 }

@@ -30,9 +30,11 @@ const std::string kExperiment = std::string(DHR_SOURCE_DIR) + "/tests/data/shard
 
 // Runs the dhrbench command with DHR_CACHE_DIR=cache (when given) and the `env` assignments
 // ("NAME=value "); returns its exit code.
-int cli(const std::string& args, std::string* output = nullptr, const fs::path& cache = {}, const std::string& env_more = "") {
+int cli(const std::string& args, std::string* output = nullptr, const fs::path& cache = {},
+        const std::string& env_more = "") {
   static int n = 0;
-  const std::string log = (fs::temp_directory_path() / fmt::format("dhr_shard_test.{}.{}.log", ::getpid(), n++)).string();
+  const std::string log =
+      (fs::temp_directory_path() / fmt::format("dhr_shard_test.{}.{}.log", ::getpid(), n++)).string();
   const std::string env = (cache.empty() ? "" : "DHR_CACHE_DIR='" + cache.string() + "' ") + env_more;
   const int rc = std::system((env + DHR_CLI + " " + args + " >" + log + " 2>&1").c_str());
   std::ifstream in(log);
@@ -170,8 +172,8 @@ TEST(Shard, MergedShardsEqualTheUnshardedRunInEveryNonTimingFigure) {
     EXPECT_EQ(m.run_ids.size(), 2u);
   }
   // Any order of folders.
-  ASSERT_EQ(cli("merge " + (base / "merged").string() + " " + (base / "s2").string() + " " + (base / "s3").string() + " " +
-                    (base / "s1").string(),
+  ASSERT_EQ(cli("merge " + (base / "merged").string() + " " + (base / "s2").string() + " " + (base / "s3").string() +
+                    " " + (base / "s1").string(),
                 &log),
             0)
       << log;
@@ -185,8 +187,8 @@ TEST(Shard, MergedShardsEqualTheUnshardedRunInEveryNonTimingFigure) {
   EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + s2 + " " + s3 + " " + s1, &log), 1);
   EXPECT_NE(log.find("shard 1/3 given twice"), std::string::npos) << log;
   EXPECT_FALSE(fs::exists(base / "m2"));
-  ASSERT_EQ(cli(fmt::format("run {} --set run.frames=5 --shard 2/3 --out {}", kExperiment, (base / "other").string()), &log,
-                base / "cache_shared"),
+  ASSERT_EQ(cli(fmt::format("run {} --set run.frames=5 --shard 2/3 --out {}", kExperiment, (base / "other").string()),
+                &log, base / "cache_shared"),
             0)
       << log;
   EXPECT_EQ(cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "other").string() + " " + s3, &log), 1);
@@ -198,7 +200,8 @@ TEST(Shard, MergedShardsEqualTheUnshardedRunInEveryNonTimingFigure) {
                 base / "cache_other_isa", "DHR_MAX_ISA=" + other + " "),
             0)
       << log;
-  const int merged = cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "other_isa").string() + " " + s3, &log);
+  const int merged =
+      cli("merge " + (base / "m2").string() + " " + s1 + " " + (base / "other_isa").string() + " " + s3, &log);
   const std::string got = read_json_file((base / "other_isa" / "results.json").string()).at("context").at("embree_isa");
   if (got != isa) {  // else this CPU has no other ISA
     EXPECT_EQ(merged, 1);
@@ -241,22 +244,26 @@ TEST(Shard, AFailedShardIsReportedAndRerunAlone) {
   // The trace is gone while shard 1 runs (a filesystem not mounted on its machine).
   fs::rename(base / "latency.txt", base / "latency.away");
   EXPECT_EQ(cli(fmt::format("run {} --shard 1/2 --out {}", exp, (base / "s1").string()), &log, base / "cache"), 1);
-  ASSERT_EQ(cli(fmt::format("run {} --shard 2/2 --out {}", exp, (base / "s2").string()), &log, base / "cache"), 0) << log;
+  ASSERT_EQ(cli(fmt::format("run {} --shard 2/2 --out {}", exp, (base / "s2").string()), &log, base / "cache"), 0)
+      << log;
   const ShardManifest failed = read_shard_manifest((base / "s1").string());
   EXPECT_EQ(failed.status, "failed");
   EXPECT_NE(failed.error.find("latency.txt: latency trace not found or unreadable"), std::string::npos) << failed.error;
-  const std::string merge = "merge " + (base / "merged").string() + " " + (base / "s1").string() + " " + (base / "s2").string();
+  const std::string merge =
+      "merge " + (base / "merged").string() + " " + (base / "s1").string() + " " + (base / "s2").string();
   EXPECT_EQ(cli(merge, &log), 1);
   EXPECT_NE(log.find("shard 1/2 (" + (base / "s1").string() + ") failed: "), std::string::npos) << log;
   EXPECT_NE(log.find("latency.txt: latency trace not found or unreadable"), std::string::npos) << log;
   EXPECT_NE(log.find("its runs: r000, r001"), std::string::npos) << log;
-  EXPECT_NE(log.find("rerun it: dhrbench run " + exp + " --shard 1/2 --out " + (base / "s1").string()), std::string::npos)
+  EXPECT_NE(log.find("rerun it: dhrbench run " + exp + " --shard 1/2 --out " + (base / "s1").string()),
+            std::string::npos)
       << log;
   EXPECT_FALSE(fs::exists(base / "merged"));
 
   // Back again: rerun shard 1 alone, merge.
   fs::rename(base / "latency.away", base / "latency.txt");
-  ASSERT_EQ(cli(fmt::format("run {} --shard 1/2 --out {}", exp, (base / "s1").string()), &log, base / "cache"), 0) << log;
+  ASSERT_EQ(cli(fmt::format("run {} --shard 1/2 --out {}", exp, (base / "s1").string()), &log, base / "cache"), 0)
+      << log;
   ASSERT_EQ(cli(merge + " --no-report", &log), 0) << log;
   expect_same_figures(base / "merged", base / "whole");
 
@@ -346,8 +353,10 @@ TEST(Shard, MergeRefusesOutInsideAShardAndDamagedShardsBeforeWriting) {
     SCOPED_TRACE(c.name);
     const fs::path d = base / c.name;
     fs::copy(s1, d, fs::copy_options::recursive);
-    if (c.frames.empty()) fs::remove(d / "frames.csv");
-    else std::ofstream(d / "frames.csv", std::ios::binary) << c.frames;
+    if (c.frames.empty())
+      fs::remove(d / "frames.csv");
+    else
+      std::ofstream(d / "frames.csv", std::ios::binary) << c.frames;
     if (!c.results.empty()) std::ofstream(d / "results.json") << c.results;
     const fs::path out = base / ("out_" + std::string(c.name));
     EXPECT_EQ(run({"merge", out.string(), d.string(), s2.string()}), 1) << log;

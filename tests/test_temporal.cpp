@@ -78,8 +78,8 @@ TEST(Temporal, FlickerScoresWorseAtEqualPerFrameSsim) {
     const TemporalScores tf = temporal_scores(ref, ref, flicker[size_t(k - 1)], flicker[size_t(k)]);
     EXPECT_EQ(ts.temporal_error, 0.0);
     EXPECT_EQ(ts.static_flicker, 0.0);
-    EXPECT_GT(tf.temporal_error, 3.0);  // about half of the pixels change by several levels
-    EXPECT_EQ(tf.static_pixels, int64_t(w) * h);  // the whole reference is static
+    EXPECT_GT(tf.temporal_error, 3.0);                // about half of the pixels change by several levels
+    EXPECT_EQ(tf.static_pixels, int64_t(w) * h);      // the whole reference is static
     EXPECT_EQ(tf.static_flicker, tf.temporal_error);  // the same when nothing moves
     steady_run.add(ts);
     flicker_run.add(tf);

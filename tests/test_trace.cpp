@@ -66,7 +66,9 @@ Light sphere_light(glm::vec3 p, float radius = 0.0f, float intensity = 10.0f) {
 }
 using test::distant_light;
 
-Camera cam(glm::vec3 pos, glm::vec3 target) { return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f); }
+Camera cam(glm::vec3 pos, glm::vec3 target) {
+  return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f);
+}
 
 // A plane with a box and a sphere on it: AO partly occluded at their feet, penumbrae behind them.
 Scene occluders_scene() {
@@ -137,7 +139,11 @@ TEST(TraceBlocks, PixelRngMatchesCoreRng) {
 }
 
 TEST(TraceBlocks, OrthonormalBasis) {
-  const glm::vec3 normals[] = {{0, 0, 1}, {0, 0, -1}, {1, 0, 0}, {0, 1, 0}, glm::normalize(glm::vec3(1, -2, 3)),
+  const glm::vec3 normals[] = {{0, 0, 1},
+                               {0, 0, -1},
+                               {1, 0, 0},
+                               {0, 1, 0},
+                               glm::normalize(glm::vec3(1, -2, 3)),
                                glm::normalize(glm::vec3(1e-4f, -1e-4f, -1.0f))};
   for (const auto& n : normals) {
     glm::vec3 t, b;
@@ -185,7 +191,10 @@ TEST(TraceBlocks, OriginOffsetFollowsTheErrorBound) {
   // T = Ng . (v0 - o)) never finds the rounded origin on the triangle's front side: a ray into
   // n's hemisphere needs T of the sign of Ng . n to hit (T = 0 misses: t > tnear = 0).
   const glm::dvec3 points[] = {{0, 0, 0}, {1e-3, -2e-2, 0.5}, {3, -4, 5}, {1e5, -1e5, 1e5}, {-1e6, 2e6, 7}};
-  const glm::dvec3 normals[] = {{0, 1, 0}, {0, -1, 0}, glm::normalize(glm::dvec3(1, 1, -1)), {-1, 0, 0},
+  const glm::dvec3 normals[] = {{0, 1, 0},
+                                {0, -1, 0},
+                                glm::normalize(glm::dvec3(1, 1, -1)),
+                                {-1, 0, 0},
                                 glm::normalize(glm::dvec3(0.3, 1, 0.01))};
   for (const auto& p : points)
     for (const auto& n : normals)
@@ -359,30 +368,32 @@ TEST(TraceAo, WideKernelsGiveTheSameBits) {
   s.ao = AoSettings{1.0f, 8};
   RtScene rt(s);
   const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
-  if (!wide_kernels_available(rt)) std::printf("note: no AVX2 or AVX-512 here; both settings run the baseline kernel\n");
+  if (!wide_kernels_available(rt))
+    std::printf("note: no AVX2 or AVX-512 here; both settings run the baseline kernel\n");
   for (int rays : {1, 2, 4, 8, 16, 32, 48, 3, 5, 7, 13, 17, 100, 255})
-  for (bool lattice : {false, true}) {  // the ground truth's lattice (TraceSettings::lattice) too
-    SCOPED_TRACE(lattice ? "lattice" : "random");
-    TraceSettings wide, base;
-    wide.frame = base.frame = 7;
-    wide.lattice = base.lattice = lattice;
-    base.wide_kernels = false;
-    wide.threads = 2;
-    base.threads = 1;
-    TraceStats sw, sb;
-    const AoCounts cw = trace_ao_counts(rt, g, rays, 0.8f, wide, sw);
-    const AoCounts cb = trace_ao_counts(rt, g, rays, 0.8f, base, sb);
-    EXPECT_EQ(cw.unoccluded, cb.unoccluded) << rays << " rays";
-    EXPECT_EQ(sw.ao_rays, sb.ao_rays);
-    EXPECT_EQ(sw.covered_pixels, sb.covered_pixels);
-    EXPECT_EQ(sw.invalid_rays, sb.invalid_rays);
-    size_t partial = 0;
-    for (uint16_t v : cw.unoccluded) partial += v < rays;
-    EXPECT_GT(partial, 0u) << rays << " rays: no occlusion, the comparison would be empty";
-    const std::vector<RTCRay> rw = collect_ao_rays(rt, g, rays, 0.8f, wide), rb = collect_ao_rays(rt, g, rays, 0.8f, base);
-    ASSERT_EQ(rw.size(), rb.size());
-    EXPECT_EQ(std::memcmp(rw.data(), rb.data(), rw.size() * sizeof(RTCRay)), 0) << rays << " rays";
-  }
+    for (bool lattice : {false, true}) {  // the ground truth's lattice (TraceSettings::lattice) too
+      SCOPED_TRACE(lattice ? "lattice" : "random");
+      TraceSettings wide, base;
+      wide.frame = base.frame = 7;
+      wide.lattice = base.lattice = lattice;
+      base.wide_kernels = false;
+      wide.threads = 2;
+      base.threads = 1;
+      TraceStats sw, sb;
+      const AoCounts cw = trace_ao_counts(rt, g, rays, 0.8f, wide, sw);
+      const AoCounts cb = trace_ao_counts(rt, g, rays, 0.8f, base, sb);
+      EXPECT_EQ(cw.unoccluded, cb.unoccluded) << rays << " rays";
+      EXPECT_EQ(sw.ao_rays, sb.ao_rays);
+      EXPECT_EQ(sw.covered_pixels, sb.covered_pixels);
+      EXPECT_EQ(sw.invalid_rays, sb.invalid_rays);
+      size_t partial = 0;
+      for (uint16_t v : cw.unoccluded) partial += v < rays;
+      EXPECT_GT(partial, 0u) << rays << " rays: no occlusion, the comparison would be empty";
+      const std::vector<RTCRay> rw = collect_ao_rays(rt, g, rays, 0.8f, wide),
+                                rb = collect_ao_rays(rt, g, rays, 0.8f, base);
+      ASSERT_EQ(rw.size(), rb.size());
+      EXPECT_EQ(std::memcmp(rw.data(), rb.data(), rw.size() * sizeof(RTCRay)), 0) << rays << " rays";
+    }
 }
 
 // The ground truth's lattice (TraceSettings::lattice) against independent uniforms, at the
@@ -497,19 +508,20 @@ TEST(TraceShadows, WideKernelsGiveTheSameBitsWithManySamples) {
   s.lights.push_back(sphere_light({0.0f, -2.0f, 0.0f}, 0.5f));
   RtScene rt(s);
   const GBuffer g = rt.primary_gbuffer(cam({0, 2, 4}, {0, 0.3f, 0}), 0.0);
-  if (!wide_kernels_available(rt)) std::printf("note: no AVX2 or AVX-512 here; both settings run the baseline kernels\n");
+  if (!wide_kernels_available(rt))
+    std::printf("note: no AVX2 or AVX-512 here; both settings run the baseline kernels\n");
   for (int samples : {2, 3, 5, 7, 8, 9, 16, 17, 64})
-  for (bool lattice : {false, true}) {  // the ground truth's lattice (TraceSettings::lattice) too
-    SCOPED_TRACE(std::to_string(samples) + (lattice ? " samples, lattice" : " samples, random"));
-    TraceSettings settings;
-    settings.frame = 5;
-    settings.lattice = lattice;
-    settings.samples_per_light = samples;
-    const WideAsBase r = expect_wide_as_base(rt, s, g, settings);
-    size_t partial = 0;
-    for (uint16_t v : r.counts.visible) partial += v > 0 && v < samples;
-    EXPECT_GT(partial, 0u) << "no penumbra, the comparison would be weak";
-  }
+    for (bool lattice : {false, true}) {  // the ground truth's lattice (TraceSettings::lattice) too
+      SCOPED_TRACE(std::to_string(samples) + (lattice ? " samples, lattice" : " samples, random"));
+      TraceSettings settings;
+      settings.frame = 5;
+      settings.lattice = lattice;
+      settings.samples_per_light = samples;
+      const WideAsBase r = expect_wide_as_base(rt, s, g, settings);
+      size_t partial = 0;
+      for (uint16_t v : r.counts.visible) partial += v > 0 && v < samples;
+      EXPECT_GT(partial, 0u) << "no penumbra, the comparison would be weak";
+    }
 }
 
 // One ray per light and pixel (hard shadows, and soft ones with one sample), for every light
@@ -663,7 +675,8 @@ TEST(TraceShadows, BoxCastsTheExpectedHardShadow) {
     const glm::dvec3 p(g.position[i]);
     const bool hit = segment_hits_box(p, light, lo, hi);
     bool robust = true;
-    for (glm::dvec3 e : {glm::dvec3(0.02, 0, 0), glm::dvec3(-0.02, 0, 0), glm::dvec3(0, 0, 0.02), glm::dvec3(0, 0, -0.02)})
+    for (glm::dvec3 e :
+         {glm::dvec3(0.02, 0, 0), glm::dvec3(-0.02, 0, 0), glm::dvec3(0, 0, 0.02), glm::dvec3(0, 0, -0.02)})
       robust = robust && segment_hits_box(p + e, light, lo, hi) == hit;
     if (!robust) continue;
     ++judged;
@@ -674,7 +687,9 @@ TEST(TraceShadows, BoxCastsTheExpectedHardShadow) {
   EXPECT_GT(shadowed, 50u);
   // The box's top face is lit (nothing above it).
   for (size_t i = 0; i < g.depth.size(); ++i)
-    if (g.object_id[i] == 2 && g.geo_normal[i].y > 0.9f) { EXPECT_TRUE(bit(*r.find("visibility"), 0, i)); }
+    if (g.object_id[i] == 2 && g.geo_normal[i].y > 0.9f) {
+      EXPECT_TRUE(bit(*r.find("visibility"), 0, i));
+    }
 }
 
 // The penumbra of a straight edge. A point at the origin, a sphere light (radius R) at height
@@ -844,7 +859,8 @@ TEST(TraceShadows, JitteredRaysFollowTheConeSampling) {
         const RngKey key{one.seed, uint32_t(pixel), one.frame, uint32_t(k), kStreamAo};
         const double u0 = rng_uniform(key, 0), u1 = rng_uniform(key, 1), phi = 2.0 * std::numbers::pi * u1;
         const glm::dvec3 want = glm::dvec3(t) * (std::sqrt(u0) * std::cos(phi)) +
-                                glm::dvec3(bt) * (std::sqrt(u0) * std::sin(phi)) + glm::dvec3(0, 1, 0) * std::sqrt(1.0 - u0);
+                                glm::dvec3(bt) * (std::sqrt(u0) * std::sin(phi)) +
+                                glm::dvec3(0, 1, 0) * std::sqrt(1.0 - u0);
         EXPECT_NEAR(r.dir_x, want.x, 3e-5) << "pixel " << pixel << " ray " << k;
         EXPECT_NEAR(r.dir_y, want.y, 3e-5);
         EXPECT_NEAR(r.dir_z, want.z, 3e-5);
@@ -884,8 +900,12 @@ TEST(TraceShadows, MovingOccluderFollowsTime) {
       // Floor right below the box centre is in its shadow; far from it, lit.
       if (g.object_id[i] == 1) {
         const float dx = g.position[i].x - box_x, dz = g.position[i].z;
-        if (std::abs(dx) < 0.3f && std::abs(dz) < 0.3f) { EXPECT_FALSE(bit(*r.find("visibility"), 0, i)); }
-        if (std::abs(dx) > 2.5f && std::abs(g.position[i].x) < 4.0f) { EXPECT_TRUE(bit(*r.find("visibility"), 0, i)); }
+        if (std::abs(dx) < 0.3f && std::abs(dz) < 0.3f) {
+          EXPECT_FALSE(bit(*r.find("visibility"), 0, i));
+        }
+        if (std::abs(dx) > 2.5f && std::abs(g.position[i].x) < 4.0f) {
+          EXPECT_TRUE(bit(*r.find("visibility"), 0, i));
+        }
       }
     }
     EXPECT_GT(box_pixels, 10u) << t;
@@ -923,7 +943,9 @@ TEST(TraceShadows, EmittersAndCutoutsDoNotOcclude) {
     ts.soft_shadows = soft;
     const TraceResult r = trace_passes(rt, g, ts);
     for (size_t i = 0; i < g.depth.size(); ++i)
-      if (g.object_id[i] == 1) { EXPECT_TRUE(bit(*r.find("visibility"), 0, i)) << i; }
+      if (g.object_id[i] == 1) {
+        EXPECT_TRUE(bit(*r.find("visibility"), 0, i)) << i;
+      }
   }
   // Without the cut-out the quad does shadow the floor below it.
   s.materials[2].alpha_cutout = false;
@@ -959,11 +981,10 @@ TEST(Composite, ToneMapCountsBoundariesLikeUpperBound) {
     const double v = (k - 0.5) / 255.0;
     b[size_t(k - 1)] = float(v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4));
   }
-  auto want = [&](float v) {
-    return v > 0.0f ? int(std::upper_bound(b.begin(), b.end(), v) - b.begin()) : 0;
-  };
+  auto want = [&](float v) { return v > 0.0f ? int(std::upper_bound(b.begin(), b.end(), v) - b.begin()) : 0; };
   for (float x : b)
-    for (float v : {std::nextafter(x, 0.0f), x, std::nextafter(x, 2.0f)}) EXPECT_EQ(int(tonemap_srgb8(v)), want(v)) << v;
+    for (float v : {std::nextafter(x, 0.0f), x, std::nextafter(x, 2.0f)})
+      EXPECT_EQ(int(tonemap_srgb8(v)), want(v)) << v;
   uint32_t state = 12345;
   for (int i = 0; i < 1000000; ++i) {
     state = state * 1664525u + 1013904223u;
@@ -1016,7 +1037,9 @@ TEST(Composite, NoLightsIsAlbedoTimesAmbient) {
   const ImageRGB8 half = composite(g, s, nullptr, &ao);
   for (int y = 0; y < g.height(); ++y)
     for (int x = 0; x < g.width(); ++x)
-      if (g.covered(x, y)) { EXPECT_EQ(half(x, y), tonemap_srgb8(s.materials[0].albedo * s.ambient * 0.5f)); }
+      if (g.covered(x, y)) {
+        EXPECT_EQ(half(x, y), tonemap_srgb8(s.materials[0].albedo * s.ambient * 0.5f));
+      }
 }
 
 // Clearing one light's bit removes exactly that light's term.
@@ -1099,24 +1122,26 @@ void expect_composite_matches_shade_lambert(int copies) {
     planes.bytes.assign(planes.desc.byte_size(), 0);
     ao.bytes.assign(n, 0);
     std::vector<float> fractions(n * size_t(nl)), ao_fractions(n);
-    auto u = [&](size_t i, uint32_t k) { return float(rng_bits({77, uint32_t(i), uint32_t(w), k, 3}) >> 40) / 16777216.0f; };
+    auto u = [&](size_t i, uint32_t k) {
+      return float(rng_bits({77, uint32_t(i), uint32_t(w), k, 3}) >> 40) / 16777216.0f;
+    };
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {
         const size_t i = size_t(y) * size_t(w) + size_t(x);
         const uint32_t kind = uint32_t(rng_bits({78, uint32_t(i), uint32_t(w), 0, 3}) % 12);
         g.object_id(x, y) = kind == 0 ? kBackgroundId : 1;
         glm::vec3 p{4.0f * u(i, 1) - 2.0f, 2.0f * u(i, 2), 4.0f * u(i, 3) - 2.0f};
-        if (kind == 1) p = s.lights[0].position;                             // at a light's centre
-        if (kind == 2) p = s.lights[0].position + glm::vec3(0.0f, 0.1f, 0.0f);  // inside its sphere
-        if (kind == 3) p = {1e6f, -3e5f, 2e5f};                               // far away
+        if (kind == 1) p = s.lights[0].position;                                 // at a light's centre
+        if (kind == 2) p = s.lights[0].position + glm::vec3(0.0f, 0.1f, 0.0f);   // inside its sphere
+        if (kind == 3) p = {1e6f, -3e5f, 2e5f};                                  // far away
         if (kind == 4) p = s.lights[4].position + glm::vec3(1e-7f, 0.0f, 0.0f);  // within the clamp
         if (kind == 8) p = s.lights[4].position + glm::vec3(1e-3f, 0.0f, 0.0f);  // d^2 = range^2 exactly
         g.position(x, y) = p;
         glm::vec3 nrm = glm::normalize(glm::vec3(u(i, 4) - 0.5f, u(i, 5), u(i, 6) - 0.5f) + glm::vec3(0, 0.1f, 0));
-        if (kind == 5) nrm = -nrm;  // facing away from most lights
+        if (kind == 5) nrm = -nrm;                                             // facing away from most lights
         if (kind == 8) nrm = glm::normalize(glm::vec3(-1.0f, u(i, 5), 0.0f));  // towards light 4
         g.geo_normal(x, y) = glm::normalize(glm::vec3(0.1f, 1.0f, 0.2f));
-        g.normal(x, y) = kind == 6 ? glm::vec3(0.0f) : nrm;  // zero: the geometric normal
+        g.normal(x, y) = kind == 6 ? glm::vec3(0.0f) : nrm;                    // zero: the geometric normal
         if (kind == 7) g.normal(x, y) = glm::vec3(std::nanf(""), 0.0f, 1.0f);  // NaN: the geometric normal too
         g.albedo(x, y) = {u(i, 7), u(i, 8), u(i, 9)};
         ao.bytes[i] = uint8_t(rng_bits({79, uint32_t(i), 0, 0, 3}) % 9);
@@ -1144,14 +1169,18 @@ void expect_composite_matches_shade_lambert(int copies) {
     };
     const size_t bpp = size_t((nl + 7) / 8);
     auto ao_byte = [&](size_t i) { return std::min(1.0f, float(ao.bytes[i]) * (1.0f / 8.0f)); };
-    expect(composite(g, s, &bits, &ao), [&](size_t l, size_t i) { return float((bits.bytes[i * bpp + (l >> 3)] >> (l & 7)) & 1u); },
-           ao_byte, "bitmask");
-    expect(composite(g, s, &planes, nullptr),
-           [&](size_t l, size_t i) { return std::min(1.0f, float(planes.bytes[l * n + i]) * (1.0f / 200.0f)); },
-           [](size_t) { return 1.0f; }, "planes");
+    expect(
+        composite(g, s, &bits, &ao),
+        [&](size_t l, size_t i) { return float((bits.bytes[i * bpp + (l >> 3)] >> (l & 7)) & 1u); }, ao_byte,
+        "bitmask");
+    expect(
+        composite(g, s, &planes, nullptr),
+        [&](size_t l, size_t i) { return std::min(1.0f, float(planes.bytes[l * n + i]) * (1.0f / 200.0f)); },
+        [](size_t) { return 1.0f; }, "planes");
     const CompositeFractions est[] = {{PassMeaning::Visibility, fractions}, {PassMeaning::Ao, ao_fractions}};
-    expect(composite_fractions(g, s, est), [&](size_t l, size_t i) { return fractions[l * n + i]; },
-           [&](size_t i) { return ao_fractions[i]; }, "fractions");
+    expect(
+        composite_fractions(g, s, est), [&](size_t l, size_t i) { return fractions[l * n + i]; },
+        [&](size_t i) { return ao_fractions[i]; }, "fractions");
   }
 }
 
@@ -1169,9 +1198,10 @@ TEST(Composite, RowKernelMatchesShadeLambert) {
 // one-at-a-time code.)
 TEST(Composite, ToneMapManyMatchesOneAtATime) {
   std::vector<float> v;
-  for (float x : {0.0f, -0.0f, -1.0f, 1e-30f, 0x1p-13f, std::nextafter(0x1p-13f, 0.0f), 1.0f, std::nextafter(1.0f, 0.0f),
-                  1e30f, std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(), std::nanf(""),
-                  -std::nanf(""), std::numeric_limits<float>::denorm_min(), 0.0031308f, std::nextafter(0.0031308f, 0.0f)})
+  for (float x :
+       {0.0f, -0.0f, -1.0f, 1e-30f, 0x1p-13f, std::nextafter(0x1p-13f, 0.0f), 1.0f, std::nextafter(1.0f, 0.0f), 1e30f,
+        std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(), std::nanf(""), -std::nanf(""),
+        std::numeric_limits<float>::denorm_min(), 0.0031308f, std::nextafter(0.0031308f, 0.0f)})
     v.push_back(x);
   std::vector<uint8_t> codes;
   auto check = [&](const char* what) {
@@ -1189,7 +1219,8 @@ TEST(Composite, ToneMapManyMatchesOneAtATime) {
   const uint32_t last = std::bit_cast<uint32_t>(2.0f);
   for (uint32_t bits = std::bit_cast<uint32_t>(0x1p-14f); bits <= last;) {
     v.clear();
-    for (; bits <= last && v.size() < (1u << 20) + 5; ++bits) v.push_back(std::bit_cast<float>(bits));  // not a multiple of 16
+    for (; bits <= last && v.size() < (1u << 20) + 5; ++bits)
+      v.push_back(std::bit_cast<float>(bits));  // not a multiple of 16
     ASSERT_TRUE(check("the codes' range"));
   }
   EXPECT_THROW(tonemap_srgb8(v, std::span<uint8_t>(codes).first(1)), Error);

@@ -60,6 +60,7 @@ std::string table_key() {
 
 const std::map<std::string, uint64_t>& pinned() {
   using Table = std::map<std::string, uint64_t>;
+  // clang-format off
   static const std::map<std::string, Table> by_isa = {
     {"avx512", {
         {"room/hard", 0x9a889fefc41c71edull},
@@ -223,6 +224,7 @@ const std::map<std::string, uint64_t>& pinned() {
       {"staircase/soft4", 0xc7012b162c73f66full},
     }},
   };
+  // clang-format on
   const std::string key = table_key();
   const auto it = by_isa.find(key);
   return it != by_isa.end() ? it->second : by_isa.at(key.substr(0, key.find('@')));
@@ -271,7 +273,8 @@ TEST(TraceBits, VisibilityPassIsPinned) {
       }
       const auto it = pinned().find(key);
       ASSERT_NE(it, pinned().end()) << key << " has no pinned hash";
-      EXPECT_EQ(h, it->second) << key << ": the visibility pass's bits changed (Embree's " << embree_isa() << " kernels)";
+      EXPECT_EQ(h, it->second) << key << ": the visibility pass's bits changed (Embree's " << embree_isa()
+                               << " kernels)";
       ++checked;
     }
   });
@@ -310,9 +313,9 @@ TEST(TraceBits, CountsDoNotDependOnRowBlocks) {
           s.rows_per_block = rows;
           const PassPlan plan = plan_passes(scene, s);
           TraceStats st;
-          const std::vector<uint16_t> counts =
-              mode == "ao8" ? trace_ao_counts(rt, g, 8, plan.ao_radius_m, s, st).unoccluded
-                            : trace_visibility_counts(rt, g, plan, s, st).visible;
+          const std::vector<uint16_t> counts = mode == "ao8"
+                                                   ? trace_ao_counts(rt, g, 8, plan.ao_radius_m, s, st).unoccluded
+                                                   : trace_visibility_counts(rt, g, plan, s, st).visible;
           if (first.empty()) {
             first = counts;
             continue;
@@ -356,7 +359,6 @@ TEST(TraceBits, DamagedGBufferSameBitsOnBothKernels) {
     EXPECT_EQ(pass_hash(rt, g, s), pass_hash(rt, g, base)) << (soft ? "soft" : "hard");
   }
 }
-
 
 }  // namespace
 }  // namespace dhr

@@ -41,7 +41,9 @@ Scene base_scene() {
 Light point_light(glm::vec3 p, float radius = 0.0f) { return test::sphere_light(p, radius, 20.0f); }
 using test::distant_light;
 
-Camera cam(glm::vec3 pos, glm::vec3 target) { return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f); }
+Camera cam(glm::vec3 pos, glm::vec3 target) {
+  return Camera::look_at(pos, target, {0, 1, 0}, 60.0f, kW, kH, 0.05f, 1000.0f);
+}
 
 bool bit(const PassBuffer& pb, int light, size_t pixel) {
   const size_t bpp = size_t((pb.desc.channels + 7) / 8);
@@ -130,8 +132,8 @@ TEST_P(LargeTiltedPlane, UnoccludedPlaneIsNeverShadowed) {
   RtScene rt(s);
   const float close = std::min(size, 2.0f);  // the close-up: a few metres around the centre
   for (const float d : {size, close}) {
-    const Camera c = Camera::look_at(centre + (0.7f * n + 0.5f * t) * d, centre, {0, 1, 0}, 60.0f, kW, kH,
-                                     1e-3f * d, 10.0f * d);
+    const Camera c =
+        Camera::look_at(centre + (0.7f * n + 0.5f * t) * d, centre, {0, 1, 0}, 60.0f, kW, kH, 1e-3f * d, 10.0f * d);
     const GBuffer g = rt.primary_gbuffer(c, 0.0);
     const size_t cov = covered(g);
     ASSERT_GT(cov, size_t(kW * kH / 4)) << "size " << size << " view " << d;
@@ -240,10 +242,10 @@ std::pair<size_t, size_t> box_shadow(glm::vec3 offset, float scale, glm::vec3 bo
   s.objects.push_back(make_object(2, place(make_box(box), {0.25f, height, 0.0f}), glm::vec3(0.0f)));
   s.lights.push_back(point_light(light * scale + offset));
   RtScene rt(s);
-  const GBuffer g = rt.primary_gbuffer(Camera::look_at(glm::vec3(0.0f, 4.0f, 6.0f) * scale + offset,
-                                                       glm::vec3(1.0f, 0.0f, 0.0f) * scale + offset, {0, 1, 0}, 40.0f,
-                                                       160, 120, 0.05f * scale, 1000.0f * scale),
-                                       0.0);
+  const GBuffer g = rt.primary_gbuffer(
+      Camera::look_at(glm::vec3(0.0f, 4.0f, 6.0f) * scale + offset, glm::vec3(1.0f, 0.0f, 0.0f) * scale + offset,
+                      {0, 1, 0}, 40.0f, 160, 120, 0.05f * scale, 1000.0f * scale),
+      0.0);
   const TraceResult r = trace_passes(rt, g, TraceSettings{});
   EXPECT_EQ(r.stats.invalid_rays, 0u);
   size_t shadowed = 0, plane = 0;
@@ -278,8 +280,8 @@ TEST(TraceHardCases, BoxShadowFarFromOrigin) {
       EXPECT_NEAR(double(covered_px), double(plane), 0.01 * double(plane)) << d;
       std::printf("box shadow at %g m along (%g, %g, %g): %zu px (origin-placed: %zu)\n", double(d), double(dir.x),
                   double(dir.y), double(dir.z), shadowed, reference);
-      EXPECT_NEAR(double(shadowed), double(reference), tol) << "offset " << d << " along (" << dir.x << ", " << dir.y
-                                                            << ", " << dir.z << ")";
+      EXPECT_NEAR(double(shadowed), double(reference), tol)
+          << "offset " << d << " along (" << dir.x << ", " << dir.y << ", " << dir.z << ")";
     }
 }
 
@@ -334,9 +336,9 @@ TEST(TraceHardCases, DegenerateAndNonFiniteTrianglesAreSkipped) {
   s.objects.push_back(make_object(1, make_plane(20.0f, 20.0f), glm::vec3(0.0f)));
   Mesh bad;
   const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
-  bad.positions = {{0, 1, 0}, {1, 1, 0}, {2, 1, 0},     // collinear: zero area
-                   {0, 1, 1}, {nan, 1, 1}, {inf, 1, 2},  // non-finite
-                   {1e20f, 1, 0}, {0, 1, 3}, {1, 1, 3}};  // huge
+  bad.positions = {{0, 1, 0},     {1, 1, 0},   {2, 1, 0},    // collinear: zero area
+                   {0, 1, 1},     {nan, 1, 1}, {inf, 1, 2},  // non-finite
+                   {1e20f, 1, 0}, {0, 1, 3},   {1, 1, 3}};   // huge
   bad.triangles = {{0, 1, 2}, {0, 0, 3}, {3, 4, 7}, {3, 5, 8}, {6, 7, 8}, {7, 8, 99}};
   s.objects.push_back(make_object(2, bad, glm::vec3(0.0f)));
   s.lights.push_back(point_light({0, 5, 0}));
@@ -354,7 +356,8 @@ TEST(TraceHardCases, DegenerateAndNonFiniteTrianglesAreSkipped) {
   const TraceResult r = trace_passes(rt, g, TraceSettings{});
   ASSERT_TRUE(r.find("visibility"));
   size_t lit = 0;
-  for (size_t i = 0; i < g.depth.size(); ++i) lit += g.object_id[i] != kBackgroundId && bit(*r.find("visibility"), 0, i);
+  for (size_t i = 0; i < g.depth.size(); ++i)
+    lit += g.object_id[i] != kBackgroundId && bit(*r.find("visibility"), 0, i);
   EXPECT_EQ(lit, covered(g));  // the skipped triangles cast no shadow
   expect_finite_image(g, s, r);
 }
@@ -373,7 +376,9 @@ TEST(TraceHardCases, LightOnTheSurface) {
   const Rgb8 ambient_only = tonemap_srgb8(glm::vec3(0.5f) * s.ambient);
   for (int y = 0; y < kH; ++y)
     for (int x = 0; x < kW; ++x)
-      if (g.covered(x, y)) { ASSERT_EQ(img(x, y), ambient_only) << x << "," << y; }
+      if (g.covered(x, y)) {
+        ASSERT_EQ(img(x, y), ambient_only) << x << "," << y;
+      }
 }
 
 // A sphere light cutting through the plane: points inside its sphere are visible (no ray);
@@ -396,7 +401,9 @@ TEST(TraceHardCases, LightIntersectingGeometry) {
       if (g.object_id[i] == kBackgroundId) continue;
       const bool in = glm::length(g.position[i] - s.lights[0].position) <= 1.0f;
       inside += in;
-      if (in || !soft) { EXPECT_TRUE(bit(*r.find("visibility"), 0, i)) << i; }
+      if (in || !soft) {
+        EXPECT_TRUE(bit(*r.find("visibility"), 0, i)) << i;
+      }
     }
     EXPECT_NEAR(double(inside), double(r.stats.shadow_inside_light), 2.0);  // float vs double at the rim
     expect_finite_image(g, s, r);

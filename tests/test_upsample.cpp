@@ -44,8 +44,7 @@ PassBuffer ao_of(const GBuffer& g, int scale, uint8_t (*value)(const GBuffer&, i
   b.bytes.resize(b.desc.byte_size());
   for (int y = 0; y < b.desc.height; ++y)
     for (int x = 0; x < b.desc.width; ++x)
-      b.bytes[size_t(y * b.desc.width + x)] =
-          value(g, sample_of(x, scale, g.width()), sample_of(y, scale, g.height()));
+      b.bytes[size_t(y * b.desc.width + x)] = value(g, sample_of(x, scale, g.width()), sample_of(y, scale, g.height()));
   return b;
 }
 
@@ -170,7 +169,8 @@ TEST(Upsample, RefusesWhatItCannotUpsample) {
 
 TEST(Upsample, SameBytesAtAnyThreadCount) {
   const GBuffer g = two_planes(200, 120, 77.0f);
-  const PassBuffer low = ao_of(g, 4, [](const GBuffer& gb, int x, int y) { return uint8_t((x * 7 + y * 13 + gb.object_id(x, y) * 50) % 256); });
+  const PassBuffer low = ao_of(
+      g, 4, [](const GBuffer& gb, int x, int y) { return uint8_t((x * 7 + y * 13 + gb.object_id(x, y) * 50) % 256); });
   PassBuffer one, two;
   {
     tbb::global_control c(tbb::global_control::max_allowed_parallelism, 1);

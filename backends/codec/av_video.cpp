@@ -48,21 +48,23 @@ class AvVideoCodec final : public Codec {
   std::string refuses(const PassDesc& desc) const override {
     if (std::string why = desc.validate(); !why.empty()) return "invalid buffer description: " + why;
     if (desc.layout() == PassLayout::Bitmask)
-      return fmt::format("{} does not carry bitmasks (lossy coding flips bits; lossless codes 1-bit data as 8-bit "
-                         "samples): use lz4 or zstd",
-                         f_.name);
+      return fmt::format(
+          "{} does not carry bitmasks (lossy coding flips bits; lossless codes 1-bit data as 8-bit "
+          "samples): use lz4 or zstd",
+          f_.name);
     if (desc.layout() == PassLayout::Code16)
-      return fmt::format("{} does not carry depth (16-bit codes split into a high and a low byte plane: a lossy step "
-                         "in the high byte moves the depth by 1/256 of its range): use lz4 or zstd",
-                         f_.name);
+      return fmt::format(
+          "{} does not carry depth (16-bit codes split into a high and a low byte plane: a lossy step "
+          "in the high byte moves the depth by 1/256 of its range): use lz4 or zstd",
+          f_.name);
     if (desc.layout() == PassLayout::Rgb8 && lossless())
       return fmt::format("{} lossless codes YUV 4:2:0, which cannot return RGB bit-exactly: use lossy {}, lz4 or zstd",
                          f_.name, f_.name);
     if (desc.width == 0 || desc.height == 0) return fmt::format("{} has no empty pictures", f_.name);
     const Geometry g = geometry_of(desc);
     if (g.padded_height > kMaxImageSide)
-      return fmt::format("{} light planes of {} rows stack into a {}-row picture, above {}", desc.channels,
-                         desc.height, g.padded_height, kMaxImageSide);
+      return fmt::format("{} light planes of {} rows stack into a {}-row picture, above {}", desc.channels, desc.height,
+                         g.padded_height, kMaxImageSide);
     return {};
   }
 
@@ -175,9 +177,7 @@ class AvVideoCodec final : public Codec {
   }
 
   // The VBV buffer in bits: vbv_buffer_ms at `rate` bit/s.
-  int vbv_bits(int64_t rate) const {
-    return int(std::clamp<int64_t>(rate * s_.vbv_buffer_ms / 1000, 1, INT32_MAX));
-  }
+  int vbv_bits(int64_t rate) const { return int(std::clamp<int64_t>(rate * s_.vbv_buffer_ms / 1000, 1, INT32_MAX)); }
 
   void open_encoder(const PassDesc& desc) {
     enc_desc_ = PassDesc{};  // stays invalid if opening fails, so the next encode retries
@@ -193,7 +193,7 @@ class AvVideoCodec final : public Codec {
     enc_->height = g.padded_height;
     enc_->time_base = AVRational{1, s_.fps};
     enc_->framerate = AVRational{s_.fps, 1};
-    enc_->pix_fmt = (!g.colour && gray_)             ? AV_PIX_FMT_GRAY8
+    enc_->pix_fmt = (!g.colour && gray_)         ? AV_PIX_FMT_GRAY8
                     : (g.colour && s_.chroma444) ? AV_PIX_FMT_YUV444P
                                                  : AV_PIX_FMT_YUV420P;
     if (enc_->pix_fmt == AV_PIX_FMT_YUV444P && !av_encoder_takes(f_.encoder.c_str(), AV_PIX_FMT_YUV444P))
@@ -318,9 +318,9 @@ class AvVideoCodec final : public Codec {
     const Geometry g = geometry_of(desc);
     const AVFrame* f = dec_frame_;
     if (f->width != g.padded_width || f->height != g.padded_height) {
-      error = fmt::format("{}: decoded a {}x{} picture, {}x{} expected for a {}x{} {} buffer", f_.name, f->width,
-                          f->height, g.padded_width, g.padded_height, desc.width, desc.height,
-                          pass_kind_name(desc.kind));
+      error =
+          fmt::format("{}: decoded a {}x{} picture, {}x{} expected for a {}x{} {} buffer", f_.name, f->width, f->height,
+                      g.padded_width, g.padded_height, desc.width, desc.height, pass_kind_name(desc.kind));
       return false;
     }
     if ((f->flags & AV_FRAME_FLAG_CORRUPT) || f->decode_error_flags) {
@@ -331,7 +331,8 @@ class AvVideoCodec final : public Codec {
     const bool yuv420 = format == AV_PIX_FMT_YUV420P || format == AV_PIX_FMT_YUVJ420P;
     const bool yuv444 = format == AV_PIX_FMT_YUV444P || format == AV_PIX_FMT_YUVJ444P;
     if (!(yuv420 || (g.colour && yuv444) || (!g.colour && format == AV_PIX_FMT_GRAY8))) {
-      error = fmt::format("{}: decoded pixel format {} is not 8-bit 4:2:0, 4:4:4 (colour) or gray", f_.name, int(format));
+      error =
+          fmt::format("{}: decoded pixel format {} is not 8-bit 4:2:0, 4:4:4 (colour) or gray", f_.name, int(format));
       return false;
     }
     out.desc = desc;
@@ -350,8 +351,8 @@ class AvVideoCodec final : public Codec {
     }
     // Returns the same context while the size stays the same.
     const AVPixelFormat picture = yuv444 ? AV_PIX_FMT_YUV444P : AV_PIX_FMT_YUV420P;
-    to_rgb_ = sws_getCachedContext(to_rgb_, g.padded_width, g.padded_height, picture, g.padded_width,
-                                   g.padded_height, AV_PIX_FMT_RGB24, SWS_BILINEAR, nullptr, nullptr, nullptr);
+    to_rgb_ = sws_getCachedContext(to_rgb_, g.padded_width, g.padded_height, picture, g.padded_width, g.padded_height,
+                                   AV_PIX_FMT_RGB24, SWS_BILINEAR, nullptr, nullptr, nullptr);
     if (!to_rgb_) {
       error = fmt::format("{}: libswscale cannot convert {} to RGB24", f_.name, av_get_pix_fmt_name(picture));
       return false;
@@ -399,33 +400,35 @@ bool av_encoder_takes(const char* encoder, AVPixelFormat format) {
 
 std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
                                        const std::string& lossless_note, const std::string& threads_note) {
-  return {ParamSpec::choice("rate_control", "crf", {"crf", "bitrate", "lossless"},
-                            encoder_label + " rate control: constant rate factor, target bitrate, or lossless (" +
-                                lossless_note + ")"),
-          ParamSpec::integer("crf", crf_default, 0, crf_max, "constant rate factor (crf mode): lower is better quality"),
-          ParamSpec::integer("bitrate_kbps", 10000, 1, 1000000, "target bitrate in kbit/s (bitrate mode)"),
-          ParamSpec::integer("fps", 60, 1, 1000, "frame rate the bitrate refers to (bitrate mode)"),
-          ParamSpec::integer("gop", 60, 1, 100000, "keyframe interval in frames"),
-          ParamSpec::integer("threads", 1, 1, 16, encoder_label + " threads (" + threads_note + ")"),
-          ParamSpec::integer("vbv_buffer_ms", 1000, 1, 10000,
-                             "VBV buffer in ms at the peak rate (bitrate mode: the target; crf mode: max_kbps): "
-                             "smaller bounds each frame's size more tightly (one frame interval: CBR per frame)"),
-          ParamSpec::integer("max_kbps", 0, 0, 1000000,
-                             "crf mode: cap the rate with a VBV at this peak (capped CRF; 0: uncapped)"),
-          ParamSpec::choice("chroma", "420", {"420", "444"},
-                            "colour pictures' chroma: 4:2:0 (half-resolution chroma, what streaming ships) or 4:4:4")};
+  return {
+      ParamSpec::choice(
+          "rate_control", "crf", {"crf", "bitrate", "lossless"},
+          encoder_label + " rate control: constant rate factor, target bitrate, or lossless (" + lossless_note + ")"),
+      ParamSpec::integer("crf", crf_default, 0, crf_max, "constant rate factor (crf mode): lower is better quality"),
+      ParamSpec::integer("bitrate_kbps", 10000, 1, 1000000, "target bitrate in kbit/s (bitrate mode)"),
+      ParamSpec::integer("fps", 60, 1, 1000, "frame rate the bitrate refers to (bitrate mode)"),
+      ParamSpec::integer("gop", 60, 1, 100000, "keyframe interval in frames"),
+      ParamSpec::integer("threads", 1, 1, 16, encoder_label + " threads (" + threads_note + ")"),
+      ParamSpec::integer("vbv_buffer_ms", 1000, 1, 10000,
+                         "VBV buffer in ms at the peak rate (bitrate mode: the target; crf mode: max_kbps): "
+                         "smaller bounds each frame's size more tightly (one frame interval: CBR per frame)"),
+      ParamSpec::integer("max_kbps", 0, 0, 1000000,
+                         "crf mode: cap the rate with a VBV at this peak (capped CRF; 0: uncapped)"),
+      ParamSpec::choice("chroma", "420", {"420", "444"},
+                        "colour pictures' chroma: 4:2:0 (half-resolution chroma, what streaming ships) or 4:4:4")};
 }
 
 ParamSpec x26x_preset_param(const std::string& encoder_label) {
   return ParamSpec::choice(
-      "preset", "ultrafast", {"ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow"},
+      "preset", "ultrafast",
+      {"ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow"},
       encoder_label + " speed preset");
 }
 
 AvVideoSettings av_video_settings(const Params& p) {
   AvVideoSettings s;
   const std::string rc = p.get_string("rate_control");
-  s.rate_control = rc == "lossless" ? AvRateControl::Lossless
+  s.rate_control = rc == "lossless"  ? AvRateControl::Lossless
                    : rc == "bitrate" ? AvRateControl::Bitrate
                                      : AvRateControl::Crf;
   s.crf = p.get_int("crf");

@@ -81,12 +81,12 @@ class AvOptions {
 };
 
 struct AvVideoFormat {
-  std::string name;            // the registry name: prefixes every message ("h264")
-  std::string encoder;         // libavcodec encoder name ("libx264")
-  std::string decoder;         // libavcodec decoder name ("h264")
-  std::string install_hint;    // said when the encoder or decoder is missing
-  int min_side = 2;            // smaller pictures are padded to this width/height (even)
-  std::string stream_format;   // Codec::stream_format(): "h264", "hevc", "ivf"
+  std::string name;           // the registry name: prefixes every message ("h264")
+  std::string encoder;        // libavcodec encoder name ("libx264")
+  std::string decoder;        // libavcodec decoder name ("h264")
+  std::string install_hint;   // said when the encoder or decoder is missing
+  int min_side = 2;           // smaller pictures are padded to this width/height (even)
+  std::string stream_format;  // Codec::stream_format(): "h264", "hevc", "ivf"
   // The encoder follows a bitrate changed between frames (bitrate mode): Codec::takes_target_kbps.
   bool retargets_bitrate = false;
   // Sets the encoder's own options on a context whose size, pixel format, time base, gop,

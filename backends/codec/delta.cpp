@@ -74,7 +74,7 @@ namespace dhr {
 namespace {
 
 constexpr size_t kHeaderBytes = kFrameStartBytes;  // type, frame, reference
-constexpr size_t kPredictedBytes = 12;  // with a predictor: CRC-32C of the frame, mask of predicted planes
+constexpr size_t kPredictedBytes = 12;             // with a predictor: CRC-32C of the frame, mask of predicted planes
 
 // Planes of a buffer: the lights of a bitmask (bit p % 8 of byte p / 8 of each pixel), the
 // channels of an 8-bit buffer (byte p of each pixel).
@@ -115,8 +115,10 @@ void mask_planes(PassBuffer& prediction, uint64_t mask) {
   std::vector<uint8_t> keep(stride, 0);  // per byte of a pixel: what survives
   for (int p = 0; p < planes; ++p)
     if (mask >> p & 1) {
-      if (d.layout() == PassLayout::Bitmask) keep[size_t(p / 8)] |= uint8_t(1u << (p % 8));
-      else keep[size_t(p)] = 0xff;
+      if (d.layout() == PassLayout::Bitmask)
+        keep[size_t(p / 8)] |= uint8_t(1u << (p % 8));
+      else
+        keep[size_t(p)] = 0xff;
     }
   for (size_t i = 0; i < prediction.bytes.size(); ++i) prediction.bytes[i] &= keep[i % stride];
 }
@@ -138,7 +140,8 @@ void extract_plane(const PassBuffer& b, const PassBuffer* minus, int p, PassBuff
       out.bytes[i] = uint8_t(v >> bit & 1);
     }
   } else {
-    for (size_t i = 0; i < n; ++i) out.bytes[i] = uint8_t(c[i * stride + size_t(p)] - (q ? q[i * stride + size_t(p)] : 0));
+    for (size_t i = 0; i < n; ++i)
+      out.bytes[i] = uint8_t(c[i * stride + size_t(p)] - (q ? q[i * stride + size_t(p)] : 0));
   }
 }
 
@@ -159,16 +162,18 @@ class DeltaCodec final : public Codec {
         inner_(registries().codecs.create(
             p.get_string("inner"), inner_params(p.get_string("inner"), p.get_int("level"), p.get_string("layout")))) {
     if (p.get_string("predictor") != "none")
-      carrier_.emplace("delta", registries().predictors.create(p.get_string("predictor"), {{"filter", p.get_string("filter")}}));
+      carrier_.emplace("delta",
+                       registries().predictors.create(p.get_string("predictor"), {{"filter", p.get_string("filter")}}));
   }
 
   bool lossless() const override { return true; }
   bool stateful() const override { return true; }  // frames reference earlier ones
   std::string refuses(const PassDesc& desc) const override {
     if (carrier_ && (desc.layout() == PassLayout::Rgb8 || desc.layout() == PassLayout::Code16))
-      return fmt::format("delta with predictor reprojection carries lighting passes only ({} frames have no G-buffer "
-                         "prediction here; use predictor none)",
-                         pass_kind_name(desc.kind));
+      return fmt::format(
+          "delta with predictor reprojection carries lighting passes only ({} frames have no G-buffer "
+          "prediction here; use predictor none)",
+          pass_kind_name(desc.kind));
     return inner_->refuses(desc);
   }
   int gbuffers_referenced() const override { return carrier_ ? references_ : 0; }
@@ -177,8 +182,8 @@ class DeltaCodec final : public Codec {
   void encode(const PassBuffer& in, const EncodeOptions& options, std::vector<uint8_t>& out) override {
     const FrameContext& ctx = options.context;
     const uint32_t index = coded_frame_index("delta", in, options, carrier_.has_value(), next_index_, coded_frames_);
-    const auto [ref_chosen, ref_gbuf] =
-        choose_reference(coded_frames_, options, in.desc, since_key_ + 1 >= uint32_t(keyframe_interval_), carrier_.has_value());
+    const auto [ref_chosen, ref_gbuf] = choose_reference(
+        coded_frames_, options, in.desc, since_key_ + 1 >= uint32_t(keyframe_interval_), carrier_.has_value());
     const Reference* ref = ref_chosen;
 
     uint64_t mask = 0;  // planes coded against the prediction
@@ -234,10 +239,10 @@ class DeltaCodec final : public Codec {
     const uint32_t index = start.index, reference = start.reference;
     const uint64_t mask = carrier_ ? get_u64(in.data() + kHeaderBytes + 4) : all_planes(desc);
     if (carrier_ && ((mask & ~all_planes(desc)) != 0 || (start.keyframe && mask != 0))) {
-      error = fmt::format("delta: plane mask {:#x} is not valid for a {} {} with {} planes (valid: {})", mask,
-                          start.keyframe ? "keyframe of" : "frame of", pass_kind_name(desc.kind), plane_count(desc),
-                          start.keyframe ? std::string("0 on a keyframe")
-                                         : fmt::format("bits within {:#x}", all_planes(desc)));
+      error = fmt::format(
+          "delta: plane mask {:#x} is not valid for a {} {} with {} planes (valid: {})", mask,
+          start.keyframe ? "keyframe of" : "frame of", pass_kind_name(desc.kind), plane_count(desc),
+          start.keyframe ? std::string("0 on a keyframe") : fmt::format("bits within {:#x}", all_planes(desc)));
       return false;
     }
     const Reference* ref = nullptr;
@@ -261,9 +266,10 @@ class DeltaCodec final : public Codec {
     if (carrier_) {
       const uint32_t expected = get_u32(in.data() + kHeaderBytes), got = crc32c(decoded.bytes);
       if (got != expected) {
-        error = fmt::format("delta: frame {} reconstructed from frame {} does not match the server's (CRC-32C "
-                            "{:08x}, expected {:08x}): the two ends' predictions or references differ",
-                            index, reference, got, expected);
+        error = fmt::format(
+            "delta: frame {} reconstructed from frame {} does not match the server's (CRC-32C "
+            "{:08x}, expected {:08x}): the two ends' predictions or references differ",
+            index, reference, got, expected);
         return false;
       }
     }
@@ -314,26 +320,27 @@ class DeltaCodec final : public Codec {
 }  // namespace
 
 CodecEntry make_delta_codec() {
-  return {"delta",
-          "temporal delta (XOR / byte difference) against a frame the client holds, carried to this frame by "
-          "reprojection or not, before lz4 or zstd; keyframes every N",
-          {ParamSpec::choice("inner", "zstd", {"lz4", "zstd"}, "lossless coder of the residual"),
-           ParamSpec::integer("level", 1, 1, 19, "zstd level; with lz4: 1 = fast, 3..12 = hc level"),
-           ParamSpec::choice("layout", "planes", {"interleaved", "planes"},
-                             "visibility bitmasks: one bit-plane per light, or the canonical per-pixel bytes"),
-           ParamSpec::integer("keyframe_interval", 30, 1, 100000, "a keyframe every this many frames"),
-           ParamSpec::choice("predictor", "none", {"none", "reprojection"},
-                             "how the reference frame is carried to this frame: as it is, or reprojected through "
-                             "both frames' G-buffers"),
-           ParamSpec::choice("filter", "bilinear", {"nearest", "bilinear"},
-                             "the reprojection's filter for 8-bit passes (bitmasks: always nearest)"),
-           ParamSpec::integer("references", 8, 1, 64, "frames each end keeps as references (loss recovery)"),
-           ParamSpec::boolean("plane_choice", true,
-                              "with a predictor and several planes: predict only the planes (lights, channels) whose "
-                              "residual the inner coder codes smaller than the plane itself"),
-           ParamSpec::boolean("intra_check", true,
-                              "with a predictor: also code the frame alone and send the smaller (a keyframe when it is)")},
-          [](const Params& p) { return std::make_unique<DeltaCodec>(p); }};
+  return {
+      "delta",
+      "temporal delta (XOR / byte difference) against a frame the client holds, carried to this frame by "
+      "reprojection or not, before lz4 or zstd; keyframes every N",
+      {ParamSpec::choice("inner", "zstd", {"lz4", "zstd"}, "lossless coder of the residual"),
+       ParamSpec::integer("level", 1, 1, 19, "zstd level; with lz4: 1 = fast, 3..12 = hc level"),
+       ParamSpec::choice("layout", "planes", {"interleaved", "planes"},
+                         "visibility bitmasks: one bit-plane per light, or the canonical per-pixel bytes"),
+       ParamSpec::integer("keyframe_interval", 30, 1, 100000, "a keyframe every this many frames"),
+       ParamSpec::choice("predictor", "none", {"none", "reprojection"},
+                         "how the reference frame is carried to this frame: as it is, or reprojected through "
+                         "both frames' G-buffers"),
+       ParamSpec::choice("filter", "bilinear", {"nearest", "bilinear"},
+                         "the reprojection's filter for 8-bit passes (bitmasks: always nearest)"),
+       ParamSpec::integer("references", 8, 1, 64, "frames each end keeps as references (loss recovery)"),
+       ParamSpec::boolean("plane_choice", true,
+                          "with a predictor and several planes: predict only the planes (lights, channels) whose "
+                          "residual the inner coder codes smaller than the plane itself"),
+       ParamSpec::boolean("intra_check", true,
+                          "with a predictor: also code the frame alone and send the smaller (a keyframe when it is)")},
+      [](const Params& p) { return std::make_unique<DeltaCodec>(p); }};
 }
 
 }  // namespace dhr

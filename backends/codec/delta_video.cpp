@@ -71,8 +71,10 @@ nlohmann::json inner_params(const Params& p) {
   nlohmann::json j = {{"rate_control", p.get_string("rate_control")},
                       {"fps", p.get_int("fps")},
                       {"gop", 100000}};  // keyframes are delta_video's to force
-  if (p.get_string("rate_control") == "crf") j["crf"] = p.get_int("crf");
-  else j["bitrate_kbps"] = p.get_int("bitrate_kbps");
+  if (p.get_string("rate_control") == "crf")
+    j["crf"] = p.get_int("crf");
+  else
+    j["bitrate_kbps"] = p.get_int("bitrate_kbps");
   return j;
 }
 
@@ -113,9 +115,10 @@ class DeltaVideoCodec final : public Codec {
   std::string refuses(const PassDesc& desc) const override {
     if (std::string why = desc.validate(); !why.empty()) return "invalid buffer description: " + why;
     if (desc.layout() != PassLayout::Planes8)
-      return fmt::format("delta_video codes 8-bit passes (AO, soft visibility), not a {} pass: a bitmask's residual "
-                         "is its XOR (use delta); colour and depth go to the video codecs and lz4/zstd as they are",
-                         pass_kind_name(desc.kind));
+      return fmt::format(
+          "delta_video codes 8-bit passes (AO, soft visibility), not a {} pass: a bitmask's residual "
+          "is its XOR (use delta); colour and depth go to the video codecs and lz4/zstd as they are",
+          pass_kind_name(desc.kind));
     return encoder_->refuses(full_range(desc));
   }
 
@@ -123,8 +126,8 @@ class DeltaVideoCodec final : public Codec {
     if (std::string why = refuses(in.desc); !why.empty()) fail("delta_video: cannot encode this buffer: {}", why);
     const FrameContext& ctx = options.context;
     const uint32_t index = coded_frame_index("delta_video", in, options, carrier_.has_value(), next_index_, coded_);
-    const auto [ref, ref_gbuf] =
-        choose_reference(coded_, options, in.desc, since_key_ + 1 >= uint32_t(keyframe_interval_), carrier_.has_value());
+    const auto [ref, ref_gbuf] = choose_reference(coded_, options, in.desc,
+                                                  since_key_ + 1 >= uint32_t(keyframe_interval_), carrier_.has_value());
 
     const FullRangeMap range(in.desc.full_scale, true);
     const PassBuffer* prediction = nullptr;
@@ -180,22 +183,25 @@ class DeltaVideoCodec final : public Codec {
       return false;
     const std::span<const uint8_t> bits = in.subspan(kHeaderBytes);
     if (const uint32_t expected = get_u32(in.data() + kBitsCrcAt), got = crc32c(bits); got != expected) {
-      error = fmt::format("delta_video: frame {}: the {} bytes after the header are damaged (CRC-32C {:08x}, expected "
-                          "{:08x})",
-                          index, bits.size(), got, expected);
+      error = fmt::format(
+          "delta_video: frame {}: the {} bytes after the header are damaged (CRC-32C {:08x}, expected "
+          "{:08x})",
+          index, bits.size(), got, expected);
       return false;
     }
     if (!decoder_->decode(bits, full_range(desc), decoded_picture_, error)) {
       error = "delta_video: " + error;
       return false;
     }
-    if (ref) prediction = carrier_ ? &carrier_->carry(*ref, *ctx.gbuffer_of(reference), index, *ctx.gbuf) : &ref->buffer;
+    if (ref)
+      prediction = carrier_ ? &carrier_->carry(*ref, *ctx.gbuffer_of(reference), index, *ctx.gbuf) : &ref->buffer;
     PassBuffer rec = reconstruct(decoded_picture_, prediction, desc, FullRangeMap(desc.full_scale, true));
     if (const uint32_t expected = get_u32(in.data() + kReconstructionCrcAt), got = crc32c(rec.bytes); got != expected) {
-      error = fmt::format("delta_video: frame {} reconstructed{} does not match the server's (CRC-32C {:08x}, "
-                          "expected {:08x}): a picture of the inner stream was lost or damaged, or the two ends' "
-                          "predictions differ",
-                          index, ref ? fmt::format(" from frame {}", reference) : std::string(), got, expected);
+      error = fmt::format(
+          "delta_video: frame {} reconstructed{} does not match the server's (CRC-32C {:08x}, "
+          "expected {:08x}): a picture of the inner stream was lost or damaged, or the two ends' "
+          "predictions differ",
+          index, ref ? fmt::format(" from frame {}", reference) : std::string(), got, expected);
       return false;
     }
     keep_reference(decoded_, {index, rec}, references_);

@@ -28,30 +28,31 @@ namespace dhr {
 CodecEntry make_hevc_codec() {
   std::vector<ParamSpec> params = av_video_params("x265", 23, 51, "x265 lossless=1", "the bytes do not depend on it");
   params.push_back(x26x_preset_param("x265"));
-  return {"hevc",
-          "H.265/HEVC (libx265 via libavcodec), zerolatency, VPS/SPS/PPS in-band; AO/soft-visibility as gray, colour as "
-          "4:2:0",
-          std::move(params), [](const Params& p) {
-            AvVideoFormat f;
-            f.name = "hevc";
-            f.encoder = "libx265";
-            f.decoder = "hevc";
-            f.install_hint = "install libavcodec with x265 support";
-            f.min_side = 16;
-            f.stream_format = "hevc";
-            f.configure_encoder = [preset = p.get_string("preset")](const AvVideoSettings& s, AvOptions& o) {
-              std::string x265_params =
-                  "log-level=error:scenecut=0:open-gop=0:repeat-headers=1:info=0:frame-threads=1:rc-lookahead=0:"
-                  "bframes=0";
-              x265_params += fmt::format(":wpp=1:pools={}", s.threads);
-              if (s.rate_control == AvRateControl::Lossless) x265_params += ":lossless=1";
-              o.set("preset", preset);
-              o.set("tune", "zerolatency");
-              o.set("forced-idr", "1");
-              o.set("x265-params", x265_params);
-            };
-            return make_av_video_codec(std::move(f), av_video_settings(p));
-          }};
+  return {
+      "hevc",
+      "H.265/HEVC (libx265 via libavcodec), zerolatency, VPS/SPS/PPS in-band; AO/soft-visibility as gray, colour as "
+      "4:2:0",
+      std::move(params), [](const Params& p) {
+        AvVideoFormat f;
+        f.name = "hevc";
+        f.encoder = "libx265";
+        f.decoder = "hevc";
+        f.install_hint = "install libavcodec with x265 support";
+        f.min_side = 16;
+        f.stream_format = "hevc";
+        f.configure_encoder = [preset = p.get_string("preset")](const AvVideoSettings& s, AvOptions& o) {
+          std::string x265_params =
+              "log-level=error:scenecut=0:open-gop=0:repeat-headers=1:info=0:frame-threads=1:rc-lookahead=0:"
+              "bframes=0";
+          x265_params += fmt::format(":wpp=1:pools={}", s.threads);
+          if (s.rate_control == AvRateControl::Lossless) x265_params += ":lossless=1";
+          o.set("preset", preset);
+          o.set("tune", "zerolatency");
+          o.set("forced-idr", "1");
+          o.set("x265-params", x265_params);
+        };
+        return make_av_video_codec(std::move(f), av_video_settings(p));
+      }};
 }
 
 }  // namespace dhr

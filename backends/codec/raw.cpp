@@ -21,8 +21,8 @@ class RawCodec final : public Codec {
       return false;
     }
     if (in.size() != desc.byte_size()) {
-      error = fmt::format("raw: {} bytes received, {} expected for a {}x{} {} buffer", in.size(),
-                          desc.byte_size(), desc.width, desc.height, pass_kind_name(desc.kind));
+      error = fmt::format("raw: {} bytes received, {} expected for a {}x{} {} buffer", in.size(), desc.byte_size(),
+                          desc.width, desc.height, pass_kind_name(desc.kind));
       return false;
     }
     out.desc = desc;
@@ -34,8 +34,7 @@ class RawCodec final : public Codec {
 }  // namespace
 
 CodecEntry make_raw_codec() {
-  return {"raw", "uncompressed bytes (the baseline)", {},
-          [](const Params&) { return std::make_unique<RawCodec>(); }};
+  return {"raw", "uncompressed bytes (the baseline)", {}, [](const Params&) { return std::make_unique<RawCodec>(); }};
 }
 
 }  // namespace dhr

@@ -26,7 +26,8 @@ void put_frame_start(uint8_t* p, const FrameStart& start) {
 
 std::string read_frame_start(const std::string& codec, std::span<const uint8_t> in, size_t header_bytes,
                              FrameStart& start) {
-  if (in.size() < header_bytes) return fmt::format("{}: {} bytes, shorter than the {}-byte header", codec, in.size(), header_bytes);
+  if (in.size() < header_bytes)
+    return fmt::format("{}: {} bytes, shorter than the {}-byte header", codec, in.size(), header_bytes);
   const uint8_t type = in[0];
   if (type != kKeyframeType && type != kDeltaType) return fmt::format("{}: unknown frame type {:#04x}", codec, type);
   start = {type == kKeyframeType, get_u32(in.data() + 1), get_u32(in.data() + 5)};
@@ -110,19 +111,22 @@ std::string reprojection_context_problem(const FrameContext& ctx, uint32_t index
                                          const PassDesc& desc) {
   const GBuffer* ref_gbuf = ctx.gbuffer_of ? ctx.gbuffer_of(reference) : nullptr;
   if (!ctx.gbuf || ctx.frame != index || !ref_gbuf)
-    return fmt::format("frame {} is predicted from frame {} by reprojection: the client's G-buffers of both frames "
-                       "are needed ({} given)",
-                       index, reference, !ctx.gbuf || ctx.frame != index ? "not this frame's" : "not the reference's");
+    return fmt::format(
+        "frame {} is predicted from frame {} by reprojection: the client's G-buffers of both frames "
+        "are needed ({} given)",
+        index, reference, !ctx.gbuf || ctx.frame != index ? "not this frame's" : "not the reference's");
   if (ref_gbuf->width() != ctx.gbuf->width() || ref_gbuf->height() != ctx.gbuf->height() ||
       pass_scale(ctx.gbuf->width(), ctx.gbuf->height(), desc.width, desc.height) == 0)
-    return fmt::format("a {}x{} pass with G-buffers of {}x{} (this frame) and {}x{} (frame {}); both must be the "
-                       "pass's size, or a multiple of it up to {} (a reduced-resolution pass)",
-                       desc.width, desc.height, ctx.gbuf->width(), ctx.gbuf->height(), ref_gbuf->width(),
-                       ref_gbuf->height(), reference, kMaxPassScale);
+    return fmt::format(
+        "a {}x{} pass with G-buffers of {}x{} (this frame) and {}x{} (frame {}); both must be the "
+        "pass's size, or a multiple of it up to {} (a reduced-resolution pass)",
+        desc.width, desc.height, ctx.gbuf->width(), ctx.gbuf->height(), ref_gbuf->width(), ref_gbuf->height(),
+        reference, kMaxPassScale);
   return {};
 }
 
-PassBuffer& ReferenceCarrier::carry(const Reference& ref, const GBuffer& ref_gbuf, uint32_t frame, const GBuffer& gbuf) {
+PassBuffer& ReferenceCarrier::carry(const Reference& ref, const GBuffer& ref_gbuf, uint32_t frame,
+                                    const GBuffer& gbuf) {
   const PassDesc& d = ref.buffer.desc;
   if (d.width == gbuf.width() && d.height == gbuf.height()) {
     predictor_->predict({ref.buffer, ref_gbuf, gbuf}, prediction_);
@@ -130,9 +134,10 @@ PassBuffer& ReferenceCarrier::carry(const Reference& ref, const GBuffer& ref_gbu
   }
   const int scale = pass_scale(gbuf.width(), gbuf.height(), d.width, d.height);
   if (scale == 0 || ref_gbuf.width() != gbuf.width() || ref_gbuf.height() != gbuf.height())
-    fail("{}: a {}x{} pass cannot be reprojected with G-buffers of {}x{} and {}x{} (valid: two G-buffers of one "
-         "size, of which the pass is 1/1..1/{} in each side)",
-         owner_, d.width, d.height, ref_gbuf.width(), ref_gbuf.height(), gbuf.width(), gbuf.height(), kMaxPassScale);
+    fail(
+        "{}: a {}x{} pass cannot be reprojected with G-buffers of {}x{} and {}x{} (valid: two G-buffers of one "
+        "size, of which the pass is 1/1..1/{} in each side)",
+        owner_, d.width, d.height, ref_gbuf.width(), ref_gbuf.height(), gbuf.width(), gbuf.height(), kMaxPassScale);
   const bool kept = sampled_ && sampled_->first == ref.frame && sampled_->second.width() == d.width &&
                     sampled_->second.height() == d.height;
   const GBuffer src = kept ? std::move(sampled_->second) : downsample_gbuffer(ref_gbuf, scale);

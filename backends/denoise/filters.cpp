@@ -108,7 +108,8 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int guide_row16(const GuideR
     const __m512 nz = _mm512_permutex2var_ps(_mm512_permutex2var_ps(n0, i2a, n1), i2b, n2);
     const __m512 z = _mm512_loadu_ps(a.z + i);
     const __m512i id = _mm512_loadu_si512(a.id + i);
-    const __m512 len2 = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(nx, nx), _mm512_mul_ps(ny, ny)), _mm512_mul_ps(nz, nz));
+    const __m512 len2 =
+        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(nx, nx), _mm512_mul_ps(ny, ny)), _mm512_mul_ps(nz, nz));
     const __mmask16 ok = _mm512_test_epi32_mask(id, id) & _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) &
                          _mm512_cmp_ps_mask(z, _mm512_set1_ps(1e30f), _CMP_LT_OQ) &
                          _mm512_cmp_ps_mask(len2, _mm512_set1_ps(0.25f), _CMP_GE_OQ) &
@@ -180,9 +181,9 @@ void guide_row(const GuideRowArgs& a, size_t row, int w) {
 void build_guide(const GBuffer& g, Guide& out) {
   const int w = g.width(), h = g.height();
   if (!g.normal.same_size(w, h) || !g.object_id.same_size(w, h) || !g.motion.same_size(w, h))
-    fail("denoiser: G-buffer planes differ in size (depth {}x{}, normal {}x{}, object_id {}x{}, motion {}x{})",
-         w, h, g.normal.width(), g.normal.height(), g.object_id.width(), g.object_id.height(),
-         g.motion.width(), g.motion.height());
+    fail("denoiser: G-buffer planes differ in size (depth {}x{}, normal {}x{}, object_id {}x{}, motion {}x{})", w, h,
+         g.normal.width(), g.normal.height(), g.object_id.width(), g.object_id.height(), g.motion.width(),
+         g.motion.height());
   if (out.width != w || out.height != h) out.resize(w, h);
   const GuideRowArgs a{g.depth.data(), g.normal.data(), g.object_id.data(), &out};
 #if DHR_DENOISE_AVX512
@@ -309,7 +310,6 @@ void guide_spatial_row(const GuideSpatialArgs& a, int y) {
 constexpr float kB3[5] = {1.0f / 16, 1.0f / 4, 3.0f / 8, 1.0f / 4, 1.0f / 16};
 constexpr float kK3[3] = {0.25f, 0.5f, 0.25f};
 
-
 }  // namespace
 
 void Guide::resize(int w, int h) {
@@ -368,8 +368,10 @@ void read_spatial_params(const Params& p, FilterSettings& s, bool with_iteration
   s.sigma_l = float(p.get_float("sigma_l"));
   s.sigma_n = p.get_int("sigma_n");
   if (!std::has_single_bit(unsigned(s.sigma_n)))
-    fail("denoiser parameter sigma_n = {} must be a power of two (1, 2, 4, ..., 1024): the normal weight is "
-         "computed by repeated squaring", s.sigma_n);
+    fail(
+        "denoiser parameter sigma_n = {} must be a power of two (1, 2, 4, ..., 1024): the normal weight is "
+        "computed by repeated squaring",
+        s.sigma_n);
   s.sigma_z = float(p.get_float("sigma_z"));
   s.variance_radius = p.get_int("variance_radius");
   s.fast_weights = p.get_bool("fast_weights");
@@ -390,8 +392,8 @@ void FilterPipeline::run(const DenoiseInput& in, ImageU8& out) {
   if (in.full_scale < 1)
     fail("denoiser: full_scale {} is invalid (must be >= 1: the value that means 1.0)", in.full_scale);
   if (in.gbuf.width() != w || in.gbuf.height() != h)
-    fail("denoiser: noisy image is {}x{} but the G-buffer is {}x{} (they must match)", w, h,
-         in.gbuf.width(), in.gbuf.height());
+    fail("denoiser: noisy image is {}x{} but the G-buffer is {}x{} (they must match)", w, h, in.gbuf.width(),
+         in.gbuf.height());
   if (out.width() != w || out.height() != h) out.resize(w, h);  // every pixel is written below
   if (w == 0 || h == 0) return;
   if (!in.history_valid || w != w_ || h != h_) history_ok_ = false;
@@ -414,14 +416,13 @@ void FilterPipeline::run(const DenoiseInput& in, ImageU8& out) {
   cur_ ^= 1;
 }
 
-
 void FilterPipeline::allocate(int w, int h) {
   w_ = w;
   h_ = h;
   const size_t n = size_t(w) * size_t(h);
-  for (auto* v : {&input_, &value_, &var_, &inv_phi_z_, &inv_valid_k_, &work_v_[0], &work_v_[1], &work_var_[0],
-                  &work_var_[1], &hv_[0], &hv_[1], &hm1_[0], &hm1_[1], &hm2_[0], &hm2_[1], &hist_[0], &hist_[1],
-                  &hk_[0], &hk_[1]})
+  for (auto* v :
+       {&input_, &value_, &var_, &inv_phi_z_, &inv_valid_k_, &work_v_[0], &work_v_[1], &work_var_[0], &work_var_[1],
+        &hv_[0], &hv_[1], &hm1_[0], &hm1_[1], &hm2_[0], &hm2_[1], &hist_[0], &hist_[1], &hk_[0], &hk_[1]})
     fill_parallel(*v, n, 0.0f);
   fill_parallel(cls_, n, uint8_t(0));
   span_lo_.assign(size_t(h), 0);
@@ -506,10 +507,10 @@ void FilterPipeline::accumulate(const DenoiseInput& in, uint8_t* out) {
   uint8_t* const cls = cls_.data();
   int* const span_lo = span_lo_.data();
   int* const span_hi = span_hi_.data();
-  const AccumulateArgs args{mo,  noisy, cvalid, cid, pid, cz,  pz,  cnx,    cny,     cnz,  pnx,  pny,
-                            pnz, pv,    pm1,    pm2, ph,  pk,  nv,  nm1,    nm2,     nh,   nk,   var,
-                            cls, out,   w,      h,   fs,  inv_fs, tol, nthr, alpha,  cap,  min_h, light_h,
-                            wmax, hmax, have_history, spatial, lt};
+  const AccumulateArgs args{
+      mo,  noisy,  cvalid, cid,  pid,   cz,  pz,    cnx,     cny,  cnz,  pnx,          pny,     pnz, pv,
+      pm1, pm2,    ph,     pk,   nv,    nm1, nm2,   nh,      nk,   var,  cls,          out,     w,   h,
+      fs,  inv_fs, tol,    nthr, alpha, cap, min_h, light_h, wmax, hmax, have_history, spatial, lt};
   parallel_rows(h, [=](int y) {
     // Locals, not the closure's members: those live in memory that the byte stores below
     // might alias, so the compiler would reload every pointer for every pixel.
@@ -627,7 +628,7 @@ void FilterPipeline::spatial_variance() {
   const int w = w_, h = h_;
   const Guide& g = guide_[cur_];
   const float* hl = s_.temporal ? hist_[cur_].data() : nullptr;  // null: no history (h = 0)
-  const float* kf = s_.temporal ? hk_[cur_].data() : nullptr;     // null: k = 1 (one frame)
+  const float* kf = s_.temporal ? hk_[cur_].data() : nullptr;    // null: k = 1 (one frame)
   const float* m1 = s_.temporal ? hm1_[cur_].data() : input_.data();
   const float* m2 = s_.temporal ? hm2_[cur_].data() : nullptr;  // null: m2 = input^2
   const float min_h = float(s_.min_history);
@@ -735,7 +736,6 @@ void FilterPipeline::atrous_iterations(uint8_t* out) {
     var = var_out;
   }
 }
-
 
 // One edge-aware a-trous iteration: kernel h (B3-spline 5x5 or 3x3) at step `step`, weight
 //   w = h * exp(-|z_p - z_q| / (sigma_z |grad z_p| step |offset|) - |l_p - l_q| / (sigma_l sqrt(g3x3(var_p)) + eps))

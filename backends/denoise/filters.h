@@ -32,18 +32,18 @@ namespace dhr::denoise {
 // ---------------------------------------------------------------- settings and parameters
 
 struct FilterSettings {
-  bool temporal = true;         // accumulate over frames (svgf_ao, single_iteration, temporal)
-  int iterations = 5;           // a-trous iterations; 0 = no spatial filter (temporal)
-  int kernel_radius = 2;        // 2: 5x5 B3-spline kernel; 1: 3x3 (1/4, 1/2, 1/4)
-  float alpha = 0.2f;           // EMA weight of the new frame (value and moments)
-  int history_cap = 32;         // history length is capped here (frames)
-  float depth_tolerance = 0.1f;  // reprojection: |z_prev - z| <= tol * z
+  bool temporal = true;           // accumulate over frames (svgf_ao, single_iteration, temporal)
+  int iterations = 5;             // a-trous iterations; 0 = no spatial filter (temporal)
+  int kernel_radius = 2;          // 2: 5x5 B3-spline kernel; 1: 3x3 (1/4, 1/2, 1/4)
+  float alpha = 0.2f;             // EMA weight of the new frame (value and moments)
+  int history_cap = 32;           // history length is capped here (frames)
+  float depth_tolerance = 0.1f;   // reprojection: |z_prev - z| <= tol * z
   float normal_threshold = 0.9f;  // reprojection: dot(n_prev, n) >= threshold
-  float sigma_l = 4.0f;         // AO edge-stopping: |l_p - l_q| / (sigma_l sqrt(var) + eps); 0 = off
-  int sigma_n = 128;            // normal edge-stopping: max(0, n_p . n_q)^sigma_n, a power of two
-  float sigma_z = 1.0f;         // depth edge-stopping: |z_p - z_q| / (sigma_z |grad z| |offset|); 0 = off
-  int variance_radius = 3;      // spatial variance window (2r + 1)^2 where history is short
-  int min_history = 4;          // below this many frames the variance is estimated spatially
+  float sigma_l = 4.0f;           // AO edge-stopping: |l_p - l_q| / (sigma_l sqrt(var) + eps); 0 = off
+  int sigma_n = 128;              // normal edge-stopping: max(0, n_p . n_q)^sigma_n, a power of two
+  float sigma_z = 1.0f;           // depth edge-stopping: |z_p - z_q| / (sigma_z |grad z| |offset|); 0 = off
+  int variance_radius = 3;        // spatial variance window (2r + 1)^2 where history is short
+  int min_history = 4;            // below this many frames the variance is estimated spatially
   bool feedback_filtered = true;  // history keeps the first a-trous iteration's output (SVGF)
   // svgf_ao's lightweight path (DHR-S 3.3, last paragraph): pixels with at least this many
   // frames of history get one 3x3 a-trous iteration instead of `iterations`; 0 = off.
@@ -199,8 +199,8 @@ class FilterPipeline {
 
   FilterSettings s_;
   int w_ = -1, h_ = -1;
-  int cur_ = 0;               // index of this frame's history/guide planes; cur_ ^ 1 = previous
-  bool history_ok_ = false;   // the previous planes hold a usable frame
+  int cur_ = 0;              // index of this frame's history/guide planes; cur_ ^ 1 = previous
+  bool history_ok_ = false;  // the previous planes hold a usable frame
   Guide guide_[2];
   // input_: the rescaled input (spatial-only denoiser); value_: the accumulated value when the
   // first a-trous iteration is fed back into hv_.

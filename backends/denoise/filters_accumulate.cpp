@@ -24,7 +24,7 @@ namespace {
 // that skip become "!(x > t)" masks (NaN kept as there); the taps are read by masked gathers
 // (no address outside the image is read). xa, xb: the span of pixels that need the spatial variance.
 __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const AccumulateArgs& a, int y, int& xa,
-                                                                          int& xb) {
+                                                                         int& xb) {
   using V = __m512;
   using VI = __m512i;
   const int w = a.w;
@@ -69,11 +69,10 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const A
       for (int k = 0; k < 4; ++k) {
         const VI xx = _mm512_add_epi32(x0, _mm512_set1_epi32(k & 1));
         const VI yy = _mm512_add_epi32(y0, _mm512_set1_epi32(k >> 1));
-        __mmask16 mk = inr & _mm512_cmpge_epi32_mask(xx, _mm512_setzero_si512()) &
-                       _mm512_cmpge_epi32_mask(yy, _mm512_setzero_si512()) &
-                       _mm512_cmplt_epi32_mask(xx, _mm512_set1_epi32(w)) &
-                       _mm512_cmplt_epi32_mask(yy, _mm512_set1_epi32(a.h)) &
-                       _mm512_cmp_ps_mask(bw[k], zero, _CMP_NLE_UQ);
+        __mmask16 mk =
+            inr & _mm512_cmpge_epi32_mask(xx, _mm512_setzero_si512()) &
+            _mm512_cmpge_epi32_mask(yy, _mm512_setzero_si512()) & _mm512_cmplt_epi32_mask(xx, _mm512_set1_epi32(w)) &
+            _mm512_cmplt_epi32_mask(yy, _mm512_set1_epi32(a.h)) & _mm512_cmp_ps_mask(bw[k], zero, _CMP_NLE_UQ);
         if (!mk) continue;
         const VI j = _mm512_add_epi32(_mm512_mullo_epi32(yy, _mm512_set1_epi32(w)), xx);
         // Where the lanes' taps lie side by side (lane 0's tap j0, lane l's j0 + l: the motion's
@@ -94,8 +93,9 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const A
         mk &= _mm512_cmp_ps_mask(phj, zero, _CMP_NLE_UQ);
         const V pzj = gather(a.pz, mk);
         mk &= _mm512_cmp_ps_mask(_mm512_abs_ps(_mm512_sub_ps(pzj, zc)), ztol, _CMP_NGT_UQ);
-        const V d = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(gather(a.pnx, mk), ncx), _mm512_mul_ps(gather(a.pny, mk), ncy)),
-                                  _mm512_mul_ps(gather(a.pnz, mk), ncz));
+        const V d =
+            _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(gather(a.pnx, mk), ncx), _mm512_mul_ps(gather(a.pny, mk), ncy)),
+                          _mm512_mul_ps(gather(a.pnz, mk), ncz));
         mk &= _mm512_cmp_ps_mask(d, nthr, _CMP_NLT_UQ);
         if (!mk) continue;
         const V b = bw[k];
@@ -116,8 +116,8 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX512 int accumulate_row16(const A
       pkk = _mm512_mask_mul_ps(pkk, ok, pkk, inv);
     }
     // finish
-    const VI ivi = _mm512_maskz_min_epi32(all,
-        _mm512_maskz_cvtepu8_epi32(all, _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.noisy + i))),
+    const VI ivi = _mm512_maskz_min_epi32(
+        all, _mm512_maskz_cvtepu8_epi32(all, _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.noisy + i))),
         _mm512_set1_epi32(a.fs));  // src > fs ? fs : src
     const V c = _mm512_mul_ps(_mm512_maskz_cvtepi32_ps(all, ivi), _mm512_set1_ps(a.inv_fs));
     const __mmask16 has = _mm512_cmp_ps_mask(len, zero, _CMP_GT_OQ);
@@ -192,7 +192,7 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 __m256 taps8(const float* base, __m256
 // twin, step for step): the masks are vectors of all-ones lanes, a masked add is a blend of
 // the sum, the gathers take the same masks (a lane left out reads nothing).
 __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 int accumulate_row8(const AccumulateArgs& a, int y, int& xa,
-                                                                     int& xb) {
+                                                                      int& xb) {
   using V = __m256;
   using VI = __m256i;
   const int w = a.w;
@@ -203,8 +203,8 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 int accumulate_row8(const Accu
   int x = 0;
   for (; x + 8 <= w; x += 8) {
     const size_t i = row + size_t(x);
-    const V valid = _mm256_castsi256_ps(_mm256_xor_si256(_mm256_cmpeq_epi32(bytes8(a.cvalid + i), izero),
-                                                          _mm256_set1_epi32(-1)));
+    const V valid =
+        _mm256_castsi256_ps(_mm256_xor_si256(_mm256_cmpeq_epi32(bytes8(a.cvalid + i), izero), _mm256_set1_epi32(-1)));
     V len = zero, pval = zero, p1 = zero, p2 = zero, pkk = zero;
     const V called = a.hist ? valid : zero;  // lanes whose reproject runs
     if (_mm256_movemask_ps(called)) {
@@ -224,10 +224,10 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 int accumulate_row8(const Accu
                         _mm256_cmp_ps(py, _mm256_set1_ps(a.hmax), _CMP_LT_OQ)));
       const VI inr_i = _mm256_castps_si256(inr);
       const V two = _mm256_set1_ps(2.0f);
-      const VI x0 = _mm256_and_si256(
-          inr_i, _mm256_sub_epi32(_mm256_cvttps_epi32(_mm256_add_ps(px, two)), _mm256_set1_epi32(2)));
-      const VI y0 = _mm256_and_si256(
-          inr_i, _mm256_sub_epi32(_mm256_cvttps_epi32(_mm256_add_ps(py, two)), _mm256_set1_epi32(2)));
+      const VI x0 =
+          _mm256_and_si256(inr_i, _mm256_sub_epi32(_mm256_cvttps_epi32(_mm256_add_ps(px, two)), _mm256_set1_epi32(2)));
+      const VI y0 =
+          _mm256_and_si256(inr_i, _mm256_sub_epi32(_mm256_cvttps_epi32(_mm256_add_ps(py, two)), _mm256_set1_epi32(2)));
       const V fx = _mm256_sub_ps(px, _mm256_cvtepi32_ps(x0));
       const V fy = _mm256_sub_ps(py, _mm256_cvtepi32_ps(y0));
       const V gx = _mm256_sub_ps(one, fx), gy = _mm256_sub_ps(one, fy);
@@ -242,19 +242,21 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 int accumulate_row8(const Accu
       for (int k = 0; k < 4; ++k) {
         const VI xx = _mm256_add_epi32(x0, _mm256_set1_epi32(k & 1));
         const VI yy = _mm256_add_epi32(y0, _mm256_set1_epi32(k >> 1));
-        const VI in_image = _mm256_and_si256(
-            _mm256_and_si256(_mm256_cmpgt_epi32(xx, _mm256_set1_epi32(-1)), _mm256_cmpgt_epi32(yy, _mm256_set1_epi32(-1))),
-            _mm256_and_si256(_mm256_cmpgt_epi32(_mm256_set1_epi32(w), xx), _mm256_cmpgt_epi32(_mm256_set1_epi32(a.h), yy)));
-        V mk = _mm256_and_ps(_mm256_and_ps(inr, _mm256_castsi256_ps(in_image)), _mm256_cmp_ps(bw[k], zero, _CMP_NLE_UQ));
+        const VI in_image = _mm256_and_si256(_mm256_and_si256(_mm256_cmpgt_epi32(xx, _mm256_set1_epi32(-1)),
+                                                              _mm256_cmpgt_epi32(yy, _mm256_set1_epi32(-1))),
+                                             _mm256_and_si256(_mm256_cmpgt_epi32(_mm256_set1_epi32(w), xx),
+                                                              _mm256_cmpgt_epi32(_mm256_set1_epi32(a.h), yy)));
+        V mk =
+            _mm256_and_ps(_mm256_and_ps(inr, _mm256_castsi256_ps(in_image)), _mm256_cmp_ps(bw[k], zero, _CMP_NLE_UQ));
         if (!_mm256_movemask_ps(mk)) continue;
         const VI j = _mm256_add_epi32(_mm256_mullo_epi32(yy, _mm256_set1_epi32(w)), xx);
         // Taps side by side: masked loads instead of gathers (accumulate_row16).
         const int j0 = _mm256_cvtsi256_si32(j);
         const int mk_bits = _mm256_movemask_ps(mk);
-        const bool side = (mk_bits & 1) &&
-                          (_mm256_movemask_ps(_mm256_and_ps(
-                               mk, _mm256_castsi256_ps(_mm256_cmpeq_epi32(j, _mm256_add_epi32(_mm256_set1_epi32(j0), lane))))) ==
-                           mk_bits);
+        const bool side =
+            (mk_bits & 1) &&
+            (_mm256_movemask_ps(_mm256_and_ps(mk, _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                                                      j, _mm256_add_epi32(_mm256_set1_epi32(j0), lane))))) == mk_bits);
         // "pvalid and pid == idc" is "pid == idc" alone (accumulate_row16).
         const VI pidj = side ? _mm256_maskload_epi32(reinterpret_cast<const int*>(a.pid) + j0, _mm256_castps_si256(mk))
                              : _mm256_mask_i32gather_epi32(izero, reinterpret_cast<const int*>(a.pid), j,
@@ -264,7 +266,8 @@ __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 int accumulate_row8(const Accu
         mk = _mm256_and_ps(mk, _mm256_cmp_ps(phj, zero, _CMP_NLE_UQ));
         const V pzj = taps8(a.pz, j, j0, side, mk);
         mk = _mm256_and_ps(mk, _mm256_cmp_ps(_mm256_and_ps(_mm256_sub_ps(pzj, zc), abs_mask), ztol, _CMP_NGT_UQ));
-        const V d = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(taps8(a.pnx, j, j0, side, mk), ncx), _mm256_mul_ps(taps8(a.pny, j, j0, side, mk), ncy)),
+        const V d = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(taps8(a.pnx, j, j0, side, mk), ncx),
+                                                _mm256_mul_ps(taps8(a.pny, j, j0, side, mk), ncy)),
                                   _mm256_mul_ps(taps8(a.pnz, j, j0, side, mk), ncz));
         mk = _mm256_and_ps(mk, _mm256_cmp_ps(d, nthr, _CMP_NLT_UQ));
         if (!_mm256_movemask_ps(mk)) continue;

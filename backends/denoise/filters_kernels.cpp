@@ -60,7 +60,6 @@ DHR_ALWAYS_INLINE void inv_phi_l_lanes(const float* sum_kv, const float* inv_val
   L::store(out, ivk > T{} ? ipl : T{});
 }
 
-
 // ---- The a-trous rows (AtrousArgs, filters.h).
 
 // Whether [x, x + n) of a cls row holds a pixel of class c (n <= 16 and cls values 0/1).
@@ -84,7 +83,7 @@ DHR_ALWAYS_INLINE bool block_has(const uint8_t* cls_row, int x, int n, uint8_t c
 struct AtrousTapPlanes {
   const float *zc, *ncx, *ncy, *ncz, *ipz, *ipl, *lc;  // centre row, indexed by x
   const float *zq, *nqx, *nqy, *nqz, *lq, *vq;         // neighbour row, indexed by x + off
-  float *sw, *sl, *sv;                                  // accumulators, indexed by x
+  float *sw, *sl, *sv;                                 // accumulators, indexed by x
 };
 
 // The fast weights' tap (AtrousArgs::fast_weights), one lane type for all: t = -(|l_p - l_q|
@@ -110,8 +109,9 @@ DHR_ALWAYS_INLINE void atrous_tap(const AtrousTapPlanes& p, int x, int q, float 
     const T lq = L::load(p.lq + q);
     T sw = L::load(p.sw + x), sl = L::load(p.sl + x), sv = L::load(p.sv + x);
     fast_tap<K>(L::load(p.ncx + x), L::load(p.ncy + x), L::load(p.ncz + x), L::load(p.nqx + q), L::load(p.nqy + q),
-                L::load(p.nqz + q), abs_f(L::load(p.zc + x) - L::load(p.zq + q)), (L::load(p.ipz + x) * kLog2e) * inv_len,
-                abs_f(L::load(p.lc + x) - lq), L::load(p.ipl + x) * kLog2e, hk, nsq, lq, L::load(p.vq + q), sw, sl, sv);
+                L::load(p.nqz + q), abs_f(L::load(p.zc + x) - L::load(p.zq + q)),
+                (L::load(p.ipz + x) * kLog2e) * inv_len, abs_f(L::load(p.lc + x) - lq), L::load(p.ipl + x) * kLog2e, hk,
+                nsq, lq, L::load(p.vq + q), sw, sl, sv);
     L::store(p.sw + x, sw);
     L::store(p.sl + x, sl);
     L::store(p.sv + x, sv);
@@ -189,9 +189,9 @@ DHR_ALWAYS_INLINE void atrous_block(const AtrousArgs& a, int y, int x, const flo
 // add are exp_neg's own operations.
 template <int K, int R>
 DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 void atrous_block8_unrolled(const AtrousArgs& a, int y, int x,
-                                                                     const float* ipl_row, const float (*hk)[5],
-                                                                     const float (*inv_len)[5], float* sw_out,
-                                                                     float* sl_out, float* sv_out) {
+                                                                      const float* ipl_row, const float (*hk)[5],
+                                                                      const float (*inv_len)[5], float* sw_out,
+                                                                      float* sl_out, float* sv_out) {
   using L = VectorLane;
   using T = VecF;
   const int step = a.step, nsq = a.normal_squarings;
@@ -243,9 +243,9 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX2 void atrous_block8_unrolled(const Atro
 // The 8-pixel blocks of [xb, xm) of row y (the interior of atrous_row16_all's rows, for AVX2).
 template <int K, int R>
 __attribute__((noinline)) DHR_DENOISE_TARGET_AVX2 void atrous_blocks8(const AtrousArgs& a, int y, int xb, int xm,
-                                                                     const uint8_t* cls, const float* ipl_row,
-                                                                     const float (*hk)[5], const float (*inv_len)[5],
-                                                                     float* sw, float* sl, float* sv) {
+                                                                      const uint8_t* cls, const float* ipl_row,
+                                                                      const float (*hk)[5], const float (*inv_len)[5],
+                                                                      float* sw, float* sl, float* sv) {
   const uint8_t ac = a.active_cls;
   for (; xb < xm; xb += kLanes)
     if (!cls || block_has(cls, xb, kLanes, ac))
@@ -301,9 +301,8 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 VecF16 load16(const float* plane, si
 // left out (sv stays 0). Returns the three sums of the 16 pixels.
 template <int K, int R, bool F, bool M = false, bool V = true>
 DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 Sums16 atrous_block16_unrolled(const AtrousArgs& a, int y, int x,
-                                                                          const float* ipl_row,
-                                                                          const float (*hk)[5],
-                                                                          const float (*inv_len)[5]) {
+                                                                           const float* ipl_row, const float (*hk)[5],
+                                                                           const float (*inv_len)[5]) {
   using L = VectorLane16;
   using T = VecF16;
   const int step = a.step, nsq = a.normal_squarings;
@@ -393,8 +392,7 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 Sums16 atrous_block16_unrolled(const
         const T wl = abs_f(lc - lq) * ipl;
         const T s = wz + wl;
         const T t = s * -1.44269504f;
-        const __m512 fi =
-            _mm512_maskz_roundscale_ps(all, (__m512)(t - 0.5f), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC);
+        const __m512 fi = _mm512_maskz_roundscale_ps(all, (__m512)(t - 0.5f), _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC);
         const T f = t - (T)fi;
         T p = T{} + 9.6181291e-3f;
         p = p * f + 5.5504109e-2f;
@@ -422,7 +420,8 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void finish_block16(const AtrousArgs
   using T = VecF16;
   const __mmask16 all = 0xffff;  // the zero-masked forms: see atrous_block16_unrolled
   const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.valid + i));
-  const __mmask16 valid = _mm512_test_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, vb), _mm512_maskz_cvtepu8_epi32(all, vb));
+  const __mmask16 valid =
+      _mm512_test_epi32_mask(_mm512_maskz_cvtepu8_epi32(all, vb), _mm512_maskz_cvtepu8_epi32(all, vb));
   __mmask16 act = 0xffff;
   if (a.cls) {
     const __m128i cb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a.cls + i));
@@ -448,7 +447,8 @@ DHR_ALWAYS_INLINE DHR_DENOISE_TARGET_AVX512 void finish_block16(const AtrousArgs
     T f = vo * 255.0f + 0.5f;
     f = f >= lo ? f : lo;
     f = f <= T{} + 255.0f ? f : T{} + 255.0f;
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(a.u8_out + i), _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_cvttps_epi32(all, (__m512)f)));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(a.u8_out + i),
+                     _mm512_maskz_cvtepi32_epi8(all, _mm512_maskz_cvttps_epi32(all, (__m512)f)));
   }
 }
 
@@ -530,8 +530,7 @@ DHR_ALWAYS_INLINE void inv_phi_l_of_row(const AtrousArgs& a, int y, float* out) 
   }
   for (; x + kLanes <= w; x += kLanes)
     inv_phi_l_lanes<VectorLane>(out + x, a.inv_valid_k + row + x, a.sigma_l, a.eps_l, out + x);
-  for (; x < w; ++x)
-    inv_phi_l_lanes<ScalarLane>(out + x, a.inv_valid_k + row + x, a.sigma_l, a.eps_l, out + x);
+  for (; x < w; ++x) inv_phi_l_lanes<ScalarLane>(out + x, a.inv_valid_k + row + x, a.sigma_l, a.eps_l, out + x);
 }
 
 // Rows [y0, y1) of one a-trous iteration; acc holds 4 * width floats of scratch (need not be
@@ -698,8 +697,8 @@ void atrous_rows_16(const AtrousArgs& a, int y0, int y1, float* acc) {
 // ---- The spatial moments (MomentArgs, filters.h).
 
 template <int K, class L>
-DHR_ALWAYS_INLINE void moment_tap(const MomentArgs& a, size_t row, size_t qrow, int x, int dx, float inv_len,
-                                  float* a0, float* a1, float* a2) {
+DHR_ALWAYS_INLINE void moment_tap(const MomentArgs& a, size_t row, size_t qrow, int x, int dx, float inv_len, float* a0,
+                                  float* a1, float* a2) {
   using T = typename L::T;
   const size_t c = row + size_t(x), q = qrow + size_t(x + dx);
   const T d = L::load(a.nx + c) * L::load(a.nx + q) + L::load(a.ny + c) * L::load(a.ny + q) +
@@ -734,13 +733,14 @@ DHR_ALWAYS_INLINE void moment_span_impl(const MomentArgs& a, int y, int xa, int 
           moment_tap<K, VectorLane16>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa),
                                       acc + 2 * n + (x - xa));
       for (; x + kLanes <= hi; x += kLanes)
-        moment_tap<K, VectorLane>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa), acc + 2 * n + (x - xa));
+        moment_tap<K, VectorLane>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa),
+                                  acc + 2 * n + (x - xa));
       for (; x < hi; ++x)
-        moment_tap<K, ScalarLane>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa), acc + 2 * n + (x - xa));
+        moment_tap<K, ScalarLane>(a, row, qrow, x, dx, inv_len, acc + (x - xa), acc + n + (x - xa),
+                                  acc + 2 * n + (x - xa));
     }
   }
 }
-
 
 DHR_DENOISE_TARGETS
 void moment_span_8(const MomentArgs& a, int y, int xa, int xb, float* acc) {

@@ -114,8 +114,7 @@ DHR_ALWAYS_INLINE VecF16 exp_neg(VecF16 x) { return exp_neg_lanes<VecF16, VecI16
 // same bits: the rounding to nearest is exact for |t| < 2^22 (the 1.5 2^23 shift), a fused
 // multiply-add is one rounding on every machine, and p 2^i stays normal (p >= 0.7, i >= -87).
 constexpr float kFastExpLo = -86.5617f;  // -60 log2(e), rounded up: every t kept has i >= -87
-constexpr float kFastExpC0 = 0.99992808f, kFastExpC1 = 0.69326099f, kFastExpC2 = 0.24261096f,
-                kFastExpC3 = 0.055171501f;
+constexpr float kFastExpC0 = 0.99992808f, kFastExpC1 = 0.69326099f, kFastExpC2 = 0.24261096f, kFastExpC3 = 0.055171501f;
 constexpr float kLog2e = 1.44269504f;
 constexpr float kRoundShift = 12582912.0f;  // 1.5 2^23: (t + it) - it is t rounded to an integer
 
@@ -147,7 +146,7 @@ DHR_ALWAYS_INLINE V fast_weight_lanes(V hw, V t) {
   const V fi = (t + kRoundShift) - kRoundShift;
   const V p = fast_exp2_poly(t - fi);
   // In unsigned lanes: a lane the cut drops may hold any exponent (its sum wraps, unused).
-  const V r = (V)((VU)p + ((VU)__builtin_convertvector(fi, VI) << 23));
+  const V r = (V)((VU)p + ((VU) __builtin_convertvector(fi, VI) << 23));
   return t >= V{} + kFastExpLo ? hw * r : V{};
 }
 DHR_ALWAYS_INLINE VecF fast_weight(VecF hw, VecF t) { return fast_weight_lanes<VecF, VecI, VecU>(hw, t); }

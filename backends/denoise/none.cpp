@@ -24,8 +24,10 @@ class NoneDenoiser final : public Denoiser {
 }  // namespace
 
 DenoiserEntry make_none_denoiser() {
-  return {"none", "no denoising: the traced values as they are, with their own scale (raw counts)", {},
-          [](const Params&) { return std::make_unique<NoneDenoiser>(); }};
+  return {
+      "none", "no denoising: the traced values as they are, with their own scale (raw counts)", {}, [](const Params&) {
+        return std::make_unique<NoneDenoiser>();
+      }};
 }
 
 }  // namespace dhr

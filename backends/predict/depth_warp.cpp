@@ -101,7 +101,8 @@ class DepthWarp final : public Predictor {
         resolved_[o] = k;
         if (k == kEmpty) {  // a one-pixel gap between kept points: a crack of the pixel grid
           auto kept = [&](size_t a) { return keys_[a].load(std::memory_order_relaxed) != kEmpty; };
-          if (x > 0 && x + 1 < wd && kept(o - 1) && kept(o + 1)) resolved_[o] = keys_[o - 1].load(std::memory_order_relaxed);
+          if (x > 0 && x + 1 < wd && kept(o - 1) && kept(o + 1))
+            resolved_[o] = keys_[o - 1].load(std::memory_order_relaxed);
           else if (y > 0 && y + 1 < hd && kept(o - size_t(wd)) && kept(o + size_t(wd)))
             resolved_[o] = keys_[o - size_t(wd)].load(std::memory_order_relaxed);
           continue;
@@ -117,7 +118,8 @@ class DepthWarp final : public Predictor {
                     by = int(ib / uint32_t(ws));
           return std::abs(ax - bx) <= 1 && std::abs(ay - by) <= 1;
         };
-        if (x > 0 && x + 1 < wd && behind(o - 1, o + 1)) resolved_[o] = keys_[o - 1].load(std::memory_order_relaxed);
+        if (x > 0 && x + 1 < wd && behind(o - 1, o + 1))
+          resolved_[o] = keys_[o - 1].load(std::memory_order_relaxed);
         else if (y > 0 && y + 1 < hd && behind(o - size_t(wd), o + size_t(wd)))
           resolved_[o] = keys_[o - size_t(wd)].load(std::memory_order_relaxed);
       }
@@ -148,9 +150,12 @@ class DepthWarp final : public Predictor {
         if (k == kEmpty) {
           ++row_holes;
           const int r = right[x];
-          if (left >= 0 && r < wd) k = z_of(row[left]) >= z_of(row[r]) ? row[left] : row[r];
-          else if (left >= 0) k = row[left];
-          else if (r < wd) k = row[r];
+          if (left >= 0 && r < wd)
+            k = z_of(row[left]) >= z_of(row[r]) ? row[left] : row[r];
+          else if (left >= 0)
+            k = row[left];
+          else if (r < wd)
+            k = row[r];
         } else {
           left = x;
         }
@@ -214,11 +219,11 @@ class DepthWarp final : public Predictor {
         const double qx = cx + glm::dot(rel, rd) * fx / zd, qy = cy - glm::dot(rel, ud) * fy / zd;
         if (!(qx >= 0.0 && qx < wd && qy >= 0.0 && qy < hd)) continue;
         const size_t o = size_t(int(qy)) * size_t(wd) + size_t(int(qx));
-        const uint64_t key = (uint64_t(std::bit_cast<uint32_t>(key_z)) << 32) | uint64_t(size_t(y) * size_t(ws) + size_t(x));
+        const uint64_t key =
+            (uint64_t(std::bit_cast<uint32_t>(key_z)) << 32) | uint64_t(size_t(y) * size_t(ws) + size_t(x));
         std::atomic<uint64_t>& slot = keys_[o];
         uint64_t cur = slot.load(std::memory_order_relaxed);
-        while (key < cur && !slot.compare_exchange_weak(cur, key, std::memory_order_relaxed)) {
-        }
+        while (key < cur && !slot.compare_exchange_weak(cur, key, std::memory_order_relaxed)) {}
       }
     });
   }
@@ -235,16 +240,17 @@ class DepthWarp final : public Predictor {
 }  // namespace
 
 PredictorEntry make_depth_warp_predictor() {
-  return {kName,
-          "remote-rendering baseline: reproject the last colour frame with the depth sent beside it (rotation "
-          "and translation; remote mode then sends a depth pass, counted)",
-          {ParamSpec::integer("depth_bits", 12, 8, 16,
-                              "the precision of the inverse depth the server sends (core/buffers/depth_pass.h): more bits, "
-                              "less parallax error and more bytes"),
-           ParamSpec::real("crack_ratio", 1.1, 1.01, 10.0,
-                           "a kept point this many times as far as both neighbours (row or column) is a crack and "
-                           "takes its neighbour's point")},
-          [](const Params& p) { return std::make_unique<DepthWarp>(p.get_int("depth_bits"), p.get_float("crack_ratio")); }};
+  return {
+      kName,
+      "remote-rendering baseline: reproject the last colour frame with the depth sent beside it (rotation "
+      "and translation; remote mode then sends a depth pass, counted)",
+      {ParamSpec::integer("depth_bits", 12, 8, 16,
+                          "the precision of the inverse depth the server sends (core/buffers/depth_pass.h): more bits, "
+                          "less parallax error and more bytes"),
+       ParamSpec::real("crack_ratio", 1.1, 1.01, 10.0,
+                       "a kept point this many times as far as both neighbours (row or column) is a crack and "
+                       "takes its neighbour's point")},
+      [](const Params& p) { return std::make_unique<DepthWarp>(p.get_int("depth_bits"), p.get_float("crack_ratio")); }};
 }
 
 }  // namespace dhr

@@ -20,8 +20,9 @@ class NonePredictor final : public Predictor {
 }  // namespace
 
 PredictorEntry make_none_predictor() {
-  return {"none", "no prediction: show the newest received buffer as it is", {},
-          [](const Params&) { return std::make_unique<NonePredictor>(); }};
+  return {"none", "no prediction: show the newest received buffer as it is", {}, [](const Params&) {
+            return std::make_unique<NonePredictor>();
+          }};
 }
 
 }  // namespace dhr

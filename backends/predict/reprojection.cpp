@@ -74,10 +74,11 @@ void check_gbuffer(const char* which, const GBuffer& g) {
   const int w = g.width(), h = g.height();
   if (!g.position.same_size(w, h) || !g.normal.same_size(w, h) || !g.geo_normal.same_size(w, h) ||
       !g.object_id.same_size(w, h))
-    fail("predictor '{}': the {} G-buffer's planes differ in size (depth {}x{}, position {}x{}, normal {}x{}, "
-         "geo_normal {}x{}, object_id {}x{})",
-         kName, which, w, h, g.position.width(), g.position.height(), g.normal.width(), g.normal.height(),
-         g.geo_normal.width(), g.geo_normal.height(), g.object_id.width(), g.object_id.height());
+    fail(
+        "predictor '{}': the {} G-buffer's planes differ in size (depth {}x{}, position {}x{}, normal {}x{}, "
+        "geo_normal {}x{}, object_id {}x{})",
+        kName, which, w, h, g.position.width(), g.position.height(), g.normal.width(), g.normal.height(),
+        g.geo_normal.width(), g.geo_normal.height(), g.object_id.width(), g.object_id.height());
   predict::check_camera(kName, which, g.camera);
   if (g.camera.width != w || g.camera.height != h)
     fail("predictor '{}': the {} G-buffer is {}x{} but its camera is {}x{} (they must agree)", kName, which, w, h,
@@ -127,9 +128,15 @@ std::atomic<bool> g_scalar_only{false};
 DHR_AVX512_TARGET inline __m512 dot16(__m512 ax, __m512 ay, __m512 az, __m512 bx, __m512 by, __m512 bz) {
   return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(ax, bx), _mm512_mul_ps(ay, by)), _mm512_mul_ps(az, bz));
 }
-DHR_AVX512_TARGET inline __mmask16 ge16(__m512 a, float b) { return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_GE_OQ); }
-DHR_AVX512_TARGET inline __mmask16 le16(__m512 a, float b) { return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_LE_OQ); }
-DHR_AVX512_TARGET inline __mmask16 finite16(__m512 a) { return __mmask16(~_mm512_fpclass_ps_mask(a, 0x99)); }  // not NaN or +-inf
+DHR_AVX512_TARGET inline __mmask16 ge16(__m512 a, float b) {
+  return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_GE_OQ);
+}
+DHR_AVX512_TARGET inline __mmask16 le16(__m512 a, float b) {
+  return _mm512_cmp_ps_mask(a, _mm512_set1_ps(b), _CMP_LE_OQ);
+}
+DHR_AVX512_TARGET inline __mmask16 finite16(__m512 a) {
+  return __mmask16(~_mm512_fpclass_ps_mask(a, 0x99));
+}  // not NaN or +-inf
 DHR_AVX512_TARGET inline __m512 gather16(__mmask16 m, __m512i index, const float* base) {
   return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), m, index, base, 4);
 }
@@ -190,8 +197,9 @@ DHR_AVX512_TARGET inline __mmask16 tap_tests16(const TapValues16& s, __mmask16 t
   const __mmask16 has_plane = ge16(lg, 0.25f) & le16(lg, 4.0f);
   const __m512 ex = _mm512_sub_ps(d.px, s.p.x), ey = _mm512_sub_ps(d.py, s.p.y), ez = _mm512_sub_ps(d.pz, s.p.z);
   const __m512 e = dot16(ex, ey, ez, s.g.x, s.g.y, s.g.z);
-  const __mmask16 plane = _mm512_cmp_ps_mask(
-      _mm512_mul_ps(e, e), _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.tol2), d.z), d.z), lg), _CMP_LE_OQ);
+  const __mmask16 plane =
+      _mm512_cmp_ps_mask(_mm512_mul_ps(e, e),
+                         _mm512_mul_ps(_mm512_mul_ps(_mm512_mul_ps(_mm512_set1_ps(a.tol2), d.z), d.z), lg), _CMP_LE_OQ);
   const __m512 adz = _mm512_abs_ps(_mm512_sub_ps(s.depth, d.z));
   const __mmask16 depth = _mm512_cmp_ps_mask(adz, _mm512_mul_ps(_mm512_set1_ps(a.tol), d.z), _CMP_LE_OQ);
   return t & ((has_plane & plane) | (~has_plane & depth));
@@ -218,7 +226,9 @@ DHR_AVX512_TARGET inline Window32 load_window32(const PlanInputs& a, size_t j) {
 }
 
 // Lane l takes the window's pixel idx[l] (0 .. 31).
-DHR_AVX512_TARGET inline __m512 pick16(__m512 lo, __m512 hi, __m512i idx) { return _mm512_permutex2var_ps(lo, idx, hi); }
+DHR_AVX512_TARGET inline __m512 pick16(__m512 lo, __m512 hi, __m512i idx) {
+  return _mm512_permutex2var_ps(lo, idx, hi);
+}
 DHR_AVX512_TARGET inline Xyz16 pick_xyz16(const Xyz16& lo, const Xyz16& hi, __m512i idx) {
   return {pick16(lo.x, hi.x, idx), pick16(lo.y, hi.y, idx), pick16(lo.z, hi.z, idx)};
 }
@@ -261,9 +271,11 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
 
   // predict::Projector::project
   const predict::Projector& c = a.proj;
-  const __m512 dx = _mm512_sub_ps(px, _mm512_set1_ps(c.position.x)), dy = _mm512_sub_ps(py, _mm512_set1_ps(c.position.y)),
+  const __m512 dx = _mm512_sub_ps(px, _mm512_set1_ps(c.position.x)),
+               dy = _mm512_sub_ps(py, _mm512_set1_ps(c.position.y)),
                dz = _mm512_sub_ps(pz, _mm512_set1_ps(c.position.z));
-  const __m512 z = dot16(dx, dy, dz, _mm512_set1_ps(c.forward.x), _mm512_set1_ps(c.forward.y), _mm512_set1_ps(c.forward.z));
+  const __m512 z =
+      dot16(dx, dy, dz, _mm512_set1_ps(c.forward.x), _mm512_set1_ps(c.forward.y), _mm512_set1_ps(c.forward.z));
   const __m512 inv_z = _mm512_div_ps(_mm512_set1_ps(1.0f), z);
   const __m512 dr = dot16(dx, dy, dz, _mm512_set1_ps(c.right.x), _mm512_set1_ps(c.right.y), _mm512_set1_ps(c.right.z));
   const __m512 du = dot16(dx, dy, dz, _mm512_set1_ps(c.up.x), _mm512_set1_ps(c.up.y), _mm512_set1_ps(c.up.z));
@@ -340,9 +352,9 @@ DHR_AVX512_TARGET uint32_t plan_x16(const PlanInputs& a, int y, int x, Plan16& o
   }
 
   const __mmask16 any = ok[0] | ok[1] | ok[2] | ok[3];
-  const __m512i kn = _mm512_or_epi32(
-      _mm512_maskz_mov_epi32(_mm512_cmp_ps_mask(ax, _mm512_set1_ps(0.5f), _CMP_GT_OQ), one),
-      _mm512_maskz_mov_epi32(_mm512_cmp_ps_mask(ay, _mm512_set1_ps(0.5f), _CMP_GT_OQ), two));
+  const __m512i kn =
+      _mm512_or_epi32(_mm512_maskz_mov_epi32(_mm512_cmp_ps_mask(ax, _mm512_set1_ps(0.5f), _CMP_GT_OQ), one),
+                      _mm512_maskz_mov_epi32(_mm512_cmp_ps_mask(ay, _mm512_set1_ps(0.5f), _CMP_GT_OQ), two));
   __mmask16 near_ok = 0;
   for (int k = 0; k < 4; ++k) near_ok |= ok[k] & _mm512_cmpeq_epi32_mask(kn, _mm512_set1_epi32(k));
   const __mmask16 resolved = m & (a.any_bilinear ? any : m) & (a.any_nearest ? near_ok : m);
@@ -431,7 +443,8 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
   const int planes = p.bitmask ? 1 : p.lay.planes;
   const size_t stride = p.bitmask ? 0 : p.lay.plane_stride;
   // The largest index read: tap 3 of any lane, in the last plane; a gather reads 4 bytes there.
-  const size_t last = size_t(_mm512_mask_reduce_max_epi32(__mmask16(resolved), j0)) + 1 + size_t(w) + size_t(planes - 1) * stride;
+  const size_t last =
+      size_t(_mm512_mask_reduce_max_epi32(__mmask16(resolved), j0)) + 1 + size_t(w) + size_t(planes - 1) * stride;
   if (last + 4 > p.in_bytes) return false;
   const __mmask16 m = __mmask16(resolved);
   const __m512i valid = _mm512_loadu_si512(plan.valid);
@@ -439,14 +452,15 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
   // motion), a tap's 16 bytes are consecutive: one load instead of a gather. The lanes a
   // gather would leave at 0 (not resolved, or the tap not valid) are not used either way.
   int32_t lane0 = 0;
-  const bool side_by_side = side_by_side16(j0, lane0) &&
-                            size_t(lane0) + 16 + size_t(tap_offset(3, w)) + size_t(planes - 1) * stride <= p.in_bytes;  // tap 3's last byte, last plane
+  const bool side_by_side =
+      side_by_side16(j0, lane0) && size_t(lane0) + 16 + size_t(tap_offset(3, w)) + size_t(planes - 1) * stride <=
+                                       p.in_bytes;  // tap 3's last byte, last plane
   const __m512i nearest = _mm512_loadu_si512(plan.nearest);
   const __m512i row = _mm512_loadu_si512(plan.window_row), col = _mm512_loadu_si512(plan.window_col);
   const __m512i one = _mm512_set1_epi32(1);
   const int first_nearest = plan.nearest[std::countr_zero(resolved) & 15];  // the first resolved lane's (resolved != 0)
-  const bool one_nearest = side_by_side && p.nearest &&
-                           _mm512_mask_cmpneq_epi32_mask(m, nearest, _mm512_set1_epi32(first_nearest)) == 0;
+  const bool one_nearest =
+      side_by_side && p.nearest && _mm512_mask_cmpneq_epi32_mask(m, nearest, _mm512_set1_epi32(first_nearest)) == 0;
   // A bilinear pass's taps: lanes and weights (the same for every plane).
   __mmask16 mk[4] = {};
   __m512 wk[4] = {};
@@ -481,7 +495,8 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
               _mm_loadu_si128(reinterpret_cast<const __m128i*>(in + size_t(lane0) + size_t(tap_offset(k, w)))));
       } else if (plan.window) {
         __m512i lo[3], hi[3];
-        for (int r = 0; r < (lower ? 3 : 2); ++r) load_bytes32(in + plan.window_first + size_t(r) * size_t(w), lo[r], hi[r]);
+        for (int r = 0; r < (lower ? 3 : 2); ++r)
+          load_bytes32(in + plan.window_first + size_t(r) * size_t(w), lo[r], hi[r]);
         for (int k = 0; k < 4; ++k) {
           const int r = k >> 1;
           const __m512i ck = (k & 1) ? col1 : col;
@@ -490,9 +505,9 @@ DHR_AVX512_TARGET bool write_x16(const PassIo& p, uint32_t resolved, const Plan1
         }
       } else {
         for (int k = 0; k < 4; ++k)
-          b[k] = _mm512_and_si512(
-              _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk[k], tap_index16(j0, _mm512_set1_epi32(k), w), in, 1),
-              byte);
+          b[k] = _mm512_and_si512(_mm512_mask_i32gather_epi32(_mm512_setzero_si512(), mk[k],
+                                                              tap_index16(j0, _mm512_set1_epi32(k), w), in, 1),
+                                  byte);
       }
       __m512 v = _mm512_setzero_ps();
       for (int k = 0; k < 4; ++k) v = _mm512_mask_add_ps(v, mk[k], v, _mm512_mul_ps(wk[k], _mm512_cvtepi32_ps(b[k])));
@@ -535,14 +550,16 @@ class Reprojection final : public Predictor {
       const PassBuffer& rb = *received[k];
       predict::check_buffer(kName, rb);
       if (rb.desc.layout() == PassLayout::Rgb8)
-        fail("predictor '{}' refuses a colour buffer: it reprojects the hybrid client's lighting passes "
-             "(visibility, soft_visibility, ao) through G-buffers; the remote-rendering baseline's colour "
-             "frame is warped by 'rotation_warp'",
-             kName);
+        fail(
+            "predictor '{}' refuses a colour buffer: it reprojects the hybrid client's lighting passes "
+            "(visibility, soft_visibility, ao) through G-buffers; the remote-rendering baseline's colour "
+            "frame is warped by 'rotation_warp'",
+            kName);
       if (rb.desc.width != src.width() || rb.desc.height != src.height() || src.width() != w || src.height() != h)
-        fail("predictor '{}': sizes differ: received buffer {}x{}, src G-buffer {}x{}, dst G-buffer {}x{} (all "
-             "three must agree)",
-             kName, rb.desc.width, rb.desc.height, src.width(), src.height(), w, h);
+        fail(
+            "predictor '{}': sizes differ: received buffer {}x{}, src G-buffer {}x{}, dst G-buffer {}x{} (all "
+            "three must agree)",
+            kName, rb.desc.width, rb.desc.height, src.width(), src.height(), w, h);
       PassBuffer& result = predict::output_buffer(rb, *out[k], temps[k], w, h);
       results.push_back(&result);
       PassIo p;
@@ -633,7 +650,8 @@ class Reprojection final : public Predictor {
         else
           std::memcpy(p.out + i * size_t(p.bpp), p.in + j * size_t(p.bpp), size_t(p.bpp));
       } else {
-        for (int c = 0; c < p.lay.planes; ++c) p.out[i + size_t(c) * p.lay.plane_stride] = p.in[j + size_t(c) * p.lay.plane_stride];
+        for (int c = 0; c < p.lay.planes; ++c)
+          p.out[i + size_t(c) * p.lay.plane_stride] = p.in[j + size_t(c) * p.lay.plane_stride];
       }
     };
 
@@ -767,8 +785,9 @@ class Reprojection final : public Predictor {
     // Where the CPU has AVX-512, 16 pixels at a time find their taps (plan_x16), and the pixels
     // it does not resolve take the scalar path above: the same taps, weights and bytes.
     const bool x16 = cpu_has_avx512dq() && !g_scalar_only.load(std::memory_order_relaxed);
-    const PlanInputs plan_in{sid, snrm, sgeo, spos, sdep, dst.object_id.data(), dst.position.data(),
-                             dst.normal.data(), w, h, proj, thr2_, tol, tol2, thr_nonneg, any_bilinear, any_nearest};
+    const PlanInputs plan_in{
+        sid, snrm, sgeo,  spos, sdep, dst.object_id.data(), dst.position.data(), dst.normal.data(), w,
+        h,   proj, thr2_, tol,  tol2, thr_nonneg,           any_bilinear,        any_nearest};
     // Whether write_lit_x16 can write the background lanes of every pass (no bitmask of more
     // than a byte per pixel); else they are left to write_lit.
     const bool lit_x16 = std::none_of(io.begin(), io.end(), [](const PassIo& p) { return p.bitmask && p.bpp != 1; });
@@ -839,8 +858,7 @@ PredictorEntry make_reprojection_predictor() {
            ParamSpec::real("depth_tolerance", 0.02, 0.0001, 1.0,
                            "a tap is valid when the dst surface point lies within tolerance x view depth of the "
                            "tap's surface plane"),
-           ParamSpec::real("normal_threshold", 0.9, -1.0, 1.0,
-                           "a tap is valid when dot(n_src, n_dst) >= threshold")},
+           ParamSpec::real("normal_threshold", 0.9, -1.0, 1.0, "a tap is valid when dot(n_src, n_dst) >= threshold")},
           [](const Params& p) {
             ReprojectionSettings s;
             s.bilinear = p.get_string("filter") == "bilinear";

@@ -43,9 +43,10 @@ class RotationWarp final : public Predictor {
     const PassBuffer& rb = in.received;
     predict::check_buffer(kName, rb);
     if (rb.desc.layout() == PassLayout::Bitmask)
-      fail("predictor '{}' refuses a visibility bitmask: it resamples bilinearly and bits cannot be "
-           "interpolated (valid: colour, ao, soft_visibility)",
-           kName);
+      fail(
+          "predictor '{}' refuses a visibility bitmask: it resamples bilinearly and bits cannot be "
+          "interpolated (valid: colour, ao, soft_visibility)",
+          kName);
     const Camera& cs = in.src.camera;
     const Camera& cd = in.dst.camera;
     predict::check_warp(kName, rb, cs, cd);

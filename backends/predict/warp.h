@@ -42,8 +42,7 @@ inline void check_camera(const char* predictor, const char* which, const Camera&
   const float lf = glm::dot(c.forward, c.forward), lu = glm::dot(c.up, c.up);
   if (!finite3(c.position) || !finite3(c.forward) || !finite3(c.up) || std::fabs(lf - 1.0f) > 1e-3f ||
       std::fabs(lu - 1.0f) > 1e-3f || std::fabs(glm::dot(c.forward, c.up)) > 1e-3f)
-    fail("predictor '{}': the {} camera's position/forward/up are not finite, unit and orthogonal", predictor,
-         which);
+    fail("predictor '{}': the {} camera's position/forward/up are not finite, unit and orthogonal", predictor, which);
   if (!(c.vfov_deg > 0.0f && c.vfov_deg < 180.0f))
     fail("predictor '{}': the {} camera's vfov_deg {} is out of range (0, 180)", predictor, which, c.vfov_deg);
   if (c.width <= 0 || c.height <= 0)
@@ -57,13 +56,13 @@ inline void check_buffer(const char* predictor, const PassBuffer& b) {
   if (std::string why = b.desc.validate(); !why.empty())
     fail("predictor '{}': invalid received {} buffer: {}", predictor, pass_kind_name(b.desc.kind), why);
   if (b.desc.layout() == PassLayout::Code16)
-    fail("predictor '{}' refuses a depth pass: it is read beside the colour frame (depth_warp's src.depth), never "
-         "predicted itself (valid: visibility, soft_visibility, ao, colour, as the predictor accepts)",
-         predictor);
+    fail(
+        "predictor '{}' refuses a depth pass: it is read beside the colour frame (depth_warp's src.depth), never "
+        "predicted itself (valid: visibility, soft_visibility, ao, colour, as the predictor accepts)",
+        predictor);
   if (b.bytes.size() != b.desc.byte_size())
     fail("predictor '{}': received {} buffer has {} bytes, {} expected for {}x{} with {} channels", predictor,
-         pass_kind_name(b.desc.kind), b.bytes.size(), b.desc.byte_size(), b.desc.width, b.desc.height,
-         b.desc.channels);
+         pass_kind_name(b.desc.kind), b.bytes.size(), b.desc.byte_size(), b.desc.width, b.desc.height, b.desc.channels);
 }
 
 // The checks of a warp of the remote client's colour frame (rotation_warp, depth_warp): both
@@ -97,8 +96,7 @@ struct Projector {
   float fx = 1.0f, fy = 1.0f;  // pixels per unit of (lateral offset / depth)
   float cx = 0.0f, cy = 0.0f;  // image centre in pixels
 
-  explicit Projector(const Camera& c)
-      : position(c.position), right(c.right()), up(c.up), forward(c.forward) {
+  explicit Projector(const Camera& c) : position(c.position), right(c.right()), up(c.up), forward(c.forward) {
     const float tan_half = std::tan(glm::radians(c.vfov_deg) * 0.5f);
     cx = 0.5f * float(c.width);
     cy = 0.5f * float(c.height);
@@ -135,9 +133,7 @@ inline Layout8 layout8(const PassDesc& d) {
 
 // The "nothing known, assume unshadowed" value of one pixel: every light's bit set (bitmask;
 // padding bits beyond `channels` stay 0) or full_scale (SoftVisibility, Ao).
-inline uint64_t fully_lit_bits(int channels) {
-  return channels >= 64 ? ~uint64_t(0) : (uint64_t(1) << channels) - 1;
-}
+inline uint64_t fully_lit_bits(int channels) { return channels >= 64 ? ~uint64_t(0) : (uint64_t(1) << channels) - 1; }
 
 inline uint8_t round_u8(float v) {
   const float r = v + 0.5f;

@@ -30,8 +30,8 @@ namespace dhr {
 // predictor) need it; the others ignore it.
 struct FrameContext {
   uint32_t frame = 0;
-  const GBuffer* gbuf = nullptr;                             // null: not available
-  std::function<const GBuffer*(uint32_t)> gbuffer_of;        // null or a null result: not kept
+  const GBuffer* gbuf = nullptr;                       // null: not available
+  std::function<const GBuffer*(uint32_t)> gbuffer_of;  // null or a null result: not kept
 };
 
 struct EncodeOptions {
@@ -71,8 +71,7 @@ class Codec {
   virtual void encode(const PassBuffer& in, const EncodeOptions& options, std::vector<uint8_t>& out) = 0;
   // Expected failures (corrupt or foreign bytes) return false with `error` set; `out` is then
   // unspecified. Never crashes, never returns true with wrong-sized output.
-  virtual bool decode(std::span<const uint8_t> in, const PassDesc& desc, PassBuffer& out,
-                      std::string& error) = 0;
+  virtual bool decode(std::span<const uint8_t> in, const PassDesc& desc, PassBuffer& out, std::string& error) = 0;
   // decode() with what the client knows about the frame; what the receivers call. Codecs that
   // use the context override this one.
   virtual bool decode_in_context(std::span<const uint8_t> in, const PassDesc& desc, const FrameContext& context,
@@ -97,10 +96,10 @@ class Codec {
 // ---- Denoiser: server-side filtering of a noisy 8-bit signal (AO counts, or one light's
 // soft visibility), guided by the server's G-buffer of the same frame.
 struct DenoiseInput {
-  const GBuffer& gbuf;      // the G-buffer the noisy values were traced for
-  const ImageU8& noisy;     // values 0..full_scale
-  int full_scale = 255;     // the value that means 1.0 (N rays for raw AO counts)
-  uint32_t frame = 0;       // server frame index
+  const GBuffer& gbuf;        // the G-buffer the noisy values were traced for
+  const ImageU8& noisy;       // values 0..full_scale
+  int full_scale = 255;       // the value that means 1.0 (N rays for raw AO counts)
+  uint32_t frame = 0;         // server frame index
   bool history_valid = true;  // false on a camera cut or after skipped/lost frames: reset history
 };
 
@@ -221,6 +220,5 @@ struct Registries {
   Registry<Denoiser> denoisers{"denoiser"};
   Registry<Predictor> predictors{"predictor"};
 };
-
 
 }  // namespace dhr

@@ -33,9 +33,10 @@ Isa capped(const std::string& cap) {
   if (cap.empty()) return cpu;
   for (size_t i = 0; i < kNames.size(); ++i)
     if (cap == kNames[i]) return std::min(cpu, Isa(i));
-  fail("{} = \"{}\": not an instruction set dhrbench knows (valid: sse2, sse4.2, avx, avx2, avx512; unset "
-       "for the best this CPU has)",
-       kCapVariable, cap);
+  fail(
+      "{} = \"{}\": not an instruction set dhrbench knows (valid: sse2, sse4.2, avx, avx2, avx512; unset "
+      "for the best this CPU has)",
+      kCapVariable, cap);
 }
 
 std::string cap_now() {

@@ -81,8 +81,7 @@ std::string check_value(const ParamSpec& spec, const nlohmann::json& v) {
       if (!std::isfinite(x) || x < spec.min || x > spec.max) return "is out of range";
       return {};
     }
-    case ParamType::Bool:
-      return v.is_boolean() ? std::string{} : std::string("must be true or false");
+    case ParamType::Bool: return v.is_boolean() ? std::string{} : std::string("must be true or false");
     case ParamType::String: {
       if (!v.is_string()) return "must be a string";
       if (spec.choices.empty()) return {};
@@ -116,8 +115,8 @@ Params::Params(const std::string& owner, const std::vector<ParamSpec>& specs, co
       }
       const std::string why = check_value(*spec, value);
       if (!why.empty()) {
-        problems.push_back(fmt::format("parameter '{}' = {} {} (valid: {})", key, json_excerpt(value), why,
-                                       spec->range_text()));
+        problems.push_back(
+            fmt::format("parameter '{}' = {} {} (valid: {})", key, json_excerpt(value), why, spec->range_text()));
       }
     }
   }

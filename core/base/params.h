@@ -14,10 +14,10 @@ namespace dhr {
 enum class ParamType { Int, Float, Bool, String };
 
 struct ParamSpec {
-  std::string name;         // with units where there are any: latency_ms, radius_m
+  std::string name;  // with units where there are any: latency_ms, radius_m
   ParamType type = ParamType::Int;
   nlohmann::json default_value;
-  double min = 0.0;         // Int and Float: inclusive range
+  double min = 0.0;  // Int and Float: inclusive range
   double max = 0.0;
   std::vector<std::string> choices;  // String: the valid values (empty: any string)
   std::string description;
@@ -25,8 +25,7 @@ struct ParamSpec {
   static ParamSpec integer(std::string name, int def, int min, int max, std::string description);
   static ParamSpec real(std::string name, double def, double min, double max, std::string description);
   static ParamSpec boolean(std::string name, bool def, std::string description);
-  static ParamSpec choice(std::string name, std::string def, std::vector<std::string> choices,
-                          std::string description);
+  static ParamSpec choice(std::string name, std::string def, std::vector<std::string> choices, std::string description);
   std::string range_text() const;  // "1..255", "one of: fast, hc", "true or false"
 };
 

@@ -76,8 +76,8 @@ DHR_AVX512_TARGET inline __m512d pow8(__m512d x, __m512d y, __mmask8 ok, __mmask
   // kernel's 2^-46 (1 + |t|), rounded up together to (2.6 |t| + 1.7) 2^-33 + 2^-46 (1 + |t|).
   const __m512d abs_mask = _mm512_castsi512_pd(_mm512_set1_epi64(0x7fffffffffffffffLL));
   const __m512d abs_t = _mm512_and_pd(t, abs_mask);
-  const __m512d rel = _mm512_fmadd_pd(abs_t, _mm512_set1_pd(2.6 * 0x1p-33 + 0x1p-46),
-                                      _mm512_set1_pd(1.7 * 0x1p-33 + 0x1p-46));
+  const __m512d rel =
+      _mm512_fmadd_pd(abs_t, _mm512_set1_pd(2.6 * 0x1p-33 + 0x1p-46), _mm512_set1_pd(1.7 * 0x1p-33 + 0x1p-46));
   __mmask8 good = ok & _mm512_cmp_pd_mask(abs_t, _mm512_set1_pd(120.0), _CMP_LT_OQ);
   good &= _mm512_cmp_pd_mask(margin, _mm512_mul_pd(r, rel), _CMP_GT_OQ);
   certain = good;
@@ -91,15 +91,14 @@ DHR_AVX512_TARGET inline __m512 pow16(__m512 xf, __m512 yf, __mmask16& rest) {
                              _mm512_cmp_ps_mask(xf, _mm512_set1_ps(INFINITY), _CMP_LT_OQ);
   const __m512 abs_y = _mm512_abs_ps(yf);
   const __mmask16 y_finite = _mm512_cmp_ps_mask(abs_y, _mm512_set1_ps(INFINITY), _CMP_LT_OQ);
-  const __mmask16 x_pos_zero =
-      _mm512_cmpeq_epi32_mask(_mm512_castps_si512(xf), _mm512_setzero_si512()) &
-      _mm512_cmp_ps_mask(yf, _mm512_setzero_ps(), _CMP_GT_OQ);
+  const __mmask16 x_pos_zero = _mm512_cmpeq_epi32_mask(_mm512_castps_si512(xf), _mm512_setzero_si512()) &
+                               _mm512_cmp_ps_mask(yf, _mm512_setzero_ps(), _CMP_GT_OQ);
   const __mmask16 ok = x_normal & y_finite;
   __mmask8 c_lo, c_hi;
   const __m512d r_lo = pow8(_mm512_cvtps_pd(_mm512_castps512_ps256(xf)), _mm512_cvtps_pd(_mm512_castps512_ps256(yf)),
                             __mmask8(ok), c_lo);
-  const __m512d r_hi = pow8(_mm512_cvtps_pd(_mm512_extractf32x8_ps(xf, 1)), _mm512_cvtps_pd(_mm512_extractf32x8_ps(yf, 1)),
-                            __mmask8(ok >> 8), c_hi);
+  const __m512d r_hi = pow8(_mm512_cvtps_pd(_mm512_extractf32x8_ps(xf, 1)),
+                            _mm512_cvtps_pd(_mm512_extractf32x8_ps(yf, 1)), __mmask8(ok >> 8), c_hi);
   const __m512 r = _mm512_insertf32x8(_mm512_castps256_ps512(_mm512_cvtpd_ps(r_lo)), _mm512_cvtpd_ps(r_hi), 1);
   const __mmask16 fast = __mmask16(c_lo | (unsigned(c_hi) << 8));
   rest = __mmask16(~(fast | x_pos_zero));

@@ -23,14 +23,14 @@ StreamDump::StreamDump(const std::string& path, const std::string& format, int w
   if (!ivf_) return;
   std::array<char, 32> h{};
   h[0] = 'D', h[1] = 'K', h[2] = 'I', h[3] = 'F';
-  put_le(h, 4, 0, 2);    // version
-  put_le(h, 6, 32, 2);   // header size
+  put_le(h, 4, 0, 2);   // version
+  put_le(h, 6, 32, 2);  // header size
   h[8] = 'A', h[9] = 'V', h[10] = '0', h[11] = '1';
   put_le(h, 12, uint64_t(width), 2);
   put_le(h, 14, uint64_t(height), 2);
   put_le(h, 16, uint64_t(fps), 4);  // time base: fps / 1, one tick per frame
   put_le(h, 20, 1, 4);
-  put_le(h, 24, 0, 4);   // frame count: readers do not need it
+  put_le(h, 24, 0, 4);  // frame count: readers do not need it
   out_.write(h.data(), h.size());
   if (!out_) fail("stream dump: cannot write {}", path);
 }

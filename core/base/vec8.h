@@ -27,8 +27,8 @@ namespace dhr {
 
 typedef float Vec8 __attribute__((vector_size(32)));
 typedef int32_t Mask8 __attribute__((vector_size(32)));  // a comparison's lanes: -1 true, 0 false
-typedef double Vec4d __attribute__((vector_size(32)));  // four doubles
-typedef float Vec4f __attribute__((vector_size(16)));   // four floats, to convert to Vec4d
+typedef double Vec4d __attribute__((vector_size(32)));   // four doubles
+typedef float Vec4f __attribute__((vector_size(16)));    // four floats, to convert to Vec4d
 
 inline Vec8 load8(const float* p) {
   Vec8 v;

@@ -188,12 +188,11 @@ size_t coded_size(const PassDesc& desc, VisibilityLayout layout) {
   return needs_layout_conversion(desc, layout) ? visibility_planes_size(desc) : desc.byte_size();
 }
 
-std::span<const uint8_t> to_coded_layout(const PassBuffer& in, VisibilityLayout layout,
-                                         std::vector<uint8_t>& scratch) {
+std::span<const uint8_t> to_coded_layout(const PassBuffer& in, VisibilityLayout layout, std::vector<uint8_t>& scratch) {
   if (std::string why = in.desc.validate(); !why.empty()) fail("invalid buffer description: {}", why);
   if (in.bytes.size() != in.desc.byte_size())
-    fail("a {}x{} {} buffer holds {} bytes, {} expected", in.desc.width, in.desc.height,
-         pass_kind_name(in.desc.kind), in.bytes.size(), in.desc.byte_size());
+    fail("a {}x{} {} buffer holds {} bytes, {} expected", in.desc.width, in.desc.height, pass_kind_name(in.desc.kind),
+         in.bytes.size(), in.desc.byte_size());
   if (!needs_layout_conversion(in.desc, layout)) return in.bytes;
   scratch.resize(visibility_planes_size(in.desc));
   visibility_to_planes(in.desc, in.bytes, scratch);

@@ -57,8 +57,7 @@ VisibilityLayout parse_visibility_layout(const std::string& name);
 size_t coded_size(const PassDesc& desc, VisibilityLayout layout);
 // The bytes to compress for `in`: its own bytes, or (Visibility in planes) its planes written
 // into `scratch`. Throws dhr::Error when the buffer does not match its description.
-std::span<const uint8_t> to_coded_layout(const PassBuffer& in, VisibilityLayout layout,
-                                         std::vector<uint8_t>& scratch);
+std::span<const uint8_t> to_coded_layout(const PassBuffer& in, VisibilityLayout layout, std::vector<uint8_t>& scratch);
 // True when decompressed bytes must go through `scratch` (planes) rather than straight into
 // the output buffer.
 bool needs_layout_conversion(const PassDesc& desc, VisibilityLayout layout);

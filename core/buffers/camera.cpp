@@ -12,8 +12,8 @@ namespace {
 bool finite(const glm::vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 }  // namespace
 
-Camera Camera::look_at(const glm::vec3& position, const glm::vec3& target, const glm::vec3& up,
-                       float vfov_deg, int width, int height, float near_m, float far_m) {
+Camera Camera::look_at(const glm::vec3& position, const glm::vec3& target, const glm::vec3& up, float vfov_deg,
+                       int width, int height, float near_m, float far_m) {
   if (!finite(position) || !finite(target) || !finite(up)) fail("camera: position, target and up must be finite");
   if (!(vfov_deg > 0.0f && vfov_deg < 180.0f)) fail("camera: vfov_deg {} is out of range (0, 180)", vfov_deg);
   if (!(near_m > 0.0f && far_m > near_m && std::isfinite(far_m)))
@@ -41,9 +41,7 @@ Camera Camera::look_at(const glm::vec3& position, const glm::vec3& target, const
 
 glm::mat4 Camera::view() const { return glm::lookAt(position, position + forward, up); }
 
-glm::mat4 Camera::projection() const {
-  return glm::perspective(glm::radians(vfov_deg), aspect(), near_m, far_m);
-}
+glm::mat4 Camera::projection() const { return glm::perspective(glm::radians(vfov_deg), aspect(), near_m, far_m); }
 
 Ray Camera::primary_ray(float px, float py) const {
   const float tan_half = std::tan(glm::radians(vfov_deg) * 0.5f);

@@ -24,8 +24,8 @@ struct Camera {
 
   // Throws dhr::Error when position is not finite, target equals position, fov is outside
   // (0, 180), or near/far are not 0 < near < far.
-  static Camera look_at(const glm::vec3& position, const glm::vec3& target, const glm::vec3& up,
-                        float vfov_deg, int width, int height, float near_m, float far_m);
+  static Camera look_at(const glm::vec3& position, const glm::vec3& target, const glm::vec3& up, float vfov_deg,
+                        int width, int height, float near_m, float far_m);
 
   glm::vec3 right() const { return glm::normalize(glm::cross(forward, up)); }
   float aspect() const { return float(width) / float(height); }

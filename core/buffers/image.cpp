@@ -12,8 +12,8 @@ namespace dhr {
 void check_image_size(int width, int height) {
   if (width < 0 || height < 0 || width > kMaxImageSide || height > kMaxImageSide ||
       int64_t(width) * int64_t(height) > kMaxImagePixels) {
-    fail("image size {}x{} is out of range: each side must be 0..{} and the area at most {} pixels",
-         width, height, kMaxImageSide, kMaxImagePixels);
+    fail("image size {}x{} is out of range: each side must be 0..{} and the area at most {} pixels", width, height,
+         kMaxImageSide, kMaxImagePixels);
   }
 }
 

@@ -113,7 +113,9 @@ class Image {
   bool empty() const { return pixels_.empty(); }
   bool same_size(int w, int h) const { return width_ == w && height_ == h; }
   template <class U>
-  bool same_size(const Image<U>& other) const { return same_size(other.width(), other.height()); }
+  bool same_size(const Image<U>& other) const {
+    return same_size(other.width(), other.height());
+  }
 
   T* data() { return pixels_.data(); }
   const T* data() const { return pixels_.data(); }
@@ -157,9 +159,7 @@ class BitImage {
   int width() const { return width_; }
   int height() const { return height_; }
   int words_per_row() const { return words_per_row_; }
-  bool get(int x, int y) const {
-    return (words_[size_t(y) * words_per_row_ + (x >> 6)] >> (x & 63)) & 1u;
-  }
+  bool get(int x, int y) const { return (words_[size_t(y) * words_per_row_ + (x >> 6)] >> (x & 63)) & 1u; }
   void set(int x, int y, bool value) {
     uint64_t& w = words_[size_t(y) * words_per_row_ + (x >> 6)];
     const uint64_t bit = uint64_t(1) << (x & 63);

@@ -43,14 +43,17 @@ std::string png_damage(const uint8_t* b, size_t size) {
     }
     return t;
   }();
-  auto be32 = [&](size_t at) { return uint32_t(b[at]) << 24 | uint32_t(b[at + 1]) << 16 | uint32_t(b[at + 2]) << 8 | b[at + 3]; };
+  auto be32 = [&](size_t at) {
+    return uint32_t(b[at]) << 24 | uint32_t(b[at + 1]) << 16 | uint32_t(b[at + 2]) << 8 | b[at + 3];
+  };
   size_t at = 8;
   while (at + 12 <= size) {
     const uint64_t length = be32(at);
     if (length > size - at - 12) return fmt::format("a chunk at byte {} runs past the end of the file", at);
     uint32_t crc = 0xffffffffu;
     for (size_t i = at + 4; i < at + 8 + length; ++i) crc = table[(crc ^ b[i]) & 0xff] ^ (crc >> 8);
-    if ((crc ^ 0xffffffffu) != be32(at + 8 + size_t(length))) return fmt::format("the CRC of the chunk at byte {} does not match", at);
+    if ((crc ^ 0xffffffffu) != be32(at + 8 + size_t(length)))
+      return fmt::format("the CRC of the chunk at byte {} does not match", at);
     const bool end = b[at + 4] == 'I' && b[at + 5] == 'E' && b[at + 6] == 'N' && b[at + 7] == 'D';
     at += 12 + size_t(length);
     if (end) return "";
@@ -59,8 +62,7 @@ std::string png_damage(const uint8_t* b, size_t size) {
 }
 
 template <class T>
-void write_image(const std::string& path, int width, int height, int channels, OIIO::TypeDesc type,
-                 const T* data) {
+void write_image(const std::string& path, int width, int height, int channels, OIIO::TypeDesc type, const T* data) {
   if (width <= 0 || height <= 0) fail("{}: cannot write an empty {}x{} image", path, width, height);
   const auto parent = std::filesystem::path(path).parent_path();
   if (!parent.empty()) {
@@ -115,13 +117,15 @@ Rgba8Image decode_rgba8(const std::string& path, const std::string& open_name, O
   if (!in) fail("{}: cannot read image: {}", path, OIIO::geterror());
   const OIIO::ImageSpec& spec = in->spec();
   if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth != 1)
-    fail("{}: unsupported image shape {}x{}x{} with {} channels", path, spec.width, spec.height,
-         spec.depth, spec.nchannels);
+    fail("{}: unsupported image shape {}x{}x{} with {} channels", path, spec.width, spec.height, spec.depth,
+         spec.nchannels);
   check_image_size(spec.width, spec.height);
   const int nc = spec.nchannels;
   if (nc > 64) fail("{}: {} channels (at most 64 are read: colour, alpha and a few more)", path, nc);
   const size_t n = size_t(spec.width) * spec.height;
-  const int alpha = spec.alpha_channel >= 0 && spec.alpha_channel < nc ? spec.alpha_channel : nc == 4 || nc == 2 ? nc - 1 : -1;
+  const int alpha = spec.alpha_channel >= 0 && spec.alpha_channel < nc ? spec.alpha_channel
+                    : nc == 4 || nc == 2                               ? nc - 1
+                                                                       : -1;
   Rgba8Image img;
   img.width = spec.width;
   img.height = spec.height;

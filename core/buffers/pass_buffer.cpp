@@ -20,8 +20,8 @@ const std::vector<PassKindInfo>& pass_kinds() {
        "full_scale {} out of range 1..255"},
       {PassKind::Colour, "colour", PassLayout::Rgb8, PassMeaning::Colour, 3, 3, "colour has 3 channels, not {}", 1, 0,
        ""},
-      {PassKind::Depth, "depth", PassLayout::Code16, PassMeaning::Depth, 2, 2, "depth has 2 byte planes, not {}", 8,
-       16, "depth code of {} bits out of range 8..16"},
+      {PassKind::Depth, "depth", PassLayout::Code16, PassMeaning::Depth, 2, 2, "depth has 2 byte planes, not {}", 8, 16,
+       "depth code of {} bits out of range 8..16"},
   };
   return kinds;
 }
@@ -76,7 +76,8 @@ std::string PassDesc::validate() const {
     return fmt::format("size {}x{} out of range (each side 0..{})", width, height, kMaxImageSide);
   const PassKindInfo* k = find_pass_kind(uint8_t(kind));
   if (!k) return "unknown pass kind";
-  if (channels < k->min_channels || channels > k->max_channels) return fmt::format(fmt::runtime(k->channels_error), channels);
+  if (channels < k->min_channels || channels > k->max_channels)
+    return fmt::format(fmt::runtime(k->channels_error), channels);
   if (k->min_full_scale <= k->max_full_scale && (full_scale < k->min_full_scale || full_scale > k->max_full_scale))
     return fmt::format(fmt::runtime(k->full_scale_error), full_scale);
   return {};

@@ -42,7 +42,8 @@ GBuffer downsample_gbuffer(const GBuffer& full, int scale) {
       g.bary(x, y) = full.bary(sx, sy);
       // Low-res coordinates put sample (x, y) at its pixel centre: full = (u - 0.5) s + s/2 + 0.5.
       const glm::vec2 m = full.motion(sx, sy);
-      g.motion(x, y) = {(float(sx - x * scale - scale / 2) + m.x) * inv, (float(sy - y * scale - scale / 2) + m.y) * inv};
+      g.motion(x, y) = {(float(sx - x * scale - scale / 2) + m.x) * inv,
+                        (float(sy - y * scale - scale / 2) + m.y) * inv};
     }
   }
   return g;
@@ -104,7 +105,8 @@ PassBuffer upsample_pass(const PassBuffer& low, const GBuffer& full, int scale, 
   if (scale < 1 || scale > kMaxPassScale) fail("upsample_pass: scale {} out of range 1..{}", scale, kMaxPassScale);
   const int w = reduced_size(fw, scale), h = reduced_size(fh, scale);
   if (low.desc.layout() != PassLayout::Planes8)
-    fail("upsample_pass: a {} pass; only 8-bit planes (AO, soft visibility) are upsampled", pass_kind_name(low.desc.kind));
+    fail("upsample_pass: a {} pass; only 8-bit planes (AO, soft visibility) are upsampled",
+         pass_kind_name(low.desc.kind));
   if (low.desc.width != w || low.desc.height != h || low.bytes.size() != low.desc.byte_size())
     fail("upsample_pass: a {}x{} pass of {} bytes, {}x{} expected for {}x{} at 1/{}", low.desc.width, low.desc.height,
          low.bytes.size(), w, h, fw, fh, scale);
@@ -129,7 +131,8 @@ PassBuffer upsample_pass(const PassBuffer& low, const GBuffer& full, int scale, 
         if (filter == UpsampleFilter::Nearest || !full.covered(x, y)) {  // the sample of its own block
           const int nx = std::min(x / scale, w - 1), ny = std::min(y / scale, h - 1);
           for (int c = 0; c < channels; ++c)
-            out.bytes[size_t(c) * full_plane + o] = low.bytes[size_t(c) * low_plane + size_t(ny) * size_t(w) + size_t(nx)];
+            out.bytes[size_t(c) * full_plane + o] =
+                low.bytes[size_t(c) * low_plane + size_t(ny) * size_t(w) + size_t(nx)];
           continue;
         }
         const Span sx = span_of(x, scale, w);
@@ -142,7 +145,8 @@ PassBuffer upsample_pass(const PassBuffer& low, const GBuffer& full, int scale, 
           int best = 0;
           for (int k = 0; k < 4; ++k) {
             const int gx = sample_of(qx[k], scale, fw), gy = sample_of(qy[k], scale, fh);
-            match[k] = full.covered(gx, gy) ? surface_match(pp, np, full.position(gx, gy), full.normal(gx, gy), sigma) : 0.0f;
+            match[k] =
+                full.covered(gx, gy) ? surface_match(pp, np, full.position(gx, gy), full.normal(gx, gy), sigma) : 0.0f;
             wt[k] *= match[k];
             sum += wt[k];
             if (match[k] > match[best]) best = k;

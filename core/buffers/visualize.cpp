@@ -75,12 +75,30 @@ ImageRGB8 visualize_motion(const ImageVec2& motion, float max_px) {
     const int sector = int(hue) % 6;
     float r = 0, g = 0, b = 0;
     switch (sector) {
-      case 0: r = 1; g = f; break;
-      case 1: r = 1 - f; g = 1; break;
-      case 2: g = 1; b = f; break;
-      case 3: g = 1 - f; b = 1; break;
-      case 4: r = f; b = 1; break;
-      default: r = 1; b = 1 - f; break;
+      case 0:
+        r = 1;
+        g = f;
+        break;
+      case 1:
+        r = 1 - f;
+        g = 1;
+        break;
+      case 2:
+        g = 1;
+        b = f;
+        break;
+      case 3:
+        g = 1 - f;
+        b = 1;
+        break;
+      case 4:
+        r = f;
+        b = 1;
+        break;
+      default:
+        r = 1;
+        b = 1 - f;
+        break;
     }
     out[i] = {uint8_t(r * v * 255), uint8_t(g * v * 255), uint8_t(b * v * 255)};
   }

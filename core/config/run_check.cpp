@@ -27,9 +27,7 @@ std::string warmup_problem(const SimConfig& c) {
     switch (l.latency_model) {
       case LinkConfig::Latency::Constant: return l.latency_ms;
       case LinkConfig::Latency::Normal: return std::max(l.latency_floor_ms, l.latency_ms + 3.0 * l.jitter_ms);
-      case LinkConfig::Latency::Trace:
-        try {
-          return load_latency_trace(l.trace_file).at(t_ms + l.trace_offset_ms);
+      case LinkConfig::Latency::Trace: try { return load_latency_trace(l.trace_file).at(t_ms + l.trace_offset_ms);
         } catch (const Error&) {
           return 0.0;  // validate_sim_config reports the trace
         }
@@ -44,10 +42,11 @@ std::string warmup_problem(const SimConfig& c) {
   const double warmup_ms = c.warmup_frames * interval_ms;
   if (c.score_startup || warmup_ms + 1e-9 >= first_ms) return {};
   const int need = int(std::ceil(first_ms / interval_ms - 1e-9));
-  return fmt::format("warmup_frames {} ({:.1f} ms) ends before the first server frame can arrive ({:.1f} ms: uplink {:.1f} + "
-                     "server {:.1f} + downlink {:.1f} ms), so the first scored frames would show no server data; "
-                     "use warmup_frames >= {} (or score_startup true to measure the startup)",
-                     c.warmup_frames, warmup_ms, first_ms, up_ms, server_ms, down_ms, need);
+  return fmt::format(
+      "warmup_frames {} ({:.1f} ms) ends before the first server frame can arrive ({:.1f} ms: uplink {:.1f} + "
+      "server {:.1f} + downlink {:.1f} ms), so the first scored frames would show no server data; "
+      "use warmup_frames >= {} (or score_startup true to measure the startup)",
+      c.warmup_frames, warmup_ms, first_ms, up_ms, server_ms, down_ms, need);
 }
 
 void validate_sim_config(const SimConfig& c, const Scene& scene, const Registries& r) {
@@ -85,9 +84,12 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
     if (s.type != SettingType::Backend) continue;
     const nlohmann::json v = s.get(c);
     const BackendChoice b{v.at("name").get<std::string>(), v.at("params")};
-    if (s.kind == "codec") backend(r.codecs, b, s.key.c_str());
-    else if (s.kind == "denoiser") backend(r.denoisers, b, s.key.c_str());
-    else backend(r.predictors, b, s.key.c_str());
+    if (s.kind == "codec")
+      backend(r.codecs, b, s.key.c_str());
+    else if (s.kind == "denoiser")
+      backend(r.denoisers, b, s.key.c_str());
+    else
+      backend(r.predictors, b, s.key.c_str());
   }
   if (problems.empty()) {
     // A lossy codec must not be asked to carry a bitmask.
@@ -103,9 +105,10 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
       sent += fmt::format("{}passes.{}.codec '{}'", sent.empty() ? "" : ", ", p.name, codec.name);
     }
     if (c.stream_kbps > 0.0 && !budgeted)
-      problems.push_back(fmt::format("stream_kbps {}: no pass's codec takes a target bitrate ({}); give one pass "
-                                     "h264 with rate_control bitrate",
-                                     c.stream_kbps, sent));
+      problems.push_back(
+          fmt::format("stream_kbps {}: no pass's codec takes a target bitrate ({}); give one pass "
+                      "h264 with rate_control bitrate",
+                      c.stream_kbps, sent));
   }
   if (!problems.empty()) {
     std::string msg = problems.front();

@@ -93,70 +93,106 @@ RunSetting of_pass(RunSetting s, std::string pass) {
 std::vector<RunSetting> make_settings() {
   constexpr unsigned kTraced = kInLiveOffer | kInTraceKey;
   std::vector<RunSetting> v;
-  RunSetting mode = field("mode", SettingType::Choice, "hybrid: the server streams passes; remote: one colour frame (the baseline)",
-                          [](auto& c) -> auto& { return c.mode; });
+  RunSetting mode = field(
+      "mode", SettingType::Choice, "hybrid: the server streams passes; remote: one colour frame (the baseline)",
+      [](auto& c) -> auto& { return c.mode; });
   mode.choices = {"hybrid", "remote"};
   v.push_back(mode);
-  v.push_back(with(ranged("width", SettingType::Integer, 8, 7680, "image width in pixels", [](auto& c) -> auto& { return c.width; }),
+  v.push_back(with(
+      ranged(
+          "width", SettingType::Integer, 8, 7680, "image width in pixels", [](auto& c) -> auto& { return c.width; }),
+      kTraced | kInTruthKey));
+  v.push_back(with(
+      ranged(
+          "height", SettingType::Integer, 8, 4320, "image height in pixels", [](auto& c) -> auto& { return c.height; }),
+      kTraced | kInTruthKey));
+  v.push_back(ranged(
+      "frames", SettingType::Integer, 1, 100000, "displayed and scored frames",
+      [](auto& c) -> auto& { return c.frames; }));
+  v.push_back(
+      with(ranged(
+               "warmup_frames", SettingType::Integer, 0, 100000, "frames run before them, not scored, not counted",
+               [](auto& c) -> auto& { return c.warmup_frames; }),
+           0, "the client runs --frames frames in real time"));
+  v.push_back(field(
+      "score_startup", SettingType::Boolean,
+      "score frames shown before the first server frame can arrive (a startup study); false: an experiment "
+      "refuses a warmup_frames that ends before then",
+      [](auto& c) -> auto& { return c.score_startup; }));
+  v.push_back(with(ranged(
+                       "display_hz", SettingType::Number, 1, 1000, "the client's display rate (virtual clock)",
+                       [](auto& c) -> auto& { return c.display_hz; }),
                    kTraced | kInTruthKey));
-  v.push_back(with(ranged("height", SettingType::Integer, 8, 4320, "image height in pixels", [](auto& c) -> auto& { return c.height; }),
+  v.push_back(with(ranged(
+                       "start_time_s", SettingType::Number, 0, 1e6, "scene time of the first (warm-up) frame",
+                       [](auto& c) -> auto& { return c.start_time_s; }),
                    kTraced | kInTruthKey));
-  v.push_back(ranged("frames", SettingType::Integer, 1, 100000, "displayed and scored frames",
-                     [](auto& c) -> auto& { return c.frames; }));
-  v.push_back(with(ranged("warmup_frames", SettingType::Integer, 0, 100000, "frames run before them, not scored, not counted",
-                          [](auto& c) -> auto& { return c.warmup_frames; }),
-                   0, "the client runs --frames frames in real time"));
-  v.push_back(field("score_startup", SettingType::Boolean,
-                    "score frames shown before the first server frame can arrive (a startup study); false: an experiment "
-                    "refuses a warmup_frames that ends before then",
-                    [](auto& c) -> auto& { return c.score_startup; }));
-  v.push_back(with(ranged("display_hz", SettingType::Number, 1, 1000, "the client's display rate (virtual clock)",
-                          [](auto& c) -> auto& { return c.display_hz; }),
+  v.push_back(with(ranged(
+                       "camera_speed", SettingType::Number, 0.1, 10,
+                       "the camera path's speed against the scene clock (2: the same path twice as fast; moving "
+                       "objects keep the scene's clock)",
+                       [](auto& c) -> auto& { return c.camera_speed; }),
                    kTraced | kInTruthKey));
-  v.push_back(with(ranged("start_time_s", SettingType::Number, 0, 1e6, "scene time of the first (warm-up) frame",
-                          [](auto& c) -> auto& { return c.start_time_s; }),
+  v.push_back(with(ranged(
+                       "seed", SettingType::Integer, 0, 9.007e15, "seed of every random number (tracing, network)",
+                       [](auto& c) -> auto& { return c.seed; }),
                    kTraced | kInTruthKey));
-  v.push_back(with(ranged("camera_speed", SettingType::Number, 0.1, 10,
-                          "the camera path's speed against the scene clock (2: the same path twice as fast; moving "
-                          "objects keep the scene's clock)",
-                          [](auto& c) -> auto& { return c.camera_speed; }),
-                   kTraced | kInTruthKey));
-  v.push_back(with(ranged("seed", SettingType::Integer, 0, 9.007e15, "seed of every random number (tracing, network)",
-                          [](auto& c) -> auto& { return c.seed; }),
-                   kTraced | kInTruthKey));
-  v.push_back(of_pass(with(ranged("trace.ao_rays", SettingType::Integer, 0, 255, "AO rays per pixel; 0: the scene's ao.rays",
-                                  [](auto& c) -> auto& { return c.trace.ao_rays; }),
-                           kTraced), "ao"));
-  v.push_back(of_pass(with(ranged("trace.ao_radius_m", SettingType::Number, 0, 1e6, "AO ray length in metres; 0: the scene's ao.radius_m",
-                                  [](auto& c) -> auto& { return c.trace.ao_radius_m; }),
-                           kTraced), "ao"));
-  v.push_back(of_pass(with(field("trace.soft_shadows", SettingType::Boolean, "area lights give soft shadows (else hard, one ray per light)",
-                                 [](auto& c) -> auto& { return c.trace.soft_shadows; }),
-                           kTraced), "visibility"));
-  v.push_back(of_pass(with(ranged("trace.samples_per_light", SettingType::Integer, 1, 1024,
-                                  "shadow rays per area light and pixel (1: a bitmask, more: 8-bit soft visibility)",
-                                  [](auto& c) -> auto& { return c.trace.samples_per_light; }),
-                           kTraced), "visibility"));
-  v.push_back(of_pass(with(field("trace.visibility_fraction", SettingType::Boolean,
-                                 "send the visibility pass as 8 bits per light even with one ray per light (for a "
-                                 "denoiser and lossy video codecs); false: a bitmask, 1 bit per light (the paper's)",
-                                 [](auto& c) -> auto& { return c.trace.visibility_fraction; }),
-                           kTraced), "visibility"));
-  v.push_back(of_pass(with(field("trace.visibility_pass", SettingType::Boolean, "trace the visibility pass (when the scene has lights)",
-                                 [](auto& c) -> auto& { return c.trace.visibility_pass; }),
-                           kTraced), "visibility"));
-  v.push_back(of_pass(with(field("trace.ao_pass", SettingType::Boolean, "trace the AO pass (when the scene has an ao block)",
-                                 [](auto& c) -> auto& { return c.trace.ao_pass; }),
-                           kTraced), "ao"));
-  v.push_back(of_pass(with(ranged("trace.ao_scale", SettingType::Integer, 1, kMaxPassScale,
-                                  "the AO pass traced, denoised and sent at 1/ao_scale of the width and height, upsampled by "
-                                  "the client (ao_upsample)",
-                                  [](auto& c) -> auto& { return c.trace.ao_scale; }),
-                           kTraced), "ao"));
-  RunSetting upsample = field("ao_upsample", SettingType::Choice,
-                              "trace.ao_scale > 1: the client's upsampling of the AO pass: joint_bilateral (guided by its "
-                              "G-buffer's depth and normals), bilinear or nearest",
-                              [](auto& c) -> auto& { return c.ao_upsample; });
+  v.push_back(
+      of_pass(with(ranged(
+                       "trace.ao_rays", SettingType::Integer, 0, 255, "AO rays per pixel; 0: the scene's ao.rays",
+                       [](auto& c) -> auto& { return c.trace.ao_rays; }),
+                   kTraced),
+              "ao"));
+  v.push_back(of_pass(
+      with(ranged(
+               "trace.ao_radius_m", SettingType::Number, 0, 1e6, "AO ray length in metres; 0: the scene's ao.radius_m",
+               [](auto& c) -> auto& { return c.trace.ao_radius_m; }),
+           kTraced),
+      "ao"));
+  v.push_back(of_pass(with(field(
+                               "trace.soft_shadows", SettingType::Boolean,
+                               "area lights give soft shadows (else hard, one ray per light)",
+                               [](auto& c) -> auto& { return c.trace.soft_shadows; }),
+                           kTraced),
+                      "visibility"));
+  v.push_back(of_pass(with(ranged(
+                               "trace.samples_per_light", SettingType::Integer, 1, 1024,
+                               "shadow rays per area light and pixel (1: a bitmask, more: 8-bit soft visibility)",
+                               [](auto& c) -> auto& { return c.trace.samples_per_light; }),
+                           kTraced),
+                      "visibility"));
+  v.push_back(of_pass(with(field(
+                               "trace.visibility_fraction", SettingType::Boolean,
+                               "send the visibility pass as 8 bits per light even with one ray per light (for a "
+                               "denoiser and lossy video codecs); false: a bitmask, 1 bit per light (the paper's)",
+                               [](auto& c) -> auto& { return c.trace.visibility_fraction; }),
+                           kTraced),
+                      "visibility"));
+  v.push_back(of_pass(
+      with(field(
+               "trace.visibility_pass", SettingType::Boolean, "trace the visibility pass (when the scene has lights)",
+               [](auto& c) -> auto& { return c.trace.visibility_pass; }),
+           kTraced),
+      "visibility"));
+  v.push_back(
+      of_pass(with(field(
+                       "trace.ao_pass", SettingType::Boolean, "trace the AO pass (when the scene has an ao block)",
+                       [](auto& c) -> auto& { return c.trace.ao_pass; }),
+                   kTraced),
+              "ao"));
+  v.push_back(
+      of_pass(with(ranged(
+                       "trace.ao_scale", SettingType::Integer, 1, kMaxPassScale,
+                       "the AO pass traced, denoised and sent at 1/ao_scale of the width and height, upsampled by "
+                       "the client (ao_upsample)",
+                       [](auto& c) -> auto& { return c.trace.ao_scale; }),
+                   kTraced),
+              "ao"));
+  RunSetting upsample = field(
+      "ao_upsample", SettingType::Choice,
+      "trace.ao_scale > 1: the client's upsampling of the AO pass: joint_bilateral (guided by its "
+      "G-buffer's depth and normals), bilinear or nearest",
+      [](auto& c) -> auto& { return c.ao_upsample; });
   upsample.choices = {"joint_bilateral", "bilinear", "nearest"};
   v.push_back(upsample);
   // passes.<name>.{codec,denoiser,predictor} for every pass of the table, then colour's codec
@@ -164,7 +200,7 @@ std::vector<RunSetting> make_settings() {
   const auto pass_backend = [](const std::string& pass, const char* kind, BackendChoice PassChoice::*member,
                                std::string v1_key, std::string doc) {
     RunSetting s = backend(("passes." + pass + "." + kind).c_str(), kind, v1_key.c_str(), doc.c_str(),
-                           [pass, member](auto& c) -> auto& { return c.pass(pass).*member; });
+                           [ pass, member ](auto& c) -> auto& { return c.pass(pass).*member; });
     return s;
   };
   for (const PassType& t : pass_types()) {
@@ -179,7 +215,8 @@ std::vector<RunSetting> make_settings() {
     v.push_back(pass_backend(n, "predictor", &PassChoice::predictor, v1 ? "predictor" : "",
                              "the client's predictor of the " + n + " pass"));
   }
-  v.push_back(pass_backend(kColourPassName, "codec", &PassChoice::codec, "colour_codec", "remote mode: the colour frame's codec"));
+  v.push_back(pass_backend(kColourPassName, "codec", &PassChoice::codec, "colour_codec",
+                           "remote mode: the colour frame's codec"));
   v.push_back(pass_backend(kColourPassName, "predictor", &PassChoice::predictor, "colour_predictor",
                            "remote mode: the client's predictor of the colour frame"));
   v.push_back(pass_backend(kDepthPassName, "codec", &PassChoice::codec, "",
@@ -187,23 +224,26 @@ std::vector<RunSetting> make_settings() {
                            "(lossless)"));
   // passes.<name>.fec_parity and fec_min_parity for every pass that is sent.
   for (const std::string& n : all_pass_names()) {
-    v.push_back(with(ranged(("passes." + n + ".fec_parity").c_str(), SettingType::Number, 0, 1,
-                            ("Reed-Solomon parity packets of the " + n +
-                             " pass per FEC block, as a fraction of its data packets (core/net/fec.h; parity counts as wire bytes)")
-                                .c_str(),
-                            [n](auto& c) -> auto& { return c.pass(n).fec_parity; }),
-                     kInLiveOffer));
-    v.push_back(with(ranged(("passes." + n + ".fec_min_parity").c_str(), SettingType::Integer, 0, kFecMaxShards - 1,
-                            ("the least parity packets per FEC block of the " + n + " pass (with fec_parity: the larger)").c_str(),
-                            [n](auto& c) -> auto& { return c.pass(n).fec_min_parity; }),
-                     kInLiveOffer));
+    v.push_back(with(
+        ranged(("passes." + n + ".fec_parity").c_str(), SettingType::Number, 0, 1,
+               ("Reed-Solomon parity packets of the " + n +
+                " pass per FEC block, as a fraction of its data packets (core/net/fec.h; parity counts as wire bytes)")
+                   .c_str(),
+               [n](auto& c) -> auto& { return c.pass(n).fec_parity; }),
+        kInLiveOffer));
+    v.push_back(with(
+        ranged(("passes." + n + ".fec_min_parity").c_str(), SettingType::Integer, 0, kFecMaxShards - 1,
+               ("the least parity packets per FEC block of the " + n + " pass (with fec_parity: the larger)").c_str(),
+               [n](auto& c) -> auto& { return c.pass(n).fec_min_parity; }),
+        kInLiveOffer));
   }
   RunSetting timing;
   timing.key = "server_timing";
   timing.type = SettingType::Choice;
   timing.choices = {"fixed", "measured"};
-  timing.doc = "the server's compute time per frame: fixed (server_fixed_ms, virtual; results repeat on any machine) or "
-               "measured (the wall time of its stages on this machine: results then depend on the machine and its load)";
+  timing.doc =
+      "the server's compute time per frame: fixed (server_fixed_ms, virtual; results repeat on any machine) or "
+      "measured (the wall time of its stages on this machine: results then depend on the machine and its load)";
   timing.live_ignored = "the server takes the time it takes";
   timing.get = [](const SimConfig& c) {
     return nlohmann::json(c.server_timing == SimConfig::ServerTiming::Fixed ? "fixed" : "measured");
@@ -212,51 +252,67 @@ std::vector<RunSetting> make_settings() {
     c.server_timing = j == "fixed" ? SimConfig::ServerTiming::Fixed : SimConfig::ServerTiming::Measured;
   };
   v.push_back(timing);
-  v.push_back(with(ranged("server_fixed_ms", SettingType::Number, 0, 1e5, "server_timing fixed: its compute time per frame (ms)",
-                          [](auto& c) -> auto& { return c.server_fixed_ms; }),
-                   0, "the server takes the time it takes"));
-  v.push_back(with(link("uplink", "the client-to-server link (core/net/network.h)", [](auto& c) -> auto& { return c.uplink; }), 0,
-                   "the network is the real one, or dhrbench relay's"));
-  v.push_back(with(link("downlink", "the server-to-client link (core/net/network.h)", [](auto& c) -> auto& { return c.downlink; }), 0,
-                   "the network is the real one, or dhrbench relay's"));
-  v.push_back(with(ranged("max_payload_bytes", SettingType::Integer, 1, double(kMaxPayloadLimitBytes),
-                          "payload bytes per datagram (plus the header and IP/UDP: at most the downlink MTU)",
-                          [](auto& c) -> auto& { return c.max_payload_bytes; }),
+  v.push_back(
+      with(ranged(
+               "server_fixed_ms", SettingType::Number, 0, 1e5, "server_timing fixed: its compute time per frame (ms)",
+               [](auto& c) -> auto& { return c.server_fixed_ms; }),
+           0, "the server takes the time it takes"));
+  v.push_back(
+      with(link(
+               "uplink", "the client-to-server link (core/net/network.h)", [](auto& c) -> auto& { return c.uplink; }),
+           0, "the network is the real one, or dhrbench relay's"));
+  v.push_back(with(
+      link(
+          "downlink", "the server-to-client link (core/net/network.h)", [](auto& c) -> auto& { return c.downlink; }),
+      0, "the network is the real one, or dhrbench relay's"));
+  v.push_back(with(ranged(
+                       "max_payload_bytes", SettingType::Integer, 1, double(kMaxPayloadLimitBytes),
+                       "payload bytes per datagram (plus the header and IP/UDP: at most the downlink MTU)",
+                       [](auto& c) -> auto& { return c.max_payload_bytes; }),
                    kInLiveOffer));
-  v.push_back(with(ranged("stream_kbps", SettingType::Number, 0, 1e7,
-                          "a bit budget for the whole stream on the wire in kbit/s (0: none): the passes whose codec "
-                          "takes a target bitrate (h264 with rate_control bitrate) share, frame by frame, what the other "
-                          "passes used over the last second",
-                          [](auto& c) -> auto& { return c.stream_kbps; }),
+  v.push_back(with(ranged(
+                       "stream_kbps", SettingType::Number, 0, 1e7,
+                       "a bit budget for the whole stream on the wire in kbit/s (0: none): the passes whose codec "
+                       "takes a target bitrate (h264 with rate_control bitrate) share, frame by frame, what the other "
+                       "passes used over the last second",
+                       [](auto& c) -> auto& { return c.stream_kbps; }),
                    kInLiveOffer));
-  v.push_back(ranged("history_frames", SettingType::Integer, 1, 1024, "client G-buffers kept for prediction",
-                     [](auto& c) -> auto& { return c.history_frames; }));
-  v.push_back(ranged("stall_after_frames", SettingType::Integer, 1, 1000,
-                     "a pass stalls when its newest data stays the same for more than this many display intervals "
-                     "(the metrics stalls, stall_ms_total, stall_ms_longest, frames_frozen)",
-                     [](auto& c) -> auto& { return c.stall_after_frames; }));
-  v.push_back(ranged("score_every", SettingType::Integer, 1, 1e9, "score against the local reference on every n-th frame",
-                     [](auto& c) -> auto& { return c.score_every; }));
-  v.push_back(with(ranged("ground_truth_every", SettingType::Integer, 0, 1e9,
-                          "score against the ground truth on every n-th frame (0: never)",
-                          [](auto& c) -> auto& { return c.ground_truth_every; }),
+  v.push_back(ranged(
+      "history_frames", SettingType::Integer, 1, 1024, "client G-buffers kept for prediction",
+      [](auto& c) -> auto& { return c.history_frames; }));
+  v.push_back(ranged(
+      "stall_after_frames", SettingType::Integer, 1, 1000,
+      "a pass stalls when its newest data stays the same for more than this many display intervals "
+      "(the metrics stalls, stall_ms_total, stall_ms_longest, frames_frozen)",
+      [](auto& c) -> auto& { return c.stall_after_frames; }));
+  v.push_back(ranged(
+      "score_every", SettingType::Integer, 1, 1e9, "score against the local reference on every n-th frame",
+      [](auto& c) -> auto& { return c.score_every; }));
+  v.push_back(with(ranged(
+                       "ground_truth_every", SettingType::Integer, 0, 1e9,
+                       "score against the ground truth on every n-th frame (0: never)",
+                       [](auto& c) -> auto& { return c.ground_truth_every; }),
                    0, "the client scores against the local reference only"));
-  v.push_back(with(ranged("ground_truth_ao_rays", SettingType::Integer, 1, 65535, "AO rays per pixel of the ground truth",
-                          [](auto& c) -> auto& { return c.ground_truth_ao_rays; }),
+  v.push_back(with(ranged(
+                       "ground_truth_ao_rays", SettingType::Integer, 1, 65535, "AO rays per pixel of the ground truth",
+                       [](auto& c) -> auto& { return c.ground_truth_ao_rays; }),
                    kInTruthKey));
-  v.push_back(with(ranged("ground_truth_samples_per_light", SettingType::Integer, 1, 65535,
-                          "shadow rays per area light and pixel of the ground truth",
-                          [](auto& c) -> auto& { return c.ground_truth_samples_per_light; }),
+  v.push_back(with(ranged(
+                       "ground_truth_samples_per_light", SettingType::Integer, 1, 65535,
+                       "shadow rays per area light and pixel of the ground truth",
+                       [](auto& c) -> auto& { return c.ground_truth_samples_per_light; }),
                    kInTruthKey));
-  RunSetting truth_sampling = field("ground_truth_sampling", SettingType::Choice,
-                                    "the ground truth's samples of a pixel: lattice (a shifted R2 lattice per pixel and light) or "
-                                    "random (independent uniforms); both unbiased, the lattice converges faster per ray "
-                                    "(scripts/ground_truth_sampling.py)",
-                                    [](auto& c) -> auto& { return c.ground_truth_sampling; });
+  RunSetting truth_sampling = field(
+      "ground_truth_sampling", SettingType::Choice,
+      "the ground truth's samples of a pixel: lattice (a shifted R2 lattice per pixel and light) or "
+      "random (independent uniforms); both unbiased, the lattice converges faster per ray "
+      "(scripts/ground_truth_sampling.py)",
+      [](auto& c) -> auto& { return c.ground_truth_sampling; });
   truth_sampling.choices = sampling_names();
   v.push_back(with(truth_sampling, kInTruthKey));
-  v.push_back(field("cache_dir", SettingType::String, "ground truths on disk; empty: $DHR_CACHE_DIR or cache/",
-                    [](auto& c) -> auto& { return c.cache_dir; }));
+  v.push_back(field(
+      "cache_dir", SettingType::String, "ground truths on disk; empty: $DHR_CACHE_DIR or cache/",
+      [](auto& c) -> auto& { return c.cache_dir; }));
   return v;
 }
 
@@ -278,7 +334,8 @@ const nlohmann::json* find_dotted(const nlohmann::json& j, const std::string& ke
 void put_dotted(nlohmann::json& j, const std::string& key, nlohmann::json value) {
   nlohmann::json* node = &j;
   size_t start = 0;
-  for (size_t dot; (dot = key.find('.', start)) != std::string::npos; start = dot + 1) node = &(*node)[key.substr(start, dot - start)];
+  for (size_t dot; (dot = key.find('.', start)) != std::string::npos; start = dot + 1)
+    node = &(*node)[key.substr(start, dot - start)];
   (*node)[key.substr(start)] = std::move(value);
 }
 
@@ -309,7 +366,8 @@ void check_keys(const nlohmann::json& obj, const std::string& prefix, const std:
     if (find_run_setting(full)) continue;
     if (prefix.empty() && is_v1_key(k)) {
       if (version != 1)
-        problems.push_back(fmt::format("{}.{}: a version-1 key; version {} writes it {}", where, k, version, v2_spelling(k)));
+        problems.push_back(
+            fmt::format("{}.{}: a version-1 key; version {} writes it {}", where, k, version, v2_spelling(k)));
       continue;
     }
     const bool group = std::any_of(run_settings().begin(), run_settings().end(),
@@ -320,7 +378,8 @@ void check_keys(const nlohmann::json& obj, const std::string& prefix, const std:
       problems.push_back(fmt::format("{}.{} = {}: must be a JSON object with keys {}", where, full, json_excerpt(v),
                                      join(children(full, version))));
     } else {
-      problems.push_back(fmt::format("{}.{}: unknown key (valid: {})", where, text_excerpt(full), join(children(prefix, version))));
+      problems.push_back(
+          fmt::format("{}.{}: unknown key (valid: {})", where, text_excerpt(full), join(children(prefix, version))));
     }
   }
 }
@@ -341,9 +400,7 @@ const PassChoice& SimConfig::pass(std::string_view name) const {
   return it->second;
 }
 
-PassChoice& SimConfig::pass(std::string_view name) {
-  return const_cast<PassChoice&>(std::as_const(*this).pass(name));
-}
+PassChoice& SimConfig::pass(std::string_view name) { return const_cast<PassChoice&>(std::as_const(*this).pass(name)); }
 
 const char* setting_type_name(SettingType type) {
   switch (type) {
@@ -391,7 +448,8 @@ std::optional<std::string> RunSetting::check_value(const nlohmann::json& v, cons
       }
       std::vector<std::string> why;
       for (const auto& [k, x] : v.items())
-        if (k != "name" && k != "params") why.push_back(fmt::format("{}.{}: unknown key (valid: name, params)", at, text_excerpt(k)));
+        if (k != "name" && k != "params")
+          why.push_back(fmt::format("{}.{}: unknown key (valid: name, params)", at, text_excerpt(k)));
       if (v.contains("name") && !v.at("name").is_string())
         why.push_back(fmt::format("{}.name = {}: must be a string", at, json_excerpt(v.at("name"))));
       if (v.contains("params") && !v.at("params").is_object()) why.push_back(at + ".params: must be a JSON object");
@@ -427,8 +485,10 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& v1_run_keys
     for (const RunSetting& s : run_settings()) {
       if (s.v1_key.empty()) continue;
       auto it = std::find_if(out.begin(), out.end(), [&](const auto& p) { return p.first == s.v1_key; });
-      if (it == out.end()) out.push_back({s.v1_key, {s.key}});
-      else it->second.push_back(s.key);
+      if (it == out.end())
+        out.push_back({s.v1_key, {s.key}});
+      else
+        it->second.push_back(s.key);
     }
     return out;
   }();

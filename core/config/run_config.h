@@ -28,14 +28,16 @@ struct SimConfig {
   std::string mode = "hybrid";  // hybrid | remote
   int width = 320;
   int height = 180;
-  int frames = 60;           // displayed and scored frames
-  int warmup_frames = 0;     // run before them, not scored, not counted
+  int frames = 60;        // displayed and scored frames
+  int warmup_frames = 0;  // run before them, not scored, not counted
   double display_hz = 60.0;
   double start_time_s = 0.0;  // scene time of the first (warm-up) frame
   // The camera's path runs this many times faster than the scene's clock (moving objects keep
   // the scene's): a second, faster head motion over the same scene.
   double camera_speed = 1.0;
-  double camera_time_s(double scene_time_s) const { return start_time_s + (scene_time_s - start_time_s) * camera_speed; }
+  double camera_time_s(double scene_time_s) const {
+    return start_time_s + (scene_time_s - start_time_s) * camera_speed;
+  }
   uint64_t seed = 1;
 
   TraceSettings trace;  // seed and frame are set per frame from `seed` and the frame index
@@ -58,7 +60,7 @@ struct SimConfig {
   // a target bitrate (Codec::takes_target_kbps: h264 in bitrate mode) share, frame by frame, what
   // the other passes used over the last second (core/pipeline/pipeline.h, ServerPipeline).
   double stream_kbps = 0.0;
-  int history_frames = 64;     // client G-buffers kept for prediction
+  int history_frames = 64;  // client G-buffers kept for prediction
   // A pass is stalled while its newest data stays the same for more than this many display
   // intervals (the stall metrics of core/results/results.h).
   int stall_after_frames = 3;
@@ -70,8 +72,8 @@ struct SimConfig {
   int ground_truth_ao_rays = 256;
   int ground_truth_samples_per_light = 64;
   std::string ground_truth_sampling = sampling_name(ReferenceRays{}.lattice);  // or the other (core/trace/trace.h)
-  bool keep_images = false;    // keep one frame's images (RunResult::images) for image grids
-  std::string cache_dir;       // ground truths on disk; empty: default_cache_dir() (core/pass/reference.h)
+  bool keep_images = false;      // keep one frame's images (RunResult::images) for image grids
+  std::string cache_dir;         // ground truths on disk; empty: default_cache_dir() (core/pass/reference.h)
   std::string dump_streams_dir;  // non-empty: the server writes each video pass's stream there
                                  // (<pass>.<Codec::stream_format()>; dhrbench run --dump-streams)
 
@@ -95,7 +97,7 @@ enum class SettingType {
   Integer,  // a JSON integer in lo..hi
   Number,   // a finite JSON number in lo..hi
   Boolean,
-  Choice,   // one of `choices`
+  Choice,  // one of `choices`
   String,
   Backend,  // {"name", "params"}: a backend of the registry `kind` ("codec", "denoiser", "predictor")
   Link,     // a LinkConfig object (core/net/network.h checks its fields)
@@ -104,18 +106,18 @@ const char* setting_type_name(SettingType type);
 
 // Flags of a setting.
 enum SettingFlag : unsigned {
-  kInLiveOffer = 1u << 0,    // client and server of a live session must agree on it (session_offer)
-  kInTraceKey = 1u << 1,     // changes the traced buffers: part of the trace cache key
-  kInTruthKey = 1u << 2,     // changes the ground truth: part of its cache key. The truth is the
-                             // scene's: the run's AO settings are not in it. The seed is, though
-                             // the truth does not depend on it either (its disk key has its own,
-                             // core/pass/reference.h), so that a seed sweep's runs can go to separate
-                             // shards (core/experiment/shard.h). FrameLoop.GroundTruthDoesNotDependOn...
-                             // checks both.
+  kInLiveOffer = 1u << 0,  // client and server of a live session must agree on it (session_offer)
+  kInTraceKey = 1u << 1,   // changes the traced buffers: part of the trace cache key
+  kInTruthKey = 1u << 2,   // changes the ground truth: part of its cache key. The truth is the
+                           // scene's: the run's AO settings are not in it. The seed is, though
+                           // the truth does not depend on it either (its disk key has its own,
+                           // core/pass/reference.h), so that a seed sweep's runs can go to separate
+                           // shards (core/experiment/shard.h). FrameLoop.GroundTruthDoesNotDependOn...
+                           // checks both.
 };
 
 struct RunSetting {
-  std::string key;   // dotted, inside "run": "width", "trace.ao_rays", "passes.ao.codec"
+  std::string key;  // dotted, inside "run": "width", "trace.ao_rays", "passes.ao.codec"
   SettingType type;
   double lo = 0, hi = 0;             // Integer and Number
   std::vector<std::string> choices;  // Choice

@@ -41,7 +41,8 @@ struct Reader {
   void string(const char* k, std::string& out, const std::vector<std::string>& choices = {}) {
     if (!has(k)) return;
     const auto& v = j.at(k);
-    if (!v.is_string() || (!choices.empty() && std::find(choices.begin(), choices.end(), v.get<std::string>()) == choices.end())) {
+    if (!v.is_string() ||
+        (!choices.empty() && std::find(choices.begin(), choices.end(), v.get<std::string>()) == choices.end())) {
       problems.push_back(fmt::format("{}.{} = {}: must be {}", where, k, json_excerpt(v),
                                      choices.empty() ? "a string" : "one of " + join_keys(choices)));
       return;
@@ -110,15 +111,18 @@ void apply_override(nlohmann::json& experiment, const std::string& assignment, c
   const std::string key = assignment.substr(0, eq), text = assignment.substr(eq + 1);
   // A value nested too deeply is refused, not taken as a string: it was meant as JSON.
   if (json_depth(text) > kMaxJsonDepth)
-    fail("--set '{}': the value is nested deeper than {} levels of arrays and objects (the limit for every JSON "
-         "dhrbench reads)", text_excerpt(key), kMaxJsonDepth);
+    fail(
+        "--set '{}': the value is nested deeper than {} levels of arrays and objects (the limit for every JSON "
+        "dhrbench reads)",
+        text_excerpt(key), kMaxJsonDepth);
   nlohmann::json value = nlohmann::json::parse(text, nullptr, false);
   if (value.is_discarded()) value = text;  // a bare word: a string
   try {
     if (under.empty()) {
       set_dotted(experiment, key, value);
     } else {
-      if (!experiment.contains(under) || !experiment.at(under).is_object()) experiment[under] = nlohmann::json::object();
+      if (!experiment.contains(under) || !experiment.at(under).is_object())
+        experiment[under] = nlohmann::json::object();
       set_dotted(experiment.at(under), key, value);
     }
   } catch (const Error& e) {
@@ -145,8 +149,8 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   e.source = j;
   std::vector<std::string> problems;
   Reader top{j, path, problems};
-  top.keys({"version", "name", "description", "scenes", "run", "networks", "sweep", "configurations", "curves", "answer",
-            "notes"});
+  top.keys({"version", "name", "description", "scenes", "run", "networks", "sweep", "configurations", "curves",
+            "answer", "notes"});
   if (!j.is_object()) fail("{}: an experiment must be a JSON object", path);
   int version = kExperimentVersion;
   if (!j.contains("version")) {
@@ -172,8 +176,10 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
     problems.push_back(fmt::format("{}.scenes: must be a non-empty list of scene files or built-in names", path));
   } else {
     for (const auto& s : j.at("scenes")) {
-      if (!s.is_string()) problems.push_back(fmt::format("{}.scenes: {} is not a string", path, json_excerpt(s)));
-      else e.scenes.push_back(s.get<std::string>());
+      if (!s.is_string())
+        problems.push_back(fmt::format("{}.scenes: {} is not a string", path, json_excerpt(s)));
+      else
+        e.scenes.push_back(s.get<std::string>());
     }
   }
   const nlohmann::json base = j.value("run", nlohmann::json::object());
@@ -199,25 +205,29 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
         r.string("name", name);
         std::string family = name;
         r.string("family", family);
-        nlohmann::json set = list[i].is_object() ? list[i].value("set", nlohmann::json::object()) : nlohmann::json::object();
+        nlohmann::json set =
+            list[i].is_object() ? list[i].value("set", nlohmann::json::object()) : nlohmann::json::object();
         if (!set.is_object()) problems.push_back(fmt::format("{}.configurations[{}].set: must be an object", path, i));
         std::vector<std::string> only;
         if (r.has("scenes")) {
           const auto& sc = list[i].at("scenes");
-          if (!sc.is_array()) problems.push_back(fmt::format("{}.configurations[{}].scenes: must be a list of scenes", path, i));
+          if (!sc.is_array())
+            problems.push_back(fmt::format("{}.configurations[{}].scenes: must be a list of scenes", path, i));
           else
             for (const auto& x : sc) {
               if (!x.is_string() || std::find(e.scenes.begin(), e.scenes.end(), x.get<std::string>()) == e.scenes.end())
-                problems.push_back(fmt::format("{}.configurations[{}].scenes: {} is not one of the experiment's scenes", path, i, json_excerpt(x)));
+                problems.push_back(fmt::format("{}.configurations[{}].scenes: {} is not one of the experiment's scenes",
+                                               path, i, json_excerpt(x)));
               else
                 only.push_back(x.get<std::string>());
             }
         }
         for (const auto& c : configs)
           if (c.name == name)
-            problems.push_back(fmt::format("{}.configurations[{}]: the name '{}' is given twice: configurations are told "
-                                           "apart by name (in the tables and the report's curves)",
-                                           path, i, text_excerpt(name)));
+            problems.push_back(
+                fmt::format("{}.configurations[{}]: the name '{}' is given twice: configurations are told "
+                            "apart by name (in the tables and the report's curves)",
+                            path, i, text_excerpt(name)));
         configs.push_back({name, family, set.is_object() ? set : nlohmann::json::object(), only});
       }
     }
@@ -228,11 +238,14 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   std::vector<std::pair<std::string, std::vector<nlohmann::json>>> axes;
   if (j.contains("sweep")) {
     const auto& sweep = j.at("sweep");
-    if (!sweep.is_object()) problems.push_back(fmt::format("{}.sweep: must be an object of dotted key: [values]", path));
+    if (!sweep.is_object())
+      problems.push_back(fmt::format("{}.sweep: must be an object of dotted key: [values]", path));
     else
       for (const auto& [k, v] : sweep.items()) {
-        if (!v.is_array() || v.empty()) problems.push_back(fmt::format("{}.sweep.{}: must be a non-empty list of values", path, text_excerpt(k)));
-        else axes.emplace_back(k, std::vector<nlohmann::json>(v.begin(), v.end()));
+        if (!v.is_array() || v.empty())
+          problems.push_back(fmt::format("{}.sweep.{}: must be a non-empty list of values", path, text_excerpt(k)));
+        else
+          axes.emplace_back(k, std::vector<nlohmann::json>(v.begin(), v.end()));
       }
   }
   // Configurations x sweep values x scenes, counted without overflow: the count stops growing
@@ -244,8 +257,10 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
          for (const auto& a : axes) f.push_back(a.second.size());
          return f;
        }()) {
-    if (factor != 0 && product > kMaxRuns / factor) over = true;
-    else product *= factor;
+    if (factor != 0 && product > kMaxRuns / factor)
+      over = true;
+    else
+      product *= factor;
   }
   if (over || product > kMaxRuns) {
     std::string sizes = fmt::format("{} scene(s) x {} configuration(s)", e.scenes.size(), configs.size());
@@ -270,28 +285,32 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
   if (j.contains("curves")) {
     const auto& cv = j.at("curves");
     Reader r{cv, path + ".curves", problems};
-    if (!cv.is_object()) problems.push_back(fmt::format("{}.curves: must be an object {{\"vary\": [keys], \"anchor\": family}}", path));
+    if (!cv.is_object())
+      problems.push_back(fmt::format("{}.curves: must be an object {{\"vary\": [keys], \"anchor\": family}}", path));
     r.keys({"vary", "anchor", "replicates"});
     // Replicates: swept keys whose values are independent draws (seeds, camera paths); the report
     // gives each BD figure's mean and interval over them.
     if (r.has("replicates")) {
       const auto& rep = cv.at("replicates");
       if (!rep.is_array() || rep.empty()) {
-        problems.push_back(fmt::format("{}.curves.replicates: must be a non-empty list of swept keys (e.g. [\"seed\"])", path));
+        problems.push_back(
+            fmt::format("{}.curves.replicates: must be a non-empty list of swept keys (e.g. [\"seed\"])", path));
       } else {
         for (const auto& k : rep) {
           if (!swept(k))
-            problems.push_back(fmt::format("{}.curves.replicates: {} is not a key of \"sweep\"", path, json_excerpt(k)));
+            problems.push_back(
+                fmt::format("{}.curves.replicates: {} is not a key of \"sweep\"", path, json_excerpt(k)));
         }
       }
     }
     if (!r.has("vary") || !cv.at("vary").is_array() || cv.at("vary").empty()) {
-      problems.push_back(fmt::format("{}.curves.vary: must be a non-empty list of the dotted keys that move along a curve", path));
+      problems.push_back(
+          fmt::format("{}.curves.vary: must be a non-empty list of the dotted keys that move along a curve", path));
     } else {
       for (const auto& k : cv.at("vary")) {
         if (!swept_or_set(k))
-          problems.push_back(fmt::format("{}.curves.vary: {} is not a key of \"sweep\" or of a configuration's \"set\"", path,
-                                         json_excerpt(k)));
+          problems.push_back(fmt::format("{}.curves.vary: {} is not a key of \"sweep\" or of a configuration's \"set\"",
+                                         path, json_excerpt(k)));
       }
     }
     if (r.has("anchor")) {
@@ -300,7 +319,8 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
       const auto& a = cv.at("anchor");
       if (a.is_string()) {
         anchors.push_back(a.get<std::string>());
-      } else if (a.is_array() && !a.empty() && std::all_of(a.begin(), a.end(), [](const auto& x) { return x.is_string(); })) {
+      } else if (a.is_array() && !a.empty() &&
+                 std::all_of(a.begin(), a.end(), [](const auto& x) { return x.is_string(); })) {
         for (const auto& x : a) anchors.push_back(x.get<std::string>());
       } else {
         problems.push_back(fmt::format("{}.curves.anchor: {} must be a family's name or a non-empty list of them", path,
@@ -333,8 +353,8 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
       r.string(k, key);
       if (key.empty() || (std::string(k) == "group" && key == "configuration")) continue;  // by configuration
       if (!swept_or_set(key))
-        problems.push_back(fmt::format("{}.answer.{}: '{}' is not a key of \"sweep\" or of a configuration's \"set\"", path, k,
-                                       text_excerpt(key)));
+        problems.push_back(fmt::format("{}.answer.{}: '{}' is not a key of \"sweep\" or of a configuration's \"set\"",
+                                       path, k, text_excerpt(key)));
     }
     // An error budget: each term is the difference between a configuration with the effect and
     // one without it, on every scene (without "without": the first configuration's own figure).
@@ -361,13 +381,15 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
             bool known = false;
             for (const auto& c : configs) known = known || c.name == config;
             if (!known)
-              problems.push_back(fmt::format("{}.{}: '{}' is not a configuration's name", where, k, text_excerpt(config)));
+              problems.push_back(
+                  fmt::format("{}.{}: '{}' is not a configuration's name", where, k, text_excerpt(config)));
           }
         }
       }
     }
     if (r.has("group") && !r.has("along"))
-      problems.push_back(fmt::format("{}.answer: \"group\" needs \"along\" (the key whose values each group is compared over)", path));
+      problems.push_back(
+          fmt::format("{}.answer: \"group\" needs \"along\" (the key whose values each group is compared over)", path));
   }
 
   // Problems of the expanded run settings, grouped: message -> the runs it concerns.
@@ -387,17 +409,20 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
             if (k == "network") {
               const std::string name = v.is_string() ? v.get<std::string>() : json_excerpt(v);
               if (!networks.is_object() || !networks.contains(name)) {
-                problems.push_back(fmt::format("{}: network '{}' is not defined in \"networks\"", path, text_excerpt(name)));
+                problems.push_back(
+                    fmt::format("{}: network '{}' is not defined in \"networks\"", path, text_excerpt(name)));
                 continue;
               }
               const auto& net = networks.at(name);
               if (!net.is_object()) {
-                problems.push_back(fmt::format("{}.networks.{}: must be an object with uplink and/or downlink", path, text_excerpt(name)));
+                problems.push_back(fmt::format("{}.networks.{}: must be an object with uplink and/or downlink", path,
+                                               text_excerpt(name)));
                 continue;
               }
               for (const auto& [nk, nv] : net.items()) {
                 if (nk != "uplink" && nk != "downlink")
-                  problems.push_back(fmt::format("{}.networks.{}.{}: unknown key (valid: uplink, downlink)", path, text_excerpt(name), text_excerpt(nk)));
+                  problems.push_back(fmt::format("{}.networks.{}.{}: unknown key (valid: uplink, downlink)", path,
+                                                 text_excerpt(name), text_excerpt(nk)));
                 else
                   run[nk] = nv;
               }
@@ -409,7 +434,8 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
               }
             }
             if (!axes.empty() || config_name.empty())
-              label += fmt::format("{}{}={}", label.empty() ? "" : ", ", k, v.is_string() ? v.get<std::string>() : v.dump());
+              label +=
+                  fmt::format("{}{}={}", label.empty() ? "" : ", ", k, v.is_string() ? v.get<std::string>() : v.dump());
           }
           RunSpec spec;
           spec.id = fmt::format("r{:03d}", index++);
@@ -420,7 +446,8 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
           spec.settings = settings;
           std::vector<std::string> run_problems;
           spec.config = sim_config_from_json(run, path + ": run", run_problems, version);
-          for (auto& p : run_problems) per_run[p].push_back(fmt::format("{} on {}", text_excerpt(spec.label, 120), text_excerpt(scene)));
+          for (auto& p : run_problems)
+            per_run[p].push_back(fmt::format("{} on {}", text_excerpt(spec.label, 120), text_excerpt(scene)));
           for (LinkConfig* link : {&spec.config.uplink, &spec.config.downlink}) {
             link->trace_file = resolve_data_path(link->trace_file, path);
             link->capacity_trace_file = resolve_data_path(link->capacity_trace_file, path);

@@ -59,12 +59,12 @@ constexpr const char* kPlainNameRule =
 bool is_plain_name(const std::string& name);
 
 struct RunSpec {
-  std::string id;          // r000, r001, ...
-  std::string scene;       // as written in the experiment
-  std::string label;       // the configuration's name, or "key=value, ..." of the sweep
+  std::string id;             // r000, r001, ...
+  std::string scene;          // as written in the experiment
+  std::string label;          // the configuration's name, or "key=value, ..." of the sweep
   std::string configuration;  // the configuration's name ("" without configurations)
   std::string family;         // its "family" (default: its name): one rate-quality curve's runs
-  nlohmann::json settings; // the dotted keys set for this run
+  nlohmann::json settings;    // the dotted keys set for this run
   SimConfig config;
 };
 
@@ -72,7 +72,7 @@ struct Experiment {
   std::string path;
   std::string name;
   std::string description;
-  nlohmann::json source;    // the file's JSON after --set overrides
+  nlohmann::json source;  // the file's JSON after --set overrides
   std::vector<std::string> scenes;
   std::vector<RunSpec> runs;
   // Version 1 files: how each version-1 key used is written in version 2 (not problems).

@@ -115,7 +115,8 @@ nlohmann::json ShardManifest::to_json() const {
 void write_shard_manifest(const std::string& dir, const ShardManifest& m) {
   namespace fs = std::filesystem;
   const fs::path path = fs::path(dir) / kShardManifestFile;
-  const fs::path tmp = fs::path(dir) / fmt::format(".{}.tmp{}.{:08x}", kShardManifestFile, ::getpid(), std::random_device{}());
+  const fs::path tmp =
+      fs::path(dir) / fmt::format(".{}.tmp{}.{:08x}", kShardManifestFile, ::getpid(), std::random_device{}());
   {
     std::ofstream f(tmp);
     f << m.to_json().dump(1) << '\n';
@@ -182,7 +183,8 @@ ShardManifest read_shard_manifest(const std::string& dir) {
 
 namespace dhr {
 
-ShardRun ShardRun::start(Experiment& e, const ShardSpec& spec, const std::string& dir, const nlohmann::json& git_commit) {
+ShardRun ShardRun::start(Experiment& e, const ShardSpec& spec, const std::string& dir,
+                         const nlohmann::json& git_commit) {
   namespace fs = std::filesystem;
   const ShardPlan plan = plan_shards(e, spec.count);
   ShardRun s;
@@ -202,7 +204,8 @@ ShardRun ShardRun::start(Experiment& e, const ShardSpec& spec, const std::string
   e.runs = std::move(mine);
   std::vector<std::string> scenes;
   for (const auto& scene : e.scenes)
-    if (std::any_of(e.runs.begin(), e.runs.end(), [&](const RunSpec& r) { return r.scene == scene; })) scenes.push_back(scene);
+    if (std::any_of(e.runs.begin(), e.runs.end(), [&](const RunSpec& r) { return r.scene == scene; }))
+      scenes.push_back(scene);
   e.scenes = std::move(scenes);
   std::error_code ec;
   fs::create_directories(dir, ec);

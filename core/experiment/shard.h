@@ -47,7 +47,7 @@ std::string experiment_hash(const Experiment& e);
 struct ShardManifest {
   std::string experiment_hash;
   std::string experiment_path;
-  nlohmann::json git_commit;          // string or null (context.git_commit)
+  nlohmann::json git_commit;  // string or null (context.git_commit)
   int index = 1, count = 1;
   std::vector<std::string> run_ids;   // this shard's runs
   std::vector<std::string> all_runs;  // every run of the experiment, in its order

@@ -33,15 +33,19 @@ nlohmann::json session_offer(const SimConfig& c, const Registries& r, const std:
     if (s.type == SettingType::Backend) {
       const std::string name = value.at("name").get<std::string>();
       Params p;
-      if (s.kind == "codec") r.codecs.create(name, value.at("params"), &p);
-      else if (s.kind == "denoiser") r.denoisers.create(name, value.at("params"), &p);
-      else r.predictors.create(name, value.at("params"), &p);
+      if (s.kind == "codec")
+        r.codecs.create(name, value.at("params"), &p);
+      else if (s.kind == "denoiser")
+        r.denoisers.create(name, value.at("params"), &p);
+      else
+        r.predictors.create(name, value.at("params"), &p);
       value = {{"name", name}, {"params", p.effective()}};
     }
     const std::string key = s.v1_key.empty() ? s.key : s.v1_key;
     nlohmann::json* node = &offer;
     size_t start = 0;
-    for (size_t dot; (dot = key.find('.', start)) != std::string::npos; start = dot + 1) node = &(*node)[key.substr(start, dot - start)];
+    for (size_t dot; (dot = key.find('.', start)) != std::string::npos; start = dot + 1)
+      node = &(*node)[key.substr(start, dot - start)];
     (*node)[key.substr(start)] = std::move(value);
   }
   return offer;
@@ -61,7 +65,8 @@ std::vector<std::string> offer_mismatches(const nlohmann::json& client, const nl
       }
       return;
     }
-    if (a != b) out.push_back(fmt::format("{}: client {}, server {}", path, json_excerpt(a, 200), json_excerpt(b, 200)));
+    if (a != b)
+      out.push_back(fmt::format("{}: client {}, server {}", path, json_excerpt(a, 200), json_excerpt(b, 200)));
   };
   walk(walk, client, server, "");
   // Never throws, whatever the shapes: a field that is absent or not a string reads as "?".

@@ -83,7 +83,7 @@ int run_live_server(const SimConfig& config, const Registries& registries, const
 // ---- client ----
 struct ClientOptions {
   Endpoint server;
-  int frames = 300;                // displayed frames (the session lasts frames / display_hz)
+  int frames = 300;  // displayed frames (the session lasts frames / display_hz)
   std::string out_dir = "out/live";
   int score_every = 10;            // SSIM against the local reference every n-th frame (0: never)
   int save_every = 30;             // PNG of every n-th displayed frame (0: none)
@@ -110,9 +110,9 @@ struct RelayOptions {
   double duplicate_rate = 0.0;  // probability a delivered datagram arrives twice
   uint64_t seed = 1;
   size_t max_queue_bytes = size_t(64) << 20;  // datagrams waiting for their arrival time
-  double idle_timeout_s = 10.0;   // exit when no datagram came this long (after the first)
+  double idle_timeout_s = 10.0;               // exit when no datagram came this long (after the first)
   std::string port_file;
-  std::string out_file;           // when set: relay.json with the counts per direction
+  std::string out_file;  // when set: relay.json with the counts per direction
   bool quiet = false;
 };
 int run_live_relay(const RelayOptions& options, const std::atomic<bool>& stop);

@@ -31,8 +31,15 @@ namespace {
 class LiveClient {
  public:
   LiveClient(const SimConfig& c, const Registries& r, const LiveScene& s, const ClientOptions& o)
-      : c_(c), registries_(r), scene_(s), o_(o), offer_(session_offer(c, r, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
-        socket_(any_endpoint_like(o.server)), mac_(load_key(o.key_file)), client_(c, *s.scene, r) {
+      : c_(c),
+        registries_(r),
+        scene_(s),
+        o_(o),
+        offer_(session_offer(c, r, s.name, s.key)),
+        plan_(plan_passes(*s.scene, c.trace)),
+        socket_(any_endpoint_like(o.server)),
+        mac_(load_key(o.key_file)),
+        client_(c, *s.scene, r) {
     if (c.mode != "hybrid") fail("live mode is hybrid rendering only (mode '{}' given)", c.mode);
     if (o.frames < 1) fail("client: --frames must be at least 1 (got {})", o.frames);
     for (size_t i = 0; i < client_.passes().size(); ++i) pass_of_slot_[stream_slot(client_.passes()[i])] = int(i);
@@ -88,9 +95,7 @@ class LiveClient {
 
   double now_ms() const { return ms_between(t0_, Clock::now()); }
   double frame_time_s(int a) const { return c_.start_time_s + double(a) / c_.display_hz; }
-  Camera camera(int a) const {
-    return scene_.scene->camera.at(c_.camera_time_s(frame_time_s(a)), c_.width, c_.height);
-  }
+  Camera camera(int a) const { return scene_.scene->camera.at(c_.camera_time_s(frame_time_s(a)), c_.width, c_.height); }
 
   // Seals (with a key) and sends to the server.
   SendResult send_control(const ControlMessage& m) {
@@ -149,7 +154,8 @@ class LiveClient {
           continue;
         }
         if (m.message.type == ControlType::Refuse && m.message.session == nonce) {
-          fmt::print(stderr, "client: the server at {} refused the session: {}\n", o_.server.to_string(), m.message.text);
+          fmt::print(stderr, "client: the server at {} refused the session: {}\n", o_.server.to_string(),
+                     m.message.text);
           return 2;
         }
         if (m.message.type == ControlType::Welcome && m.welcome.client_nonce == nonce) {
@@ -436,7 +442,8 @@ class LiveClient {
       }
     }
     nlohmann::json quality = nlohmann::json::object();
-    for (size_t i = 0; i < scores.size(); ++i) quality[image_metrics()[i].column(Against::Local)] = percentiles(scores[i]);
+    for (size_t i = 0; i < scores.size(); ++i)
+      quality[image_metrics()[i].column(Against::Local)] = percentiles(scores[i]);
     write_text(o_.out_dir + "/frames.csv", csv);
     // Per second: everything read from the socket, then the session's datagrams and their Mb/s
     // on the wire (UDP payload + 28 bytes of IPv4/UDP headers each, as the simulator counts).
@@ -472,13 +479,15 @@ class LiveClient {
     const uint64_t received_packets = as.count(PacketFate::Accepted) + as.count(PacketFate::Completed);
     const uint64_t wire = on_the_wire(session_bytes_, session_datagrams_);
     const nlohmann::json notes = {
-        {"socket.datagrams, socket.bytes", "everything read from the socket (UDP payload bytes), foreign datagrams included"},
+        {"socket.datagrams, socket.bytes",
+         "everything read from the socket (UDP payload bytes), foreign datagrams included"},
         {"socket.session_datagrams, socket.session_bytes",
          "the session's datagrams: from the server's address, with the session's token (and MAC), inside the windows"},
         {"socket.session_pass_datagrams, socket.session_pass_bytes",
          "the pass packets among them; server.json's datagrams_sent and bytes_sent on a link that loses nothing"},
-        {"socket.wire_bytes", "session_bytes plus 28 bytes of IPv4 and UDP headers per datagram (kIpUdpOverheadBytes): "
-                              "bandwidth on the wire as the simulator counts it (with a key, the 16-byte MAC is in session_bytes)"},
+        {"socket.wire_bytes",
+         "session_bytes plus 28 bytes of IPv4 and UDP headers per datagram (kIpUdpOverheadBytes): "
+         "bandwidth on the wire as the simulator counts it (with a key, the 16-byte MAC is in session_bytes)"},
         {"socket.mbps, socket.bytes_per_s, socket.datagrams_per_s", "the session's, on the wire, over duration_s"},
         {"socket.bad_or_foreign", "datagrams dropped, by reason (docs/live-security.md); none counts as loss"}};
     const double seconds = std::max(1e-9, session_seconds_);
@@ -529,10 +538,11 @@ class LiveClient {
         {"field_notes", notes}};
     write_text(o_.out_dir + "/live.json", out.dump(2) + "\n");
     say(o_.quiet, "client",
-        "{} of {} frames displayed ({} skipped late), {} without data; {:.2f} Mb/s on the wire, {} datagrams, {} packets lost "
+        "{} of {} frames displayed ({} skipped late), {} without data; {:.2f} Mb/s on the wire, {} datagrams, {} "
+        "packets lost "
         "({:.2f} %); SSIM {}; results in {}",
-        rows_.size(), o_.frames, frames_skipped_, without_data_, out["socket"]["mbps"].get<double>(), session_datagrams_,
-        as.packets_lost, 100.0 * out["packets"]["loss_rate"].get<double>(),
+        rows_.size(), o_.frames, frames_skipped_, without_data_, out["socket"]["mbps"].get<double>(),
+        session_datagrams_, as.packets_lost, 100.0 * out["packets"]["loss_rate"].get<double>(),
         scores.front().empty() ? std::string("not scored")
                                : fmt::format("{:.4f} (mean of {})", out["quality"]["ssim_local"]["mean"].get<double>(),
                                              scores.front().size()),
@@ -555,13 +565,14 @@ class LiveClient {
   PassGate gate_;
   bool gate_camera_sent_ = false;
   uint32_t last_camera_ = 0;
-  std::array<int64_t, kPassSlots> newest_completed_ = filled<int64_t>(-1);  // per pass: the newest frame whose packets all arrived
+  std::array<int64_t, kPassSlots> newest_completed_ =
+      filled<int64_t>(-1);  // per pass: the newest frame whose packets all arrived
   Clock::time_point t0_, last_heard_;
   std::string end_reason_;
   double session_seconds_ = 0;
   std::vector<uint8_t> buffer_;
   Assembler assembler_;
-  ClientPipeline client_;       // core/pipeline/pipeline.h: decode, predict, composite, the G-buffer history
+  ClientPipeline client_;  // core/pipeline/pipeline.h: decode, predict, composite, the G-buffer history
   std::array<int, kPassSlots> pass_of_slot_ = filled<int>(-1);  // per stream: its pass in client_, -1: none
   bool keyframe_request_ = false;
   std::array<int32_t, kPassSlots> holds_ = filled<int32_t>(-1);  // per stream, with the next camera

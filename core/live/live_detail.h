@@ -111,5 +111,4 @@ inline nlohmann::json counts_json(const std::map<std::string, uint64_t>& m) {
   return out;
 }
 
-
 }  // namespace dhr::live_detail

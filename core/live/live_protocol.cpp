@@ -29,8 +29,8 @@ namespace {
 
 using le::get16;
 using le::get32;
-using le::put16;
 using le::get64;
+using le::put16;
 using le::put32;
 using le::put64;
 
@@ -262,10 +262,14 @@ struct Fields {
   bool uint64(const char* key, uint64_t& out, uint64_t hi = std::numeric_limits<uint64_t>::max()) {
     const nlohmann::json* v = find(key);
     if (!v) return false;
-    if (v->is_number_unsigned()) out = v->get<uint64_t>();
-    else if (v->is_number_integer() && v->get<int64_t>() >= 0) out = uint64_t(v->get<int64_t>());
-    else if (v->is_number_integer()) return bad(key);
-    else return wrong(key);
+    if (v->is_number_unsigned())
+      out = v->get<uint64_t>();
+    else if (v->is_number_integer() && v->get<int64_t>() >= 0)
+      out = uint64_t(v->get<int64_t>());
+    else if (v->is_number_integer())
+      return bad(key);
+    else
+      return wrong(key);
     if (out > hi) return bad(key);
     return true;
   }
@@ -313,14 +317,14 @@ BodyCheck parse_offer_json(const nlohmann::json& j, SessionOffer& out) {
   Fields f{j, "", {}};
   // The limits are the header's and the simulator's: a value outside them cannot be a real
   // offer, and the typed copy must never overflow when used.
-  const bool ok =
-      f.int64("protocol", out.protocol, 0, 1 << 30) && f.string("scene", out.scene) &&
-      f.string("scene_hash", out.scene_hash) && f.int64("width", out.width, 1, 1 << 16) &&
-      f.int64("height", out.height, 1, 1 << 16) && f.number("display_hz", out.display_hz) &&
-      f.number("start_time_s", out.start_time_s) && f.uint64("seed", out.seed) && f.object("trace", out.trace) &&
-      f.backend("visibility_codec", out.visibility_codec) && f.backend("ao_codec", out.ao_codec) &&
-      f.backend("ao_denoiser", out.ao_denoiser) && f.backend("visibility_denoiser", out.visibility_denoiser) &&
-      f.int64("max_payload_bytes", out.max_payload_bytes, 1, int64_t(kMaxPayloadLimitBytes));
+  const bool ok = f.int64("protocol", out.protocol, 0, 1 << 30) && f.string("scene", out.scene) &&
+                  f.string("scene_hash", out.scene_hash) && f.int64("width", out.width, 1, 1 << 16) &&
+                  f.int64("height", out.height, 1, 1 << 16) && f.number("display_hz", out.display_hz) &&
+                  f.number("start_time_s", out.start_time_s) && f.uint64("seed", out.seed) &&
+                  f.object("trace", out.trace) && f.backend("visibility_codec", out.visibility_codec) &&
+                  f.backend("ao_codec", out.ao_codec) && f.backend("ao_denoiser", out.ao_denoiser) &&
+                  f.backend("visibility_denoiser", out.visibility_denoiser) &&
+                  f.int64("max_payload_bytes", out.max_payload_bytes, 1, int64_t(kMaxPayloadLimitBytes));
   if (!ok) return f.check;
   if (!(out.display_hz > 0.0)) return refuse(BodyReject::BadValue, "display_hz");
   out.json = j;
@@ -342,7 +346,8 @@ int pass_slot(PassKind kind) {
 
 int pass_slot_count() {
   static const int n = [] {
-    if (pass_types().size() > size_t(kPassSlots)) fail("live: {} pass types, at most {} streams", pass_types().size(), kPassSlots);
+    if (pass_types().size() > size_t(kPassSlots))
+      fail("live: {} pass types, at most {} streams", pass_types().size(), kPassSlots);
     return int(pass_types().size());
   }();
   return n;
@@ -406,7 +411,8 @@ const char* read_control(std::span<const uint8_t> d, TypedControl& out) {
     std::array<std::array<std::string, 7>, 6> n;
     for (int t = 1; t <= 5; ++t)
       for (int r = 0; r < 7; ++r)
-        n[size_t(t)][size_t(r)] = std::string(control_type_name(ControlType(t))) + "_" + body_reject_name(BodyReject(r));
+        n[size_t(t)][size_t(r)] =
+            std::string(control_type_name(ControlType(t))) + "_" + body_reject_name(BodyReject(r));
     return n;
   }();
   return names[size_t(out.message.type)][size_t(c.reject)].c_str();

@@ -68,10 +68,10 @@ constexpr std::array<T, kPassSlots> filled(T value) {
 
 // One displayed client frame's camera: the server renders its passes for exactly this camera.
 struct CameraUpdate {
-  uint32_t frame = 0;          // the client's frame index (the pass packets' frame id)
+  uint32_t frame = 0;  // the client's frame index (the pass packets' frame id)
   bool keyframe_request = false;
-  double scene_time_s = 0.0;   // scene time of the frame (animation)
-  Camera camera;               // every field, bit for bit
+  double scene_time_s = 0.0;  // scene time of the frame (animation)
+  Camera camera;              // every field, bit for bit
   // Per pass stream (slot), after a loss: the newest frame its decoder still holds, which the
   // server may predict from instead of sending a keyframe (Codec::holds; -1: none). On the
   // wire 0xffffffff; any other value must be older than `frame`.
@@ -82,18 +82,18 @@ constexpr size_t kCameraBodyBytes = 4 + 4 + 8 + 12 * 4 + 2 * 2 + 4 * kPassSlots;
 struct ControlMessage {
   ControlType type = ControlType::Hello;
   uint32_t session = 0;
-  std::string text;      // Hello, Welcome: JSON; Refuse, Bye: the reason
+  std::string text;     // Hello, Welcome: JSON; Refuse, Bye: the reason
   CameraUpdate camera;  // Camera
 };
 
 enum class ControlParse : uint8_t {
   Ok = 0,
-  NotControl,   // too short or another magic (e.g. a pass packet): not for this parser
+  NotControl,  // too short or another magic (e.g. a pass packet): not for this parser
   BadVersion,
   BadChecksum,
-  BadLength,    // body length disagrees with the datagram
+  BadLength,  // body length disagrees with the datagram
   BadType,
-  BadBody,      // a Camera body with non-finite values, a bad camera, a wrong size
+  BadBody,  // a Camera body with non-finite values, a bad camera, a wrong size
   BadReserved,
 };
 const char* control_parse_name(ControlParse r);
@@ -155,10 +155,10 @@ BodyCheck parse_offer(std::string_view text, SessionOffer& out);
 BodyCheck parse_offer_json(const nlohmann::json& offer, SessionOffer& out);
 
 struct WelcomeBody {
-  uint32_t session = 0;       // equals the header's token
-  uint32_t client_nonce = 0;  // the nonce of the Hello it answers
+  uint32_t session = 0;                               // equals the header's token
+  uint32_t client_nonce = 0;                          // the nonce of the Hello it answers
   std::array<uint32_t, kPassSlots> first_sequence{};  // random, per stream (see PassGate)
-  SessionOffer offer;         // the server's
+  SessionOffer offer;                                 // the server's
 };
 std::string welcome_text(const WelcomeBody& w);
 BodyCheck parse_welcome(std::string_view text, WelcomeBody& out);

@@ -24,16 +24,11 @@ struct DirectionStats {
   uint64_t dropped_loss = 0, dropped_link_queue = 0, dropped_mtu = 0, dropped_relay_queue = 0, duplicated = 0;
   uint64_t send_failed = 0;
   nlohmann::json to_json() const {
-    return {{"received", received},
-            {"received_bytes", received_bytes},
-            {"forwarded", forwarded},
-            {"forwarded_bytes", forwarded_bytes},
-            {"dropped_loss", dropped_loss},
-            {"dropped_link_queue", dropped_link_queue},
-            {"dropped_mtu", dropped_mtu},
-            {"dropped_relay_queue", dropped_relay_queue},
-            {"duplicated", duplicated},
-            {"send_failed", send_failed}};
+    return {{"received", received},         {"received_bytes", received_bytes},
+            {"forwarded", forwarded},       {"forwarded_bytes", forwarded_bytes},
+            {"dropped_loss", dropped_loss}, {"dropped_link_queue", dropped_link_queue},
+            {"dropped_mtu", dropped_mtu},   {"dropped_relay_queue", dropped_relay_queue},
+            {"duplicated", duplicated},     {"send_failed", send_failed}};
   }
 };
 
@@ -50,7 +45,7 @@ bool reads_as(std::span<const uint8_t> d, ControlType type, ControlMessage& m) {
 int run_live_relay(const RelayOptions& o, const std::atomic<bool>& stop) {
   if (!(o.duplicate_rate >= 0.0 && o.duplicate_rate <= 1.0))
     fail("relay: duplicate rate {} is outside 0..1", o.duplicate_rate);
-  UdpSocket front(o.listen);                     // faces the client
+  UdpSocket front(o.listen);                    // faces the client
   UdpSocket back(any_endpoint_like(o.server));  // faces the server
   write_port_file(o.port_file, front.local());
   say(o.quiet, "relay", "listening on {}, forwarding to {}", front.local().to_string(), o.server.to_string());
@@ -89,9 +84,12 @@ int run_live_relay(const RelayOptions& o, const std::atomic<bool>& stop) {
     }
     const Delivery d = links[dir].send(buf.size() + kIpUdpOverheadBytes, now);
     if (!d.delivered) {
-      if (d.reason == DropReason::Loss) ++s.dropped_loss;
-      else if (d.reason == DropReason::QueueFull) ++s.dropped_link_queue;
-      else ++s.dropped_mtu;
+      if (d.reason == DropReason::Loss)
+        ++s.dropped_loss;
+      else if (d.reason == DropReason::QueueFull)
+        ++s.dropped_link_queue;
+      else
+        ++s.dropped_mtu;
       return;
     }
     // Seeded duplication: a second copy right after the first (a duplicated datagram on a

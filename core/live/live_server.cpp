@@ -27,8 +27,14 @@ namespace {
 class LiveServer {
  public:
   LiveServer(const SimConfig& c, const Registries& r, const LiveScene& s, const ServeOptions& o)
-      : c_(c), registries_(r), scene_(s), o_(o), offer_(session_offer(c, r, s.name, s.key)), plan_(plan_passes(*s.scene, c.trace)),
-        socket_(o.bind), mac_(load_key(o.key_file)) {
+      : c_(c),
+        registries_(r),
+        scene_(s),
+        o_(o),
+        offer_(session_offer(c, r, s.name, s.key)),
+        plan_(plan_passes(*s.scene, c.trace)),
+        socket_(o.bind),
+        mac_(load_key(o.key_file)) {
     if (c.mode != "hybrid") fail("live mode serves hybrid rendering only (mode '{}' given)", c.mode);
     rt_ = std::make_unique<RtScene>(*s.scene);
     write_port_file(o.port_file, socket_.local());
@@ -61,7 +67,7 @@ class LiveServer {
     uint32_t id = 0;     // the session token (random, from the OS)
     uint32_t nonce = 0;  // the client's Hello nonce (a repeated Hello gets the Welcome again)
     Endpoint peer;
-    std::unique_ptr<ServerPipeline> pipeline;  // core/pipeline/pipeline.h: the simulator's server stages
+    std::unique_ptr<ServerPipeline> pipeline;           // core/pipeline/pipeline.h: the simulator's server stages
     std::array<uint32_t, kPassSlots> first_sequence{};  // per stream: random, sent in the Welcome
     int64_t last_frame = -1;
     std::optional<CameraUpdate> pending;
@@ -116,7 +122,8 @@ class LiveServer {
     std::span<const uint8_t> d = buffer_;
     if (mac_) {
       if (d.size() < kMacBytes ||
-          !mac_->verify(d, Direction::ToServer, mac_token(d.first(d.size() - kMacBytes), session_ ? session_->id : 0))) {
+          !mac_->verify(d, Direction::ToServer,
+                        mac_token(d.first(d.size() - kMacBytes), session_ ? session_->id : 0))) {
         ++bad_["bad_mac"];
         return;
       }
@@ -190,7 +197,8 @@ class LiveServer {
     s->nonce = nonce;
     s->peer = from;
     for (int slot = 0; slot < pass_slot_count(); ++slot) s->first_sequence[slot] = os_random_u32();
-    s->pipeline = std::make_unique<ServerPipeline>(c_, *scene_.scene, registries_, direct_tracer(*rt_, c_), stream_of(s->id));
+    s->pipeline =
+        std::make_unique<ServerPipeline>(c_, *scene_.scene, registries_, direct_tracer(*rt_, c_), stream_of(s->id));
     for (size_t i = 0; i < s->pipeline->passes().size(); ++i)
       s->pipeline->set_next_sequence(i, s->first_sequence[stream_slot(s->pipeline->passes()[i])]);
     s->started = s->last_heard = Clock::now();
@@ -222,8 +230,8 @@ class LiveServer {
       return;
     }
     // A frame id far beyond the newest would make every later camera look stale.
-    if (int64_t(m.camera.frame) > std::max<int64_t>(s.last_frame, s.pending ? s.pending->frame : -1) +
-                                      int64_t(kMaxCameraFramesAhead)) {
+    if (int64_t(m.camera.frame) >
+        std::max<int64_t>(s.last_frame, s.pending ? s.pending->frame : -1) + int64_t(kMaxCameraFramesAhead)) {
       ++bad_["camera_frame_ahead"];
       return;
     }
@@ -283,34 +291,39 @@ class LiveServer {
     ++sessions_done_;
     if (!o_.out_dir.empty()) {
       std::filesystem::create_directories(o_.out_dir);
-      summaries_.push_back({{"session", s.id},
-                            {"client", s.peer.to_string()},
-                            {"end_reason", reason},
-                            {"duration_s", seconds},
-                            {"cameras_received", s.cameras},
-                            {"cameras_superseded", s.cameras_superseded},
-                            {"cameras_stale", s.cameras_stale},
-                            {"frames_served", s.frames_served},
-                            {"frames_after_held_report", s.frames_after_held_report},
-                            {"datagrams_sent", s.datagrams_sent},
-                            {"bytes_sent", s.bytes_sent},
-                            {"wire_bytes_sent", on_the_wire(s.bytes_sent, s.datagrams_sent)},
-                            {"mbps_sent", seconds > 0 ? double(on_the_wire(s.bytes_sent, s.datagrams_sent)) * 8.0 / 1e6 / seconds : 0.0},
-                            {"datagrams_dropped_by_send_buffer", s.send_dropped},
-                            {"compute_ms", percentiles(s.compute_ms)},
-                            {"bad_or_foreign_datagrams", counts_json(bad_)},
-                            {"refused_hellos", refused_}});
+      summaries_.push_back(
+          {{"session", s.id},
+           {"client", s.peer.to_string()},
+           {"end_reason", reason},
+           {"duration_s", seconds},
+           {"cameras_received", s.cameras},
+           {"cameras_superseded", s.cameras_superseded},
+           {"cameras_stale", s.cameras_stale},
+           {"frames_served", s.frames_served},
+           {"frames_after_held_report", s.frames_after_held_report},
+           {"datagrams_sent", s.datagrams_sent},
+           {"bytes_sent", s.bytes_sent},
+           {"wire_bytes_sent", on_the_wire(s.bytes_sent, s.datagrams_sent)},
+           {"mbps_sent", seconds > 0 ? double(on_the_wire(s.bytes_sent, s.datagrams_sent)) * 8.0 / 1e6 / seconds : 0.0},
+           {"datagrams_dropped_by_send_buffer", s.send_dropped},
+           {"compute_ms", percentiles(s.compute_ms)},
+           {"bad_or_foreign_datagrams", counts_json(bad_)},
+           {"refused_hellos", refused_}});
       const nlohmann::json notes = {
           {"bytes_sent", "pass packets' UDP payload bytes (dhrbench header, payload, and the MAC with a key)"},
-          {"wire_bytes_sent", "bytes_sent plus 28 bytes of IPv4 and UDP headers per datagram (kIpUdpOverheadBytes), as the simulator counts"},
+          {"wire_bytes_sent",
+           "bytes_sent plus 28 bytes of IPv4 and UDP headers per datagram (kIpUdpOverheadBytes), as the simulator "
+           "counts"},
           {"mbps_sent", "wire_bytes_sent in Mb/s over duration_s"},
-          {"bad_or_foreign_datagrams", "datagrams dropped since the server started, by reason (docs/live-security.md)"}};
+          {"bad_or_foreign_datagrams",
+           "datagrams dropped since the server started, by reason (docs/live-security.md)"}};
       write_text(o_.out_dir + "/server.json", nlohmann::json{{"role", "server"},
                                                              {"authentication", authentication_name(mac_)},
                                                              {"offer", offer_},
                                                              {"field_notes", notes},
                                                              {"sessions", summaries_}}
-                                                      .dump(2) + "\n");
+                                                      .dump(2) +
+                                                  "\n");
       s.log.close();
     }
     session_.reset();

@@ -51,13 +51,12 @@ ColourSpace make_colour_space() {
     for (int c = 0; c < 3; ++c) n[3 * r + c] = m[3 * r + c] / white;
   }
   // Inverse by the adjugate.
-  const double det = n[0] * (n[4] * n[8] - n[5] * n[7]) - n[1] * (n[3] * n[8] - n[5] * n[6]) +
-                     n[2] * (n[3] * n[7] - n[4] * n[6]);
-  const double inv[9] = {(n[4] * n[8] - n[5] * n[7]) / det, (n[2] * n[7] - n[1] * n[8]) / det,
-                         (n[1] * n[5] - n[2] * n[4]) / det, (n[5] * n[6] - n[3] * n[8]) / det,
-                         (n[0] * n[8] - n[2] * n[6]) / det, (n[2] * n[3] - n[0] * n[5]) / det,
-                         (n[3] * n[7] - n[4] * n[6]) / det, (n[1] * n[6] - n[0] * n[7]) / det,
-                         (n[0] * n[4] - n[1] * n[3]) / det};
+  const double det =
+      n[0] * (n[4] * n[8] - n[5] * n[7]) - n[1] * (n[3] * n[8] - n[5] * n[6]) + n[2] * (n[3] * n[7] - n[4] * n[6]);
+  const double inv[9] = {
+      (n[4] * n[8] - n[5] * n[7]) / det, (n[2] * n[7] - n[1] * n[8]) / det, (n[1] * n[5] - n[2] * n[4]) / det,
+      (n[5] * n[6] - n[3] * n[8]) / det, (n[0] * n[8] - n[2] * n[6]) / det, (n[2] * n[3] - n[0] * n[5]) / det,
+      (n[3] * n[7] - n[4] * n[6]) / det, (n[1] * n[6] - n[0] * n[7]) / det, (n[0] * n[4] - n[1] * n[3]) / det};
   ColourSpace cs{};
   for (int i = 0; i < 9; ++i) {
     cs.to_xyz[i] = float(n[i]);
@@ -172,9 +171,9 @@ constexpr CsfParams kCsfAchromatic{1.0, 0.0047, 0.0, 1e-5};
 constexpr CsfParams kCsfRedGreen{1.0, 0.0053, 0.0, 1e-5};
 constexpr CsfParams kCsfBlueYellow{34.1, 0.04, 13.5, 0.025};
 constexpr double kCsfLargestB = 0.04;
-constexpr float kQc = 0.7f;   // exponent on the colour difference
-constexpr float kPc = 0.4f;   // redistribution: breakpoint, as a fraction of the largest error
-constexpr float kPt = 0.95f;  // ... and the error it maps to
+constexpr float kQc = 0.7f;                 // exponent on the colour difference
+constexpr float kPc = 0.4f;                 // redistribution: breakpoint, as a fraction of the largest error
+constexpr float kPt = 0.95f;                // ... and the error it maps to
 constexpr double kFeatureWidthDeg = 0.082;  // w: feature detector width in degrees
 // q_f, the exponent on the feature difference, is 1/2: applied as a square root below.
 
@@ -707,7 +706,8 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test) {
       }
 #endif
       for (size_t i = i0; i < wn; ++i) {
-        const Lab rl{rlab[3 * i], rlab[3 * i + 1], rlab[3 * i + 2]}, tl{f.lab[3 * i], f.lab[3 * i + 1], f.lab[3 * i + 2]};
+        const Lab rl{rlab[3 * i], rlab[3 * i + 1], rlab[3 * i + 2]},
+            tl{f.lab[3 * i], f.lab[3 * i + 1], f.lab[3 * i + 2]};
         dc[i] = hyab(rl, tl);
       }
       pow_row(dc.data(), kQc, dc.data(), wn);  // 0^q_c is +0
@@ -750,11 +750,11 @@ int flip_detail::test_half_taps(double ppd) {
   const Filters fl = make_filters(ppd);
   auto taps = [](const Kernel& k) { return 2 * k.radius + 1; };
   // horizontal_pass: Yy, Cx, Cz (both Gaussians) and the luminance by g, d1 and d2;
-  const int across = taps(fl.y.g1) + taps(fl.cx.g1) + taps(fl.cz.g1) + taps(fl.cz.g2) + taps(fl.f.g) +
-                     taps(fl.f.d1) + taps(fl.f.d2);
+  const int across =
+      taps(fl.y.g1) + taps(fl.cx.g1) + taps(fl.cz.g1) + taps(fl.cz.g2) + taps(fl.f.g) + taps(fl.f.d1) + taps(fl.f.d2);
   // vertical_rows: the four colour planes by their own kernels, then g, d1, g and d2 down.
-  const int down = taps(fl.y.g1) + taps(fl.cx.g1) + taps(fl.cz.g1) + taps(fl.cz.g2) + 2 * taps(fl.f.g) +
-                   taps(fl.f.d1) + taps(fl.f.d2);
+  const int down = taps(fl.y.g1) + taps(fl.cx.g1) + taps(fl.cz.g1) + taps(fl.cz.g2) + 2 * taps(fl.f.g) + taps(fl.f.d1) +
+                   taps(fl.f.d2);
   return across + down;
 }
 

@@ -18,17 +18,17 @@ namespace dhr {
 constexpr double kFlipDefaultPpd = 67.0;
 
 struct FlipViewing {
-  double distance_m = 0.7;        // eye to screen
-  double display_width_m = 0.7;   // physical width of the screen
-  int display_width_px = 3840;    // horizontal resolution of the screen
+  double distance_m = 0.7;       // eye to screen
+  double display_width_m = 0.7;  // physical width of the screen
+  int display_width_px = 3840;   // horizontal resolution of the screen
 };
 // Pixels per degree of visual angle: distance * (width_px / width_m) * pi / 180 (the paper's
 // formula; 67.02 for the default setup). Throws dhr::Error for non-positive or non-finite values.
 double pixels_per_degree(const FlipViewing& viewing);
 
 struct FlipResult {
-  ImageF map;        // per-pixel FLIP error in [0, 1], same size as the inputs
-  double mean = 0;   // mean of map over all pixels (summed in double, in a fixed order)
+  ImageF map;       // per-pixel FLIP error in [0, 1], same size as the inputs
+  double mean = 0;  // mean of map over all pixels (summed in double, in a fixed order)
 };
 
 // FLIP of `test` against `reference` at `ppd` pixels per degree. Throws dhr::Error when sizes

@@ -119,7 +119,8 @@ inline void vertical_taps_pair(const float* const* rows, const float* g, int n, 
     Vec4d a[4] = {zero, zero, zero, zero}, b[4] = {zero, zero, zero, zero};
     for (int k = 0; k <= kTaps; ++k) {
       const float* p = rows[k] + i;
-      const Vec4d v[4] = {load4f_as_double(p), load4f_as_double(p + 4), load4f_as_double(p + 8), load4f_as_double(p + 12)};
+      const Vec4d v[4] = {load4f_as_double(p), load4f_as_double(p + 4), load4f_as_double(p + 8),
+                          load4f_as_double(p + 12)};
       if (k < kTaps) {
         const Vec4d gk = zero + double(g[k]);
         for (int j = 0; j < 4; ++j) a[j] = a[j] + gk * v[j];
@@ -143,7 +144,8 @@ inline void vertical_taps_pair(const float* const* rows, const float* g, int n, 
 // (the square roots through SSE2: std::sqrt's errno path keeps the compiler from it), each
 // pixel's operations as in one scalar expression.
 inline void ssim_from_moments(const double* __restrict m_a, const double* __restrict m_b, const double* __restrict m_aa,
-                       const double* __restrict m_bb, const double* __restrict m_ab, double* __restrict v, int n) {
+                              const double* __restrict m_bb, const double* __restrict m_ab, double* __restrict v,
+                              int n) {
   double var_a[kBlock], var_b[kBlock], bound[kBlock];
   for (int i = 0; i < n; ++i) {
     const double mu_a = m_a[i], mu_b = m_b[i];
@@ -161,8 +163,8 @@ inline void ssim_from_moments(const double* __restrict m_a, const double* __rest
     // identical images score exactly 1 and flat regions never go negative.
     const double c = m_ab[i] - mu_a * mu_b;  // std::clamp(c, -bound, bound), spelled out
     const double cov = c < -bound[i] ? -bound[i] : (bound[i] < c ? bound[i] : c);
-    v[i] = ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) /
-           ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a[i] + var_b[i] + kC2));
+    v[i] =
+        ((2 * mu_a * mu_b + kC1) * (2 * cov + kC2)) / ((mu_a * mu_a + mu_b * mu_b + kC1) * (var_a[i] + var_b[i] + kC2));
   }
 }
 
@@ -174,8 +176,8 @@ struct SsimBand {
   int x0, x1;  // the columns computed
   bool valid;
   ImageF* map;
-  const float* g;     // the window's weights
-  double* row_sums;   // per image row
+  const float* g;    // the window's weights
+  double* row_sums;  // per image row
 };
 
 // The rows two output rows read lie within 12 consecutive image rows (reflect101 maps the
@@ -220,7 +222,7 @@ DHR_VEC8_TARGETS void ssim_band(const SsimBand& p, int ya, int yb, float* ring) 
   double s[2][5][kBlock];
   double v[kBlock];
   // SSIM of n pixels of output row y from moments m, into the map and the row's sum.
-  auto finish = [&](int y, int bx, int n, const double (&m)[5][kBlock], double& row) {
+  auto finish = [&](int y, int bx, int n, const double(&m)[5][kBlock], double& row) {
     ssim_from_moments(m[0], m[1], m[2], m[3], m[4], v, n);
     if (p.map)
       for (int i = 0; i < n; ++i) (*p.map)(bx + i, y) = float(v[i]);
@@ -296,9 +298,10 @@ double ssim_plane(const float* a, const float* b, int w, int h, ImageF* map, Ssi
 
 void check_border(int w, int h, SsimBorder border) {
   if (border == SsimBorder::Valid && (w < kSsimWindow || h < kSsimWindow))
-    fail("SSIM over the valid interior needs images of at least {}x{} pixels (one window), got {}x{}; "
-         "SsimBorder::Mirrored accepts any size",
-         kSsimWindow, kSsimWindow, w, h);
+    fail(
+        "SSIM over the valid interior needs images of at least {}x{} pixels (one window), got {}x{}; "
+        "SsimBorder::Mirrored accepts any size",
+        kSsimWindow, kSsimWindow, w, h);
 }
 
 void check_pair(int wa, int ha, int wb, int hb) {

@@ -21,7 +21,7 @@ constexpr int kSsimWindow = 11;
 
 struct QualityScores {
   double ssim = 1.0;
-  double psnr_db = 0.0;       // +inf when identical
+  double psnr_db = 0.0;         // +inf when identical
   double mean_abs_error = 0.0;  // mean |a - b| over all channels, in 8-bit levels
 };
 

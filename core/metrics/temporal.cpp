@@ -34,8 +34,8 @@ DHR_VEC8_TARGETS int64_t step_terms(const Rgb8* rp, const Rgb8* r, const Rgb8* t
 
 }  // namespace
 
-TemporalScores temporal_scores(const ImageRGB8& reference_prev, const ImageRGB8& reference,
-                               const ImageRGB8& test_prev, const ImageRGB8& test, double static_threshold) {
+TemporalScores temporal_scores(const ImageRGB8& reference_prev, const ImageRGB8& reference, const ImageRGB8& test_prev,
+                               const ImageRGB8& test, double static_threshold) {
   const int w = reference.width(), h = reference.height();
   for (const ImageRGB8* im : {&reference_prev, &test_prev, &test})
     if (im->width() != w || im->height() != h)

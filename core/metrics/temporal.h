@@ -17,16 +17,16 @@
 namespace dhr {
 
 struct TemporalScores {
-  double temporal_error = 0;   // mean |dT - dR| over all pixels, luma levels
-  double static_flicker = 0;   // mean |dT| over static pixels; 0 when there are none
-  int64_t pixels = 0;          // pixels in the frame
-  int64_t static_pixels = 0;   // pixels counted as static
+  double temporal_error = 0;  // mean |dT - dR| over all pixels, luma levels
+  double static_flicker = 0;  // mean |dT| over static pixels; 0 when there are none
+  int64_t pixels = 0;         // pixels in the frame
+  int64_t static_pixels = 0;  // pixels counted as static
 };
 
 // One frame step: the reference and the test at k-1 and at k. All four images must have the
 // same, non-empty size (dhr::Error otherwise); static_threshold is in luma levels, >= 0.
-TemporalScores temporal_scores(const ImageRGB8& reference_prev, const ImageRGB8& reference,
-                               const ImageRGB8& test_prev, const ImageRGB8& test, double static_threshold = 0.0);
+TemporalScores temporal_scores(const ImageRGB8& reference_prev, const ImageRGB8& reference, const ImageRGB8& test_prev,
+                               const ImageRGB8& test, double static_threshold = 0.0);
 
 // Per-run accumulation over frame steps: temporal_error is the mean of the per-step values
 // (every step has the same pixel count); static_flicker is weighted by each step's static pixels

@@ -33,12 +33,10 @@ void AssemblerConfig::validate() const {
   if (max_frame_bytes < 1 || max_frame_bytes > UINT32_MAX)
     fail("assembler: max_frame_bytes {} out of range 1..{}", max_frame_bytes, uint64_t(UINT32_MAX));
   if (max_bytes_in_flight < max_frame_bytes)
-    fail("assembler: max_bytes_in_flight {} must be at least max_frame_bytes {}", max_bytes_in_flight,
-         max_frame_bytes);
+    fail("assembler: max_bytes_in_flight {} must be at least max_frame_bytes {}", max_bytes_in_flight, max_frame_bytes);
   if (max_frames_in_flight < 1 || max_frames_in_flight > 1024)
     fail("assembler: max_frames_in_flight {} out of range 1..1024", max_frames_in_flight);
-  if (max_streams < 1 || max_streams > 65536)
-    fail("assembler: max_streams {} out of range 1..65536", max_streams);
+  if (max_streams < 1 || max_streams > 65536) fail("assembler: max_streams {} out of range 1..65536", max_streams);
   if (timeout_ms < 0) fail("assembler: timeout_ms {} must be >= 0", timeout_ms);
   if (reorder_window_packets < 1 || reorder_window_packets > (1u << 20))
     fail("assembler: reorder_window_packets {} out of range 1..{}", reorder_window_packets, 1u << 20);
@@ -240,8 +238,8 @@ void Assembler::complete(Stream& s, size_t i) {
     pending_.completed.erase(pending_.completed.begin());
   }
   f.bytes.resize(f.total_bytes);  // the FEC shards' padding
-  pending_.completed.push_back({f.meta, std::move(f.bytes), f.count, late, f.first_packet_ms, now_ms_,
-                                uint16_t(f.fec.parity)});
+  pending_.completed.push_back(
+      {f.meta, std::move(f.bytes), f.count, late, f.first_packet_ms, now_ms_, uint16_t(f.fec.parity)});
 }
 
 // Rebuilds the missing data packets of a frame whose every FEC block has as many packets as
@@ -268,7 +266,8 @@ bool Assembler::rebuild(Frame& f) {
     if (missing.empty()) continue;
     for (int j = 0; j < l.per_block && int(present.size()) < k; ++j) {
       const int i = f.count + b * l.per_block + j;
-      if (has(i)) present.push_back(k + j), shards.push_back(f.parity_bytes.data() + size_t(b * l.per_block + j) * shard);
+      if (has(i))
+        present.push_back(k + j), shards.push_back(f.parity_bytes.data() + size_t(b * l.per_block + j) * shard);
     }
     if (int(present.size()) < k || !rs_decode(k, l.per_block, shard, present, shards.data(), missing, out.data()))
       return false;
@@ -286,8 +285,7 @@ void Assembler::make_room(size_t bytes) {
     size_t oldest_index = 0;
     for (auto& [key, s] : streams_)
       for (size_t i = 0; i < s.frames.size(); ++i)
-        if (!oldest_stream ||
-            s.frames[i].first_packet_ms < oldest_stream->frames[oldest_index].first_packet_ms) {
+        if (!oldest_stream || s.frames[i].first_packet_ms < oldest_stream->frames[oldest_index].first_packet_ms) {
           oldest_stream = &s;
           oldest_index = i;
         }
@@ -305,8 +303,7 @@ PacketFate Assembler::push(std::span<const uint8_t> datagram, int64_t now_ms) {
   };
 
   ParsedPacket p;
-  if (const ParseResult r = parse_packet(datagram, p); r != ParseResult::Ok)
-    return count_fate(fate_of(r));
+  if (const ParseResult r = parse_packet(datagram, p); r != ParseResult::Ok) return count_fate(fate_of(r));
 
   // Limits before any allocation.
   if (p.chunk_bytes > config_.max_payload_bytes || p.total_bytes > config_.max_frame_bytes ||
@@ -331,8 +328,8 @@ PacketFate Assembler::push(std::span<const uint8_t> datagram, int64_t now_ms) {
   };
 
   const uint32_t frame_id = p.meta.frame_id;
-  auto fit = std::find_if(s.frames.begin(), s.frames.end(),
-                          [&](const Frame& f) { return f.meta.frame_id == frame_id; });
+  auto fit =
+      std::find_if(s.frames.begin(), s.frames.end(), [&](const Frame& f) { return f.meta.frame_id == frame_id; });
   if (fit == s.frames.end()) {
     if (recently_finished(s, frame_id))
       return count_fate(record_sequence() == SequenceTracker::Seen::Duplicate ? PacketFate::Duplicate
@@ -380,8 +377,8 @@ PacketFate Assembler::push(std::span<const uint8_t> datagram, int64_t now_ms) {
   } else {
     const Frame& f = *fit;
     // Sequence numbers are consecutive within a frame, so first_sequence must agree too.
-    if (p.total_bytes != f.total_bytes || p.count != f.count || p.chunk_bytes != f.chunk_bytes || p.parity != f.fec.parity ||
-        p.meta.desc != f.meta.desc || p.meta.codec_id != f.meta.codec_id ||
+    if (p.total_bytes != f.total_bytes || p.count != f.count || p.chunk_bytes != f.chunk_bytes ||
+        p.parity != f.fec.parity || p.meta.desc != f.meta.desc || p.meta.codec_id != f.meta.codec_id ||
         p.meta.first_sequence != f.meta.first_sequence)
       return count_fate(PacketFate::Inconsistent);
   }

@@ -29,27 +29,34 @@ namespace dhr {
 
 struct AssemblerConfig {
   size_t max_payload_bytes = kDefaultMaxPayloadBytes;  // larger chunks are refused (TooLarge)
-  size_t max_frame_bytes = size_t(64) << 20;       // limit on a pass's encoded and decoded size
-  size_t max_bytes_in_flight = size_t(256) << 20;  // all partial frames together
-  int max_frames_in_flight = 8;                    // partial frames per stream
-  int max_streams = 16;                            // (stream id, pass) pairs tracked at once
-  int64_t timeout_ms = 200;  // a frame not complete this long after its first packet is lost
+  size_t max_frame_bytes = size_t(64) << 20;           // limit on a pass's encoded and decoded size
+  size_t max_bytes_in_flight = size_t(256) << 20;      // all partial frames together
+  int max_frames_in_flight = 8;                        // partial frames per stream
+  int max_streams = 16;                                // (stream id, pass) pairs tracked at once
+  int64_t timeout_ms = 200;                            // a frame not complete this long after its first packet is lost
   // false: once a frame of a stream completes, older partial frames of that stream are given
   // up (Superseded) and packets of older frames are refused, so frames are delivered in order.
   // true: older frames still complete and are delivered, marked late.
   bool deliver_late_frames = false;
   uint32_t reorder_window_packets = 1024;  // rounded up to a power of two, at least 64
-  int64_t stream_idle_ms = 10000;  // poll() forgets a stream with nothing in flight this long
+  int64_t stream_idle_ms = 10000;          // poll() forgets a stream with nothing in flight this long
   // Throws dhr::Error naming the field when a value is out of range.
   void validate() const;
 };
 
 // What became of a datagram given to push().
 enum class PacketFate : uint8_t {
-  Accepted = 0,   // stored in a partial frame
-  Completed,      // stored, and it completed its frame
+  Accepted = 0,  // stored in a partial frame
+  Completed,     // stored, and it completed its frame
   // Refused by parse_packet() (same order as ParseResult):
-  TooShort, BadMagic, BadVersion, BadChecksum, BadLength, BadIndex, BadDesc, BadReserved,
+  TooShort,
+  BadMagic,
+  BadVersion,
+  BadChecksum,
+  BadLength,
+  BadIndex,
+  BadDesc,
+  BadReserved,
   TooLarge,        // chunk, pass or decoded buffer above the configured limits
   Duplicate,       // this packet was received already (same bytes)
   Inconsistent,    // disagrees with its frame's first packet (count, total, chunk, desc, codec,
@@ -76,10 +83,10 @@ struct AssembledFrame {
   PacketMeta meta;
   std::vector<uint8_t> encoded;  // exactly the bytes given to packetize()
   uint16_t packet_count = 0;
-  bool late = false;             // older than a frame of its stream delivered before
+  bool late = false;  // older than a frame of its stream delivered before
   int64_t first_packet_ms = 0;
   int64_t completed_ms = 0;
-  uint16_t parity_count = 0;     // its FEC parity packets (their sequence numbers follow the data's)
+  uint16_t parity_count = 0;  // its FEC parity packets (their sequence numbers follow the data's)
 };
 
 struct LostFrame {
@@ -173,19 +180,19 @@ class Assembler {
     uint32_t total_bytes = 0;
     uint16_t count = 0;
     uint16_t chunk_bytes = 0;
-    FecLayout fec;               // parity packets and their blocks (fec.parity 0: none)
-    uint16_t received = 0;       // data and parity packets
+    FecLayout fec;          // parity packets and their blocks (fec.parity 0: none)
+    uint16_t received = 0;  // data and parity packets
     uint16_t received_data = 0;
-    std::vector<uint8_t> bytes;  // the pass; with parity: count shards of the FEC shard size
+    std::vector<uint8_t> bytes;         // the pass; with parity: count shards of the FEC shard size
     std::vector<uint8_t> parity_bytes;  // parity shards, in index order
     std::vector<uint16_t> block_have;   // per FEC block: its packets received
-    std::vector<uint64_t> have;  // one bit per packet index
+    std::vector<uint64_t> have;         // one bit per packet index
     int64_t first_packet_ms = 0;
     size_t held() const { return bytes.size() + parity_bytes.size(); }
   };
   struct Stream {
     explicit Stream(uint32_t window) : sequence(window) {}
-    std::vector<Frame> frames;  // partial frames, at most max_frames_in_flight
+    std::vector<Frame> frames;       // partial frames, at most max_frames_in_flight
     std::vector<uint32_t> finished;  // ring of frame ids recently completed or given up
     size_t finished_next = 0;
     bool any_completed = false;

@@ -21,8 +21,8 @@
 
 namespace dhr {
 
-constexpr int kFecMaxShards = 255;      // data + parity shards of one block (GF(2^8))
-constexpr int kFecMaxBlockData = 128;   // data packets of one block; more: more blocks
+constexpr int kFecMaxShards = 255;     // data + parity shards of one block (GF(2^8))
+constexpr int kFecMaxBlockData = 128;  // data packets of one block; more: more blocks
 
 struct FecLayout {
   int data = 0;    // data packets of the pass

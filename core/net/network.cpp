@@ -56,9 +56,10 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
     out = v.get<double>();
   };
   static const std::vector<std::string> keys = {
-      "latency", "latency_ms", "jitter_ms", "latency_floor_ms", "trace_file", "trace_offset_ms", "loss",
-      "loss_rate", "ge_p_good_to_bad", "ge_p_bad_to_good", "ge_loss_good", "ge_loss_bad", "bandwidth_mbps",
-      "capacity_trace_file", "capacity_trace_offset_ms", "queue_limit_bytes", "mtu_bytes", "preserve_order"};
+      "latency",           "latency_ms",  "jitter_ms",      "latency_floor_ms",    "trace_file",
+      "trace_offset_ms",   "loss",        "loss_rate",      "ge_p_good_to_bad",    "ge_p_bad_to_good",
+      "ge_loss_good",      "ge_loss_bad", "bandwidth_mbps", "capacity_trace_file", "capacity_trace_offset_ms",
+      "queue_limit_bytes", "mtu_bytes",   "preserve_order"};
   for (const auto& [key, value] : j.items()) {
     if (std::find(keys.begin(), keys.end(), key) == keys.end()) {
       std::string valid;
@@ -69,18 +70,28 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
   if (j.contains("latency")) {
     const auto& v = j.at("latency");
     const std::string s = v.is_string() ? v.get<std::string>() : "";
-    if (s == "constant") c.latency_model = Latency::Constant;
-    else if (s == "normal") c.latency_model = Latency::Normal;
-    else if (s == "trace") c.latency_model = Latency::Trace;
-    else problems.push_back(fmt::format("{}.latency = {}: must be one of constant, normal, trace", where, json_excerpt(v)));
+    if (s == "constant")
+      c.latency_model = Latency::Constant;
+    else if (s == "normal")
+      c.latency_model = Latency::Normal;
+    else if (s == "trace")
+      c.latency_model = Latency::Trace;
+    else
+      problems.push_back(
+          fmt::format("{}.latency = {}: must be one of constant, normal, trace", where, json_excerpt(v)));
   }
   if (j.contains("loss")) {
     const auto& v = j.at("loss");
     const std::string s = v.is_string() ? v.get<std::string>() : "";
-    if (s == "none") c.loss_model = Loss::None;
-    else if (s == "independent") c.loss_model = Loss::Independent;
-    else if (s == "gilbert_elliott") c.loss_model = Loss::GilbertElliott;
-    else problems.push_back(fmt::format("{}.loss = {}: must be one of none, independent, gilbert_elliott", where, json_excerpt(v)));
+    if (s == "none")
+      c.loss_model = Loss::None;
+    else if (s == "independent")
+      c.loss_model = Loss::Independent;
+    else if (s == "gilbert_elliott")
+      c.loss_model = Loss::GilbertElliott;
+    else
+      problems.push_back(
+          fmt::format("{}.loss = {}: must be one of none, independent, gilbert_elliott", where, json_excerpt(v)));
   }
   number("latency_ms", c.latency_ms, 0.0, 1e5);
   number("jitter_ms", c.jitter_ms, 0.0, 1e5);
@@ -96,7 +107,8 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
   if (j.contains("capacity_trace_file")) {
     if (!j.at("capacity_trace_file").is_string())
       problems.push_back(fmt::format("{}.capacity_trace_file: must be a path string (\"\": none)", where));
-    else c.capacity_trace_file = j.at("capacity_trace_file").get<std::string>();
+    else
+      c.capacity_trace_file = j.at("capacity_trace_file").get<std::string>();
   }
   double queue = double(c.queue_limit_bytes), mtu = c.mtu_bytes;
   number("queue_limit_bytes", queue, 0.0, 1e10);
@@ -104,20 +116,27 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
   c.queue_limit_bytes = uint64_t(queue);
   c.mtu_bytes = int(mtu);
   if (j.contains("trace_file")) {
-    if (!j.at("trace_file").is_string()) problems.push_back(fmt::format("{}.trace_file: must be a path string", where));
-    else c.trace_file = j.at("trace_file").get<std::string>();
+    if (!j.at("trace_file").is_string())
+      problems.push_back(fmt::format("{}.trace_file: must be a path string", where));
+    else
+      c.trace_file = j.at("trace_file").get<std::string>();
   }
   if (j.contains("preserve_order")) {
-    if (!j.at("preserve_order").is_boolean()) problems.push_back(fmt::format("{}.preserve_order: must be true or false", where));
-    else c.preserve_order = j.at("preserve_order").get<bool>();
+    if (!j.at("preserve_order").is_boolean())
+      problems.push_back(fmt::format("{}.preserve_order: must be true or false", where));
+    else
+      c.preserve_order = j.at("preserve_order").get<bool>();
   }
   if (c.latency_model == Latency::Trace && c.trace_file.empty())
     problems.push_back(fmt::format("{}: latency 'trace' needs trace_file", where));
   if ((c.bandwidth_mbps > 0 || !c.capacity_trace_file.empty()) && c.queue_limit_bytes == 0)
-    problems.push_back(fmt::format("{}: a bandwidth cap needs queue_limit_bytes > 0 (an unbounded queue hides congestion)", where));
+    problems.push_back(
+        fmt::format("{}: a bandwidth cap needs queue_limit_bytes > 0 (an unbounded queue hides congestion)", where));
   if (c.bandwidth_mbps > 0 && !c.capacity_trace_file.empty())
-    problems.push_back(fmt::format("{}: bandwidth_mbps and capacity_trace_file both set; give one (the trace is the "
-                                   "capacity over time)", where));
+    problems.push_back(
+        fmt::format("{}: bandwidth_mbps and capacity_trace_file both set; give one (the trace is the "
+                    "capacity over time)",
+                    where));
   if (!problems.empty()) {
     std::string msg = problems.front();
     for (size_t i = 1; i < problems.size(); ++i) msg += "\n" + problems[i];
@@ -127,12 +146,23 @@ LinkConfig LinkConfig::from_json(const nlohmann::json& j, const std::string& whe
 }
 
 nlohmann::json LinkConfig::to_json() const {
-  return {{"latency", latency_name(latency_model)}, {"latency_ms", latency_ms}, {"jitter_ms", jitter_ms},
-          {"latency_floor_ms", latency_floor_ms}, {"trace_file", trace_file}, {"trace_offset_ms", trace_offset_ms},
-          {"loss", loss_name(loss_model)}, {"loss_rate", loss_rate}, {"ge_p_good_to_bad", ge_p_good_to_bad},
-          {"ge_p_bad_to_good", ge_p_bad_to_good}, {"ge_loss_good", ge_loss_good}, {"ge_loss_bad", ge_loss_bad},
-          {"bandwidth_mbps", bandwidth_mbps}, {"queue_limit_bytes", queue_limit_bytes}, {"mtu_bytes", mtu_bytes},
-          {"preserve_order", preserve_order}, {"capacity_trace_file", capacity_trace_file},
+  return {{"latency", latency_name(latency_model)},
+          {"latency_ms", latency_ms},
+          {"jitter_ms", jitter_ms},
+          {"latency_floor_ms", latency_floor_ms},
+          {"trace_file", trace_file},
+          {"trace_offset_ms", trace_offset_ms},
+          {"loss", loss_name(loss_model)},
+          {"loss_rate", loss_rate},
+          {"ge_p_good_to_bad", ge_p_good_to_bad},
+          {"ge_p_bad_to_good", ge_p_bad_to_good},
+          {"ge_loss_good", ge_loss_good},
+          {"ge_loss_bad", ge_loss_bad},
+          {"bandwidth_mbps", bandwidth_mbps},
+          {"queue_limit_bytes", queue_limit_bytes},
+          {"mtu_bytes", mtu_bytes},
+          {"preserve_order", preserve_order},
+          {"capacity_trace_file", capacity_trace_file},
           {"capacity_trace_offset_ms", capacity_trace_offset_ms}};
 }
 
@@ -290,8 +320,9 @@ Delivery Link::send(uint64_t wire_bytes, double now_ms) {
   switch (config_.latency_model) {
     case LinkConfig::Latency::Constant: latency = config_.latency_ms; break;
     case LinkConfig::Latency::Normal:
-      latency = std::max(config_.latency_floor_ms,
-                         config_.latency_ms + config_.jitter_ms * normal01(rng_uniform_double(key, 2), rng_uniform_double(key, 3)));
+      latency = std::max(
+          config_.latency_floor_ms,
+          config_.latency_ms + config_.jitter_ms * normal01(rng_uniform_double(key, 2), rng_uniform_double(key, 3)));
       break;
     case LinkConfig::Latency::Trace: latency = trace_.at(depart + config_.trace_offset_ms); break;
   }

@@ -38,16 +38,16 @@ struct LinkConfig {
   double loss_rate = 0.0;         // Independent: probability a datagram is lost
   double ge_p_good_to_bad = 0.0;  // Gilbert-Elliott: per-datagram transition probabilities
   double ge_p_bad_to_good = 1.0;
-  double ge_loss_good = 0.0;      // loss probability in each state
+  double ge_loss_good = 0.0;  // loss probability in each state
   double ge_loss_bad = 1.0;
 
-  double bandwidth_mbps = 0.0;       // 0 = unlimited
+  double bandwidth_mbps = 0.0;  // 0 = unlimited
   // A capacity that changes: a trace of Mb/s samples (the latency trace's format, values
   // 0.01..1e6; repeats), in place of bandwidth_mbps. A datagram is sent at the capacity in force
   // when its transmission starts; the FIFO holds at most queue_limit_bytes.
   std::string capacity_trace_file;
   double capacity_trace_offset_ms = 0.0;  // where in the trace virtual time 0 falls
-  uint64_t queue_limit_bytes = 0;    // with a bandwidth cap: 0 = unbounded is refused; see validate
+  uint64_t queue_limit_bytes = 0;         // with a bandwidth cap: 0 = unbounded is refused; see validate
   int mtu_bytes = 1500;
   bool preserve_order = true;
 

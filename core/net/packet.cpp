@@ -17,10 +17,9 @@ using le::put16;
 using le::put32;
 
 // Offsets of the header fields (see the table in packet.h).
-constexpr size_t kOffVersion = 4, kOffPass = 5, kOffStream = 6, kOffFrame = 8, kOffCodec = 12,
-                 kOffSequence = 16, kOffTotal = 20, kOffIndex = 24, kOffCount = 26, kOffChunk = 28,
-                 kOffPayloadLen = 30, kOffWidth = 32, kOffHeight = 34, kOffChannels = 36,
-                 kOffFullScale = 37, kOffParity = 38, kOffChecksum = 40;
+constexpr size_t kOffVersion = 4, kOffPass = 5, kOffStream = 6, kOffFrame = 8, kOffCodec = 12, kOffSequence = 16,
+                 kOffTotal = 20, kOffIndex = 24, kOffCount = 26, kOffChunk = 28, kOffPayloadLen = 30, kOffWidth = 32,
+                 kOffHeight = 34, kOffChannels = 36, kOffFullScale = 37, kOffParity = 38, kOffChecksum = 40;
 static_assert(kOffChecksum + 4 == kPacketHeaderBytes);
 
 // The checksum covers the header up to the checksum field, then everything after the header
@@ -30,13 +29,9 @@ uint32_t datagram_checksum(std::span<const uint8_t> d) {
   return crc32c(d.subspan(kPacketHeaderBytes), c);
 }
 
-uint64_t count_for(uint64_t total, uint64_t chunk) {
-  return total == 0 ? 1 : (total + chunk - 1) / chunk;
-}
+uint64_t count_for(uint64_t total, uint64_t chunk) { return total == 0 ? 1 : (total + chunk - 1) / chunk; }
 
-bool known_pass(uint8_t kind) {
-  return find_pass_kind(kind) != nullptr;
-}
+bool known_pass(uint8_t kind) { return find_pass_kind(kind) != nullptr; }
 
 }  // namespace
 
@@ -69,8 +64,7 @@ std::vector<std::vector<uint8_t>> packetize(const PacketMeta& meta, std::span<co
     fail("packetize: max_payload {} out of range 1..{}", max_payload, kMaxPayloadLimitBytes);
   const PassDesc& d = meta.desc;
   if (std::string why = d.validate(); !why.empty())
-    fail("packetize: stream {} frame {}: invalid pass description: {}", meta.stream_id, meta.frame_id,
-         why);
+    fail("packetize: stream {} frame {}: invalid pass description: {}", meta.stream_id, meta.frame_id, why);
   // validate() bounds width/height by kMaxImageSide (16384) and channels by 64, so they fit
   // the header's 16- and 8-bit fields; full_scale is only bounded for Ao/SoftVisibility.
   if (d.full_scale < 0 || d.full_scale > 255)
@@ -79,8 +73,8 @@ std::vector<std::vector<uint8_t>> packetize(const PacketMeta& meta, std::span<co
     fail("packetize: a pass of {} bytes is above the 4 GiB a header can describe", encoded.size());
   const size_t count = packet_count(encoded.size(), max_payload);
   if (count > UINT16_MAX)
-    fail("packetize: {} bytes need {} packets of {} bytes, above 65535: raise max_payload",
-         encoded.size(), count, max_payload);
+    fail("packetize: {} bytes need {} packets of {} bytes, above 65535: raise max_payload", encoded.size(), count,
+         max_payload);
 
   if (encoded.empty()) parity = 0;
   FecLayout fec;
@@ -153,17 +147,18 @@ ParseResult parse_packet(std::span<const uint8_t> d, ParsedPacket& out) {
   out.parity = get16(h + kOffParity);
   const uint16_t payload_len = get16(h + kOffPayloadLen);
   FecLayout fec;
-  if (out.count == 0 || !fec_layout(out.count, out.parity, fec) || size_t(out.index) >= size_t(out.count) + out.parity ||
-      (out.parity > 0 && out.total_bytes == 0))
+  if (out.count == 0 || !fec_layout(out.count, out.parity, fec) ||
+      size_t(out.index) >= size_t(out.count) + out.parity || (out.parity > 0 && out.total_bytes == 0))
     return ParseResult::BadIndex;
   if (out.chunk_bytes == 0) return ParseResult::BadLength;
   if (payload_len != d.size() - kPacketHeaderBytes) return ParseResult::BadLength;
   // The sender cuts a pass into chunks of chunk_bytes, the last one shorter: so count and
   // each payload length follow from total and chunk (parity packets: the FEC shard size).
   if (count_for(out.total_bytes, out.chunk_bytes) != out.count) return ParseResult::BadLength;
-  const uint64_t expected_len = out.index >= out.count       ? fec_shard_bytes(out.total_bytes, out.chunk_bytes)
-                                : out.index + 1 < out.count ? uint64_t(out.chunk_bytes)
-                                                             : out.total_bytes - uint64_t(out.count - 1) * out.chunk_bytes;
+  const uint64_t expected_len = out.index >= out.count ? fec_shard_bytes(out.total_bytes, out.chunk_bytes)
+                                : out.index + 1 < out.count
+                                    ? uint64_t(out.chunk_bytes)
+                                    : out.total_bytes - uint64_t(out.count - 1) * out.chunk_bytes;
   if (payload_len != expected_len) return ParseResult::BadLength;
 
   if (!known_pass(h[kOffPass])) return ParseResult::BadDesc;

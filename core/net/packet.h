@@ -68,9 +68,7 @@ size_t packet_count(size_t encoded_bytes, size_t max_payload = kDefaultMaxPayloa
 
 // Bytes one packet with `payload_bytes` of payload occupies on the wire: header + payload +
 // IP/UDP headers.
-constexpr size_t wire_bytes(size_t payload_bytes) {
-  return kPacketHeaderBytes + payload_bytes + kIpUdpOverheadBytes;
-}
+constexpr size_t wire_bytes(size_t payload_bytes) { return kPacketHeaderBytes + payload_bytes + kIpUdpOverheadBytes; }
 // Bytes all packets of a pass of `encoded_bytes` occupy on the wire.
 size_t wire_bytes_of_pass(size_t encoded_bytes, size_t max_payload = kDefaultMaxPayloadBytes);
 // Bytes on the wire of packets as sent (FEC parity packets included): each packet's size, the
@@ -108,7 +106,7 @@ struct ParsedPacket {
   uint16_t index = 0;
   uint16_t count = 0;
   uint16_t chunk_bytes = 0;
-  uint16_t parity = 0;  // parity packets of the pass (index >= count: this is one)
+  uint16_t parity = 0;               // parity packets of the pass (index >= count: this is one)
   std::span<const uint8_t> payload;  // points into the datagram given to parse_packet
   bool is_parity() const { return index >= count; }
   // Offset of this payload in the pass.

@@ -112,7 +112,8 @@ bool UdpSocket::wait_readable(int timeout_ms) const {
 
 SendResult UdpSocket::send_to(std::span<const uint8_t> datagram, const Endpoint& to) {
   for (;;) {
-    const ssize_t n = ::sendto(fd_, datagram.data(), datagram.size(), 0, reinterpret_cast<const sockaddr*>(&to.addr), to.len);
+    const ssize_t n =
+        ::sendto(fd_, datagram.data(), datagram.size(), 0, reinterpret_cast<const sockaddr*>(&to.addr), to.len);
     if (n >= 0) return SendResult::Sent;
     if (errno == EINTR) continue;
     if (errno == EAGAIN || errno == EWOULDBLOCK || errno == ENOBUFS) return SendResult::WouldBlock;
@@ -125,7 +126,8 @@ ReceiveResult UdpSocket::receive(std::vector<uint8_t>& buffer, Endpoint& from, s
   buffer.resize(max_bytes);
   from.len = sizeof from.addr;
   for (;;) {
-    const ssize_t n = ::recvfrom(fd_, buffer.data(), buffer.size(), MSG_TRUNC, reinterpret_cast<sockaddr*>(&from.addr), &from.len);
+    const ssize_t n =
+        ::recvfrom(fd_, buffer.data(), buffer.size(), MSG_TRUNC, reinterpret_cast<sockaddr*>(&from.addr), &from.len);
     if (n >= 0) {
       const bool truncated = size_t(n) > max_bytes;
       buffer.resize(truncated ? max_bytes : size_t(n));

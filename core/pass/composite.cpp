@@ -40,14 +40,16 @@ constexpr uint32_t kFirstBucketExponent = 127 - 13;  // biased exponent of 2^-13
 struct SrgbCodes {
   std::array<float, 255> boundary{};
   std::array<uint32_t, 13u << kBucketBits> bucket{};  // code << 17 | boundary's low bits (or 0x10000)
-  alignas(64) std::array<float, 16> scale{};  // srgb8_x16's 255 * 1.055 * 2^(5 (k - 13) / 12)
+  alignas(64) std::array<float, 16> scale{};          // srgb8_x16's 255 * 1.055 * 2^(5 (k - 13) / 12)
 };
 
 const SrgbCodes& srgb_codes() {
   static const SrgbCodes table = [] {
     SrgbCodes t;
     for (int k = 1; k <= 255; ++k) t.boundary[size_t(k - 1)] = float(srgb_to_linear((k - 0.5) / 255.0));
-    const auto codes = [&](float v) { return std::upper_bound(t.boundary.begin(), t.boundary.end(), v) - t.boundary.begin(); };
+    const auto codes = [&](float v) {
+      return std::upper_bound(t.boundary.begin(), t.boundary.end(), v) - t.boundary.begin();
+    };
     for (uint32_t i = 0; i < t.bucket.size(); ++i) {
       const uint32_t first = (i + (kFirstBucketExponent << kBucketBits)) << kLowBits;
       const float last = std::bit_cast<float>(first + kLowMask);
@@ -81,8 +83,8 @@ inline uint8_t srgb8_code(const SrgbCodes& t, float linear) {
 // in shade_row and in shade_lambert (core/pass/composite.h).
 template <class T>
 struct CompositeInputs {
-  T visibility{};  // V_l per light
-  T ao{};          // AO
+  T visibility{};     // V_l per light
+  T ao{};             // AO
   uint32_t seen = 0;  // bit m: a pass of meaning m was placed
 
   // Where the pass of `meaning` goes; dhr::Error for a meaning the composite does not shade or
@@ -113,8 +115,8 @@ void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, Pass
     fail("composite: got a {} pass where a {} pass was expected", pass_kind_name(pb.desc.kind),
          pass_meaning_name(meaning));
   if (pb.desc.width != g.width() || pb.desc.height != g.height())
-    fail("composite: {} pass is {}x{}, the G-buffer {}x{}", pass_kind_name(pb.desc.kind), pb.desc.width,
-         pb.desc.height, g.width(), g.height());
+    fail("composite: {} pass is {}x{}, the G-buffer {}x{}", pass_kind_name(pb.desc.kind), pb.desc.width, pb.desc.height,
+         g.width(), g.height());
   if (meaning == PassMeaning::Visibility && size_t(pb.desc.channels) != scene.lights.size())
     fail("composite: {} pass has {} channels, the scene {} lights", pass_kind_name(pb.desc.kind), pb.desc.channels,
          scene.lights.size());
@@ -235,9 +237,8 @@ void fraction_row(std::span<const float> values, size_t first, size_t n, float a
 // A row's G-buffer values into the first nine planes (position, normal, albedo): the geometric
 // normal where the shading normal is zero or NaN. Both normals are read and the choice is a
 // select, so that the loop has no branch: built for AVX2 and the baseline, it is vectorized.
-DHR_VEC8_TARGETS void gbuffer_row(const float* __restrict pos, const float* __restrict nrm,
-                                  const float* __restrict geo, const float* __restrict alb, int w,
-                                  float* const* planes) {
+DHR_VEC8_TARGETS void gbuffer_row(const float* __restrict pos, const float* __restrict nrm, const float* __restrict geo,
+                                  const float* __restrict alb, int w, float* const* planes) {
   float* __restrict px = planes[0];
   float* __restrict py = planes[1];
   float* __restrict pz = planes[2];
@@ -260,8 +261,8 @@ DHR_VEC8_TARGETS void gbuffer_row(const float* __restrict pos, const float* __re
 // What the 16-lane row kernel reads of the passes: composite() of pass buffers. (The float
 // fractions of composite_fractions take the row path only.)
 struct PassBytes {
-  const uint8_t* ao = nullptr;  // null: AO = 1
-  float ao_scale = 1.0f;        // 1 / full_scale
+  const uint8_t* ao = nullptr;   // null: AO = 1
+  float ao_scale = 1.0f;         // 1 / full_scale
   const uint8_t* vis = nullptr;  // null: fully lit
   bool bitmask = false;
   size_t bpp = 0;          // bitmask: bytes per pixel
@@ -295,7 +296,8 @@ constexpr RgbShuffles kRgbShuffles = make_rgb_shuffles();
 // fraction_row of 16 bytes: min(1, byte * scale), as std::min(1.0f, v) (v < 1 ? v : 1).
 DHR_AVX512_TARGET inline __m512 fractions_x16(const uint8_t* bytes, float scale) {
   const __m128i b = _mm_loadu_si128(reinterpret_cast<const __m128i*>(bytes));
-  const __m512 v = _mm512_mul_ps(_mm512_maskz_cvtepi32_ps(kAll, _mm512_maskz_cvtepu8_epi32(kAll, b)), _mm512_set1_ps(scale));
+  const __m512 v =
+      _mm512_mul_ps(_mm512_maskz_cvtepi32_ps(kAll, _mm512_maskz_cvtepu8_epi32(kAll, b)), _mm512_set1_ps(scale));
   return _mm512_maskz_min_ps(kAll, v, _mm512_set1_ps(1.0f));
 }
 
@@ -329,8 +331,8 @@ DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
   const __mmask16 top = _mm512_cmp_ps_mask(v, _mm512_set1_ps(1.0f), _CMP_GE_OQ);
   const __mmask16 mid = ge & __mmask16(~top);
   const __m512 e = _mm512_maskz_getexp_ps(kAll, v);
-  const __m512 m = _mm512_sub_ps(_mm512_maskz_getmant_ps(kAll, v, _MM_MANT_NORM_1_2, _MM_MANT_SIGN_zero),
-                                 _mm512_set1_ps(1.5f));
+  const __m512 m =
+      _mm512_sub_ps(_mm512_maskz_getmant_ps(kAll, v, _MM_MANT_NORM_1_2, _MM_MANT_SIGN_zero), _mm512_set1_ps(1.5f));
   __m512 p = _mm512_set1_ps(-2.716104267e-03f);
   p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(5.186546128e-03f));
   p = _mm512_fmadd_ps(p, m, _mm512_set1_ps(-9.634766728e-03f));
@@ -343,7 +345,8 @@ DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
   const __m512 y_pow = _mm512_fmsub_ps(scale, p, _mm512_set1_ps(255.0f * 0.055f - 0.5f));
   const __m512 y_lin = _mm512_fmadd_ps(v, _mm512_set1_ps(255.0f * 12.92f), _mm512_set1_ps(0.5f));
   const __m512 y = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(v, _mm512_set1_ps(0.0031308f), _CMP_LT_OQ), y_pow, y_lin);
-  const __m512 near = _mm512_sub_ps(y, _mm512_maskz_roundscale_ps(kAll, y, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+  const __m512 near =
+      _mm512_sub_ps(y, _mm512_maskz_roundscale_ps(kAll, y, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
   const __mmask16 unsure = mid & _mm512_cmp_ps_mask(_mm512_abs_ps(near), _mm512_set1_ps(kSlack), _CMP_LT_OQ);
   __m512i code = _mm512_maskz_cvt_roundps_epi32(mid, y, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
   code = _mm512_mask_mov_epi32(code, top, _mm512_set1_epi32(255));
@@ -358,7 +361,8 @@ DHR_AVX512_TARGET inline void store_rgb8_x16(__m512i r, __m512i g, __m512i b, ui
   for (int o = 0; o < 3; ++o) {
     __m128i v = _mm_setzero_si128();
     for (int c = 0; c < 3; ++c)
-      v = _mm_or_si128(v, _mm_shuffle_epi8(ch[c], _mm_loadu_si128(reinterpret_cast<const __m128i*>(kRgbShuffles.m[o][c]))));
+      v = _mm_or_si128(
+          v, _mm_shuffle_epi8(ch[c], _mm_loadu_si128(reinterpret_cast<const __m128i*>(kRgbShuffles.m[o][c]))));
     _mm_storeu_si128(reinterpret_cast<__m128i*>(out + 16 * o), v);
   }
 }
@@ -431,7 +435,8 @@ DHR_AVX512_TARGET inline LightGeometry16 light_geometry_x16(const LightTerm& L, 
   if (L.ranged) ok &= _mm512_cmp_ps_mask(d2, _mm512_set1_ps(L.range2), _CMP_NGT_UQ);
   const __m512 d = _mm512_maskz_sqrt_ps(kAll, d2);
   ok &= _mm512_cmp_ps_mask(d, zero, _CMP_GT_OQ);
-  const __m512 dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], tx), _mm512_mul_ps(n[1], ty)), _mm512_mul_ps(n[2], tz));
+  const __m512 dot =
+      _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], tx), _mm512_mul_ps(n[1], ty)), _mm512_mul_ps(n[2], tz));
   // std::max({d2, radius^2, kMinDistance2}), the first largest: max(b, m) is m unless b > m
   // (equal values have the same bits: none is -0; a NaN d2 stays NaN, and its lane fails d > 0).
   const __m512 m = _mm512_maskz_max_ps(kAll, _mm512_set1_ps(kMinDistance2),
@@ -484,8 +489,8 @@ DHR_AVX512_TARGET int composite_row16(const GBuffer& g, int y, const PassBytes& 
     const __m512 p[3] = {pv.x, pv.y, pv.z};
     __m512 n[3] = {nv.x, nv.y, nv.z};
     // The geometric normal where the shading normal is zero or NaN (glm::dot's sum, in its order).
-    const __m512 nn = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], n[0]), _mm512_mul_ps(n[1], n[1])),
-                                    _mm512_mul_ps(n[2], n[2]));
+    const __m512 nn =
+        _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(n[0], n[0]), _mm512_mul_ps(n[1], n[1])), _mm512_mul_ps(n[2], n[2]));
     const __mmask16 fallback = _mm512_cmp_ps_mask(nn, zero, _CMP_NGT_UQ);
     if (fallback) {
       const Xyz16 gv = load_xyz16(geo + 3 * size_t(x));
@@ -495,9 +500,10 @@ DHR_AVX512_TARGET int composite_row16(const GBuffer& g, int y, const PassBytes& 
     const Xyz16 av = load_xyz16(alb + 3 * size_t(x));
     const __m512 a[3] = {av.x, av.y, av.z};
     const __m512 ao = pb.ao ? fractions_x16(pb.ao + i, pb.ao_scale) : one;
-    const __m512i vis_bits = pb.vis && pb.bitmask && pb.bpp == 1
-                                 ? _mm512_maskz_cvtepu8_epi32(kAll, _mm_loadu_si128(reinterpret_cast<const __m128i*>(pb.vis + i)))
-                                 : _mm512_setzero_si512();
+    const __m512i vis_bits =
+        pb.vis && pb.bitmask && pb.bpp == 1
+            ? _mm512_maskz_cvtepu8_epi32(kAll, _mm_loadu_si128(reinterpret_cast<const __m128i*>(pb.vis + i)))
+            : _mm512_setzero_si512();
     __m512 lx = _mm512_mul_ps(_mm512_set1_ps(ambient.x), ao);
     __m512 ly = _mm512_mul_ps(_mm512_set1_ps(ambient.y), ao);
     __m512 lz = _mm512_mul_ps(_mm512_set1_ps(ambient.z), ao);
@@ -548,7 +554,8 @@ ImageRGB8 composite_impl(const GBuffer& g, const Scene& scene, const CompositeSe
       int x0 = 0;  // pixels [x0, w) take the row path
 #if DHR_AVX512_KERNELS
       if (wide)
-        x0 = composite_row16(g, y, *bytes, lights.data(), nl, scene.ambient, settings.exposure, b, background, &out(0, y));
+        x0 = composite_row16(g, y, *bytes, lights.data(), nl, scene.ambient, settings.exposure, b, background,
+                             &out(0, y));
 #endif
       if (x0 == w) continue;
       const size_t n = size_t(w - x0), start = first + size_t(x0);
@@ -599,9 +606,7 @@ ImageRGB8 composite(const GBuffer& g, const Scene& scene, std::span<const Compos
   const PassBuffer* visibility = in.visibility;
   const PassBuffer* ao = in.ao;
   const size_t npx = size_t(g.width()) * size_t(g.height());
-  auto terms_row = [&](size_t first, size_t n, RowPlanes& rp) {
-    fraction_row(ao, first, n, 1.0f, rp.plane(kPlaneAo));
-  };
+  auto terms_row = [&](size_t first, size_t n, RowPlanes& rp) { fraction_row(ao, first, n, 1.0f, rp.plane(kPlaneAo)); };
   PassBytes pb;
   if (ao) pb.ao = ao->bytes.data(), pb.ao_scale = 1.0f / float(ao->desc.full_scale);
   if (visibility) {

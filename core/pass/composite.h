@@ -49,8 +49,8 @@ struct PixelTerms {
 // the same operations eight pixels at a time (shade_row in core/pass/composite.cpp) and must agree
 // with this kernel bit for bit (tests/test_trace.cpp, Composite.RowKernelMatchesShadeLambert).
 template <class VisibleFn>
-glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position,
-                        const glm::vec3& normal, const PixelTerms& terms, VisibleFn&& visible);
+glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position, const glm::vec3& normal,
+                        const PixelTerms& terms, VisibleFn&& visible);
 
 // One received pass for the composite: its meaning picks its term (an absent pass of a meaning
 // is its neutral value: fully lit, AO = 1). A null buffer counts as absent. A visibility pass
@@ -91,8 +91,8 @@ void composite_row_path_only(bool on);
 // ---- implementation of the kernel ----
 
 template <class VisibleFn>
-glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position,
-                        const glm::vec3& normal, const PixelTerms& terms, VisibleFn&& visible) {
+glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position, const glm::vec3& normal,
+                        const PixelTerms& terms, VisibleFn&& visible) {
   constexpr float kMinDistance2 = 1e-6f;
   glm::vec3 light = scene.ambient * terms.ao;
   for (size_t l = 0; l < scene.lights.size(); ++l) {

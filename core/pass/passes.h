@@ -44,7 +44,7 @@ struct PassChoice {
 
 // One kind of traced pass.
 struct PassType {
-  const char* name;   // the key of its settings, its results and its live stream: "ao"
+  const char* name;  // the key of its settings, its results and its live stream: "ao"
   PassMeaning meaning;
   const char* stage;  // its kernel's name in the server's stage times: "trace_ao"
   // Its description in `plan` at width x height, or none when the plan leaves it out.
@@ -54,9 +54,8 @@ struct PassType {
                       TraceStats& stats);
   // The ground truth's estimate of the pass (core/pass/reference.h): converged, as fractions in
   // [0, 1], planar [channel][pixel] at the G-buffer's size; `plan` has soft shadows on.
-  std::vector<float> (*converged)(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
-                                  const TraceSettings& settings, const ReferenceRays& reference,
-                                  TraceStats& stats);
+  std::vector<float> (*converged)(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
+                                  const ReferenceRays& reference, TraceStats& stats);
   const char* codec;      // default backends: passes.<name>.codec
   const char* denoiser;   // passes.<name>.denoiser (8-bit planes only; bitmasks are never denoised)
   const char* predictor;  // passes.<name>.predictor
@@ -80,7 +79,7 @@ std::vector<std::string> all_pass_names();
 struct PlannedPass {
   std::string name;  // the key of its settings and of its results: "visibility", "ao", "colour"
   PassMeaning meaning = PassMeaning::Ao;
-  PassDesc desc;     // layout, size, channels and full scale as traced (before denoising)
+  PassDesc desc;  // layout, size, channels and full scale as traced (before denoising)
   PassLayout layout() const { return pass_layout(desc.kind); }
 };
 
@@ -125,8 +124,7 @@ std::vector<CompositePass> composite_inputs(const TracedPasses& traced);
 struct TraceResult : TracedPasses {
   PassPlan plan;
 };
-TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const TraceSettings& settings,
-                         std::string_view only = {});
+TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const TraceSettings& settings, std::string_view only = {});
 
 // The one-pass traces of one frame (trace_passes with `only`, in the order of pass_types()),
 // joined into the trace of all of them: their passes and the statistics trace_passes gives.

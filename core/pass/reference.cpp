@@ -184,8 +184,7 @@ ReferenceResult ground_truth(RtScene& rt, const GBuffer& g, const ReferenceSetti
       std::optional<ImageRGB8> img;
       try {
         img = read_rgb8(file.string());
-      } catch (const Error&) {
-      }
+      } catch (const Error&) {}
       if (img && img->same_size(g.width(), g.height())) {
         out.image = std::move(*img);
         out.from_cache = true;

@@ -26,7 +26,7 @@ struct PassReceiver {
   PassBuffer buffer;  // its decoded buffer
 
   struct Outcome {
-    bool decoded = false;           // decoded (and kept when newer than `frame`)
+    bool decoded = false;  // decoded (and kept when newer than `frame`)
     bool decode_error = false;
     bool gap_reset = false;         // a lost frame before this one: the decoder was reset, or
                                     // (one that keeps references) asked to recover

@@ -68,7 +68,8 @@ DenoiseStage::DenoiseStage(const SimConfig& c, const std::vector<PlannedPass>& t
     names_.push_back(p.name);
     if (p.layout() != PassLayout::Planes8) continue;
     const BackendChoice denoiser = c.pass(p.name).denoiser;
-    for (int plane = 0; plane < p.desc.channels; ++plane) planes_.back().push_back(r.denoisers.create(denoiser.name, denoiser.params));
+    for (int plane = 0; plane < p.desc.channels; ++plane)
+      planes_.back().push_back(r.denoisers.create(denoiser.name, denoiser.params));
   }
   chains_.resize(planes_.size());
 }
@@ -79,7 +80,8 @@ void DenoiseStage::share(DenoiseSharing sharing) {
   sharing_ = std::move(sharing);
   for (size_t i = 0; i < planes_.size(); ++i) {
     // Only temporal denoisers are shared: a per-frame filter costs what a copy from the memo does.
-    const bool temporal = std::any_of(planes_[i].begin(), planes_[i].end(), [](const auto& d) { return d->keeps_history(); });
+    const bool temporal =
+        std::any_of(planes_[i].begin(), planes_[i].end(), [](const auto& d) { return d->keeps_history(); });
     chains_[i].reset();
     if (temporal && !sharing_.pass_keys[i].empty()) {
       chains_[i].emplace();
@@ -116,7 +118,8 @@ void DenoiseStage::Chain::append(uint32_t frame, const RasterFrame& raster) {
 void DenoiseStage::feed(const GBuffer& gbuf, uint32_t frame, size_t pass, PassBuffer& buf) {
   const auto& denoisers = planes_.at(pass);
   if (buf.desc.layout() != PassLayout::Planes8 || size_t(buf.desc.channels) != denoisers.size())
-    fail("denoise: a {} pass of {} planes, planned for {}", pass_kind_name(buf.desc.kind), buf.desc.channels, denoisers.size());
+    fail("denoise: a {} pass of {} planes, planned for {}", pass_kind_name(buf.desc.kind), buf.desc.channels,
+         denoisers.size());
   const size_t n = size_t(buf.desc.width) * size_t(buf.desc.height);
   // A pass traced at reduced resolution is denoised with the G-buffer of its samples.
   std::optional<GBuffer> reduced;
@@ -226,9 +229,15 @@ Rastered rasterize_now(const RasterFrame& frame) {
 
 ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Registries& r, TraceFn trace,
                                uint16_t stream_id, RasterFn raster)
-    : c_(c), scene_(scene), plan_(plan_passes(scene, c.trace)), traced_(traced_passes(plan_, c.width, c.height)),
-      sent_(sent_passes(plan_, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)), trace_(std::move(trace)),
-      raster_(raster ? std::move(raster) : RasterFn(rasterize_now)), stream_id_(stream_id), denoise_(c, traced_, r) {
+    : c_(c),
+      scene_(scene),
+      plan_(plan_passes(scene, c.trace)),
+      traced_(traced_passes(plan_, c.width, c.height)),
+      sent_(sent_passes(plan_, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)),
+      trace_(std::move(trace)),
+      raster_(raster ? std::move(raster) : RasterFn(rasterize_now)),
+      stream_id_(stream_id),
+      denoise_(c, traced_, r) {
   for (const PlannedPass& p : sent_) {
     const BackendChoice codec = c.pass(p.name).codec;
     codecs_.push_back(r.codecs.create(codec.name, codec.params));
@@ -284,7 +293,8 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     out.compute_ms += ms;
   };
 
-  const RasterFrame raster{&scene_, camera, time_s, has_prev_ ? prev_camera_ : camera, has_prev_ ? prev_time_s_ : time_s};
+  const RasterFrame raster{&scene_, camera, time_s, has_prev_ ? prev_camera_ : camera,
+                           has_prev_ ? prev_time_s_ : time_s};
   Rastered rastered = raster_(raster);
   std::shared_ptr<const GBuffer> kept = std::move(rastered.gbuf);
   const GBuffer& gbuf = *kept;
@@ -298,12 +308,14 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
   for (const TracedPass& p : traced->passes) stage(find_pass_type(p.name)->stage, p.ms);
 
   double denoise_ms = 0.0;
-  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, *traced, raster, gbuf, frame, denoise_ms);
+  std::vector<std::optional<PassBuffer>> buffers =
+      denoised(denoise_, traced_, *traced, raster, gbuf, frame, denoise_ms);
   if (!traced_.empty()) stage("denoise", denoise_ms);
 
   auto t0 = Clock::now();
   if (c_.mode == "remote") {
-    const ImageRGB8 img = composite_traced(gbuf, scene_, traced_, std::move(buffers), upsample_filter_of(c_.ao_upsample));
+    const ImageRGB8 img =
+        composite_traced(gbuf, scene_, traced_, std::move(buffers), upsample_filter_of(c_.ao_upsample));
     PassBuffer colour;
     colour.desc = sent_[0].desc;
     colour.bytes.resize(colour.desc.byte_size());
@@ -366,7 +378,10 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
 // ---- client
 
 ClientPipeline::ClientPipeline(const SimConfig& c, const Scene& scene, const Registries& r)
-    : c_(c), scene_(scene), remote_(c.mode == "remote"), filter_(upsample_filter_of(c.ao_upsample)),
+    : c_(c),
+      scene_(scene),
+      remote_(c.mode == "remote"),
+      filter_(upsample_filter_of(c.ao_upsample)),
       passes_(sent_passes(plan_passes(scene, c.trace), remote_, remote_depth_bits(c, r), c.width, c.height)) {
   depth_pass_ = find_pass(passes_, PassMeaning::Depth);
   upsampled_.assign(passes_.size(), {-1, PassBuffer{}});
@@ -435,7 +450,8 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
       const bool has_depth = depth_pass_ >= 0 && receivers_[size_t(depth_pass_)].frame == r.frame;
       if (r.frame != remote_src_frame_ || has_depth != remote_src_has_depth_) {
         remote_src_.camera = camera_of(r.frame);
-        remote_src_.depth = has_depth ? unpack_depth(receivers_[size_t(depth_pass_)].buffer, remote_src_.camera) : ImageF();
+        remote_src_.depth =
+            has_depth ? unpack_depth(receivers_[size_t(depth_pass_)].buffer, remote_src_.camera) : ImageF();
         remote_src_frame_ = r.frame;
         remote_src_has_depth_ = has_depth;
       }
@@ -507,8 +523,7 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
       outputs.push_back(&predicted[k].emplace());
       to_predict[k] = nullptr;
     }
-    const std::vector<PredictStats> stats =
-        predictors_[i]->predict_passes(*sources[i], gbuf, received, outputs);
+    const std::vector<PredictStats> stats = predictors_[i]->predict_passes(*sources[i], gbuf, received, outputs);
     for (size_t g = 0; g < group.size(); ++g) out.disoccluded[group[g]] = stats[g].disoccluded;
   }
   out.predict_ms = ms_since(t0) - out.upsample_ms;
@@ -522,7 +537,9 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
 // ---- local reference
 
 LocalReference::LocalReference(const SimConfig& c, const Scene& scene, const Registries& r)
-    : scene_(scene), traced_(traced_passes(plan_passes(scene, c.trace), c.width, c.height)), denoise_(c, traced_, r),
+    : scene_(scene),
+      traced_(traced_passes(plan_passes(scene, c.trace), c.width, c.height)),
+      denoise_(c, traced_, r),
       filter_(upsample_filter_of(c.ao_upsample)) {}
 
 std::optional<ImageRGB8> LocalReference::frame(uint32_t frame, const RasterFrame& raster, const GBuffer& gbuf,

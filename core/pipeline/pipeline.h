@@ -149,10 +149,10 @@ struct SentPass {
 
 struct ServerFrame {
   uint32_t frame = 0;
-  std::vector<SentPass> passes;  // in the order of ServerPipeline::passes()
-  TraceStats trace;              // of this frame's trace (its wall time: when it was traced)
-  std::vector<StageTime> stages; // every stage run, in order ("encode" once per pass)
-  double compute_ms = 0.0;       // their sum
+  std::vector<SentPass> passes;   // in the order of ServerPipeline::passes()
+  TraceStats trace;               // of this frame's trace (its wall time: when it was traced)
+  std::vector<StageTime> stages;  // every stage run, in order ("encode" once per pass)
+  double compute_ms = 0.0;        // their sum
 };
 
 class ServerPipeline {
@@ -210,13 +210,13 @@ class ServerPipeline {
 
 struct ClientFrame {
   ImageRGB8 image;
-  std::vector<int> source_frame;       // per pass: the server frame displayed (-1: none)
-  std::vector<uint64_t> disoccluded;   // per pass: the predictor's count
-  std::vector<bool> without_data;      // per pass: shown with its local fallback (nothing usable)
-  int passes_without_data = 0;         // how many passes were
+  std::vector<int> source_frame;      // per pass: the server frame displayed (-1: none)
+  std::vector<uint64_t> disoccluded;  // per pass: the predictor's count
+  std::vector<bool> without_data;     // per pass: shown with its local fallback (nothing usable)
+  int passes_without_data = 0;        // how many passes were
   double predict_ms = 0.0, composite_ms = 0.0;
-  double upsample_ms = 0.0;            // passes traced at reduced resolution (once per received frame)
-  bool composited = false;             // false: a colour frame shown as it is (remote)
+  double upsample_ms = 0.0;  // passes traced at reduced resolution (once per received frame)
+  bool composited = false;   // false: a colour frame shown as it is (remote)
 };
 
 class ClientPipeline {

@@ -67,13 +67,15 @@ void TraceStats::add(const TraceStats& o) {
 }
 
 PassPlan plan_passes(const Scene& scene, const TraceSettings& s) {
-  if (s.ao_rays < 0 || s.ao_rays > 255) fail("trace settings: ao_rays {} out of range 1..255 (0 = the scene's)", s.ao_rays);
+  if (s.ao_rays < 0 || s.ao_rays > 255)
+    fail("trace settings: ao_rays {} out of range 1..255 (0 = the scene's)", s.ao_rays);
   if (!(s.ao_radius_m >= 0.0f) || !std::isfinite(s.ao_radius_m))
     fail("trace settings: ao_radius_m {} must be finite and > 0 (0 = the scene's)", s.ao_radius_m);
   if (s.samples_per_light < 1 || s.samples_per_light > 1024)
     fail("trace settings: samples_per_light {} out of range 1..1024", s.samples_per_light);
   if (s.threads < 0) fail("trace settings: threads {} must be >= 0 (0 = the scene's arena)", s.threads);
-  if (scene.lights.size() > 64) fail("scene '{}': {} lights, at most 64 are supported", scene.name, scene.lights.size());
+  if (scene.lights.size() > 64)
+    fail("scene '{}': {} lights, at most 64 are supported", scene.name, scene.lights.size());
 
   PassPlan plan;
   plan.lights = int(scene.lights.size());
@@ -103,8 +105,8 @@ PassPlan plan_passes(const Scene& scene, const TraceSettings& s) {
     } else {
       plan.shadow = ShadowMode::SoftFraction;
       plan.samples_per_light = s.samples_per_light;
-      plan.reasons.push_back(fmt::format("area light(s): soft shadows, {} rays per light (8-bit fraction)",
-                                         s.samples_per_light));
+      plan.reasons.push_back(
+          fmt::format("area light(s): soft shadows, {} rays per light (8-bit fraction)", s.samples_per_light));
     }
     if (s.visibility_fraction && plan.shadow != ShadowMode::SoftFraction) {
       plan.shadow = ShadowMode::SoftFraction;  // one ray per light, sent as 8 bits (0 or 1 of 1)

@@ -16,9 +16,9 @@ namespace dhr {
 struct TraceSettings {
   uint64_t seed = 1;
   uint32_t frame = 0;
-  int ao_rays = 0;            // 1..255 rays per pixel; 0 = the scene's ao.rays
-  float ao_radius_m = 0.0f;   // > 0; 0 = the scene's ao.radius_m
-  bool soft_shadows = true;   // false: one ray to each light's centre (hard) even for area lights
+  int ao_rays = 0;           // 1..255 rays per pixel; 0 = the scene's ao.rays
+  float ao_radius_m = 0.0f;  // > 0; 0 = the scene's ao.radius_m
+  bool soft_shadows = true;  // false: one ray to each light's centre (hard) even for area lights
   // Rays per area light per pixel (soft shadows only). 1: one jittered ray, one bit per light
   // (Visibility pass, the paper's bitmask). 2..1024: the visible fraction per light in 8 bits
   // (SoftVisibility pass, full_scale = S, or 255 when S > 255).
@@ -28,7 +28,7 @@ struct TraceSettings {
   // can smooth into a soft fraction and a lossy video codec can code. With S > 1 rays per light
   // the pass is a fraction either way.
   bool visibility_fraction = false;
-  int threads = 0;            // 0 = the RtScene's arena; else a dedicated arena of this size
+  int threads = 0;  // 0 = the RtScene's arena; else a dedicated arena of this size
   // Tests: split the image into blocks of exactly this many rows (TBB's simple_partitioner)
   // instead of TBB's own blocks, whose bounds depend on the threads' timing. The counts must not
   // depend on it (tests/test_trace_bits.cpp: TraceBits.CountsDoNotDependOnRowBlocks).
@@ -63,12 +63,12 @@ const char* shadow_mode_name(ShadowMode mode);
 struct PassPlan {
   ShadowMode shadow = ShadowMode::None;
   int lights = 0;
-  int samples_per_light = 0;  // S for SoftFraction, 1 for Hard / SoftBit, 0 for None
+  int samples_per_light = 0;        // S for SoftFraction, 1 for Hard / SoftBit, 0 for None
   std::vector<uint8_t> light_soft;  // per light: 1 = cone sampling, 0 = one ray to the centre
   bool ao = false;
   int ao_rays = 0;
   float ao_radius_m = 0.0f;
-  int ao_scale = 1;  // the AO pass is traced at 1/ao_scale of the image's width and height
+  int ao_scale = 1;                  // the AO pass is traced at 1/ao_scale of the image's width and height
   std::vector<std::string> reasons;  // why each pass runs or not (one line each)
 
   bool visibility() const { return shadow != ShadowMode::None; }
@@ -78,7 +78,7 @@ struct PassPlan {
   int visibility_full_scale() const;  // SoftFraction: min(S, 255); else 1
   PassDesc visibility_desc(int width, int height) const;
   PassDesc ao_desc(int width, int height) const;  // at 1/ao_scale of width x height
-  std::string describe() const;  // the reasons, joined
+  std::string describe() const;                   // the reasons, joined
 };
 
 // Throws dhr::Error for out-of-range settings (naming the key and the valid range) and for
@@ -86,18 +86,17 @@ struct PassPlan {
 PassPlan plan_passes(const Scene& scene, const TraceSettings& settings);
 
 struct TraceStats {
-  uint64_t pixels = 0;           // in the G-buffer
-  uint64_t covered_pixels = 0;   // not background
-  uint64_t shadow_rays = 0;      // traced (handed to Embree)
-  uint64_t ao_rays = 0;          // traced
-  uint64_t invalid_rays = 0;     // failed validation: counted, never traced
-  uint64_t unresolved_pixels = 0;  // object/prim id not in the scene: G-buffer position used
+  uint64_t pixels = 0;                 // in the G-buffer
+  uint64_t covered_pixels = 0;         // not background
+  uint64_t shadow_rays = 0;            // traced (handed to Embree)
+  uint64_t ao_rays = 0;                // traced
+  uint64_t invalid_rays = 0;           // failed validation: counted, never traced
+  uint64_t unresolved_pixels = 0;      // object/prim id not in the scene: G-buffer position used
   uint64_t shadow_skipped_facing = 0;  // (pixel, light) pairs: surface faces away, no ray
   uint64_t shadow_skipped_range = 0;   // (pixel, light) pairs beyond range_m, no ray
   uint64_t shadow_inside_light = 0;    // (pixel, light) pairs inside the light's sphere, no ray
   void add(const TraceStats& o);
 };
-
 
 // The ground truth's ray counts (part of ReferenceSettings, core/pass/reference.h). A pass whose
 // converged estimate needs a count of its own adds it here.

@@ -35,7 +35,6 @@ namespace dhr {
 
 namespace raster_detail {
 
-
 Setup make_setup(const Context& ctx, const CoverTri& c) {
   const ObjectPrep& p = ctx.objects[c.object];
   const glm::uvec3 t = p.mesh->triangles[c.prim];
@@ -87,7 +86,8 @@ void check_camera(const Camera& c, const char* which) {
   if (std::abs(glm::length(c.forward) - 1.0f) > 1e-3f || std::abs(glm::length(c.up) - 1.0f) > 1e-3f ||
       std::abs(glm::dot(c.forward, c.up)) > 1e-3f)
     fail("rasterize: {} needs unit, orthogonal forward and up vectors (use Camera::look_at)", which);
-  if (!(c.vfov_deg > 0.0f && c.vfov_deg < 180.0f)) fail("rasterize: {} vfov_deg {} is outside (0, 180)", which, c.vfov_deg);
+  if (!(c.vfov_deg > 0.0f && c.vfov_deg < 180.0f))
+    fail("rasterize: {} vfov_deg {} is outside (0, 180)", which, c.vfov_deg);
   if (!(c.near_m > 0.0f && c.far_m > c.near_m && std::isfinite(c.far_m)))
     fail("rasterize: {} needs 0 < near_m < far_m (finite), got near_m {} far_m {}", which, c.near_m, c.far_m);
   if (c.width <= 0 || c.height <= 0) fail("rasterize: {} resolution {}x{} must be positive", which, c.width, c.height);
@@ -185,7 +185,6 @@ int clip_polygon(const Hom* in, int n, Hom* out, Dist dist, bool on_near, double
   return m;
 }
 
-
 void prepare_objects(Context& ctx, const RasterFrame& frame, size_t& total_vertices) {
   const Scene& scene = *ctx.scene;
   ctx.objects.resize(scene.objects.size());
@@ -200,7 +199,8 @@ void prepare_objects(Context& ctx, const RasterFrame& frame, size_t& total_verti
       fail("rasterize: object '{}' has {} normals for {} positions (need one per vertex or none)", o.name,
            o.mesh.normals.size(), nv);
     if (!o.mesh.uvs.empty() && o.mesh.uvs.size() != nv)
-      fail("rasterize: object '{}' has {} uvs for {} positions (need one per vertex or none)", o.name, o.mesh.uvs.size(), nv);
+      fail("rasterize: object '{}' has {} uvs for {} positions (need one per vertex or none)", o.name,
+           o.mesh.uvs.size(), nv);
     if (o.material >= scene.materials.size())
       fail("rasterize: object '{}' has material index {} but the scene has {} materials", o.name, o.material,
            scene.materials.size());
@@ -233,7 +233,6 @@ void prepare_objects(Context& ctx, const RasterFrame& frame, size_t& total_verti
     total_vertices += nv;
   }
 }
-
 
 // Phase 1: place moving objects at time_s and transform every vertex to camera space.
 void transform_vertices(Context& ctx) {
@@ -321,11 +320,16 @@ void setup_triangles(const Context& ctx, const Job& job, TriangleJobOut& out) {
       ++out.clipped;
       Hom tmp[16];
       const double g = kGuardBandPx;
-      n = clip_polygon(poly, n, tmp, [&](const Hom& v) { return v.w - near_w; }, true, near_w);
-      n = clip_polygon(tmp, n, poly, [&](const Hom& v) { return v.x + g * v.w; }, false, 0.0);
-      n = clip_polygon(poly, n, tmp, [&](const Hom& v) { return g * v.w - v.x; }, false, 0.0);
-      n = clip_polygon(tmp, n, poly, [&](const Hom& v) { return v.y + g * v.w; }, false, 0.0);
-      n = clip_polygon(poly, n, tmp, [&](const Hom& v) { return g * v.w - v.y; }, false, 0.0);
+      n = clip_polygon(
+          poly, n, tmp, [&](const Hom& v) { return v.w - near_w; }, true, near_w);
+      n = clip_polygon(
+          tmp, n, poly, [&](const Hom& v) { return v.x + g * v.w; }, false, 0.0);
+      n = clip_polygon(
+          poly, n, tmp, [&](const Hom& v) { return g * v.w - v.x; }, false, 0.0);
+      n = clip_polygon(
+          tmp, n, poly, [&](const Hom& v) { return v.y + g * v.w; }, false, 0.0);
+      n = clip_polygon(
+          poly, n, tmp, [&](const Hom& v) { return g * v.w - v.y; }, false, 0.0);
       std::copy(tmp, tmp + n, poly);
     }
     int32_t fx[16], fy[16];
@@ -380,8 +384,7 @@ void setup_triangles(const Context& ctx, const Job& job, TriangleJobOut& out) {
 }
 
 // Visibility pass of one coverage triangle within the tile [X0, X1] x [Y0, Y1].
-void cover(const Context& ctx, const CoverTri& c, int X0, int Y0, int X1, int Y1, TileScratch& s,
-           uint64_t& fragments) {
+void cover(const Context& ctx, const CoverTri& c, int X0, int Y0, int X1, int Y1, TileScratch& s, uint64_t& fragments) {
   int x0, y0, x1, y1;
   if (!pixel_bounds(c, ctx.width, ctx.height, x0, y0, x1, y1)) return;
   x0 = std::max(x0, X0), y0 = std::max(y0, Y0), x1 = std::min(x1, X1), y1 = std::min(y1, Y1);
@@ -475,8 +478,8 @@ void resolve(const Context& ctx, const Setup& st, int x, int y, GBuffer& out) {
   const Camera& cam = *ctx.camera;
   const glm::vec3 to_cam = cam.position - pos;
 
-  glm::vec3 ng = st.geo_normal.x != 0.0f || st.geo_normal.y != 0.0f || st.geo_normal.z != 0.0f ? st.geo_normal
-                                                                                                : -cam.forward;
+  glm::vec3 ng =
+      st.geo_normal.x != 0.0f || st.geo_normal.y != 0.0f || st.geo_normal.z != 0.0f ? st.geo_normal : -cam.forward;
   if (glm::dot(ng, to_cam) < 0.0f) ng = -ng;
   glm::vec3 ns = ng;
   const glm::vec3 bf(b);
@@ -506,7 +509,8 @@ void resolve(const Context& ctx, const Setup& st, int x, int y, GBuffer& out) {
     const glm::vec3 q = ctx.prev_proj.project(prev);
     if (q.z > 0.0f) {
       auto offset = [](float v) {
-        return std::isfinite(v) ? std::clamp(v, -kMaxMotionPx, kMaxMotionPx) : (v > 0.0f ? kMaxMotionPx : -kMaxMotionPx);
+        return std::isfinite(v) ? std::clamp(v, -kMaxMotionPx, kMaxMotionPx)
+                                : (v > 0.0f ? kMaxMotionPx : -kMaxMotionPx);
       };
       motion = {offset(q.x * ctx.motion_scale_x - float(px)), offset(q.y * ctx.motion_scale_y - float(py))};
     } else {
@@ -596,10 +600,21 @@ RasterStats rasterize(const RasterFrame& frame, GBuffer& out) {
     fail("rasterize: time_s {} and prev_time_s {} must be finite", frame.time_s, frame.prev_time_s);
 
   const Camera& cam = frame.camera;
-  Context ctx{frame.scene, &cam, Projector(cam), Projector(frame.prev_camera), same_camera(cam, frame.prev_camera),
-              float(cam.width) / float(frame.prev_camera.width), float(cam.height) / float(frame.prev_camera.height),
-              1.0 / double(cam.near_m), 1.0 / double(cam.far_m), cam.width, cam.height,
-              (cam.width + kTile - 1) / kTile, (cam.height + kTile - 1) / kTile, {}, nullptr};
+  Context ctx{frame.scene,
+              &cam,
+              Projector(cam),
+              Projector(frame.prev_camera),
+              same_camera(cam, frame.prev_camera),
+              float(cam.width) / float(frame.prev_camera.width),
+              float(cam.height) / float(frame.prev_camera.height),
+              1.0 / double(cam.near_m),
+              1.0 / double(cam.far_m),
+              cam.width,
+              cam.height,
+              (cam.width + kTile - 1) / kTile,
+              (cam.height + kTile - 1) / kTile,
+              {},
+              nullptr};
 #if DHR_AVX512_KERNELS
   ctx.wide_kernels = cpu_has_avx512dq();
 #endif

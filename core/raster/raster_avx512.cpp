@@ -21,7 +21,6 @@ namespace dhr::raster_detail {
 
 namespace {
 
-
 // (r.x * px + r.y * py) + r.z, as cover() and barycentrics() evaluate a plane
 // (1/W and the barycentrics), for 8 pixels of a row.
 DHR_AVX512_TARGET inline __m512d plane_x8(const glm::dvec3& r, __m512d px, double py) {
@@ -125,14 +124,15 @@ DHR_AVX512_TARGET bool texture_rgb_x8(const Texture& tex, __m256 u, __m256 v, un
     return false;
   const __m256 inf = _mm256_set1_ps(INFINITY), sign = _mm256_set1_ps(-0.0f);
   const __m256i live = _mm256_cmpgt_epi32(_mm256_set1_epi32(int(n)), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
-  const __m256 use = _mm256_and_ps(
-      _mm256_castsi256_ps(live), _mm256_and_ps(_mm256_cmp_ps(_mm256_andnot_ps(sign, u), inf, _CMP_LT_OQ),
-                                               _mm256_cmp_ps(_mm256_andnot_ps(sign, v), inf, _CMP_LT_OQ)));
+  const __m256 use = _mm256_and_ps(_mm256_castsi256_ps(live),
+                                   _mm256_and_ps(_mm256_cmp_ps(_mm256_andnot_ps(sign, u), inf, _CMP_LT_OQ),
+                                                 _mm256_cmp_ps(_mm256_andnot_ps(sign, v), inf, _CMP_LT_OQ)));
   const __m256 half = _mm256_set1_ps(0.5f);
   const __m256 x = _mm256_sub_ps(_mm256_mul_ps(_mm256_sub_ps(u, _mm256_floor_ps(u)), _mm256_set1_ps(float(w))), half);
-  const __m256 y = _mm256_sub_ps(
-      _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(1.0f), _mm256_sub_ps(v, _mm256_floor_ps(v))), _mm256_set1_ps(float(h))),
-      half);
+  const __m256 y =
+      _mm256_sub_ps(_mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(1.0f), _mm256_sub_ps(v, _mm256_floor_ps(v))),
+                                  _mm256_set1_ps(float(h))),
+                    half);
   const __m256 fx = _mm256_floor_ps(x), fy = _mm256_floor_ps(y);
   const __m256 wx = _mm256_sub_ps(x, fx), wy = _mm256_sub_ps(y, fy);
   // Integral floats in range convert exactly; unused lanes take texel (0, 0).
@@ -177,8 +177,9 @@ DHR_AVX512_TARGET bool texture_rgb_x8(const Texture& tex, __m256 u, __m256 v, un
 DHR_AVX512_TARGET inline Vec3x8 mat3_x8(const glm::mat3& m, const Vec3x8& v) {
   __m256 r[3];
   for (int k = 0; k < 3; ++k)
-    r[k] = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(m[0][k]), v.x), _mm256_mul_ps(_mm256_set1_ps(m[1][k]), v.y)),
-                         _mm256_mul_ps(_mm256_set1_ps(m[2][k]), v.z));
+    r[k] = _mm256_add_ps(
+        _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(m[0][k]), v.x), _mm256_mul_ps(_mm256_set1_ps(m[1][k]), v.y)),
+        _mm256_mul_ps(_mm256_set1_ps(m[2][k]), v.z));
   return {r[0], r[1], r[2]};
 }
 
@@ -189,7 +190,8 @@ DHR_AVX512_TARGET inline Vec3x8 point_x8(const glm::mat4& m, const Vec3x8& v) {
   for (int k = 0; k < 3; ++k)
     r[k] = _mm256_add_ps(
         _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(m[0][k]), v.x), _mm256_mul_ps(_mm256_set1_ps(m[1][k]), v.y)),
-        _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(m[2][k]), v.z), _mm256_mul_ps(_mm256_set1_ps(m[3][k]), _mm256_set1_ps(1.0f))));
+        _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(m[2][k]), v.z),
+                      _mm256_mul_ps(_mm256_set1_ps(m[3][k]), _mm256_set1_ps(1.0f))));
   return {r[0], r[1], r[2]};
 }
 
@@ -212,8 +214,8 @@ DHR_AVX512_TARGET void cover_row_x8(const Context& ctx, const CoverTri& c, int y
   }
   for (int x = xa; x <= xb; x += 8) {
     const unsigned n = unsigned(std::min(8, xb - x + 1));
-    __mmask8 m = _mm512_mask_cmpge_epi64_mask(__mmask8((1u << n) - 1),
-                                              _mm512_or_si512(_mm512_or_si512(e[0], e[1]), e[2]), _mm512_setzero_si512());
+    __mmask8 m = _mm512_mask_cmpge_epi64_mask(
+        __mmask8((1u << n) - 1), _mm512_or_si512(_mm512_or_si512(e[0], e[1]), e[2]), _mm512_setzero_si512());
     for (int k = 0; k < 3; ++k) e[k] = _mm512_add_epi64(e[k], step8[k]);
     if (!m) continue;
     fragments += uint64_t(__builtin_popcount(m));
@@ -221,8 +223,10 @@ DHR_AVX512_TARGET void cover_row_x8(const Context& ctx, const CoverTri& c, int y
     const Setup& st = s.setups[sid];
     const __m512d px = pixel_centres_x8(x);
     __m512d iw = plane_x8(st.rs, px, py);
-    iw = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(iw, _mm512_set1_pd(st.iw_lo), _CMP_GE_OQ), _mm512_set1_pd(st.iw_lo), iw);
-    iw = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(iw, _mm512_set1_pd(st.iw_hi), _CMP_LE_OQ), _mm512_set1_pd(st.iw_hi), iw);
+    iw = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(iw, _mm512_set1_pd(st.iw_lo), _CMP_GE_OQ), _mm512_set1_pd(st.iw_lo),
+                              iw);
+    iw = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(iw, _mm512_set1_pd(st.iw_hi), _CMP_LE_OQ), _mm512_set1_pd(st.iw_hi),
+                              iw);
     m &= _mm512_cmp_pd_mask(iw, _mm512_set1_pd(ctx.inv_far), _CMP_NLT_UQ);  // not beyond the far plane
     const size_t k0 = size_t((y - Y0) * kTile + (x - X0));
     const __m512d cur = _mm512_maskz_loadu_pd(m, &s.inv_w[k0]);
@@ -279,8 +283,8 @@ DHR_AVX512_TARGET void resolve_x8(const Context& ctx, const Setup& st, int x, in
                    _mm512_cvtpd_ps(blend3_pd(st.v[0].z, st.v[1].z, st.v[2].z, b0, b1, b2))};
   const Vec3x8 to_cam = sub_x8(broadcast_x8(cam.position), pos);
 
-  const glm::vec3 ng0 = st.geo_normal.x != 0.0f || st.geo_normal.y != 0.0f || st.geo_normal.z != 0.0f ? st.geo_normal
-                                                                                                       : -cam.forward;
+  const glm::vec3 ng0 =
+      st.geo_normal.x != 0.0f || st.geo_normal.y != 0.0f || st.geo_normal.z != 0.0f ? st.geo_normal : -cam.forward;
   const Vec3x8 ng0x8 = broadcast_x8(ng0);
   const __m256 zero_ps = _mm256_setzero_ps();
   const Vec3x8 ng = negate_where_x8(ng0x8, _mm256_cmp_ps(dot_x8(ng0x8, to_cam), zero_ps, _CMP_LT_OQ));
@@ -343,16 +347,19 @@ DHR_AVX512_TARGET void resolve_x8(const Context& ctx, const Setup& st, int x, in
     const __m256 in_front = _mm256_cmp_ps(z, zero_ps, _CMP_GT_OQ);
     const __m256 behind = _mm256_set1_ps(-kMaxMotionPx);
     mx = _mm256_blendv_ps(
-        behind, motion_offset_x8(_mm256_sub_ps(_mm256_mul_ps(sx, _mm256_set1_ps(ctx.motion_scale_x)), _mm512_cvtpd_ps(px))),
+        behind,
+        motion_offset_x8(_mm256_sub_ps(_mm256_mul_ps(sx, _mm256_set1_ps(ctx.motion_scale_x)), _mm512_cvtpd_ps(px))),
         in_front);
-    my = _mm256_blendv_ps(
-        behind, motion_offset_x8(_mm256_sub_ps(_mm256_mul_ps(sy, _mm256_set1_ps(ctx.motion_scale_y)), _mm256_set1_ps(float(py)))),
-        in_front);
+    my = _mm256_blendv_ps(behind,
+                          motion_offset_x8(_mm256_sub_ps(_mm256_mul_ps(sy, _mm256_set1_ps(ctx.motion_scale_y)),
+                                                         _mm256_set1_ps(float(py)))),
+                          in_front);
   }
 
   const __mmask16 lanes = __mmask16(live);
-  _mm512_mask_storeu_ps(&out.depth(x, y), lanes,
-                        _mm512_castps256_ps512(dot_x8(sub_x8(pos, broadcast_x8(cam.position)), broadcast_x8(cam.forward))));
+  _mm512_mask_storeu_ps(
+      &out.depth(x, y), lanes,
+      _mm512_castps256_ps512(dot_x8(sub_x8(pos, broadcast_x8(cam.position)), broadcast_x8(cam.forward))));
   store_vec3_x8(&out.position(x, y), pos, n);
   store_vec3_x8(&out.normal(x, y), ns, n);
   store_vec3_x8(&out.geo_normal(x, y), ng, n);

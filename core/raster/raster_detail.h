@@ -19,7 +19,6 @@ constexpr int kTile = kRasterTileSize;
 constexpr uint32_t kNoSetup = ~0u;  // TileScratch::setup of a pixel no fragment covers yet
 constexpr float kMaxMotionPx = 1e6f;
 
-
 struct View3 {
   float x, y, z;  // camera space: along right, up, forward (z = linear view depth)
 };
@@ -75,9 +74,9 @@ struct ObjectPrep {
   std::vector<glm::vec3> moved;      // moving objects: positions placed at time_s
   size_t view_offset = 0;            // first vertex in the camera-space array
   bool moving = false;
-  glm::mat4 world_from_object{1.0f}; // moving objects: at time_s
-  glm::mat3 normal_matrix{1.0f};     // moving objects: world-from-object for normals
-  bool static_motion = true;         // the point does not move between the frames
+  glm::mat4 world_from_object{1.0f};       // moving objects: at time_s
+  glm::mat3 normal_matrix{1.0f};           // moving objects: world-from-object for normals
+  bool static_motion = true;               // the point does not move between the frames
   glm::mat4 world_from_object_prev{1.0f};  // moving objects: at prev_time_s
   const Material* material = nullptr;
   const Texture* texture = nullptr;  // albedo texture when the mesh has uvs, else null
@@ -97,9 +96,9 @@ struct Setup {
   glm::dvec3 r1, r2, rs;  // u1, u2 and sum(u) = 1/W as plane coefficients of (px, py, 1)
   double iw_lo, iw_hi;    // range of 1/W over the (visible part of the) triangle
   uint32_t object, prim;
-  glm::uvec3 tri;         // the mesh triangle's vertex indices
-  glm::vec3 v[3];         // its world-space vertices
-  glm::vec3 geo_normal;   // unit (not yet flipped); zero when degenerate in float
+  glm::uvec3 tri;        // the mesh triangle's vertex indices
+  glm::vec3 v[3];        // its world-space vertices
+  glm::vec3 geo_normal;  // unit (not yet flipped); zero when degenerate in float
 };
 
 // Perspective-correct barycentrics at pixel point (px, py), clamped into the triangle (a
@@ -133,7 +132,7 @@ struct Context {
   double inv_near, inv_far;
   int width, height, tiles_x, tiles_y;
   std::vector<ObjectPrep> objects;
-  View3* view = nullptr;  // camera-space vertices of all objects
+  View3* view = nullptr;      // camera-space vertices of all objects
   bool wide_kernels = false;  // cover_row_x8 and resolve_x8 (AVX-512): 8 pixels of a row at a time
 };
 

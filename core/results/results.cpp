@@ -48,8 +48,10 @@ double mean_of(const std::vector<double>& v) {
 
 // The values sorted from the worst to the best frame.
 std::vector<double> worst_first(std::vector<double> v, bool higher_is_better) {
-  if (higher_is_better) std::sort(v.begin(), v.end());
-  else std::sort(v.begin(), v.end(), std::greater<>());
+  if (higher_is_better)
+    std::sort(v.begin(), v.end());
+  else
+    std::sort(v.begin(), v.end(), std::greater<>());
   return v;
 }
 
@@ -89,7 +91,7 @@ Stalls stalls_of(const RunResult& r) {
       v[size_t(k)] = p.source_frame;
     }
   for (const auto& [pass, src] : shown) {
-    long last = -1;  // the displayed frame where this pass last showed a new server frame
+    long last = -1;                    // the displayed frame where this pass last showed a new server frame
     auto close_gap = [&](long next) {  // the frames after `last` up to `next`, exclusive
       if (last < 0 || next - last <= after) return;
       for (long j = last + 1; j < next; ++j) {
@@ -130,7 +132,8 @@ Stalls stalls_of(const RunResult& r) {
 const char* against_name(Against a) { return a == Against::Local ? "local" : "ground_truth"; }
 
 std::string ImageMetric::column(Against a) const {
-  return unit.empty() ? fmt::format("{}_{}", name, against_name(a)) : fmt::format("{}_{}_{}", name, against_name(a), unit);
+  return unit.empty() ? fmt::format("{}_{}", name, against_name(a))
+                      : fmt::format("{}_{}_{}", name, against_name(a), unit);
 }
 
 std::string ImageMetric::aggregate(Against a, const std::string& statistic) const {
@@ -146,10 +149,12 @@ const std::vector<ImageMetric>& image_metrics() {
        "SSIM (Wang et al. 2004; Gaussian 11x11, sigma 1.5, K1 0.01, K2 0.03, L 255) on BT.601 luma, mean over the "
        "valid interior as Wang's code and scikit-image (docs/metrics.md)",
        true, ssim_of, nullptr},
-      {"psnr", "db", "PSNR over R, G and B, 10 log10(255^2 / MSE); identical frames are +inf, counted as 100 dB in means",
-       true, psnr_of, psnr_for_mean},
-      {"flip", "", "LDR-FLIP (Andersson et al. 2020) at 67 pixels per degree, mean of the error map, 0..1 (docs/metrics.md)",
-       false, flip_of, nullptr},
+      {"psnr", "db",
+       "PSNR over R, G and B, 10 log10(255^2 / MSE); identical frames are +inf, counted as 100 dB in means", true,
+       psnr_of, psnr_for_mean},
+      {"flip", "",
+       "LDR-FLIP (Andersson et al. 2020) at 67 pixels per degree, mean of the error map, 0..1 (docs/metrics.md)", false,
+       flip_of, nullptr},
       {"temporal_error", "levels",
        "mean |(shown_k - shown_j) - (ref_k - ref_j)| in luma levels, j the previous scored frame: error of the change "
        "between frames (docs/metrics.md, Temporal stability)",
@@ -204,7 +209,8 @@ const std::vector<ImageStatistic>& image_statistics() {
   static const std::vector<ImageStatistic> stats = {
       {"mean", "mean over the scored frames", [](std::vector<double> v, bool) { return mean_of(v); }},
       {"ci95",
-       "half-width of the 95 % confidence interval of the mean, Student's t over the scored frames taken as independent "
+       "half-width of the 95 % confidence interval of the mean, Student's t over the scored frames taken as "
+       "independent "
        "(consecutive frames are correlated, so the true interval is wider); 0 with one frame",
        [](std::vector<double> v, bool) {
          if (v.size() < 2) return 0.0;
@@ -214,12 +220,14 @@ const std::vector<ImageStatistic>& image_statistics() {
          const double sd = std::sqrt(ss / double(v.size() - 1));
          return student_t95(int(v.size()) - 1) * sd / std::sqrt(double(v.size()));
        }},
-      {"worst_5pct", "the value 5 % of the scored frames are worse than or equal to (nearest rank, by the metric's direction)",
+      {"worst_5pct",
+       "the value 5 % of the scored frames are worse than or equal to (nearest rank, by the metric's direction)",
        [](std::vector<double> v, bool higher) {
          const std::vector<double> w = worst_first(std::move(v), higher);
          return w[size_t(std::max(1.0, std::ceil(0.05 * double(w.size())))) - 1];
        }},
-      {"worst", "the worst scored frame", [](std::vector<double> v, bool higher) { return worst_first(std::move(v), higher)[0]; }},
+      {"worst", "the worst scored frame",
+       [](std::vector<double> v, bool higher) { return worst_first(std::move(v), higher)[0]; }},
   };
   return stats;
 }
@@ -262,10 +270,12 @@ double StageStats::total() const {
 const std::vector<PassMetric>& pass_metrics() {
   using T = const PassTraffic&;
   static const std::vector<PassMetric> metrics = {
-      {"server_frames", "frames", "server frames that sent this pass", [](T t, double) -> nlohmann::json { return t.server_frames; }},
+      {"server_frames", "frames", "server frames that sent this pass",
+       [](T t, double) -> nlohmann::json { return t.server_frames; }},
       {"bytes_per_frame", "bytes", "encoded bytes per server frame (codec output)",
        [](T t, double) -> nlohmann::json { return t.bytes_per_frame(); }},
-      {"encoded_bytes", "bytes", "codec output, all server frames", [](T t, double) -> nlohmann::json { return t.encoded_bytes; }},
+      {"encoded_bytes", "bytes", "codec output, all server frames",
+       [](T t, double) -> nlohmann::json { return t.encoded_bytes; }},
       {"wire_bytes", "bytes", "packets on the wire: payload, the dhrbench header and 28 bytes of IP/UDP each",
        [](T t, double) -> nlohmann::json { return t.wire_bytes; }},
       {"packets", "packets", "datagrams sent", [](T t, double) -> nlohmann::json { return t.packets; }},
@@ -281,7 +291,8 @@ const std::vector<PassMetric>& pass_metrics() {
        [](T t, double) -> nlohmann::json { return t.frames_recovered; }},
       {"frames_given_up_by_receiver", "frames", "partial frames the receiver's assembler gave up",
        [](T t, double) -> nlohmann::json { return t.frames_given_up; }},
-      {"decode_errors", "frames", "frames the decoder refused", [](T t, double) -> nlohmann::json { return t.decode_errors; }},
+      {"decode_errors", "frames", "frames the decoder refused",
+       [](T t, double) -> nlohmann::json { return t.decode_errors; }},
       {"keyframe_requests", "requests", "keyframes the client asked for after a loss",
        [](T t, double) -> nlohmann::json { return t.keyframe_requests; }},
       {"frames_without_data", "frames", "displayed frames that showed this pass's local fallback",
@@ -308,10 +319,13 @@ const std::vector<RunMetric>& run_metrics() {
       {"frames_displayed", "frames", "displayed frames after the warm-up (the rows of frames.csv)", false,
        [](R r) -> nlohmann::json { return r.frames.size(); }},
       {"frames_scored", "frames", "displayed frames scored against the local reference", false,
-       [](R r) -> nlohmann::json { return std::count_if(r.frames.begin(), r.frames.end(), [](const FrameRecord& f) { return f.scored; }); }},
+       [](R r) -> nlohmann::json {
+         return std::count_if(r.frames.begin(), r.frames.end(), [](const FrameRecord& f) { return f.scored; });
+       }},
       {"frames_scored_ground_truth", "frames", "displayed frames scored against the ground truth", false,
        [](R r) -> nlohmann::json {
-         return std::count_if(r.frames.begin(), r.frames.end(), [](const FrameRecord& f) { return f.scored_ground_truth; });
+         return std::count_if(r.frames.begin(), r.frames.end(),
+                              [](const FrameRecord& f) { return f.scored_ground_truth; });
        }},
       {"bandwidth_mbps", "Mb/s", "every pass's packets on the wire over the scored frames' virtual time", false,
        [](R r) -> nlohmann::json { return per_second(double(wire_bytes(r)) * 8 / 1e6, seconds_of(r)); }},
@@ -331,7 +345,8 @@ const std::vector<RunMetric>& run_metrics() {
        "episodes in which some pass showed no new server frame for more than stall_after_frames display intervals "
        "(a loss, a late frame, a capacity drop)",
        false, [](R r) -> nlohmann::json { return stalls_of(r).episodes; }},
-      {"stall_ms_total", "ms", "the stalls' time on the display: the display intervals that showed no new frame of a "
+      {"stall_ms_total", "ms",
+       "the stalls' time on the display: the display intervals that showed no new frame of a "
        "stalled pass",
        false, [](R r) -> nlohmann::json { return stalls_of(r).total_ms; }},
       {"stall_ms_longest", "ms", "the longest stall (the recovery time after the worst loss burst)", false,
@@ -357,7 +372,9 @@ const std::vector<RunMetric>& run_metrics() {
        true,
        [](R r) -> nlohmann::json {
          const auto& v = r.server_frames_wall.samples_ms;
-         return v.empty() || r.server_frames_wall.total() <= 0 ? 0.0 : 1000.0 * double(v.size()) / r.server_frames_wall.total();
+         return v.empty() || r.server_frames_wall.total() <= 0
+                    ? 0.0
+                    : 1000.0 * double(v.size()) / r.server_frames_wall.total();
        }},
       {"client_fps_wall_mean", "frames/s",
        "displayed frames per second this machine sustains: 1000 / the mean client frame (every client stage, decode "
@@ -367,8 +384,7 @@ const std::vector<RunMetric>& run_metrics() {
          const StageStats c = client_frames(r);
          return c.total() > 0 ? 1000.0 * double(c.samples_ms.size()) / c.total() : 0.0;
        }},
-      {"buffer_age_ms", "ms", "per pass: age of the displayed buffer at composite, median and p95 (virtual)",
-       false,
+      {"buffer_age_ms", "ms", "per pass: age of the displayed buffer at composite, median and p95 (virtual)", false,
        [](R r) -> nlohmann::json {
          std::map<std::string, StageStats> ages;  // per pass name
          for (const auto& f : r.frames)
@@ -388,7 +404,9 @@ const std::vector<RunMetric>& run_metrics() {
        }},
       {"rays", "rays", "rays traced for the server frames: shadow, ao, invalid", false,
        [](R r) -> nlohmann::json {
-         return {{"shadow", r.trace_stats.shadow_rays}, {"ao", r.trace_stats.ao_rays}, {"invalid", r.trace_stats.invalid_rays}};
+         return {{"shadow", r.trace_stats.shadow_rays},
+                 {"ao", r.trace_stats.ao_rays},
+                 {"invalid", r.trace_stats.invalid_rays}};
        }},
       {"passes_planned", "", "the run's pass plan (core/pass/passes.h)", false,
        [](R r) -> nlohmann::json { return r.plan.describe(); }},
@@ -403,7 +421,8 @@ nlohmann::json RunResult::metrics() const {
     for (Against a : {Against::Local, Against::GroundTruth}) {
       const std::vector<double> v = scores_of(*this, i, a);
       for (const ImageStatistic& st : image_statistics())
-        m[images[i].aggregate(a, st.name)] = v.empty() ? nlohmann::json(nullptr) : finite_or_null(st.of(v, images[i].higher_is_better));
+        m[images[i].aggregate(a, st.name)] =
+            v.empty() ? nlohmann::json(nullptr) : finite_or_null(st.of(v, images[i].higher_is_better));
     }
   for (const RunMetric& rm : run_metrics()) {
     nlohmann::json v = rm.value(*this);
@@ -422,7 +441,8 @@ nlohmann::json declared_json() {
     nlohmann::json columns, aggregates = nlohmann::json::object();
     for (Against a : {Against::Local, Against::GroundTruth}) {
       columns[against_name(a)] = m.column(a);
-      for (const ImageStatistic& st : image_statistics()) aggregates[against_name(a)][st.name] = m.aggregate(a, st.name);
+      for (const ImageStatistic& st : image_statistics())
+        aggregates[against_name(a)][st.name] = m.aggregate(a, st.name);
     }
     images.push_back({{"name", m.name},
                       {"unit", m.unit},
@@ -485,7 +505,8 @@ std::string frames_csv_row(const std::vector<std::string>& leading, const FrameR
   cells.push_back(f.scored_ground_truth ? "1" : "0");
   for (size_t i = 0; i < n; ++i) cells.push_back(i < f.ground_truth.size() ? csv_number(f.ground_truth[i]) : "");
   for (const std::string& name : passes) {
-    const auto it = std::find_if(f.passes.begin(), f.passes.end(), [&](const PassFrameRecord& p) { return p.pass == name; });
+    const auto it =
+        std::find_if(f.passes.begin(), f.passes.end(), [&](const PassFrameRecord& p) { return p.pass == name; });
     if (it == f.passes.end()) {
       cells.insert(cells.end(), {"", "", ""});  // the run has no such pass
       continue;

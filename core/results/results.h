@@ -55,7 +55,7 @@ struct ImageMetric {
   // (no value) on a run's first scored frame and against the ground truth.
   double (*score_step)(const TemporalScores& step) = nullptr;
 
-  std::string column(Against a) const;                            // ssim_local, psnr_ground_truth_db
+  std::string column(Against a) const;                                   // ssim_local, psnr_ground_truth_db
   std::string aggregate(Against a, const std::string& statistic) const;  // ssim_local_mean, psnr_local_mean_db
 };
 const std::vector<ImageMetric>& image_metrics();
@@ -69,9 +69,9 @@ std::vector<double> score_frame(const ScoreReference& reference, const ImageRGB8
 
 // One pass of one displayed frame.
 struct PassFrameRecord {
-  std::string pass;        // the pass's name (visibility, ao; remote: colour)
-  int source_frame = -1;   // the client frame whose server buffer was displayed (-1: none)
-  double age_ms = 0.0;     // its age at composite (virtual)
+  std::string pass;       // the pass's name (visibility, ao; remote: colour)
+  int source_frame = -1;  // the client frame whose server buffer was displayed (-1: none)
+  double age_ms = 0.0;    // its age at composite (virtual)
   uint64_t disoccluded = 0;
 };
 
@@ -84,7 +84,7 @@ struct FrameRecord {
   // metric has no value on this frame, e.g. a step metric on the first scored frame).
   std::vector<double> local, ground_truth;
   std::vector<PassFrameRecord> passes;  // in the order of the run's pass list
-  double client_wall_ms = 0.0;  // rasterize + decode + predict + composite
+  double client_wall_ms = 0.0;          // rasterize + decode + predict + composite
 
   // The score of the image metric named `metric` (dhr::Error if there is no such metric or the
   // frame was not scored against `against`).
@@ -107,13 +107,13 @@ struct StageStats {
 struct PassTraffic {
   std::string pass;  // visibility | ao | colour
   uint64_t server_frames = 0;
-  uint64_t encoded_bytes = 0;   // codec output
-  uint64_t wire_bytes = 0;      // packets incl. dhrbench header + 28 IP/UDP
+  uint64_t encoded_bytes = 0;  // codec output
+  uint64_t wire_bytes = 0;     // packets incl. dhrbench header + 28 IP/UDP
   uint64_t packets = 0;
-  uint64_t frames_completed = 0;   // assembled and handed to the decoder
-  uint64_t frames_lost = 0;        // server frames with a datagram dropped on the link, not rebuilt
-  uint64_t frames_recovered = 0;   // server frames with datagrams dropped that FEC rebuilds
-  uint64_t frames_given_up = 0;    // partial frames the receiver's assembler gave up
+  uint64_t frames_completed = 0;  // assembled and handed to the decoder
+  uint64_t frames_lost = 0;       // server frames with a datagram dropped on the link, not rebuilt
+  uint64_t frames_recovered = 0;  // server frames with datagrams dropped that FEC rebuilds
+  uint64_t frames_given_up = 0;   // partial frames the receiver's assembler gave up
   uint64_t decode_errors = 0, keyframe_requests = 0;
   uint64_t frames_without_data = 0;  // displayed frames that showed this pass's local fallback
   double bytes_per_frame() const { return server_frames ? double(encoded_bytes) / double(server_frames) : 0.0; }
@@ -139,8 +139,8 @@ struct RunResult {
   uint64_t server_frames = 0, cameras_dropped = 0, cameras_lost = 0;
   uint64_t frames_without_data = 0;    // displayed frames with at least one pass shown with its local fallback
   uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps
-  TraceStats trace_stats;            // rays of the server frames
-  double duration_ms = 0.0;          // virtual time of the scored frames
+  TraceStats trace_stats;              // rays of the server frames
+  double duration_ms = 0.0;            // virtual time of the scored frames
   // keep_images: the displayed image, local reference and ground truth of one frame (the last
   // scored against the ground truth, or the last scored when there is no ground truth).
   std::vector<ImageRGB8> images, local_images, ground_truth_images;

@@ -11,9 +11,11 @@ void check_results_json(const nlohmann::json& r, const std::string& path) {
   if (!r.is_object()) fail("{}: must be a JSON object (context, experiment, runs), got {}", path, json_excerpt(r));
   for (const char* key : {"context", "experiment"})
     if (!r.contains(key) || !r.at(key).is_object())
-      fail("{}: \"{}\" must be a JSON object, got {}", path, key, r.contains(key) ? json_excerpt(r.at(key)) : "nothing");
+      fail("{}: \"{}\" must be a JSON object, got {}", path, key,
+           r.contains(key) ? json_excerpt(r.at(key)) : "nothing");
   if (!r.contains("runs") || !r.at("runs").is_array())
-    fail("{}: \"runs\" must be a list of run records, got {}", path, r.contains("runs") ? json_excerpt(r.at("runs")) : "nothing");
+    fail("{}: \"runs\" must be a list of run records, got {}", path,
+         r.contains("runs") ? json_excerpt(r.at("runs")) : "nothing");
   std::set<std::string> ids;
   const auto& runs = r.at("runs");
   for (size_t i = 0; i < runs.size(); ++i) {
@@ -21,18 +23,24 @@ void check_results_json(const nlohmann::json& r, const std::string& path) {
     if (!run.is_object()) fail("{}: runs[{}] must be a JSON object (a run record), got {}", path, i, json_excerpt(run));
     for (const char* key : {"id", "scene", "label"})
       if (!run.contains(key) || !run.at(key).is_string())
-        fail("{}: runs[{}].{} must be a string, got {}", path, i, key, run.contains(key) ? json_excerpt(run.at(key)) : "nothing");
+        fail("{}: runs[{}].{} must be a string, got {}", path, i, key,
+             run.contains(key) ? json_excerpt(run.at(key)) : "nothing");
     const std::string id = run.at("id").get<std::string>();
-    if (id.empty() || id == "." || id == ".." || id.find_first_of(std::string_view("/\\\0,\"\n\r", 7)) != std::string::npos)
-      fail("{}: runs[{}].id {} cannot name a run (it names the run's files and frames.csv rows: no '/', '\\', ',', "
-           "quote, newline or NUL)", path, i, json_excerpt(run.at("id")));
+    if (id.empty() || id == "." || id == ".." ||
+        id.find_first_of(std::string_view("/\\\0,\"\n\r", 7)) != std::string::npos)
+      fail(
+          "{}: runs[{}].id {} cannot name a run (it names the run's files and frames.csv rows: no '/', '\\', ',', "
+          "quote, newline or NUL)",
+          path, i, json_excerpt(run.at("id")));
     if (!ids.insert(id).second) fail("{}: runs[{}]: the run id '{}' is given twice", path, i, text_excerpt(id));
     const bool has_metrics = run.contains("metrics"), has_error = run.contains("error");
     if (has_error && !run.at("error").is_string())
       fail("{}: runs[{}] ({}).error must be a string, got {}", path, i, id, json_excerpt(run.at("error")));
     if (!has_metrics && !has_error)
-      fail("{}: runs[{}] ({}) has neither \"metrics\" nor \"error\": the record is incomplete (a run always records "
-           "one of them)", path, i, id);
+      fail(
+          "{}: runs[{}] ({}) has neither \"metrics\" nor \"error\": the record is incomplete (a run always records "
+          "one of them)",
+          path, i, id);
     if (has_metrics) {
       const auto& m = run.at("metrics");
       if (!m.is_object()) fail("{}: runs[{}] ({}).metrics must be a JSON object, got {}", path, i, id, json_excerpt(m));
@@ -56,9 +64,12 @@ FramesCsv check_frames_csv(std::string_view text, const nlohmann::json& results,
   size_t start = 0;
   for (size_t i = 0; i < text.size(); ++i) {
     const char c = text[i];
-    if (c == '"') quoted = !quoted;
-    else if (quoted) quoted_newlines += c == '\n';
-    else if (c == ',') ++fields;
+    if (c == '"')
+      quoted = !quoted;
+    else if (quoted)
+      quoted_newlines += c == '\n';
+    else if (c == ',')
+      ++fields;
     if (c != '\n' || quoted) continue;
     std::string_view record = text.substr(start, i - start);
     if (!record.empty() && record.back() == '\r') record.remove_suffix(1);

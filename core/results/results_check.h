@@ -22,8 +22,8 @@ void check_results_json(const nlohmann::json& results, const std::string& path);
 
 // frames.csv split into records (RFC 4180 quoting; a newline inside quotes belongs to the field).
 struct FramesCsv {
-  std::string header;                                      // with its newline
-  std::map<std::string, std::vector<std::string>> rows;   // run id -> its records, with newlines
+  std::string header;                                    // with its newline
+  std::map<std::string, std::vector<std::string>> rows;  // run id -> its records, with newlines
 };
 
 // Parses `text` (the content of frames.csv at `path`) against the run records of a

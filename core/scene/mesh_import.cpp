@@ -72,7 +72,6 @@ void install_logger_once() {
   std::call_once(once, [] { Assimp::DefaultLogger::set(new CollectingLogger()); });
 }
 
-
 // --- header pre-scan: declared element counts must fit the file --------------------------------
 
 std::string lower_extension(const std::string& path) {
@@ -104,8 +103,8 @@ void prescan_off(const std::string& path, uint64_t bytes) {
     break;
   }
   if (!(nv >= 0 && nf >= 0) || nv * 6 > (long double)bytes || nf * 8 > (long double)bytes)
-    fail("{}: OFF header declares {} vertices and {} faces, more than a {}-byte file can hold", path,
-         double(nv), double(nf), bytes);
+    fail("{}: OFF header declares {} vertices and {} faces, more than a {}-byte file can hold", path, double(nv),
+         double(nf), bytes);
 }
 
 // PLY: "element NAME COUNT" lines before "end_header"; every element takes at least one byte.
@@ -120,8 +119,8 @@ void prescan_ply(const std::string& path, uint64_t bytes) {
       long double count = 0;
       ls >> kw >> name >> count;
       if (!(count >= 0) || count > (long double)bytes)
-        fail("{}: PLY header declares {} '{}' elements, more than a {}-byte file can hold", path,
-             double(count), name, bytes);
+        fail("{}: PLY header declares {} '{}' elements, more than a {}-byte file can hold", path, double(count), name,
+             bytes);
     }
   }
 }
@@ -141,17 +140,20 @@ void prescan_obj(const std::string& path) {
     if (at == std::string::npos) continue;
     const size_t end = line.find_first_of(" \t\r", at);
     const std::string_view key(line.data() + at, (end == std::string::npos ? line.size() : end) - at);
-    if (key == "v") ++count[0];
-    else if (key == "vt") ++count[1];
-    else if (key == "vn") ++count[2];
+    if (key == "v")
+      ++count[0];
+    else if (key == "vt")
+      ++count[1];
+    else if (key == "vn")
+      ++count[2];
     else if (key == "mtllib") {
       std::string rest = line.substr(std::min(line.size(), at + 6));
       while (!rest.empty() && std::isspace(static_cast<unsigned char>(rest.back()))) rest.pop_back();
       rest.erase(0, std::min(rest.size(), rest.find_first_not_of(" \t")));
       std::error_code ec;
       if (rest.empty() || !fs::is_regular_file(fs::path(path).parent_path() / rest, ec))
-        fail("{}:{}: mtllib '{}': no such material file beside the model (its materials would be lost)", path,
-             number, text_excerpt(rest));
+        fail("{}:{}: mtllib '{}': no such material file beside the model (its materials would be lost)", path, number,
+             text_excerpt(rest));
     } else if (key == "f" || key == "l" || key == "p") {
       std::istringstream tokens(line.substr(at + key.size()));
       for (std::string token; tokens >> token;) {
@@ -245,9 +247,7 @@ void prescan_glb(const std::string& path, uint64_t bytes) {
   check_gltf_buffers(path, gltf, bin);
 }
 
-void prescan_gltf(const std::string& path) {
-  check_gltf_buffers(path, read_json_file(path), 0);
-}
+void prescan_gltf(const std::string& path) { check_gltf_buffers(path, read_json_file(path), 0); }
 
 // --- geometry -----------------------------------------------------------------------------------
 
@@ -413,8 +413,8 @@ size_t validate_mesh(Mesh& mesh, const std::string& what) {
   for (size_t i = 0; i < mesh.triangles.size(); ++i) {
     const glm::uvec3& t = mesh.triangles[i];
     if (t.x >= nv || t.y >= nv || t.z >= nv)
-      fail("{}: triangle {} has index ({}, {}, {}) out of range (the mesh has {} vertices)", what, i, t.x, t.y,
-           t.z, nv);
+      fail("{}: triangle {} has index ({}, {}, {}) out of range (the mesh has {} vertices)", what, i, t.x, t.y, t.z,
+           nv);
   }
   if (!mesh.uvs.empty()) {
     if (mesh.uvs.size() != nv) fail("{}: {} uvs for {} vertices", what, mesh.uvs.size(), nv);
@@ -442,7 +442,8 @@ size_t validate_mesh(Mesh& mesh, const std::string& what) {
   if (std::find(bad.begin(), bad.end(), uint8_t(1)) != bad.end()) {
     std::vector<glm::vec3> acc(nv, glm::vec3(0.0f));
     for (const auto& t : mesh.triangles) {
-      const glm::vec3 g = glm::cross(mesh.positions[t.y] - mesh.positions[t.x], mesh.positions[t.z] - mesh.positions[t.x]);
+      const glm::vec3 g =
+          glm::cross(mesh.positions[t.y] - mesh.positions[t.x], mesh.positions[t.z] - mesh.positions[t.x]);
       if (!finite3(g)) continue;
       acc[t.x] += g;
       acc[t.y] += g;
@@ -466,7 +467,8 @@ ImportedModel import_model(const std::string& path, const ModelLimits& limits) {
   const uint64_t bytes = fs::file_size(path, ec);
   if (ec) fail("{}: cannot read the file size: {}", path, ec.message());
   if (bytes == 0) fail("{}: the file is empty", path);
-  if (bytes > limits.max_file_bytes) fail("{}: {} bytes is above the limit of {} bytes", path, bytes, limits.max_file_bytes);
+  if (bytes > limits.max_file_bytes)
+    fail("{}: {} bytes is above the limit of {} bytes", path, bytes, limits.max_file_bytes);
   const std::string ext = lower_extension(path);
   if (ext == ".off") prescan_off(path, bytes);
   if (ext == ".ply") prescan_ply(path, bytes);
@@ -518,12 +520,14 @@ ImportedModel import_model(const std::string& path, const ModelLimits& limits) {
   while (!stack.empty()) {
     const Pending p = stack.back();
     stack.pop_back();
-    if (p.depth > limits.max_node_depth) fail("{}: node hierarchy deeper than {} (recursive nodes?)", path, limits.max_node_depth);
+    if (p.depth > limits.max_node_depth)
+      fail("{}: node hierarchy deeper than {} (recursive nodes?)", path, limits.max_node_depth);
     if (++visited > limits.max_objects) fail("{}: more than {} nodes", path, limits.max_objects);
     const glm::mat4 world = p.parent * to_glm(p.node->mTransformation);
     for (unsigned k = 0; k < p.node->mNumMeshes; ++k) {
       const unsigned mi = p.node->mMeshes[k];
-      if (mi >= scene->mNumMeshes) fail("{}: node '{}' refers to mesh {} of {}", path, p.node->mName.C_Str(), mi, scene->mNumMeshes);
+      if (mi >= scene->mNumMeshes)
+        fail("{}: node '{}' refers to mesh {} of {}", path, p.node->mName.C_Str(), mi, scene->mNumMeshes);
       const aiMesh* am = scene->mMeshes[mi];
       if (!(am->mPrimitiveTypes & aiPrimitiveType_TRIANGLE) && am->mNumFaces > 0 &&
           (am->mPrimitiveTypes & (aiPrimitiveType_POINT | aiPrimitiveType_LINE)))
@@ -547,7 +551,8 @@ ImportedModel import_model(const std::string& path, const ModelLimits& limits) {
   std::vector<int> material_index(scene->mNumMaterials, -1);
   // Instances come off the stack in reverse; restore file order for stable object ids.
   std::reverse(instances.begin(), instances.end());
-  std::stable_sort(instances.begin(), instances.end(), [](const Instance& a, const Instance& b) { return a.mesh < b.mesh; });
+  std::stable_sort(instances.begin(), instances.end(),
+                   [](const Instance& a, const Instance& b) { return a.mesh < b.mesh; });
   out.objects.reserve(instances.size());
   for (const Instance& inst : instances) {
     const aiMesh& am = *scene->mMeshes[inst.mesh];
@@ -556,7 +561,8 @@ ImportedModel import_model(const std::string& path, const ModelLimits& limits) {
     const glm::mat4& w = inst.world;
     const glm::mat3 w3(w);
     const float det = glm::determinant(w3);
-    if (!std::isfinite(det) || std::abs(det) < 1e-30f) fail("{}: node '{}' transform is singular or not finite", what, inst.node);
+    if (!std::isfinite(det) || std::abs(det) < 1e-30f)
+      fail("{}: node '{}' transform is singular or not finite", what, inst.node);
     const glm::mat3 normal_matrix = glm::transpose(glm::inverse(w3));
 
     Object obj;

@@ -31,8 +31,7 @@ double key_time(double time_s, double t0, double t1, bool loop) {
 // Index i of the segment [keys[i], keys[i+1]] holding t (keys sorted, t inside the range).
 template <class Key>
 size_t segment_of(const std::vector<Key>& keys, double t) {
-  const auto it = std::upper_bound(keys.begin(), keys.end(), t,
-                                   [](double v, const Key& k) { return v < k.time_s; });
+  const auto it = std::upper_bound(keys.begin(), keys.end(), t, [](double v, const Key& k) { return v < k.time_s; });
   size_t i = size_t(it - keys.begin());
   i = i == 0 ? 0 : i - 1;
   return std::min(i, keys.size() - 2);
@@ -46,9 +45,7 @@ glm::mat4 compose(const glm::vec3& t, const glm::quat& r, const glm::vec3& s) {
 // formulation), u in [0, 1]. Centripetal parameterisation (alpha = 0.5) avoids cusps and
 // self-intersections when keys are unevenly spaced.
 glm::vec3 catmull_rom(const glm::vec3& p0, const glm::vec3& p1, const glm::vec3& p2, const glm::vec3& p3, float u) {
-  auto knot = [](const glm::vec3& a, const glm::vec3& b) {
-    return std::max(std::sqrt(glm::length(b - a)), 1e-4f);
-  };
+  auto knot = [](const glm::vec3& a, const glm::vec3& b) { return std::max(std::sqrt(glm::length(b - a)), 1e-4f); };
   const float t0 = 0.0f;
   const float t1 = t0 + knot(p0, p1);
   const float t2 = t1 + knot(p1, p2);
@@ -62,9 +59,7 @@ glm::vec3 catmull_rom(const glm::vec3& p0, const glm::vec3& p1, const glm::vec3&
   return ((t2 - t) * b1 + (t - t1) * b2) / (t2 - t1);
 }
 
-float srgb_to_linear(float c) {
-  return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
-}
+float srgb_to_linear(float c) { return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f); }
 
 // Alpha of an 8-bit texel, float(i) / 255.0f: looked up instead of divided per fetch.
 const std::array<float, 256>& alpha_table() {
@@ -131,8 +126,8 @@ Camera CameraPath::at(double time_s, int width, int height) const {
   const long li = long(i);
   const glm::vec3 pos = catmull_rom(neighbour(li - 1, false), neighbour(li, false), neighbour(li + 1, false),
                                     neighbour(li + 2, false), u);
-  glm::vec3 tgt = catmull_rom(neighbour(li - 1, true), neighbour(li, true), neighbour(li + 1, true),
-                              neighbour(li + 2, true), u);
+  glm::vec3 tgt =
+      catmull_rom(neighbour(li - 1, true), neighbour(li, true), neighbour(li + 1, true), neighbour(li + 2, true), u);
   if (glm::length(tgt - pos) < 1e-6f) tgt = pos + (keys[i + 1].target - keys[i + 1].position);
   return Camera::look_at(pos, tgt, up, vfov_deg, width, height, near_m, far_m);
 }

@@ -35,11 +35,11 @@ const std::array<float, 256>& srgb_table();
 
 struct Material {
   std::string name;
-  glm::vec3 albedo{0.8f};        // linear; multiplies the texture
-  int texture = -1;              // index into Scene::textures, or -1
-  bool alpha_cutout = false;     // texels with alpha < alpha_threshold are holes
+  glm::vec3 albedo{0.8f};     // linear; multiplies the texture
+  int texture = -1;           // index into Scene::textures, or -1
+  bool alpha_cutout = false;  // texels with alpha < alpha_threshold are holes
   float alpha_threshold = 0.5f;
-  bool emitter = false;          // light-emitting surface (rendered, casts no shadow on its light)
+  bool emitter = false;  // light-emitting surface (rendered, casts no shadow on its light)
 };
 
 struct Mesh {
@@ -69,9 +69,7 @@ struct Object {
   Mesh mesh;              // world space for static objects, object space for moving ones
   std::optional<Animation> animation;
   bool moving() const { return animation.has_value(); }
-  glm::mat4 world_from_object(double time_s) const {
-    return animation ? animation->at(time_s) : glm::mat4(1.0f);
-  }
+  glm::mat4 world_from_object(double time_s) const { return animation ? animation->at(time_s) : glm::mat4(1.0f); }
 };
 
 enum class LightType { Sphere, Distant };
@@ -79,17 +77,15 @@ enum class LightType { Sphere, Distant };
 struct Light {
   std::string name;
   LightType type = LightType::Sphere;
-  glm::vec3 position{0.0f};              // Sphere: centre
+  glm::vec3 position{0.0f};               // Sphere: centre
   glm::vec3 direction{0.0f, 1.0f, 0.0f};  // Distant: unit vector from the scene towards the light
-  glm::vec3 colour{1.0f};                // linear
-  float intensity = 1.0f;                // Sphere: radiant intensity scale (falls off as 1/d^2); Distant: irradiance
-  float radius_m = 0.0f;                 // Sphere: 0 = point light (hard shadows)
-  float angular_radius_deg = 0.0f;       // Distant: 0 = hard shadows
-  float range_m = 0.0f;                  // Sphere: 0 = unbounded; beyond it the light adds nothing
+  glm::vec3 colour{1.0f};                 // linear
+  float intensity = 1.0f;                 // Sphere: radiant intensity scale (falls off as 1/d^2); Distant: irradiance
+  float radius_m = 0.0f;                  // Sphere: 0 = point light (hard shadows)
+  float angular_radius_deg = 0.0f;        // Distant: 0 = hard shadows
+  float range_m = 0.0f;                   // Sphere: 0 = unbounded; beyond it the light adds nothing
   // Hard shadows only (one deterministic ray to the centre).
-  bool is_point() const {
-    return type == LightType::Sphere ? radius_m <= 0.0f : angular_radius_deg <= 0.0f;
-  }
+  bool is_point() const { return type == LightType::Sphere ? radius_m <= 0.0f : angular_radius_deg <= 0.0f; }
 };
 
 struct AoSettings {
@@ -122,9 +118,9 @@ struct Scene {
   std::vector<Material> materials;
   std::vector<Texture> textures;
   std::vector<Light> lights;
-  glm::vec3 ambient{0.0f};      // linear ambient radiance (colour x intensity), scaled by AO
+  glm::vec3 ambient{0.0f};       // linear ambient radiance (colour x intensity), scaled by AO
   std::optional<AoSettings> ao;  // absent: the scene has no AO pass
-  glm::vec3 background{0.0f};   // linear colour where nothing is hit
+  glm::vec3 background{0.0f};    // linear colour where nothing is hit
   CameraPath camera;
 
   size_t triangle_count() const {

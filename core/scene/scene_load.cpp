@@ -203,7 +203,8 @@ glm::vec3 read_scale(Reader& r, const json& obj, const std::string& path, const 
   if (j->is_number()) return glm::vec3(float(r.number_value(*j, p, 1.0, 0.0, 1e6, true)));
   if (j->is_array() && j->size() == 3) {
     glm::vec3 v;
-    for (int i = 0; i < 3; ++i) v[i] = float(r.number_value((*j)[size_t(i)], Reader::index_path(p, size_t(i)), 1.0, 0.0, 1e6, true));
+    for (int i = 0; i < 3; ++i)
+      v[i] = float(r.number_value((*j)[size_t(i)], Reader::index_path(p, size_t(i)), 1.0, 0.0, 1e6, true));
     return v;
   }
   r.error(p, fmt::format("must be a number > 0 or an array of 3 numbers > 0, got {}", Reader::describe(*j)));
@@ -324,7 +325,8 @@ struct Loader {
       key.rotation = t.rotate;
       key.scale = t.scale;
       if (!anim.keys.empty() && !(key.time_s > anim.keys.back().time_s))
-        r.error(Reader::key_path(ip, "t_s"), fmt::format("must be greater than the previous key's {}", anim.keys.back().time_s));
+        r.error(Reader::key_path(ip, "t_s"),
+                fmt::format("must be greater than the previous key's {}", anim.keys.back().time_s));
       anim.keys.push_back(key);
     }
     return anim;
@@ -356,13 +358,19 @@ struct Loader {
       }
       const std::string type = r.string(g, p, "type", "", true);
       std::vector<std::string> allowed = {"type", "name", "transform", "repeat", "animation"};
-      if (type == "box") allowed.insert(allowed.end(), {"size_m", "material"});
-      else if (type == "sphere") allowed.insert(allowed.end(), {"radius_m", "segments", "rings", "material"});
-      else if (type == "plane") allowed.insert(allowed.end(), {"size_m", "material"});
-      else if (type == "cylinder") allowed.insert(allowed.end(), {"radius_m", "height_m", "segments", "caps", "material"});
-      else if (type == "mesh") allowed.insert(allowed.end(), {"file"});
+      if (type == "box")
+        allowed.insert(allowed.end(), {"size_m", "material"});
+      else if (type == "sphere")
+        allowed.insert(allowed.end(), {"radius_m", "segments", "rings", "material"});
+      else if (type == "plane")
+        allowed.insert(allowed.end(), {"size_m", "material"});
+      else if (type == "cylinder")
+        allowed.insert(allowed.end(), {"radius_m", "height_m", "segments", "caps", "material"});
+      else if (type == "mesh")
+        allowed.insert(allowed.end(), {"file"});
       else if (g.contains("type")) {
-        r.error(Reader::key_path(p, "type"), fmt::format("'{}' is not one of box, sphere, plane, cylinder, mesh", type));
+        r.error(Reader::key_path(p, "type"),
+                fmt::format("'{}' is not one of box, sphere, plane, cylinder, mesh", type));
         continue;
       } else {
         continue;
@@ -437,7 +445,8 @@ struct Loader {
         } else {
           std::vector<std::string> names;
           for (const auto& [k, v] : material_by_name) names.push_back(k);
-          r.error(Reader::key_path(p, "material"), fmt::format("unknown material '{}' (defined: {})", mat, join(names, ", ")));
+          r.error(Reader::key_path(p, "material"),
+                  fmt::format("unknown material '{}' (defined: {})", mat, join(names, ", ")));
         }
         int segments = 0, rings = 0;
         bool caps = true;
@@ -473,10 +482,14 @@ struct Loader {
           continue;
         }
         Mesh m;
-        if (type == "box") m = make_box(size);
-        else if (type == "sphere") m = make_sphere(radius, segments, rings);
-        else if (type == "plane") m = make_plane(size.x, size.z);
-        else m = make_cylinder(radius, height, segments, caps);
+        if (type == "box")
+          m = make_box(size);
+        else if (type == "sphere")
+          m = make_sphere(radius, segments, rings);
+        else if (type == "plane")
+          m = make_plane(size.x, size.z);
+        else
+          m = make_cylinder(radius, height, segments, caps);
         owned.push_back(std::move(m));
         parts.emplace_back(&owned.back(), mi);
         part_names.push_back(name);
@@ -533,7 +546,8 @@ struct Loader {
         l.type = LightType::Distant;
         allowed.insert(allowed.end(), {"direction", "angular_radius_deg"});
       } else {
-        if (j.contains("type")) r.error(Reader::key_path(p, "type"), fmt::format("'{}' is not one of sphere, distant", type));
+        if (j.contains("type"))
+          r.error(Reader::key_path(p, "type"), fmt::format("'{}' is not one of sphere, distant", type));
         continue;
       }
       if (!r.object(j, p, allowed)) continue;
@@ -549,8 +563,10 @@ struct Loader {
           r.error(Reader::key_path(p, "range_m"), fmt::format("must be 0 (unbounded) or > radius_m {}", l.radius_m));
       } else {
         const glm::vec3 d = r.vec3(j, p, "direction", glm::vec3(0, 1, 0), true);
-        if (!(glm::length(d) > 1e-6f)) r.error(Reader::key_path(p, "direction"), "must not be zero");
-        else l.direction = glm::normalize(d);
+        if (!(glm::length(d) > 1e-6f))
+          r.error(Reader::key_path(p, "direction"), "must not be zero");
+        else
+          l.direction = glm::normalize(d);
         l.angular_radius_deg = float(r.number(j, p, "angular_radius_deg", 0.0, 0.0, 45.0));
       }
       scene.lights.push_back(l);
@@ -568,8 +584,10 @@ struct Loader {
     c.far_m = float(r.number(*cam, "camera", "far_m", 1000.0, 0.0, 1e9, false, true));
     if (!(c.far_m > c.near_m)) r.error("camera.far_m", fmt::format("must be > near_m {}", c.near_m));
     const glm::vec3 up = r.vec3(*cam, "camera", "up", glm::vec3(0, 1, 0));
-    if (!(glm::length(up) > 1e-6f)) r.error("camera.up", "must not be zero");
-    else c.up = glm::normalize(up);
+    if (!(glm::length(up) > 1e-6f))
+      r.error("camera.up", "must not be zero");
+    else
+      c.up = glm::normalize(up);
     const json* path = r.member(*cam, "camera", "path", true);
     if (!path || !r.object(*path, "camera.path", {"loop", "keys"})) return;
     c.loop = r.boolean(*path, "camera.path", "loop", false);
@@ -589,18 +607,21 @@ struct Loader {
       key.target = r.vec3(k, p, "target", glm::vec3(0, 0, -1), true);
       if (glm::length(key.target - key.position) < 1e-6f) r.error(p, "target equals position");
       if (!c.keys.empty() && !(key.time_s > c.keys.back().time_s))
-        r.error(Reader::key_path(p, "t_s"), fmt::format("must be greater than the previous key's {}", c.keys.back().time_s));
+        r.error(Reader::key_path(p, "t_s"),
+                fmt::format("must be greater than the previous key's {}", c.keys.back().time_s));
       c.keys.push_back(key);
     }
   }
 
   void read_root(const json& root) {
-    if (!r.object(root, "", {"version", "name", "notes", "geometry", "materials", "lights", "ambient", "ao",
-                             "background", "camera"}))
+    if (!r.object(
+            root, "",
+            {"version", "name", "notes", "geometry", "materials", "lights", "ambient", "ao", "background", "camera"}))
       return;
     const json* version = r.member(root, "", "version", true);
     if (version && (!version->is_number_integer() || version->get<int64_t>() != 1))
-      r.error("version", fmt::format("{} is not a supported version (this reader knows version 1)", Reader::describe(*version)));
+      r.error("version",
+              fmt::format("{} is not a supported version (this reader knows version 1)", Reader::describe(*version)));
     scene.name = r.string(root, "", "name", fs::path(r.file()).stem().string());
     r.string(root, "", "notes", "");
     read_materials(root);
@@ -682,7 +703,8 @@ Scene load_scene(const std::string& path, const SceneSearchPath& search) {
   std::error_code ec;
   if (!is_regular(path)) fail("{}: scene file not found", path);
   const uint64_t bytes = fs::file_size(path, ec);
-  if (ec || bytes > kMaxSceneFileBytes) fail("{}: scene file unreadable or larger than {} bytes", path, kMaxSceneFileBytes);
+  if (ec || bytes > kMaxSceneFileBytes)
+    fail("{}: scene file unreadable or larger than {} bytes", path, kMaxSceneFileBytes);
   // Depth-bounded; every parse error (a number out of range such as 1e400 too) names the file.
   const json root = read_json_file(path);
   Loader loader(path, search);

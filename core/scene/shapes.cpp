@@ -45,9 +45,8 @@ Mesh make_box(glm::vec3 size_m) {
     glm::vec3 n, u, v;  // cross(u, v) == n
   };
   const Face faces[6] = {
-      {{1, 0, 0}, {0, 0, -1}, {0, 1, 0}},  {{-1, 0, 0}, {0, 0, 1}, {0, 1, 0}},
-      {{0, 1, 0}, {1, 0, 0}, {0, 0, -1}},  {{0, -1, 0}, {1, 0, 0}, {0, 0, 1}},
-      {{0, 0, 1}, {1, 0, 0}, {0, 1, 0}},   {{0, 0, -1}, {-1, 0, 0}, {0, 1, 0}},
+      {{1, 0, 0}, {0, 0, -1}, {0, 1, 0}}, {{-1, 0, 0}, {0, 0, 1}, {0, 1, 0}}, {{0, 1, 0}, {1, 0, 0}, {0, 0, -1}},
+      {{0, -1, 0}, {1, 0, 0}, {0, 0, 1}}, {{0, 0, 1}, {1, 0, 0}, {0, 1, 0}},  {{0, 0, -1}, {-1, 0, 0}, {0, 1, 0}},
   };
   Mesh m;
   for (const Face& f : faces) {
@@ -66,7 +65,8 @@ Mesh make_box(glm::vec3 size_m) {
 
 Mesh make_sphere(float radius_m, int segments, int rings) {
   check_extent("make_sphere: radius", radius_m);
-  if (segments < 3 || segments > kMaxSegments) fail("make_sphere: segments {} must be in [3, {}]", segments, kMaxSegments);
+  if (segments < 3 || segments > kMaxSegments)
+    fail("make_sphere: segments {} must be in [3, {}]", segments, kMaxSegments);
   if (rings < 2 || rings > kMaxSegments) fail("make_sphere: rings {} must be in [2, {}]", rings, kMaxSegments);
   Mesh m;
   const float pi = glm::pi<float>();

@@ -122,9 +122,10 @@ bool scores_ground_truth(const SimConfig& c, int frame) {
 }  // namespace
 
 // The reads Simulation::client_frame makes (flip_features_of), frame by frame.
-std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config, const Scene& scene) {
+std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config,
+                                             const Scene& scene) {
   std::vector<std::string> keys;
-  if (config.score_every <= 0) return keys;  // not validated yet
+  if (config.score_every <= 0) return keys;         // not validated yet
   const SimConfig c = keyed_config(config, scene);  // as the run keys them
   for (int a = c.warmup_frames; a < c.warmup_frames + c.frames; ++a) {
     const int frame = a - c.warmup_frames;
@@ -246,7 +247,8 @@ void TraceCache::write_disk(const std::string& memory_key, const Entry& e) const
     put(out, uint64_t(p.bytes.size()));
     out.append(reinterpret_cast<const char*>(p.bytes.data()), p.bytes.size());
   }
-  put(out, crc32c({reinterpret_cast<const uint8_t*>(out.data()) + sizeof(kTraceFileMagic), out.size() - sizeof(kTraceFileMagic)}));
+  put(out, crc32c({reinterpret_cast<const uint8_t*>(out.data()) + sizeof(kTraceFileMagic),
+                   out.size() - sizeof(kTraceFileMagic)}));
   // Written whole under a name no other writer uses (this process, a random number drawn once
   // per process, a counter: processes on several machines may share the folder), then renamed
   // over the entry: a reader sees the old file or the new one, never a part. Two writers of one
@@ -256,8 +258,8 @@ void TraceCache::write_disk(const std::string& memory_key, const Entry& e) const
   std::error_code ec;
   fs::create_directories(disk_dir_, ec);
   const fs::path path = fs::path(disk_dir_) / fmt::format("{:016x}.bin", fnv1a64(key));
-  const fs::path tmp = fs::path(disk_dir_) / fmt::format(".{:016x}.tmp.{}.{:016x}.{}", fnv1a64(key), ::getpid(),
-                                                          process_random, counter++);
+  const fs::path tmp = fs::path(disk_dir_) /
+                       fmt::format(".{:016x}.tmp.{}.{:016x}.{}", fnv1a64(key), ::getpid(), process_random, counter++);
   {
     std::ofstream f(tmp, std::ios::binary);
     f.write(out.data(), std::streamsize(out.size()));
@@ -460,12 +462,19 @@ class Simulation {
  public:
   Simulation(const SimConfig& c, const Scene& scene, const std::string& scene_key, TraceCache& cache,
              const Registries& registries)
-      : c_(c), scene_(scene), scene_key_(scene_key), key_c_(keyed_config(c, scene)), cache_(cache),
+      : c_(c),
+        scene_(scene),
+        scene_key_(scene_key),
+        key_c_(keyed_config(c, scene)),
+        cache_(cache),
         remote_(c.mode == "remote"),
-        uplink_(c.uplink, c.seed, 0), downlink_(c.downlink, c.seed, 1),
-        server_(c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0,
-                [this](const RasterFrame& f) { return server_raster(f); }),
-        client_(c, scene, registries), local_(c, scene, registries) {
+        uplink_(c.uplink, c.seed, 0),
+        downlink_(c.downlink, c.seed, 1),
+        server_(
+            c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0,
+            [this](const RasterFrame& f) { return server_raster(f); }),
+        client_(c, scene, registries),
+        local_(c, scene, registries) {
     traced_list_ = traced_passes(plan_passes(scene, c.trace), c.width, c.height);
     // The server and the local reference share their temporal denoisers' outputs with the
     // other runs of the sweep (DenoiseStage::share).
@@ -653,7 +662,8 @@ class Simulation {
       result_.trace_stats.add(f.trace);
       result_.server_frames_wall.samples_ms.push_back(f.compute_ms);
     }
-    const double finish = start_ms + (c_.server_timing == SimConfig::ServerTiming::Fixed ? c_.server_fixed_ms : f.compute_ms);
+    const double finish =
+        start_ms + (c_.server_timing == SimConfig::ServerTiming::Fixed ? c_.server_fixed_ms : f.compute_ms);
     for (size_t i = 0; i < f.passes.size(); ++i) {
       SentPass& p = f.passes[i];
       PassTraffic& t = traffic_[traffic_index_[i]];
@@ -821,8 +831,8 @@ class Simulation {
   const SimConfig& c_;
   const Scene& scene_;
   std::string scene_key_;
-  SimConfig key_c_;  // c_ as the cache keys see it (keyed_config)
-  std::optional<ImageRGB8> prev_local_, prev_shown_;  // the last scored frame's reference and image
+  SimConfig key_c_;                                               // c_ as the cache keys see it (keyed_config)
+  std::optional<ImageRGB8> prev_local_, prev_shown_;              // the last scored frame's reference and image
   std::map<int, std::shared_ptr<const ImageRGB8>> local_cached_;  // the local references taken from the cache
   TraceCache& cache_;
   // The cache as the denoisers' memo.

@@ -135,8 +135,8 @@ using ProgressFn = std::function<void(int, int)>;
 
 // Validates the configuration against the scene and the registry (every problem at once),
 // then runs. `scene_key` identifies the scene's content for the cache (e.g. a hash of its file).
-RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key,
-                         TraceCache& cache, const Registries& registries, const ProgressFn& progress = {});
+RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key, TraceCache& cache,
+                         const Registries& registries, const ProgressFn& progress = {});
 
 // The run's settings as its cache keys see them: what the run leaves to the scene
 // (trace.ao_rays and trace.ao_radius_m 0: the scene's ao block) set to the scene's values, as
@@ -155,7 +155,6 @@ std::string local_reference_key(const std::string& scene_key, const SimConfig& c
 // One key per FLIP score the run will compute, in order: the local reference of every scored
 // frame and the ground truth of every frame scored against it (TraceCache::expect_flip_reads),
 // keyed as run_simulation keys them (keyed_config).
-std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config,
-                                             const Scene& scene);
+std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config, const Scene& scene);
 
 }  // namespace dhr

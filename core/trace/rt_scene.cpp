@@ -108,7 +108,8 @@ std::string embree_isa() { return isa_name(usable_isa()); }
 
 RtScene::RtScene(const Scene& scene, const RtSceneOptions& options) : scene_(scene), options_(options) {
   if (options.threads < 0) fail("rt_scene: threads {} must be >= 0 (0 = all cores)", options.threads);
-  if (scene.lights.size() > 64) fail("rt_scene: scene '{}' has {} lights; at most 64 are supported", scene.name, scene.lights.size());
+  if (scene.lights.size() > 64)
+    fail("rt_scene: scene '{}' has {} lights; at most 64 are supported", scene.name, scene.lights.size());
   threads_ = options.threads > 0 ? options.threads : std::max(1, tbb::info::default_concurrency());
   arena_ = std::make_unique<tbb::task_arena>(threads_);
   build();
@@ -136,8 +137,10 @@ RTCGeometry RtScene::make_triangle_geometry(uint32_t object_index) {
   std::vector<uint8_t> vertex_state(nv, 0);  // 0 ok, 1 non-finite, 2 huge
   for (size_t i = 0; i < nv; ++i) {
     bool huge = false;
-    if (!finite_and_small(mesh.positions[i], huge)) vertex_state[i] = 1;
-    else if (huge) vertex_state[i] = 2;
+    if (!finite_and_small(mesh.positions[i], huge))
+      vertex_state[i] = 1;
+    else if (huge)
+      vertex_state[i] = 2;
   }
   build_stats_.triangles_total += mesh.triangles.size();
   for (size_t t = 0; t < mesh.triangles.size(); ++t) {
@@ -176,8 +179,8 @@ RTCGeometry RtScene::make_triangle_geometry(uint32_t object_index) {
   RTCGeometry g = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
   auto* vb = static_cast<float*>(
       rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), nv));
-  auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
-      g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), info->prim_to_triangle.size()));
+  auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                            3 * sizeof(unsigned), info->prim_to_triangle.size()));
   if (!vb || !ib) fail("rt_scene: Embree could not allocate buffers for object '{}': {}", obj.name, last_error_);
   for (size_t i = 0; i < nv; ++i) {
     // Vertices used only by skipped triangles are zeroed so no non-finite value reaches Embree.
@@ -271,8 +274,10 @@ void RtScene::build() {
     const unsigned id = rtcAttachGeometry(static_target, g);
     rtcReleaseGeometry(g);
     ++static_geometries;
-    if (static_child) set_at(static_child_info_, id, infos_.back().get(), (const RtGeometryInfo*)nullptr);
-    else set_at(top_geom_info_, id, infos_.back().get(), (const RtGeometryInfo*)nullptr);
+    if (static_child)
+      set_at(static_child_info_, id, infos_.back().get(), (const RtGeometryInfo*)nullptr);
+    else
+      set_at(top_geom_info_, id, infos_.back().get(), (const RtGeometryInfo*)nullptr);
   }
   if (static_child && static_geometries > 0) {
     arena_->execute([&] { rtcCommitScene(static_child_); });
@@ -330,7 +335,8 @@ void RtScene::set_time(double time_s) {
     rtcCommitGeometry(instances_[slot]);
   }
   arena_->execute([&] { rtcCommitScene(top_); });
-  if (!last_error_.empty()) fail("rt_scene: committing scene '{}' at time {} s failed: {}", scene_.name, time_s, last_error_);
+  if (!last_error_.empty())
+    fail("rt_scene: committing scene '{}' at time {} s failed: {}", scene_.name, time_s, last_error_);
 }
 
 int RtScene::object_index(uint32_t object_id) const {

@@ -113,7 +113,7 @@ struct RtBuildStats {
 
 // What a geometry (or, for alpha filters, its hit) refers to. Geometry user data.
 struct RtGeometryInfo {
-  uint32_t object_index = 0;   // into Scene::objects
+  uint32_t object_index = 0;               // into Scene::objects
   std::vector<uint32_t> prim_to_triangle;  // Embree primID -> mesh triangle index
   const Material* material = nullptr;
   const Texture* cutout_texture = nullptr;  // set when the alpha filter is installed
@@ -181,8 +181,7 @@ class RtScene {
 
   // Maps an Embree hit (geomID, instID[0], primID) to (object index, mesh triangle index).
   // False for an unknown geometry.
-  bool resolve_hit(unsigned geom_id, unsigned inst_id, unsigned prim_id, int& object_index,
-                   uint32_t& triangle) const;
+  bool resolve_hit(unsigned geom_id, unsigned inst_id, unsigned prim_id, int& object_index, uint32_t& triangle) const;
 
   // The G-buffer from Embree primary rays through pixel centres (core/buffers/gbuffer.h), for
   // cross-checking the rasterizer. Moves the scene to `time_s`. Rays span the camera's
@@ -199,21 +198,21 @@ class RtScene {
   std::unique_ptr<tbb::task_arena> arena_;
   RTCDevice device_ = nullptr;
   RTCScene top_ = nullptr;
-  RTCScene static_child_ = nullptr;         // static geometry when the scene has moving objects
-  std::vector<RTCScene> moving_children_;   // one per moving object
-  std::vector<RTCGeometry> instances_;      // one per moving object (top-level geometries)
-  std::vector<uint32_t> moving_objects_;    // object index per moving child
+  RTCScene static_child_ = nullptr;        // static geometry when the scene has moving objects
+  std::vector<RTCScene> moving_children_;  // one per moving object
+  std::vector<RTCGeometry> instances_;     // one per moving object (top-level geometries)
+  std::vector<uint32_t> moving_objects_;   // object index per moving child
   // Lookup: top-level geomID -> info for static geometry in the top scene; child scenes keep
   // their own ids. Instance geomID -> moving slot.
   std::vector<std::unique_ptr<RtGeometryInfo>> infos_;
-  std::vector<const RtGeometryInfo*> top_geom_info_;     // by top-level geomID (null: instance)
-  std::vector<int> top_geom_moving_slot_;                // by top-level geomID (-1: not a moving instance)
-  std::vector<const RtGeometryInfo*> static_child_info_; // by geomID in static_child_
-  std::vector<const RtGeometryInfo*> moving_child_info_; // by moving slot (geomID 0 in its child)
-  unsigned static_instance_geom_ = ~0u;  // RTC_INVALID_GEOMETRY_ID: no static instance
-  std::vector<glm::mat4> world_from_object_;  // per object, at time_s_
-  std::vector<std::vector<uint8_t>> skipped_;  // per object: triangle skipped at build
-  std::vector<int> id_to_index_;              // Object::id -> index (dense up to max id)
+  std::vector<const RtGeometryInfo*> top_geom_info_;      // by top-level geomID (null: instance)
+  std::vector<int> top_geom_moving_slot_;                 // by top-level geomID (-1: not a moving instance)
+  std::vector<const RtGeometryInfo*> static_child_info_;  // by geomID in static_child_
+  std::vector<const RtGeometryInfo*> moving_child_info_;  // by moving slot (geomID 0 in its child)
+  unsigned static_instance_geom_ = ~0u;                   // RTC_INVALID_GEOMETRY_ID: no static instance
+  std::vector<glm::mat4> world_from_object_;              // per object, at time_s_
+  std::vector<std::vector<uint8_t>> skipped_;             // per object: triangle skipped at build
+  std::vector<int> id_to_index_;                          // Object::id -> index (dense up to max id)
   RtBuildStats build_stats_;
   std::string last_error_;  // first error Embree reported (see embree_error)
   std::string tracer_;

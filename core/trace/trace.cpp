@@ -80,7 +80,6 @@ void check_gbuffer(const GBuffer& g) {
     fail("trace: G-buffer layers differ in size from its depth layer ({}x{})", w, h);
 }
 
-
 // Sums per-chunk statistics (integer sums: the totals do not depend on the partition).
 struct AtomicStats {
   std::atomic<uint64_t> shadow_rays{0}, ao_rays{0}, invalid{0}, unres{0}, facing{0}, range{0}, inside{0}, cov{0};
@@ -108,7 +107,8 @@ TraceStats trace_rows(RtScene& rt, const TraceSettings& settings, int w, int h, 
       acc.add(st);
     };
     if (settings.rows_per_block > 0)
-      tbb::parallel_for(tbb::blocked_range<int>(0, h, size_t(settings.rows_per_block)), block, tbb::simple_partitioner());
+      tbb::parallel_for(tbb::blocked_range<int>(0, h, size_t(settings.rows_per_block)), block,
+                        tbb::simple_partitioner());
     else
       tbb::parallel_for(tbb::blocked_range<int>(0, h), block);
   });
@@ -147,8 +147,10 @@ VisibilityCounts visibility_impl(RtScene& rt, const GBuffer& g, const PassPlan& 
   const bool wide = wide_packets(rt);
   const uint64_t pass = new_pass_id();
   TraceStats st = trace_rows(rt, settings, w, h, [&](int y0, int y1, TraceStats& rs) {
-    if (wide) visibility_rows<16>(rt, g, settings, lights, pass, out, rows_out, y0, y1, rs);
-    else visibility_rows<8>(rt, g, settings, lights, pass, out, rows_out, y0, y1, rs);
+    if (wide)
+      visibility_rows<16>(rt, g, settings, lights, pass, out, rows_out, y0, y1, rs);
+    else
+      visibility_rows<8>(rt, g, settings, lights, pass, out, rows_out, y0, y1, rs);
   });
   stats.add(st);
   return out;

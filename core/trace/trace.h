@@ -74,11 +74,10 @@ struct AoCounts {
 
 // The kernels of the passes, one at a time (plan.visibility() / plan.ao must hold); statistics
 // are added. trace_passes (core/pass/passes.h) runs every planned pass's kernel.
-PassBuffer trace_visibility(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan,
-                            const TraceSettings& settings, TraceStats& stats);
+PassBuffer trace_visibility(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
+                            TraceStats& stats);
 PassBuffer trace_ao(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
                     TraceStats& stats);
-
 
 // The ground truth's converged estimates of the same passes (PassType::converged, used by
 // core/pass/reference.h): fractions in [0, 1], planar [channel][pixel]. `plan` is the scene's plan
@@ -197,9 +196,7 @@ inline double point_offset_m(const glm::dvec3& p, const glm::dvec3& n) {
 }
 
 // o = float(p + n d), in double, rounded once (every kernel: the same operations, no FMA).
-inline glm::vec3 offset_ray_origin(const glm::dvec3& p, const glm::dvec3& n, double d) {
-  return glm::vec3(p + n * d);
-}
+inline glm::vec3 offset_ray_origin(const glm::dvec3& p, const glm::dvec3& n, double d) { return glm::vec3(p + n * d); }
 
 // Duff, Burgess, Christensen, Hery, Kensler, Liani, Villemin, "Building an Orthonormal Basis,
 // Revisited" (JCGT 6(1), 2017), Listing 3: t, b such that (t, b, n) is right-handed
@@ -216,8 +213,7 @@ inline void orthonormal_basis(const glm::vec3& n, glm::vec3& t, glm::vec3& b) {
 // per-pixel part of the hash computed once (bit-identical to core/base/rng.h; tested).
 struct PixelRng {
   uint64_t h = 0;
-  PixelRng(uint64_t seed, uint32_t pixel, uint32_t frame)
-      : h(mix64(mix64(seed) ^ ((uint64_t(pixel) << 32) | frame))) {}
+  PixelRng(uint64_t seed, uint32_t pixel, uint32_t frame) : h(mix64(mix64(seed) ^ ((uint64_t(pixel) << 32) | frame))) {}
   void uniform2(uint32_t sample, uint32_t stream, float& u0, float& u1) const {
     const uint64_t k = mix64(h ^ ((uint64_t(sample) << 32) | stream));
     u0 = float(mix64(k ^ 0u) >> 40) * (1.0f / 16777216.0f);

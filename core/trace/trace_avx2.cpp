@@ -72,7 +72,8 @@ DHR_TRACE_TARGET_AVX2 inline void sincos_2pi_x8(__m256 u, __m256& c, __m256& s) 
   const __m256 sign = _mm256_castsi256_ps(_mm256_set1_epi32(int32_t(0x80000000u)));
   const __m256 x = _mm256_mul_ps(_mm256_set1_ps(4.0f), u);
   const __m256i q = _mm256_min_epi32(_mm256_cvttps_epi32(x), _mm256_set1_epi32(3));
-  const __m256 a = _mm256_mul_ps(_mm256_sub_ps(x, _mm256_cvtepi32_ps(q)), _mm256_set1_ps(std::numbers::pi_v<float> / 2.0f));
+  const __m256 a =
+      _mm256_mul_ps(_mm256_sub_ps(x, _mm256_cvtepi32_ps(q)), _mm256_set1_ps(std::numbers::pi_v<float> / 2.0f));
   const __m256 a2 = _mm256_mul_ps(a, a);
   __m256 sa = _mm256_add_ps(_mm256_set1_ps(-1.0f / 5040), _mm256_mul_ps(a2, _mm256_set1_ps(1.0f / 362880)));
   sa = _mm256_add_ps(_mm256_set1_ps(1.0f / 120), _mm256_mul_ps(a2, sa));
@@ -108,15 +109,14 @@ DHR_TRACE_TARGET_AVX2 inline __m256 cosine_dir_x8(const AoPixels& px, int comp_t
   return _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(t, rc), _mm256_mul_ps(b, rs)), _mm256_mul_ps(n, z));
 }
 
-
 // cone_x4 (core/trace/trace_directions.h) on 8 lanes, around one pair's basis (t, b, w):
 // normalize(t * (c sin) + b * (s sin) + w * cos), the same operations in the same order.
 DHR_TRACE_TARGET_AVX2 inline void cone_x8(const __m256 t[3], const __m256 b[3], const __m256 w[3], __m256 omc_max,
                                           __m256 u0, __m256 u1, __m256 d[3]) {
   const __m256 omc = _mm256_mul_ps(u0, omc_max);
   const __m256 cos_t = _mm256_sub_ps(_mm256_set1_ps(1.0f), omc);
-  const __m256 sin_t = _mm256_sqrt_ps(
-      _mm256_max_ps(_mm256_mul_ps(omc, _mm256_sub_ps(_mm256_set1_ps(2.0f), omc)), _mm256_setzero_ps()));
+  const __m256 sin_t =
+      _mm256_sqrt_ps(_mm256_max_ps(_mm256_mul_ps(omc, _mm256_sub_ps(_mm256_set1_ps(2.0f), omc)), _mm256_setzero_ps()));
   __m256 c, s;
   sincos_2pi_x8(u1, c, s);
   const __m256 cs = _mm256_mul_ps(c, sin_t), ss = _mm256_mul_ps(s, sin_t);
@@ -131,8 +131,8 @@ DHR_TRACE_TARGET_AVX2 inline void cone_x8(const __m256 t[3], const __m256 b[3], 
 
 // sphere_tfar_x4 (core/trace/trace_directions.h) on 8 lanes: the scalar cone loop's tfar.
 DHR_TRACE_TARGET_AVX2 inline __m256 sphere_tfar_x8(const __m256 d[3], const __m256 oc[3], __m256 r2) {
-  const __m256 b = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(d[0], oc[0]), _mm256_mul_ps(d[1], oc[1])),
-                                 _mm256_mul_ps(d[2], oc[2]));
+  const __m256 b =
+      _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(d[0], oc[0]), _mm256_mul_ps(d[1], oc[1])), _mm256_mul_ps(d[2], oc[2]));
   const __m256 qx = _mm256_sub_ps(oc[0], _mm256_mul_ps(b, d[0]));
   const __m256 qy = _mm256_sub_ps(oc[1], _mm256_mul_ps(b, d[1]));
   const __m256 qz = _mm256_sub_ps(oc[2], _mm256_mul_ps(b, d[2]));
@@ -157,7 +157,6 @@ DHR_TRACE_TARGET_AVX2 inline uint32_t directions_valid_x8(const __m256 d[3], __m
   return uint32_t(_mm256_movemask_ps(_mm256_and_ps(_mm256_and_ps(finite, nonzero), reach)));
 }
 
-
 // Lane l of the result is all ones where bit l of bits is set (8 lanes of 32 bits).
 DHR_TRACE_TARGET_AVX2 inline __m256i lanes_of(uint32_t bits) {
   const __m256i lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
@@ -173,7 +172,6 @@ DHR_TRACE_TARGET_AVX2 inline __m256i lanes64_of(uint32_t bits) {
 DHR_TRACE_TARGET_AVX2 inline __m256 join(__m128 lo, __m128 hi) {
   return _mm256_insertf128_ps(_mm256_castps128_ps256(lo), hi, 1);
 }
-
 
 // The 13 values (v0, v1, v2, n, offset_m) of the row triangles of 4 pixels, value k of lane l in
 // c[k][l] (surfaces_x8). AVX2's gathers are slow on the CPUs at hand, so: one broadcast per
@@ -261,7 +259,7 @@ DHR_TRACE_TARGET_AVX2 void ao_rays_x8(const AoPixels& px, int rays, float radius
     _mm256_store_ps(pk.dir_y, cosine_dir_x8(px, AoPixels::kTy, p0, pick, rc, rs, z));
     _mm256_store_ps(pk.dir_z, cosine_dir_x8(px, AoPixels::kTz, p0, pick, rc, rs, z));
     _mm256_store_ps(pk.tfar, _mm256_set1_ps(radius_m));  // tfar = r: never trace further
-    if (batch.record) {  // collect_ao_rays: push() keeps the rays, traces nothing
+    if (batch.record) {                                  // collect_ao_rays: push() keeps the rays, traces nothing
       for (int l = 0; l < live; ++l)
         batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l], radius_m,
                    nullptr);
@@ -379,8 +377,8 @@ DHR_TRACE_TARGET_AVX2 void trace_pairs_x8(const VisibilityRow& r, int n, Batch<8
     for (int c = 0; c < 7; ++c) _mm256_store_ps(to[c], _mm256_maskload_ps(r.pair_ray[c].data() + k0, lm));
     if (batch.record) {  // collect_visibility_rays: push() keeps the rays, traces nothing
       for (int l = 0; l < live; ++l)
-        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l],
-                   pk.tfar[l], nullptr);
+        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l], pk.tfar[l],
+                   nullptr);
       continue;
     }
     _mm256_store_si256(reinterpret_cast<__m256i*>(valid), lm);
@@ -425,8 +423,7 @@ DHR_TRACE_TARGET_AVX2 void surfaces_x8(VisibilityRow& r, const TraceSettings& se
                                mix64_x4(_mm256_xor_si256(seed, key)));
       }
     }
-    const __m256i kind =
-        _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(&r.kind[size_t(x)])));
+    const __m256i kind = _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(&r.kind[size_t(x)])));
     const uint32_t vec =
         uint32_t(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(kind, _mm256_set1_epi32(1))))) & live;
     if (vec == 0) continue;
@@ -446,10 +443,9 @@ DHR_TRACE_TARGET_AVX2 void surfaces_x8(VisibilityRow& r, const TraceSettings& se
         ph[half][k] = _mm256_cvtpd_ps(pd[k]);
       }
       // Oriented like the G-buffer's geometric normal: side = n . gn.
-      const __m256d side = _mm256_add_pd(
-          _mm256_add_pd(_mm256_mul_pd(c[9], _mm256_cvtps_pd(_mm_loadu_ps(&r.gx[xh]))),
-                        _mm256_mul_pd(c[10], _mm256_cvtps_pd(_mm_loadu_ps(&r.gy[xh])))),
-          _mm256_mul_pd(c[11], _mm256_cvtps_pd(_mm_loadu_ps(&r.gz[xh]))));
+      const __m256d side = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(c[9], _mm256_cvtps_pd(_mm_loadu_ps(&r.gx[xh]))),
+                                                       _mm256_mul_pd(c[10], _mm256_cvtps_pd(_mm_loadu_ps(&r.gy[xh])))),
+                                         _mm256_mul_pd(c[11], _mm256_cvtps_pd(_mm_loadu_ps(&r.gz[xh]))));
       const uint32_t not_positive =
           uint32_t(_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(side, abs_mask_d), zero_d, _CMP_NGT_UQ)));
       degenerate |= (not_positive & (vec >> (4 * half)) & 0xfu) << (4 * half);

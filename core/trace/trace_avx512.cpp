@@ -50,8 +50,10 @@ DHR_AVX512_TARGET inline void store_bytes_x16(uint8_t* p, __m128i v, __mmask16 m
 
 DHR_AVX512_TARGET inline __m512i mix64_x8(__m512i z) {  // core/base/rng.h's mix64, 8 lanes
   z = _mm512_add_epi64(z, _mm512_set1_epi64(int64_t(0x9E3779B97F4A7C15ull)));
-  z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 30)), _mm512_set1_epi64(int64_t(0xBF58476D1CE4E5B9ull)));
-  z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 27)), _mm512_set1_epi64(int64_t(0x94D049BB133111EBull)));
+  z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 30)),
+                         _mm512_set1_epi64(int64_t(0xBF58476D1CE4E5B9ull)));
+  z = _mm512_mullo_epi64(_mm512_xor_si512(z, _mm512_srli_epi64(z, 27)),
+                         _mm512_set1_epi64(int64_t(0x94D049BB133111EBull)));
   return _mm512_xor_si512(z, _mm512_srli_epi64(z, 31));
 }
 
@@ -74,7 +76,8 @@ DHR_AVX512_TARGET inline void sincos_2pi_x16(__m512 u, __m512& c, __m512& s) {
   const __m512 sign = _mm512_castsi512_ps(_mm512_set1_epi32(int32_t(0x80000000u)));
   const __m512 x = _mm512_mul_ps(_mm512_set1_ps(4.0f), u);
   const __m512i q = _mm512_min_epi32(_mm512_cvttps_epi32(x), _mm512_set1_epi32(3));
-  const __m512 a = _mm512_mul_ps(_mm512_sub_ps(x, _mm512_cvtepi32_ps(q)), _mm512_set1_ps(std::numbers::pi_v<float> / 2.0f));
+  const __m512 a =
+      _mm512_mul_ps(_mm512_sub_ps(x, _mm512_cvtepi32_ps(q)), _mm512_set1_ps(std::numbers::pi_v<float> / 2.0f));
   const __m512 a2 = _mm512_mul_ps(a, a);
   __m512 sa = _mm512_add_ps(_mm512_set1_ps(-1.0f / 5040), _mm512_mul_ps(a2, _mm512_set1_ps(1.0f / 362880)));
   sa = _mm512_add_ps(_mm512_set1_ps(1.0f / 120), _mm512_mul_ps(a2, sa));
@@ -103,7 +106,7 @@ DHR_AVX512_TARGET inline __m512 lane_values(const AoPixels& px, int comp, int p0
 // One component of cosine_dirs_chunk's direction, t * (r c) + b * (r s) + n * z, for the
 // axis whose t component is comp_t (b's and n's follow at +3 and +6).
 DHR_AVX512_TARGET inline __m512 cosine_dir_x16(const AoPixels& px, int comp_t, int p0, __m512i pick, __m512 rc,
-                                                     __m512 rs, __m512 z) {
+                                               __m512 rs, __m512 z) {
   const __m512 t = lane_values(px, comp_t, p0, pick), b = lane_values(px, comp_t + 3, p0, pick);
   const __m512 n = lane_values(px, comp_t + 6, p0, pick);
   return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(t, rc), _mm512_mul_ps(b, rs)), _mm512_mul_ps(n, z));
@@ -168,7 +171,7 @@ DHR_AVX512_TARGET void ao_rays_x16(const AoPixels& px, int rays, float radius_m,
     _mm512_store_ps(pk.dir_y, cosine_dir_x16(px, AoPixels::kTy, p0, pick, rc, rs, z));
     _mm512_store_ps(pk.dir_z, cosine_dir_x16(px, AoPixels::kTz, p0, pick, rc, rs, z));
     _mm512_store_ps(pk.tfar, _mm512_set1_ps(radius_m));  // tfar = r: never trace further
-    if (batch.record) {  // collect_ao_rays: push() keeps the rays, traces nothing
+    if (batch.record) {                                  // collect_ao_rays: push() keeps the rays, traces nothing
       for (int l = 0; l < live; ++l)
         batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l], radius_m,
                    nullptr);
@@ -213,11 +216,11 @@ DHR_AVX512_TARGET inline void orthonormal_basis_x16(__m512 nx, __m512 ny, __m512
 
 // cone_x4 (core/trace/trace_directions.h) on 16 lanes: normalize(t * (c sin) + b * (s sin) + w * cos).
 DHR_AVX512_TARGET inline void cone_x16(const __m512 t[3], const __m512 b[3], const __m512 w[3], __m512 omc_max,
-                                             __m512 u0, __m512 u1, __m512 d[3]) {
+                                       __m512 u0, __m512 u1, __m512 d[3]) {
   const __m512 omc = _mm512_mul_ps(u0, omc_max);
   const __m512 cos_t = _mm512_sub_ps(_mm512_set1_ps(1.0f), omc);
-  const __m512 sin_t = _mm512_sqrt_ps(
-      _mm512_max_ps(_mm512_mul_ps(omc, _mm512_sub_ps(_mm512_set1_ps(2.0f), omc)), _mm512_setzero_ps()));
+  const __m512 sin_t =
+      _mm512_sqrt_ps(_mm512_max_ps(_mm512_mul_ps(omc, _mm512_sub_ps(_mm512_set1_ps(2.0f), omc)), _mm512_setzero_ps()));
   __m512 c, s;
   sincos_2pi_x16(u1, c, s);
   const __m512 cs = _mm512_mul_ps(c, sin_t), ss = _mm512_mul_ps(s, sin_t);
@@ -232,13 +235,13 @@ DHR_AVX512_TARGET inline void cone_x16(const __m512 t[3], const __m512 b[3], con
 
 // sphere_tfar_x4 (core/trace/trace_directions.h) on 16 lanes.
 DHR_AVX512_TARGET inline __m512 sphere_tfar_x16(const __m512 d[3], const __m512 oc[3], __m512 r2) {
-  const __m512 b = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(d[0], oc[0]), _mm512_mul_ps(d[1], oc[1])),
-                                 _mm512_mul_ps(d[2], oc[2]));
+  const __m512 b =
+      _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(d[0], oc[0]), _mm512_mul_ps(d[1], oc[1])), _mm512_mul_ps(d[2], oc[2]));
   const __m512 qx = _mm512_sub_ps(oc[0], _mm512_mul_ps(b, d[0]));
   const __m512 qy = _mm512_sub_ps(oc[1], _mm512_mul_ps(b, d[1]));
   const __m512 qz = _mm512_sub_ps(oc[2], _mm512_mul_ps(b, d[2]));
-  const __m512 disc =
-      _mm512_sub_ps(r2, _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(qx, qx), _mm512_mul_ps(qy, qy)), _mm512_mul_ps(qz, qz)));
+  const __m512 disc = _mm512_sub_ps(
+      r2, _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(qx, qx), _mm512_mul_ps(qy, qy)), _mm512_mul_ps(qz, qz)));
   const __mmask16 pos = _mm512_cmp_ps_mask(disc, _mm512_setzero_ps(), _CMP_GT_OQ);
   const __m512 t_hit = _mm512_mask_blend_ps(pos, b, _mm512_sub_ps(b, _mm512_sqrt_ps(disc)));  // pos ? b - sqrt : b
   return _mm512_max_ps(_mm512_mul_ps(t_hit, _mm512_set1_ps(kShadowTfarScale)), _mm512_setzero_ps());
@@ -265,7 +268,8 @@ DHR_AVX512_TARGET inline __mmask16 rays_valid_x16(const __m512 d[3], __m512 tfar
 
 DHR_AVX512_TARGET int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li, size_t base, bool one_sample) {
   const int w = r.w;
-  const __m512d cx = _mm512_set1_pd(li.centre_d.x), cy = _mm512_set1_pd(li.centre_d.y), cz = _mm512_set1_pd(li.centre_d.z);
+  const __m512d cx = _mm512_set1_pd(li.centre_d.x), cy = _mm512_set1_pd(li.centre_d.y),
+                cz = _mm512_set1_pd(li.centre_d.z);
   const __m512d range = _mm512_set1_pd(double(li.range)), radius = _mm512_set1_pd(double(li.radius));
   const __m512d facing_at = li.soft ? _mm512_set1_pd(-double(li.radius)) : _mm512_setzero_pd();
   const __m512d rr = _mm512_set1_pd(double(li.radius) * li.radius), one_d = _mm512_set1_pd(1.0);
@@ -292,10 +296,10 @@ DHR_AVX512_TARGET int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li
       th[2] = _mm512_sub_pd(cz, _mm512_cvtps_pd(_mm256_loadu_ps(&r.pz[xh])));
       d[half] = _mm512_sqrt_pd(_mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(th[0], th[0]), _mm512_mul_pd(th[1], th[1])),
                                              _mm512_mul_pd(th[2], th[2])));
-      const __m512d n_dot = _mm512_add_pd(
-          _mm512_add_pd(_mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nx[xh])), th[0]),
-                        _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.ny[xh])), th[1])),
-          _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nz[xh])), th[2]));
+      const __m512d n_dot =
+          _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nx[xh])), th[0]),
+                                      _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.ny[xh])), th[1])),
+                        _mm512_mul_pd(_mm512_cvtps_pd(_mm256_loadu_ps(&r.nz[xh])), th[2]));
       const int sh = 8 * half;
       oor |= __mmask16(__mmask16(_mm512_mask_cmp_pd_mask(has_range, d[half], range, _CMP_GT_OQ)) << sh);
       inside |= __mmask16(__mmask16(_mm512_cmp_pd_mask(d[half], radius, _CMP_LE_OQ)) << sh);  // !(d > R) && d == d
@@ -309,7 +313,8 @@ DHR_AVX512_TARGET int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li
     alignas(16) uint8_t bytes[16];
     _mm_store_si128(reinterpret_cast<__m128i*>(bytes), _mm512_cvtepi32_epi8(code));
     std::copy(bytes, bytes + n, &r.code[base + size_t(x)]);
-    const __m512i covered = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)])));
+    const __m512i covered =
+        _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.covered[size_t(x)])));
     const __mmask16 traced = __mmask16(~(oor | inside | facing)) & _mm512_test_epi32_mask(covered, covered) & live;
     // Compressed in a register and stored whole (see list_pairs_x16); r.idx has kRowPad entries
     // of padding past the row (m + 16 <= x + 16).
@@ -335,8 +340,8 @@ DHR_AVX512_TARGET int sphere_light_row_x16(VisibilityRow& r, const LightInfo& li
       __m512 omc_h[2], wv_h[2][3];
       for (int half = 0; half < 2; ++half) {
         const __m512d s2 = _mm512_div_pd(rr, _mm512_mul_pd(d[half], d[half]));
-        omc_h[half] = _mm512_castps256_ps512(_mm512_cvtpd_ps(
-            _mm512_div_pd(s2, _mm512_add_pd(one_d, _mm512_sqrt_pd(_mm512_sub_pd(one_d, s2))))));
+        omc_h[half] = _mm512_castps256_ps512(
+            _mm512_cvtpd_ps(_mm512_div_pd(s2, _mm512_add_pd(one_d, _mm512_sqrt_pd(_mm512_sub_pd(one_d, s2))))));
         for (int k = 0; k < 3; ++k)
           wv_h[half][k] = _mm512_castps256_ps512(_mm512_cvtpd_ps(_mm512_div_pd(t[half][k], d[half])));
       }
@@ -374,8 +379,9 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
     const __mmask16 live = __mmask16((1u << n) - 1u);
     if (hashes) {  // PixelRng(seed, pixel, frame).h, pixel as uint32
       for (int half = 0; half < 2; ++half) {
-        const __m512i pixel = _mm512_and_si512(_mm512_add_epi64(_mm512_set1_epi64(int64_t(row_start + size_t(x + 8 * half))), iota64),
-                                               _mm512_set1_epi64(0xffffffffll));
+        const __m512i pixel =
+            _mm512_and_si512(_mm512_add_epi64(_mm512_set1_epi64(int64_t(row_start + size_t(x + 8 * half))), iota64),
+                             _mm512_set1_epi64(0xffffffffll));
         const __m512i key = _mm512_or_si512(_mm512_slli_epi64(pixel, 32), frame);
         _mm512_mask_storeu_epi64(&r.h[size_t(x + 8 * half)], __mmask8(live >> (8 * half)),
                                  mix64_x8(_mm512_xor_si512(seed, key)));
@@ -399,8 +405,8 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
       __mmask8 left = m8;
       for (int distinct = 0; left && distinct < 3; ++distinct) {
         const int t = r.tri_of[xh + size_t(__builtin_ctz(left))];
-        const __mmask8 same = __mmask8(_mm512_mask_cmpeq_epi32_mask(left, _mm512_castsi256_si512(tri_of),
-                                                                    _mm512_set1_epi32(t)));
+        const __mmask8 same =
+            __mmask8(_mm512_mask_cmpeq_epi32_mask(left, _mm512_castsi256_si512(tri_of), _mm512_set1_epi32(t)));
         const double* v = tri + 14 * size_t(t);
         for (int k = 0; k < 13; ++k) c[k] = _mm512_mask_mov_pd(c[k], same, _mm512_set1_pd(v[k]));
         left = __mmask8(left & ~same);
@@ -420,11 +426,12 @@ DHR_AVX512_TARGET void surfaces_x16(VisibilityRow& r, const TraceSettings& setti
         ph[half][k] = _mm512_cvtpd_ps(pd[k]);
       }
       // Oriented like the G-buffer's geometric normal: side = n . gn.
-      const __m512d side = _mm512_add_pd(
-          _mm512_add_pd(_mm512_mul_pd(c[9], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gx[xh]))),
-                        _mm512_mul_pd(c[10], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gy[xh])))),
-          _mm512_mul_pd(c[11], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gz[xh]))));
-      degenerate |= __mmask16(__mmask16(_mm512_cmp_pd_mask(_mm512_abs_pd(side), zero_d, _CMP_NGT_UQ) & m8) << (8 * half));
+      const __m512d side =
+          _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(c[9], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gx[xh]))),
+                                      _mm512_mul_pd(c[10], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gy[xh])))),
+                        _mm512_mul_pd(c[11], _mm512_cvtps_pd(_mm256_loadu_ps(&r.gz[xh]))));
+      degenerate |=
+          __mmask16(__mmask16(_mm512_cmp_pd_mask(_mm512_abs_pd(side), zero_d, _CMP_NGT_UQ) & m8) << (8 * half));
       const __mmask8 flip = _mm512_cmp_pd_mask(side, zero_d, _CMP_LT_OQ);
       for (int k = 0; k < 3; ++k) {
         const __m512d nk = _mm512_castsi512_pd(
@@ -584,8 +591,8 @@ struct PairChunks {
 // The codes of a block's 16 pixels for each light: the pairs that do not trace counted (and
 // their counters set), the ones that trace returned per light in traced. Returns their union.
 DHR_AVX512_TARGET inline __mmask16 classify_pairs_x16(const VisibilityRow& r, int nl, int x, __mmask16 cov,
-                                                       uint16_t* counts, size_t npx, PairTally& tally,
-                                                       __mmask16* traced) {
+                                                      uint16_t* counts, size_t npx, PairTally& tally,
+                                                      __mmask16* traced) {
   const int w = r.w;
   __mmask16 any = 0;
   for (int l = 0; l < nl; ++l) {
@@ -718,9 +725,9 @@ DHR_AVX512_TARGET void distant_light_row_x16(VisibilityRow& r, const LightInfo& 
     const int n = std::min(16, w - x);
     const __mmask16 live = __mmask16((1u << n) - 1u);
     const size_t i = base + size_t(x);
-    const __m512 n_dot = _mm512_add_ps(
-        _mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(&r.nx[size_t(x)]), ld[0]), _mm512_mul_ps(_mm512_loadu_ps(&r.ny[size_t(x)]), ld[1])),
-        _mm512_mul_ps(_mm512_loadu_ps(&r.nz[size_t(x)]), ld[2]));
+    const __m512 n_dot = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(&r.nx[size_t(x)]), ld[0]),
+                                                     _mm512_mul_ps(_mm512_loadu_ps(&r.ny[size_t(x)]), ld[1])),
+                                       _mm512_mul_ps(_mm512_loadu_ps(&r.nz[size_t(x)]), ld[2]));
     const __mmask16 facing = _mm512_cmp_ps_mask(n_dot, facing_at, _CMP_LE_OQ);
     alignas(16) uint8_t bytes[16];
     _mm_store_si128(reinterpret_cast<__m128i*>(bytes),
@@ -831,8 +838,8 @@ DHR_AVX512_TARGET void trace_pairs_x16(const VisibilityRow& r, int n, Batch<16>&
     for (int c = 0; c < 7; ++c) _mm512_store_ps(to[c], _mm512_maskz_loadu_ps(lm, r.pair_ray[c].data() + k0));
     if (batch.record) {  // collect_visibility_rays: push() keeps the rays, traces nothing
       for (int l = 0; l < live; ++l)
-        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l],
-                   pk.tfar[l], nullptr);
+        batch.push(glm::vec3(pk.org_x[l], pk.org_y[l], pk.org_z[l]), pk.dir_x[l], pk.dir_y[l], pk.dir_z[l], pk.tfar[l],
+                   nullptr);
       continue;
     }
     _mm512_store_si512(valid, _mm512_maskz_mov_epi32(lm, _mm512_set1_epi32(-1)));

@@ -103,8 +103,7 @@ inline void orthonormal_basis_x4(const Vec3x4& n, Vec3x4& t, Vec3x4& b) {
 inline Vec3x4 cone_x4(const Vec3x4& t, const Vec3x4& b, const Vec3x4& w, __m128 omc_max, __m128 u0, __m128 u1) {
   const __m128 omc = _mm_mul_ps(u0, omc_max);
   const __m128 cos_t = _mm_sub_ps(_mm_set1_ps(1.0f), omc);
-  const __m128 sin_t =
-      _mm_sqrt_ps(_mm_max_ps(_mm_mul_ps(omc, _mm_sub_ps(_mm_set1_ps(2.0f), omc)), _mm_setzero_ps()));
+  const __m128 sin_t = _mm_sqrt_ps(_mm_max_ps(_mm_mul_ps(omc, _mm_sub_ps(_mm_set1_ps(2.0f), omc)), _mm_setzero_ps()));
   __m128 c, s;
   sincos_2pi_x4(u1, c, s);
   const __m128 cs = _mm_mul_ps(c, sin_t), ss = _mm_mul_ps(s, sin_t);
@@ -176,7 +175,8 @@ inline void cosine_dirs_chunk(const glm::vec3& t, const glm::vec3& b, const glm:
 inline bool direction_valid(float dx, float dy, float dz, float tfar) {
   constexpr float kMax = std::numeric_limits<float>::max();
   // Branch-free on purpose: unsigned & keeps the three tests from short-circuiting.
-  const bool finite = (unsigned(std::abs(dx) <= kMax) & unsigned(std::abs(dy) <= kMax) & unsigned(std::abs(dz) <= kMax)) != 0;
+  const bool finite =
+      (unsigned(std::abs(dx) <= kMax) & unsigned(std::abs(dy) <= kMax) & unsigned(std::abs(dz) <= kMax)) != 0;
   const bool nonzero = (unsigned(dx != 0.0f) | unsigned(dy != 0.0f) | unsigned(dz != 0.0f)) != 0;
   return finite & nonzero & (tfar >= 0.0f);
 }

@@ -32,9 +32,9 @@ namespace dhr::trace_detail {
 
 // A surface point rebuilt from the G-buffer (core/trace/trace.h: "Surface points").
 struct Surface {
-  glm::vec3 p{0.0f};       // on the triangle
-  glm::vec3 n{0.0f};       // unit geometric normal, oriented like the G-buffer's (camera side)
-  glm::vec3 origin{0.0f};  // p offset along n (offset_ray_origin in core/trace/trace.h; see surface_at)
+  glm::vec3 p{0.0f};           // on the triangle
+  glm::vec3 n{0.0f};           // unit geometric normal, oriented like the G-buffer's (camera side)
+  glm::vec3 origin{0.0f};      // p offset along n (offset_ray_origin in core/trace/trace.h; see surface_at)
   glm::vec3 t{0.0f}, b{0.0f};  // orthonormal basis around n (AO only)
 };
 
@@ -119,7 +119,6 @@ inline bool surface_at(const RtScene& rt, const GBuffer& g, int x, int y, Surfac
   return true;
 }
 
-
 // A pixel's AO set-up shared by the row kernels: the surface, its basis and validation
 // (once per pixel: with a valid origin, a finite unit basis and 0 <= tfar = r, every direction
 // is a finite unit-length combination of the basis, so every ray of the pixel is valid --
@@ -138,7 +137,7 @@ struct LightInfo {
   bool sphere = true;
   bool soft = false;
   int samples = 1;
-  glm::vec3 centre{0.0f};     // sphere
+  glm::vec3 centre{0.0f};  // sphere
   glm::dvec3 centre_d{0.0};
   float radius = 0.0f;
   float range = 0.0f;
@@ -297,7 +296,9 @@ struct AoPixels {
   std::vector<uint16_t*> count;
   int n = 0;
   explicit AoPixels(int width)
-      : h(size_t(width) + 16, 0), shift0(size_t(width) + 16, 0), shift1(size_t(width) + 16, 0),
+      : h(size_t(width) + 16, 0),
+        shift0(size_t(width) + 16, 0),
+        shift1(size_t(width) + 16, 0),
         count(size_t(width) + 16, nullptr) {
     for (auto& v : c) v.assign(size_t(width) + 16, 0.0f);
   }
@@ -317,8 +318,8 @@ struct VisibilityRow {
   int lights = 0;
   std::vector<uint8_t> covered, origin_ok;
   std::vector<float> px, py, pz, nx, ny, nz, ox, oy, oz;
-  std::vector<uint64_t> h;   // PixelRng hash per pixel
-  std::vector<int> idx;       // compacted pixel indices (sphere_light_row)
+  std::vector<uint64_t> h;  // PixelRng hash per pixel
+  std::vector<int> idx;     // compacted pixel indices (sphere_light_row)
   // Temporaries of the light stages, by compacted index (sphere) or pixel (distant); kRowPad
   // lanes of padding so that 4-, 8- and 16-lane loads and stores past the end stay inside.
   std::vector<float> t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11, t12;
@@ -326,7 +327,7 @@ struct VisibilityRow {
   // Per light and pixel (code and ok with kRowPad bytes of padding: list_pairs_x16 reads 16 at
   // a time).
   std::vector<uint8_t> code, ok;
-  std::vector<float> dx, dy, dz, tfar;  // the ray (hard, or soft with one sample)
+  std::vector<float> dx, dy, dz, tfar;                // the ray (hard, or soft with one sample)
   std::vector<float> wx, wy, wz, ocx, ocy, ocz, omc;  // sphere cone (soft with S > 1)
   // The row's pairs that trace one ray each (every light with one sample), in pixel then
   // light order: their counters and their rays, copied in that order (list_pair, or

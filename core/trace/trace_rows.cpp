@@ -40,8 +40,7 @@ namespace {
 // that a wider ISA could contract or reorder), so the AVX-512 clone -- 64-bit vector multiplies,
 // 8 keys at once -- gives the same bits as the baseline one.
 __attribute__((target_clones("default", "arch=x86-64-v4"))) void uniforms_chunk(uint64_t h, uint32_t first,
-                                                                                uint32_t stream, float* u0,
-                                                                                float* u1) {
+                                                                                uint32_t stream, float* u0, float* u1) {
   for (int j = 0; j < kChunk; ++j) {
     const uint64_t k = mix64(h ^ ((uint64_t(first + uint32_t(j)) << 32) | stream));
     u0[j] = float(mix64(k ^ 0u) >> 40) * (1.0f / 16777216.0f);
@@ -100,7 +99,8 @@ void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool o
   (void)x16;
 #endif
   for (int x = 0; x < w && !x16; ++x) {
-    const double tx = cx - double(r.px[size_t(x)]), ty = cy - double(r.py[size_t(x)]), tz = cz - double(r.pz[size_t(x)]);
+    const double tx = cx - double(r.px[size_t(x)]), ty = cy - double(r.py[size_t(x)]),
+                 tz = cz - double(r.pz[size_t(x)]);
     const double d = std::sqrt(tx * tx + ty * ty + tz * tz);
     const double n_dot = double(r.nx[size_t(x)]) * tx + double(r.ny[size_t(x)]) * ty + double(r.nz[size_t(x)]) * tz;
     const bool out_of_range = has_range && d > range;
@@ -143,7 +143,8 @@ void sphere_light_row(VisibilityRow& r, const LightInfo& li, size_t base, bool o
   float* __restrict wz = r.t6.data();
   for (int k = 0; k < m; ++k) {
     const int x = idx[k];
-    const double tx = cx - double(r.px[size_t(x)]), ty = cy - double(r.py[size_t(x)]), tz = cz - double(r.pz[size_t(x)]);
+    const double tx = cx - double(r.px[size_t(x)]), ty = cy - double(r.py[size_t(x)]),
+                 tz = cz - double(r.pz[size_t(x)]);
     const double d = std::sqrt(tx * tx + ty * ty + tz * tz);
     const double s2 = radius * li.radius / (d * d);
     omc[k] = float(s2 / (1.0 + std::sqrt(1.0 - s2)));
@@ -274,7 +275,7 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
   const bool x16 = false, x8 = false;
 #endif
   const bool vector_surfaces = x16 || x8;
-  bool any_soft = false;  // hard lights need no random numbers
+  bool any_soft = false;   // hard lights need no random numbers
   bool all_single = true;  // every light one ray per pixel (hard, or soft with S = 1)
   for (const LightInfo& li : lights) {
     any_soft = any_soft || li.soft;
@@ -385,8 +386,10 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
           gx[i] = gnorm[i].x, gy[i] = gnorm[i].y, gz[i] = gnorm[i].z;
         }
       }
-      if (x16) surfaces_x16(r, settings, size_t(y) * size_t(w), any_soft);
-      else surfaces_x8(r, settings, size_t(y) * size_t(w), any_soft);
+      if (x16)
+        surfaces_x16(r, settings, size_t(y) * size_t(w), any_soft);
+      else
+        surfaces_x8(r, settings, size_t(y) * size_t(w), any_soft);
       for (int x = 0; x < w; ++x) {
         if (r.kind[size_t(x)] != 3) continue;
         Surface s;
@@ -416,12 +419,15 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
     for (int l = 0; l < nl; ++l) {
       const LightInfo& li = lights[size_t(l)];
       const bool one_sample = li.samples == 1;
-      if (li.soft && one_sample) uniforms_pixels(r.h.data(), w, 0, kStreamLightBase + uint32_t(l), r.u0.data(), r.u1.data());
+      if (li.soft && one_sample)
+        uniforms_pixels(r.h.data(), w, 0, kStreamLightBase + uint32_t(l), r.u0.data(), r.u1.data());
       if (li.sphere) sphere_light_row(r, li, size_t(l) * size_t(w), one_sample, x16);
 #if DHR_TRACE_X86_KERNELS
-      else if (x16 && one_sample) distant_light_row_x16(r, li, size_t(l) * size_t(w));
+      else if (x16 && one_sample)
+        distant_light_row_x16(r, li, size_t(l) * size_t(w));
 #endif
-      else distant_light_row(r, li, size_t(l) * size_t(w), one_sample);
+      else
+        distant_light_row(r, li, size_t(l) * size_t(w), one_sample);
     }
     // Stage 3: answers and rays in pixel order (pixel, light, sample).
 #if DHR_TRACE_X86_KERNELS
@@ -457,8 +463,10 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
           }
         }
       }
-      if constexpr (W == 16) trace_pairs_x16(r, n, batch);
-      else trace_pairs_x8(r, n, batch);
+      if constexpr (W == 16)
+        trace_pairs_x16(r, n, batch);
+      else
+        trace_pairs_x8(r, n, batch);
       continue;
     }
 #endif
@@ -497,19 +505,23 @@ void visibility_rows(RtScene& rt, const GBuffer& g, const TraceSettings& setting
         if (settings.lattice) lattice_shift(r.h[size_t(x)], stream, shift0, shift1);
 #if DHR_TRACE_X86_KERNELS
         if (W == 16 ? x16 : x8) {
-          SoftPair pair{origin, origin_ok, r.h[size_t(x)], stream, li.samples, tb, bb, w_dir, omc_max,
-                        li.sphere, glm::vec3(ocx, ocy, ocz), r2, count};
+          SoftPair pair{origin,  origin_ok, r.h[size_t(x)],           stream, li.samples, tb, bb, w_dir,
+                        omc_max, li.sphere, glm::vec3(ocx, ocy, ocz), r2,     count};
           pair.lattice = settings.lattice;
           pair.shift0 = shift0, pair.shift1 = shift1;
-          if constexpr (W == 16) soft_pair_rays_x16(pair, batch, invalid);
-          else soft_pair_rays_x8(pair, batch, invalid);
+          if constexpr (W == 16)
+            soft_pair_rays_x16(pair, batch, invalid);
+          else
+            soft_pair_rays_x8(pair, batch, invalid);
           continue;
         }
 #endif
         for (int k0 = 0; k0 < li.samples; k0 += kChunk) {
           const int n = std::min(kChunk, li.samples - k0);
-          if (settings.lattice) lattice_chunk(shift0, shift1, uint32_t(k0), u0, u1);
-          else uniforms_chunk(r.h[size_t(x)], uint32_t(k0), stream, u0, u1);
+          if (settings.lattice)
+            lattice_chunk(shift0, shift1, uint32_t(k0), u0, u1);
+          else
+            uniforms_chunk(r.h[size_t(x)], uint32_t(k0), stream, u0, u1);
           sample_cone_chunk(tb, bb, w_dir, omc_max, u0, u1, dx, dy, dz);
           if (li.sphere) {
             for (int j = 0; j < n; ++j) {
@@ -564,8 +576,10 @@ void ao_rays_baseline(const AoPixels& px, int rays, float radius_m, Batch<W>& ba
     const glm::vec3 n(at(AoPixels::kNx), at(AoPixels::kNy), at(AoPixels::kNz));
     for (int k0 = 0; k0 < rays; k0 += kChunk) {
       const int m = std::min(kChunk, rays - k0);
-      if (px.lattice) lattice_chunk(px.shift0[size_t(i)], px.shift1[size_t(i)], uint32_t(k0), u0, u1);
-      else uniforms_chunk(px.h[size_t(i)], uint32_t(k0), kStreamAo, u0, u1);
+      if (px.lattice)
+        lattice_chunk(px.shift0[size_t(i)], px.shift1[size_t(i)], uint32_t(k0), u0, u1);
+      else
+        uniforms_chunk(px.h[size_t(i)], uint32_t(k0), kStreamAo, u0, u1);
       cosine_dirs_chunk(t, b, n, u0, u1, dx, dy, dz);
       // tfar = r: "occluded if anything is hit within r", never trace further.
       batch.push_chunk(origin, dx, dy, dz, radius_m, m, px.count[size_t(i)]);
@@ -622,10 +636,11 @@ void ao_rows_compacted(RtScene& rt, const GBuffer& g, int ao_rays, float radius_
   st.covered_pixels = cov;
 }
 
-template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&, uint64_t,
-                                 VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
-template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&, uint64_t,
-                                  VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+template void visibility_rows<8>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
+                                 uint64_t, VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int, TraceStats&);
+template void visibility_rows<16>(RtScene&, const GBuffer&, const TraceSettings&, const std::vector<LightInfo>&,
+                                  uint64_t, VisibilityCounts&, std::vector<std::vector<RTCRay>>*, int, int,
+                                  TraceStats&);
 template void ao_rays_baseline<8>(const AoPixels&, int, float, Batch<8>&);
 template void ao_rays_baseline<16>(const AoPixels&, int, float, Batch<16>&);
 template void ao_rows_compacted<8>(RtScene&, const GBuffer&, int, float, const TraceSettings&, AoCounts&,

@@ -57,7 +57,7 @@ struct Harness {
 
   void generate(fuzz::Reader& r) {
     const uint16_t stream = uint16_t(r.u8() % 3);
-    const size_t size = r.u16() % 9000;  // some above max_frame_bytes
+    const size_t size = r.u16() % 9000;        // some above max_frame_bytes
     const size_t chunk = 64 + r.u16() % 1337;  // above 1200 is refused as TooLarge
     PacketMeta m;
     m.stream_id = stream;

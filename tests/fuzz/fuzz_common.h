@@ -11,12 +11,12 @@
 
 namespace dhr::fuzz {
 
-#define DHR_FUZZ_CHECK(cond)                                                          \
-  do {                                                                                \
-    if (!(cond)) {                                                                    \
-      std::fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond);  \
-      std::abort();                                                                   \
-    }                                                                                 \
+#define DHR_FUZZ_CHECK(cond)                                                        \
+  do {                                                                              \
+    if (!(cond)) {                                                                  \
+      std::fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
+      std::abort();                                                                 \
+    }                                                                               \
   } while (0)
 
 // Reads the input front to back; past the end every read returns 0.

@@ -45,10 +45,29 @@ const DatagramMac& test_mac() {
 }
 
 // Field names worth hitting: the offer's and the Welcome's, and a few nested ones.
-const char* const kKeys[] = {"protocol", "scene", "scene_hash", "width", "height", "display_hz", "start_time_s",
-                             "seed", "trace", "visibility_codec", "ao_codec", "ao_denoiser", "visibility_denoiser",
-                             "max_payload_bytes", "name", "params", "session", "client_nonce", "first_sequence",
-                             "visibility", "ao", "offer", "x"};
+const char* const kKeys[] = {"protocol",
+                             "scene",
+                             "scene_hash",
+                             "width",
+                             "height",
+                             "display_hz",
+                             "start_time_s",
+                             "seed",
+                             "trace",
+                             "visibility_codec",
+                             "ao_codec",
+                             "ao_denoiser",
+                             "visibility_denoiser",
+                             "max_payload_bytes",
+                             "name",
+                             "params",
+                             "session",
+                             "client_nonce",
+                             "first_sequence",
+                             "visibility",
+                             "ao",
+                             "offer",
+                             "x"};
 constexpr size_t kKeyCount = sizeof kKeys / sizeof kKeys[0];
 
 json any_value(fuzz::Reader& in, int depth) {

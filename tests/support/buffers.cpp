@@ -32,8 +32,8 @@ constexpr std::array<Shape, 7> kShapes{{
     {false, 650, 645, 50, 45},
 }};
 
-constexpr std::array<std::array<uint8_t, 3>, 7> kShapeColours{{
-    {200, 60, 50}, {60, 140, 200}, {230, 200, 70}, {90, 180, 90}, {150, 90, 170}, {220, 130, 60}, {120, 120, 130}}};
+constexpr std::array<std::array<uint8_t, 3>, 7> kShapeColours{
+    {{200, 60, 50}, {60, 140, 200}, {230, 200, 70}, {90, 180, 90}, {150, 90, 170}, {220, 130, 60}, {120, 120, 130}}};
 
 double size_of(const Shape& s) { return s.sphere ? s.a : std::min(s.a, s.b); }
 
@@ -118,9 +118,7 @@ void for_rows(int height, PerRow&& per_row) {
   tbb::parallel_for(0, height, [&](int y) { per_row(y); });
 }
 
-uint8_t to_u8(double v, int full_scale) {
-  return uint8_t(std::lround(std::clamp(v, 0.0, 1.0) * full_scale));
-}
+uint8_t to_u8(double v, int full_scale) { return uint8_t(std::lround(std::clamp(v, 0.0, 1.0) * full_scale)); }
 
 // Binomial(n, p) from n counter-based uniforms.
 int binomial(const RngKey& base, int n, double p) {
@@ -285,7 +283,8 @@ PassBuffer make_colour(const SyntheticView& v) {
       const RngKey tk{v.seed, uint32_t(int64_t(std::floor(rx / 2)) & 0xFFFFFFFF),
                       uint32_t(int64_t(std::floor(ry / 2)) & 0xFFFFFFFF), 0, 7};
       const double texture = 0.94 + 0.12 * double(rng_uniform(tk));
-      const double light = 0.25 + 0.55 * light_visibility(key, rx, ry, true) + 0.2 * light_visibility(fill, rx, ry, true);
+      const double light =
+          0.25 + 0.55 * light_visibility(key, rx, ry, true) + 0.2 * light_visibility(fill, rx, ry, true);
       const double shade = synthetic_ao(rx, ry) * light * texture;
       uint8_t* px = &b.bytes[(size_t(y) * v.width + x) * 3];
       for (int c = 0; c < 3; ++c) px[c] = to_u8(std::pow(albedo[size_t(c)] * shade, 1 / 2.2), 255);
@@ -307,8 +306,7 @@ double buffer_psnr_db(const PassBuffer& a, const PassBuffer& b) {
 }
 
 PassBuffer make_world_pass(const GBuffer& g, PassKind kind) {
-  if (kind != PassKind::Ao && kind != PassKind::Visibility)
-    throw Error("make_world_pass: Ao or Visibility only");
+  if (kind != PassKind::Ao && kind != PassKind::Visibility) throw Error("make_world_pass: Ao or Visibility only");
   PassBuffer b;
   b.desc = {kind, g.width(), g.height(), 1, 255};
   b.bytes.assign(b.desc.byte_size(), 0);
@@ -321,7 +319,8 @@ PassBuffer make_world_pass(const GBuffer& g, PassKind kind) {
       }
       const glm::vec3 p = g.position(x, y);
       if (kind == PassKind::Visibility)
-        b.bytes[i] = uint8_t((int(std::floor(p.x * 2.0f)) + int(std::floor(p.y * 2.0f)) + int(std::floor(p.z * 2.0f))) & 1);
+        b.bytes[i] =
+            uint8_t((int(std::floor(p.x * 2.0f)) + int(std::floor(p.y * 2.0f)) + int(std::floor(p.z * 2.0f))) & 1);
       else
         b.bytes[i] = uint8_t(128.0f + 100.0f * std::sin(p.x * 1.7f) * std::cos(p.z * 1.3f + p.y));
     }
