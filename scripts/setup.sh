@@ -22,6 +22,8 @@ PACKAGES=(
   assimp-testmodels
   # fuzz targets (libFuzzer) and sanitizer runtimes for clang
   clang libclang-rt-14-dev
+  # tests: the sources as .clang-format writes them (tests/format_check.sh)
+  clang-format
   # report plots; results as tables (experiments/dhrbench_results: runs_frame, frames_frame)
   python3 python3-matplotlib python3-numpy python3-pandas
   # tests: report.html opened in headless Chromium (tests/python/test_report_html.py)
