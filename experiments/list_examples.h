@@ -4,7 +4,7 @@
 //   "passes": {"ao": {"codec": {"name": "zstd", "params": {"level": 3}}}}   in an experiment's "run"
 //   --set run.passes.ao.codec='{"name":"zstd","params":{"level":3}}'         on the command line
 //
-// Header-only so that tests/test_registry.cpp can check that every example is accepted by the
+// Header-only so that tests/backends/test_registry.cpp can check that every example is accepted by the
 // loader and creates its backend, without a library of its own.
 #pragma once
 

@@ -28,7 +28,7 @@ Usage:
   --cache DIR: the disk cache for the runs (default: OUT/cache, emptied first, so that no traced
                buffer or ground truth of an older build hides a change).
   --compare NEW OLD: compare two results folders (e.g. a merged sharded run against an unsharded
-               one, tests/test_shard.cpp) and nothing else.
+               one, tests/core/experiment/test_shard.cpp) and nothing else.
   --print-run-args NAME: print the arguments of `dhrbench run` that rerun report NAME and nothing else.
 """
 import argparse

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""SSIM by scikit-image, the reference tests/test_metrics.cpp compares dhrbench's SSIM with.
+"""SSIM by scikit-image, the reference tests/core/metrics/test_metrics.cpp compares dhrbench's SSIM with.
 
 Usage: ssim_reference.py FILE...   Each FILE holds one image pair: a header of three
 little-endian int32 (width, height, channels) followed by both images' bytes (8-bit,

@@ -51,7 +51,7 @@ struct Fnv1a {
 
 // temporal_scores (core/metrics/temporal.h) as one sequential loop over the pixels, the way
 // core/metrics/temporal.cpp computed them before its per-pixel terms ran in vectorized chunks: the
-// definition of the bits it keeps (tests/test_temporal.cpp) and the "before" of bench_metrics.
+// definition of the bits it keeps (tests/core/metrics/test_temporal.cpp) and the "before" of bench_metrics.
 TemporalScores temporal_scores_one_loop(const ImageRGB8& reference_prev, const ImageRGB8& reference,
                                         const ImageRGB8& test_prev, const ImageRGB8& test, double static_threshold);
 

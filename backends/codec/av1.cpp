@@ -48,7 +48,7 @@ CodecEntry make_av1_codec() {
               if (s.rate_control == AvRateControl::Crf && s.max_kbps > 0)
                 o.context()->bit_rate = int64_t(s.max_kbps) * 1000;
               if (s.rate_control == AvRateControl::Lossless) {
-                // In realtime mode lossless=1 left inter frames lossy (tests/test_codecs.cpp found it):
+                // In realtime mode lossless=1 left inter frames lossy (tests/backends/test_codecs.cpp found it):
                 // lossless runs in good-quality mode with the quantiser pinned at 0.
                 o.context()->qmin = 0;
                 o.context()->qmax = 0;

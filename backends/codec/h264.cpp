@@ -9,7 +9,7 @@
 // x264 settings: tune=zerolatency (no B-frames, no lookahead), scene-cut detection off (so
 // keyframes are predictable), forced keyframes are IDR pictures, SPS/PPS precede every IDR.
 //
-// Notes measured on this build (libavcodec 59.37, x264 0.164; tests/test_codecs.cpp):
+// Notes measured on this build (libavcodec 59.37, x264 0.164; tests/backends/test_codecs.cpp):
 // - libx264 takes GRAY8 here, so AO goes as true 4:0:0; rate_control=lossless (qp 0, which
 //   x264 codes in the High 4:4:4 Predictive profile) returns AO and soft visibility
 //   bit-exactly. Colour is refused in lossless mode: 4:2:0 cannot return RGB exactly.

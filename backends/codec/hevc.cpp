@@ -9,7 +9,7 @@
 // off, closed GOP, forced keyframes are IDR pictures, VPS/SPS/PPS repeated before every IDR,
 // no encoder-info SEI. Threads: a pool of `threads` x265 workers with wavefront parallel
 // processing always on (pools=none would switch it off and change the bitstream) and one frame
-// thread, so the bytes do not depend on `threads` (tests/test_codecs.cpp checks 1 against 4).
+// thread, so the bytes do not depend on `threads` (tests/backends/test_codecs.cpp checks 1 against 4).
 //
 // Parameters (the shared ones: av_video_params):
 //   rate_control  crf | bitrate | lossless   lossless = x265 lossless=1           default crf

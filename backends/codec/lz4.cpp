@@ -1,7 +1,7 @@
 // lz4: the LZ4 frame format (liblz4's LZ4F API, frame spec v1.6.2) with a block checksum and
 // a content checksum (xxHash32) and the content size in the frame header, so that a corrupt
 // or truncated frame is detected instead of decoding into wrong bytes (without checksums,
-// single bit flips can decode without error into wrong bytes; tests/test_codecs.cpp
+// single bit flips can decode without error into wrong bytes; tests/backends/test_codecs.cpp
 // `CodecConformance.BitFlipsAreDetectedOrHarmless` holds lz4 to detecting them). The paper
 // names LZ4 as the lossless codec for its bitmasks; fast mode is its choice for speed.
 //

@@ -3,7 +3,7 @@
 // driver, plus the parameters the four denoisers share. The a-trous and spatial-moment kernels
 // are in filters_kernels.cpp, the vector maths in filters_simd.h.
 //
-// Cost at 1280x720 (tests/bench_denoise.cpp): around the a-trous taps, the passes are fused
+// Cost at 1280x720 (tests/backends/bench_denoise.cpp): around the a-trous taps, the passes are fused
 // (FilterPipeline::run) and the guide is built 8 pixels at a time, 16 with AVX-512
 // (guide_row16), the accumulation's rows 16 (AVX-512) or 8 (AVX2) at a time
 // (filters_accumulate.cpp): temporal alone takes 12.1 CPU ms with AVX-512. The rest of a frame

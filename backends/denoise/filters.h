@@ -4,7 +4,7 @@
 // 2017, "Spatiotemporal Variance-Guided Filtering" (SVGF), as modified for ambient occlusion in
 // the DHR-S paper, section 3.3 (see svgf_ao.cpp for how that modification is read).
 //
-// This header declares what the four backends and tests/test_denoisers.cpp use; the code is
+// This header declares what the four backends and tests/backends/test_denoisers.cpp use; the code is
 // compiled once, in two layers:
 //   filters.cpp          the guide (G-buffer planes), temporal accumulation, variance
 //                        estimate, the a-trous iterations' driver (FilterPipeline) and the

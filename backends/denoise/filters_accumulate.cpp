@@ -1,7 +1,7 @@
 // The temporal accumulation's rows (FilterPipeline::accumulate in filters.cpp, whose
 // reproject and finish lambdas say what each step is) with vectors: 16 pixels at a time with
 // AVX-512 (accumulate_row16), 8 with AVX2 (accumulate_row8), chosen at run time; the same bits
-// as the scalar loop (tests/test_denoisers.cpp, Denoisers.SameBitsWithPortableKernels). The two
+// as the scalar loop (tests/backends/test_denoisers.cpp, Denoisers.SameBitsWithPortableKernels). The two
 // are one algorithm in two instruction sets, step for step.
 #include "backends/denoise/filters.h"
 #include "backends/denoise/filters_simd.h"

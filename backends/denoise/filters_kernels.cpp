@@ -1,10 +1,10 @@
 // The hot kernels of the SVGF-family filter (filters.h): one a-trous iteration over whole rows
 // (atrous_rows) and the depth/normal-weighted spatial moments of a row span (moment_span),
 // each with an 8-lane kernel cloned for AVX2 and the baseline and a 16-lane AVX-512 one
-// chosen at run time; all give the same bits (filters_simd.h; tests/test_denoisers.cpp,
+// chosen at run time; all give the same bits (filters_simd.h; tests/backends/test_denoisers.cpp,
 // AtrousKernelSameBitsOnEveryVectorWidth, checks it).
 //
-// Cost at 1280x720 (tests/bench_denoise.cpp): a-trous dominates (5 iterations x 24 taps per
+// Cost at 1280x720 (tests/backends/bench_denoise.cpp): a-trous dominates (5 iterations x 24 taps per
 // pixel). Centre values and sums of 8 pixels (16 with AVX-512) stay in registers across the
 // 24 taps; the normal power is 7 squarings (sigma_n = 128 is compiled in; other powers of two
 // loop). Where the CPU has AVX-512 the a-trous and spatial-moment kernels take 16 lanes: the

@@ -14,7 +14,7 @@
 // 0.11 at steady state). SVGF uses the per-frame variance as is; scaling it by k is this
 // implementation's choice: the a-trous range term then relaxes as the history converges, so
 // with a static camera the error keeps falling instead of levelling off at the blur of a
-// filter tuned for one frame's noise (tests/test_denoisers.cpp, StaticCamera...); (3) `iterations`
+// filter tuned for one frame's noise (tests/backends/test_denoisers.cpp, StaticCamera...); (3) `iterations`
 // edge-aware a-trous passes (5x5 B3-spline kernel, step 2^i) whose weights are
 //   exp(-|z_p - z_q| / (sigma_z |grad z| |offset|) - |l_p - l_q| / (sigma_l sqrt(g3x3(var)) + 1e-4))
 //   * max(0, n_p . n_q)^sigma_n,
@@ -43,7 +43,7 @@
 // its own first-iteration output back into the history. A pixel's result depends neither on
 // its neighbours' path nor on the thread count or vector width. The first frame after a reset
 // (history 1) is the full filter for any L >= 2; L = 1 makes every frame single_iteration's;
-// L above history_cap never applies. The price (tests/test_denoisers.cpp, LightHistory...):
+// L above history_cap never applies. The price (tests/backends/test_denoisers.cpp, LightHistory...):
 // with a still camera the error settles at single_iteration's level (at 4 rays about 1.8x
 // that of the full filter) instead of falling further.
 //

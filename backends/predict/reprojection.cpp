@@ -39,7 +39,7 @@
 // (plan_x16, write_x16: the scalar code's operations in the same order, lane by lane; the taps'
 // values loaded where they lie side by side, picked by permutes from 32 columns of the rows
 // they lie on, or else gathered), and write the background lanes; the pixels they do not
-// resolve take the scalar path. Same bytes (tests/test_predictors.cpp:
+// resolve take the scalar path. Same bytes (tests/backends/test_predictors.cpp:
 // Reprojection.HardTapTestsKeepTheirBits, both paths; SameBytesOnTheVectorAndScalarPaths, each
 // way of reading the taps); docs/performance.md has the measurements.
 //

@@ -31,7 +31,7 @@ void parallel_rows(int height, Body&& body) {
 }
 
 // Tests only: on, reprojection takes its scalar path on every pixel, also where the CPU has
-// AVX-512 (its 16-lane kernel must give the same bytes: tests/test_predictors.cpp).
+// AVX-512 (its 16-lane kernel must give the same bytes: tests/backends/test_predictors.cpp).
 void force_scalar_reprojection(bool on);
 
 inline bool finite3(const glm::vec3& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }

@@ -11,7 +11,7 @@
 // closer than that (about 1 % on FLIP's inputs), and every input outside positive normal x and
 // finite y with |y log2 x| < 120, are computed by std::pow itself. So every output is
 // std::pow's, bit for bit, on every CPU. The argument rests on the library's bound, so it holds
-// for glibc's powf (Debian's); tests/test_pow_row.cpp checks every output against std::pow on
+// for glibc's powf (Debian's); tests/core/base/test_pow_row.cpp checks every output against std::pow on
 // inputs where glibc's result is not the correctly rounded one for 1 in 1,600 (a kernel that
 // ignored the bound fails there), and would fail against a C library whose powf strays further.
 #pragma once

@@ -9,9 +9,9 @@
 // (LSB first, the same bit order as the interleaved layout), ceil(w*h/8) bytes, the padding
 // bits of its last byte zero. Planes compress better with generic LZ coders because every
 // byte then holds 8 neighbouring pixels of one light: each light's shadow edges stay
-// together instead of being mixed with the other lights' bits. tests/test_codecs.cpp
+// together instead of being mixed with the other lights' bits. tests/backends/test_codecs.cpp
 // (`Lz4Zstd.PlanesAreSmallerThanInterleavedOnBitmasks`) checks that lz4 and zstd code a 4-light
-// bitmask smaller as planes; tests/bench_codecs.cpp sizes and times both layouts
+// bitmask smaller as planes; tests/backends/bench_codecs.cpp sizes and times both layouts
 // (`hard_vis4_planes` against `hard_vis4_interleaved`).
 //
 // The conversions are exact in both directions; they work 8 pixels at a time with one 8x8

@@ -260,7 +260,7 @@ FeatureKernels make_feature_kernels(double ppd) {
 // hide the adds' latency (with four, each tap waited on the previous one's adds). Every output is
 // still w0 * s0, then + w1 * s1, ... in tap order, each product and sum rounded on its own
 // (neither target has FMA instructions, so nothing is contracted): the same bits on every target
-// and as the one-tap-at-a-time loop (Flip.SameBitsAsTheOneTapAtATimeFilters in tests/test_flip.cpp).
+// and as the one-tap-at-a-time loop (Flip.SameBitsAsTheOneTapAtATimeFilters in tests/core/metrics/test_flip.cpp).
 
 // out[x, x + 8 kVecs) of weighted_rows, the sums in registers.
 template <int kVecs>

@@ -59,13 +59,13 @@ FlipResult flip(const FlipFeatures& reference, const ImageRGB8& test);
 ImageRGB8 flip_colour_map(const ImageF& flip_map);
 
 // CIELAB's f(t) (cube root above (6/29)^3, linear below), one value and a row in place: the
-// row kernel must give lab_f_value's bits on every input (tests/test_flip.cpp checks it).
+// row kernel must give lab_f_value's bits on every input (tests/core/metrics/test_flip.cpp checks it).
 namespace flip_detail {
 float lab_f_value(float t);
 void lab_f_values(float* v, size_t n);
 // The filter taps (a product and a sum each) that flip(features, test) computes per pixel of the
 // test image at `ppd`, counted from the kernels it builds: the horizontal pass's seven planes
-// and the vertical pass's eight (tests/bench_metrics.cpp times them alone, as a floor). Throws
+// and the vertical pass's eight (tests/core/metrics/bench_metrics.cpp times them alone, as a floor). Throws
 // dhr::Error for ppd not in (0, 1000].
 int test_half_taps(double ppd);
 }  // namespace flip_detail

@@ -353,7 +353,7 @@ struct SsimInputs {
 ImageU8 luma(const ImageRGB8& image) {
   ImageU8 out(image.width(), image.height());
   // Truncating x + 0.5 gives std::lround(x) for every (r, g, b) (all 2^24 checked by
-  // tests/test_metrics.cpp), without the library call.
+  // tests/core/metrics/test_metrics.cpp), without the library call.
   luma_pixels(image.data(), out.data(), image.size());
   return out;
 }

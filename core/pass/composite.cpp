@@ -130,7 +130,7 @@ void check_pass(const PassBuffer& pb, const GBuffer& g, const Scene& scene, Pass
 // operations per pixel in the same order (every product, sum, square root and division rounded
 // on its own; neither target has FMA instructions, so nothing is contracted), so the same bits
 // as the scalar kernel on every pixel (Composite.RowKernelMatchesShadeLambert in
-// tests/test_trace.cpp). A light that the scalar kernel skips for a pixel (out of range, at its
+// tests/core/trace/test_trace.cpp). A light that the scalar kernel skips for a pixel (out of range, at its
 // centre, facing away, invisible) leaves that lane's sum untouched. Vec8 and the AVX2/baseline
 // clones: core/base/vec8.h.
 
@@ -324,7 +324,7 @@ DHR_AVX512_TARGET inline __m512i srgb8_lookup_x16(const SrgbCodes& t, __m512 v, 
 // where a product and a sum would round twice; nothing here needs the scalar code's roundings,
 // only its codes. That every float gets srgb8_code's code is checked for every float of
 // [2^-14, 2] and the special values (Composite.ToneMapManyMatchesOneAtATime,
-// tests/test_trace.cpp; it fails with kSlack = 1e-5 or a coefficient off by 5e-5).
+// tests/core/trace/test_trace.cpp; it fails with kSlack = 1e-5 or a coefficient off by 5e-5).
 DHR_AVX512_TARGET inline __m512i srgb8_x16(const SrgbCodes& t, __m512 v) {
   constexpr float kSlack = 1e-3f;
   const __mmask16 ge = _mm512_cmp_ps_mask(v, _mm512_set1_ps(0x1p-13f), _CMP_GE_OQ);  // false for NaN

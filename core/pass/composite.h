@@ -47,7 +47,7 @@ struct PixelTerms {
 
 // Linear radiance of one pixel: the shading kernel. visible(l) gives V_l. The composite runs
 // the same operations eight pixels at a time (shade_row in core/pass/composite.cpp) and must agree
-// with this kernel bit for bit (tests/test_trace.cpp, Composite.RowKernelMatchesShadeLambert).
+// with this kernel bit for bit (tests/core/trace/test_trace.cpp, Composite.RowKernelMatchesShadeLambert).
 template <class VisibleFn>
 glm::vec3 shade_lambert(const Scene& scene, const glm::vec3& albedo, const glm::vec3& position, const glm::vec3& normal,
                         const PixelTerms& terms, VisibleFn&& visible);

@@ -119,7 +119,7 @@ std::vector<CompositePass> composite_inputs(const TracedPasses& traced);
 // each pass's kernel reads the plan and the settings and nothing another pass computes, so the
 // passes of a frame traced one at a time and joined by join_traced are the trace of them all,
 // bit for bit, statistics included (FrameLoop.PassesTracedAloneAndJoinedAreTheTraceOfAll in
-// tests/test_frame_loop.cpp). The runner caches each
+// tests/core/sim/test_frame_loop.cpp). The runner caches each
 // pass on its own that way (docs/performance.md).
 struct TraceResult : TracedPasses {
   PassPlan plan;

@@ -31,12 +31,12 @@ struct TraceSettings {
   int threads = 0;  // 0 = the RtScene's arena; else a dedicated arena of this size
   // Tests: split the image into blocks of exactly this many rows (TBB's simple_partitioner)
   // instead of TBB's own blocks, whose bounds depend on the threads' timing. The counts must not
-  // depend on it (tests/test_trace_bits.cpp: TraceBits.CountsDoNotDependOnRowBlocks).
+  // depend on it (tests/core/trace/test_trace_bits.cpp: TraceBits.CountsDoNotDependOnRowBlocks).
   int rows_per_block = 0;
   // The vector kernels where the CPU has them: with AVX-512, the AO pass's ray generator and the
   // visibility pass's stages; with AVX2 only, the AO pass's ray generator and the visibility
   // pass's surfaces, packets and cone loops. They give the same rays and results bit for bit; false forces the baseline kernels (tests compare the
-  // two: tests/test_trace.cpp, tests/test_trace_bits.cpp).
+  // two: tests/core/trace/test_trace.cpp, tests/core/trace/test_trace_bits.cpp).
   bool wide_kernels = true;
   // A run may switch a pass off (the paper's Table 2 adds the passes one at a time); it can
   // never switch on a pass the scene does not call for.

@@ -6,7 +6,7 @@
 //   triangle. The doubles of the barycentrics and the position are in one 512-bit register, the
 //   floats in 256-bit ones.
 // Every lane takes the scalar code's operations in its order and precision (no FMA:
-// DHR_AVX512_TARGET), so the G-buffer has the same bits (tests/test_raster_bits.cpp, also under
+// DHR_AVX512_TARGET), so the G-buffer has the same bits (tests/core/raster/test_raster_bits.cpp, also under
 // DHR_MAX_ISA=avx2 for the scalar code). docs/performance.md has the measurements.
 //
 // Only the functions marked DHR_AVX512_TARGET are compiled for AVX-512 (core/base/avx512.h).

@@ -85,7 +85,7 @@ struct RtSceneOptions {
 // FMA roundings differ), so the ISA is part of a result's identity: the disk caches' keys and
 // results.json's context record it, and the cap lets one machine reproduce another's bits (an
 // AVX-512 machine with DHR_MAX_ISA=avx2 traces as an AVX2 one of the same CPU generation does:
-// tests/test_trace_bits.cpp checks every ISA's table on every machine). Throws dhr::Error naming
+// tests/core/trace/test_trace_bits.cpp checks every ISA's table on every machine). Throws dhr::Error naming
 // the variable when it holds anything else.
 std::string embree_isa();
 // The version of the Embree library loaded, "3.13.5" (read once, from a device of its own).
@@ -93,7 +93,7 @@ const std::string& embree_version();
 // 8 hex digits: a hash of the CPU's rcpps (SSE's approximate reciprocal) over every one of its
 // table's mantissas. Embree's kernels before AVX-512 start their divisions from rcpps, whose
 // bits differ between vendors and between one vendor's generations (AMD's Zen 4 and Zen 5 trace
-// every scene of tests/test_trace_bits.cpp differently with DHR_MAX_ISA=avx2); AVX-512's
+// every scene of tests/core/trace/test_trace_bits.cpp differently with DHR_MAX_ISA=avx2); AVX-512's
 // rcp14ps agrees on both.
 const std::string& cpu_rcp_signature();
 // "embree <embree_version()> <embree_isa()>", with " rcp:<cpu_rcp_signature()>" below

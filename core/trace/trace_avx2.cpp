@@ -8,9 +8,9 @@
 // - the visibility pass (section 3.1): surfaces_x8 (stage 1), trace_pairs_x8 (stage 3 where
 //   every light takes one ray per pixel) and soft_pair_rays_x8 (the cone loop of S > 1 rays per
 //   light, which has no AVX-512 kernel); the light classification keeps the baseline kernels.
-// The rays and results are the baseline kernels' bit for bit (tests/test_trace.cpp:
+// The rays and results are the baseline kernels' bit for bit (tests/core/trace/test_trace.cpp:
 // TraceAo.WideKernelsGiveTheSameBits, TraceShadows.WideKernelsGiveTheSameBitsWithManySamples;
-// tests/test_trace_bits.cpp). docs/performance.md has the measurements.
+// tests/core/trace/test_trace_bits.cpp). docs/performance.md has the measurements.
 //
 // AVX2 has no 64-bit vector multiply: SplitMix64's products are built from three 32x32->64-bit
 // ones (mul64_x4). The target is "avx2" without "fma", so no product and sum is fused: every

@@ -5,7 +5,7 @@
 // core/trace/trace_directions.h) straight into the packet and adds each pixel's unoccluded lanes by
 // popcount. bench_trace: 0.95-1.01 of the ceiling (0.85 on living-room, where Embree's
 // incoherent streams beat its packets). The rays and results are the baseline kernel's bit for
-// bit (tests/test_trace.cpp: TraceAo.WideKernelsGiveTheSameBits).
+// bit (tests/core/trace/test_trace.cpp: TraceAo.WideKernelsGiveTheSameBits).
 //
 // The visibility pass's AVX-512 kernels (same choice at run time, TraceSettings::wide_kernels):
 // stage 1 (surface_inputs_x16: the G-buffer's ids, barycentrics and normals of a row into the
@@ -17,7 +17,7 @@
 // samples per pixel, as the ground truth traces). Compressed lanes are stored from a register:
 // AVX-512's compressing store to memory is microcoded on AMD's Zen 4 (a store from a register
 // makes temple's hard pass about 8 % faster). Same rays and counts as core/trace/trace_rows.cpp's
-// kernels, bit for bit (tests/test_trace_bits.cpp pins them by hash on every scene with lights).
+// kernels, bit for bit (tests/core/trace/test_trace_bits.cpp pins them by hash on every scene with lights).
 // docs/performance.md has the measurements.
 //
 // Only the functions marked DHR_AVX512_TARGET are compiled for AVX-512 (core/base/avx512.h).

@@ -21,7 +21,7 @@ namespace dhr::trace_detail {
 // polynomials on [0, pi/2] (Taylor to degree 8/9; the truncation error is largest at pi/2:
 // (pi/2)^10 / 10! = 2.5e-5 for the cosine, (pi/2)^11 / 11! = 3.6e-6 for the sine -- a
 // direction off by at most 2.5e-5 rad, far below what a ray needs; c^2 + s^2 = 1 within 1e-5;
-// tests/test_trace.cpp pins directions to a double-precision reference within 3e-5). Deterministic: no
+// tests/core/trace/test_trace.cpp pins directions to a double-precision reference within 3e-5). Deterministic: no
 // library or ISA dependence. Branch-free (the quarter turn is a swap and two sign flips, not
 // a table lookup) so that the loops below vectorize.
 // The scalar form is what the SSE2 code below reproduces lane by lane; it runs where SSE2 is absent.

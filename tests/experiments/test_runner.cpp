@@ -205,7 +205,7 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
 
 // --dump-streams: every video pass of every run as a file that the ffmpeg command-line tool
 // decodes without an error into whole pictures of the pass's size (that its pictures are ours
-// bit for bit is VideoCodecs.DumpedStreamsDecodeWithFfmpegToOurPictures in tests/test_codecs.cpp).
+// bit for bit is VideoCodecs.DumpedStreamsDecodeWithFfmpegToOurPictures in tests/backends/test_codecs.cpp).
 TEST(Runner, DumpStreamsWritesFilesThatFfmpegDecodes) {
   if (std::system("command -v ffmpeg >/dev/null 2>&1") != 0)
     GTEST_SKIP() << "the ffmpeg command-line tool is not installed (scripts/setup.sh installs it)";

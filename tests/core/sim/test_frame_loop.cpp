@@ -5,7 +5,7 @@
 #include "core/scene/scene_load.h"
 #include "core/sim/frame_loop.h"
 #include "core/trace/rt_scene.h"
-#include "support.h"
+#include "tests/support.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>

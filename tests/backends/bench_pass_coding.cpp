@@ -2,7 +2,7 @@
 // reprojection) at 1280x720 on the room scene rasterized along its camera path (frames 0 and 4
 // of the path at 60 Hz: 67 ms of camera motion, what a 50 ms round trip leaves between two
 // coded frames), with passes fixed to the world (AO a smooth function of the world position,
-// a one-light visibility checker), as tests/test_pass_coding.cpp uses.
+// a one-light visibility checker), as tests/backends/test_pass_coding.cpp uses.
 //
 // Per pass, one thread (TBB limited to 1), process CPU time per frame (`cpu_ms`):
 //   inner        zstd level 1 on the frame alone: the codec the delta wraps

@@ -412,7 +412,7 @@ void register_scene(const std::string& file) {
 // from the default layout's G-buffer (primary rays can differ too). `counts_differ`: the counts
 // (per pixel, and light) that differ from the default layout's, whose row runs first;
 // `kernels_differ`: the counts where the baseline kernels differ from the vector kernels on
-// this layout (tests/test_trace_bits.cpp checks the default layout on its pinned images).
+// this layout (tests/core/trace/test_trace_bits.cpp checks the default layout on its pinned images).
 struct LayoutDefault {
   GBuffer gbuf;
   std::map<std::string, std::vector<uint16_t>> counts;  // by pass

@@ -4,7 +4,7 @@
 #include "core/buffers/upsample.h"
 
 #include "core/base/error.h"
-#include "support.h"
+#include "tests/support.h"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>

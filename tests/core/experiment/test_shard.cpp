@@ -9,7 +9,7 @@
 #include "core/results/results.h"
 #include "core/sim/frame_loop.h"
 #include "core/trace/rt_scene.h"
-#include "support.h"
+#include "tests/support.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
