@@ -3,13 +3,14 @@
 core/<layer>/ is one library, declared by `dhr_layer(<layer> DEPS <layers below> ...)`. A file
 of a layer may include headers of its own layer and of the layers its DEPS reach (transitively);
 the backends (backends/) those that dhr_backends links; the command line (experiments/) and the
-tests any. Embree's headers reach no file outside core/trace/ and the tests. Run with --stats to
-print the structure's figures (include edges by layer, sources that see Embree, what the live
-relay includes).
+tests any. Embree's headers reach no file outside core/trace/ and the tests. Every path a source,
+script or doc cites exists. Run with --stats to print the structure's figures (include edges by
+layer, sources that see Embree, what the live relay includes).
 """
 
 import os
 import re
+import subprocess
 import sys
 import unittest
 
@@ -141,6 +142,32 @@ def backends_layers(allowed):
     return out
 
 
+# Paths that the docs' worked examples create (docs/adding-a-backend.md, docs/architecture.md).
+EXAMPLE_FILES = {"backends/denoise/box3.cpp", "backends/codec/brotli.cpp", "core/pass/trace_sky.cpp"}
+CITED = re.compile(r"(?<![\w/.$-])((?:core|backends|experiments|tests|docs|scripts)/[\w./-]*\.(?:h|cpp|md|py|sh|json|patch|txt|js))\b")
+
+
+def missing_citations():
+    """(file, line, path) for each path a source, script or doc names that does not exist.
+
+    CHANGELOG.md (history) and reports/ (published results) are not read; placeholders in
+    capitals (experiments/NAME.json) and the examples' new files are not citations."""
+    tracked = subprocess.run(["git", "-C", ROOT, "ls-files"], capture_output=True, text=True, check=True).stdout.split()
+    out = []
+    for p in tracked:
+        if p.startswith("reports/") or p == "CHANGELOG.md" or p == "tests/python/test_layers.py":
+            continue
+        if not (p.endswith((".h", ".cpp", ".md", ".py", ".sh", ".txt", ".js")) or p.endswith("CMakeLists.txt")):
+            continue
+        for n, line in enumerate(read(p).split("\n"), 1):
+            for m in CITED.finditer(line):
+                f = m.group(1)
+                if "NAME" in f or f in EXAMPLE_FILES or os.path.exists(os.path.join(ROOT, f)):
+                    continue
+                out.append((p, n, f))
+    return out
+
+
 class Layers(unittest.TestCase):
     def setUp(self):
         self.layers = parse_layers(read("core/CMakeLists.txt"))
@@ -170,6 +197,12 @@ class Layers(unittest.TestCase):
         outside = sorted(p for p in embree_seers(self.files)
                          if not p.startswith("core/trace/") and not p.startswith("tests/"))
         self.assertEqual(outside, [])
+
+    def test_cited_files_exist(self):
+        if not os.path.isdir(os.path.join(ROOT, ".git")) and not os.path.isfile(os.path.join(ROOT, ".git")):
+            self.skipTest("not a git checkout")
+        bad = missing_citations()
+        self.assertEqual(bad, [], "\n".join(f"{p}:{n}: {f} does not exist" for p, n, f in bad))
 
     def test_the_relay_does_not_see_the_tracer_or_the_simulator(self):
         seen = transitive_includes(self.files, "core/live/live_relay.cpp")
