@@ -114,8 +114,13 @@ void count_covered(TraceStats& frame, bool any_reduced, const GBuffer& g) {
 }  // namespace
 
 TraceResult trace_passes(RtScene& rt, const GBuffer& g, const TraceSettings& settings, std::string_view only) {
+  return trace_passes(rt, g, plan_passes(rt.scene(), settings), settings, only);
+}
+
+TraceResult trace_passes(RtScene& rt, const GBuffer& g, const PassPlan& plan, const TraceSettings& settings,
+                         std::string_view only) {
   TraceResult r;
-  r.plan = plan_passes(rt.scene(), settings);
+  r.plan = plan;
   r.stats.pixels = uint64_t(g.width()) * uint64_t(g.height());
   bool any_reduced = false;
   std::optional<GBuffer> reduced;  // the sampled G-buffer of a pass traced at reduced resolution

@@ -125,6 +125,10 @@ struct TraceResult : TracedPasses {
   PassPlan plan;
 };
 TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const TraceSettings& settings, std::string_view only = {});
+// The same with the plan made once for a run (plan_passes(rt.scene(), settings) of any frame's
+// settings: the seed and frame do not change it), so that no frame plans again.
+TraceResult trace_passes(RtScene& rt, const GBuffer& gbuf, const PassPlan& plan, const TraceSettings& settings,
+                         std::string_view only = {});
 
 // The one-pass traces of one frame (trace_passes with `only`, in the order of pass_types()),
 // joined into the trace of all of them: their passes and the statistics trace_passes gives.

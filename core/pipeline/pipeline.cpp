@@ -29,8 +29,8 @@ double ms_since(Clock::time_point start) {
 }  // namespace
 
 TraceFn direct_tracer(RtScene& rt, const SimConfig& config) {
-  return [&rt, &config](uint32_t frame, const GBuffer& gbuf) {
-    TraceResult r = trace_passes(rt, gbuf, config.trace_for_frame(frame));
+  return [&rt, &config, plan = plan_passes(rt.scene(), config.trace)](uint32_t frame, const GBuffer& gbuf) {
+    TraceResult r = trace_passes(rt, gbuf, plan, config.trace_for_frame(frame));
     return std::make_shared<const TracedPasses>(std::move(static_cast<TracedPasses&>(r)));
   };
 }

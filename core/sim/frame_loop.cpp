@@ -475,7 +475,8 @@ class Simulation {
             [this](const RasterFrame& f) { return server_raster(f); }),
         client_(c, scene, registries),
         local_(c, scene, registries) {
-    traced_list_ = traced_passes(plan_passes(scene, c.trace), c.width, c.height);
+    plan_ = plan_passes(scene, c.trace);
+    traced_list_ = traced_passes(plan_, c.width, c.height);
     // The server and the local reference share their temporal denoisers' outputs with the
     // other runs of the sweep (DenoiseStage::share).
     std::vector<std::string> denoise_keys;
@@ -563,7 +564,7 @@ class Simulation {
       std::shared_ptr<const TraceCache::Entry> part = cache_.find(key);
       if (!part) {
         part = std::make_shared<const TraceCache::Entry>(
-            static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, settings, p.name)));
+            static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, plan_, settings, p.name)));
         cache_.insert(key, part);
       }
       parts.push_back(std::move(part));
@@ -847,6 +848,7 @@ class Simulation {
   bool remote_;
   Link uplink_, downlink_;
   std::unique_ptr<RtScene> rt_;
+  PassPlan plan_;                         // the run's plan, made once (plan_passes)
   std::vector<PlannedPass> traced_list_;  // the passes the run's settings trace (traced())
   std::pair<int, std::shared_ptr<const TraceCache::Entry>> joined_{-1, nullptr};  // traced()'s last join
   struct RasterMemo {
