@@ -14,7 +14,7 @@ namespace dhr {
 // The checks run_simulation does first: throws dhr::Error listing every problem.
 void validate_sim_config(const SimConfig& config, const Scene& scene, const Registries& registries);
 
-// What experiments check besides (experiments/cmd_run.cpp): empty, or why the warm-up ends
+// What experiments check besides (experiments/cli/cmd_run.cpp): empty, or why the warm-up ends
 // before the first server frame can reach the client. Then the first scored frames would show
 // no server data (a startup, not streaming) and a comparison at that latency would score it;
 // score_startup true allows it. The bound: uplink + the server's fixed time + downlink latency

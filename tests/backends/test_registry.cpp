@@ -4,7 +4,7 @@
 #include "backends/register_all.h"
 #include "core/backend/backend.h"
 #include "core/experiment/experiment.h"
-#include "experiments/list_examples.h"
+#include "experiments/cli/list_examples.h"
 
 #include <gtest/gtest.h>
 

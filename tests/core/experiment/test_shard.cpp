@@ -1,4 +1,4 @@
-// Sharded sweeps (core/experiment/shard.h, experiments/cmd_merge.cpp) and the disk caches several
+// Sharded sweeps (core/experiment/shard.h, experiments/cli/cmd_merge.cpp) and the disk caches several
 // processes share (core/sim/frame_loop.h, TraceCache): the plan, a sharded run merged against an
 // unsharded one in every non-timing figure, the merge's refusals, a failed shard rerun alone,
 // and two processes writing and reading one cache entry at once.

@@ -10,7 +10,7 @@
 #include "core/experiment/experiment.h"
 #include "core/experiment/shard.h"
 #include "core/results/results_check.h"
-#include "experiments/commands.h"
+#include "experiments/cli/commands.h"
 
 #include <fmt/format.h>
 

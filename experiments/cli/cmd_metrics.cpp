@@ -2,7 +2,7 @@
 // scored per displayed frame, the per-run and per-pass metrics of results.json, with units and
 // meaning; the same record results.json carries as "declared".
 #include "core/results/results.h"
-#include "experiments/commands.h"
+#include "experiments/cli/commands.h"
 
 #include <fmt/format.h>
 

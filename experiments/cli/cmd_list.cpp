@@ -1,9 +1,9 @@
 // dhrbench list: every registered backend with its parameters, defaults and ranges, and an
-// example of each in the syntax experiment files and --set accept (experiments/list_examples.h).
+// example of each in the syntax experiment files and --set accept (experiments/cli/list_examples.h).
 #include "backends/register_all.h"
 #include "core/backend/backend.h"
-#include "experiments/commands.h"
-#include "experiments/list_examples.h"
+#include "experiments/cli/commands.h"
+#include "experiments/cli/list_examples.h"
 
 #include <fmt/format.h>
 

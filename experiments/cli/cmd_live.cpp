@@ -8,7 +8,7 @@
 #include "core/live/live.h"
 #include "core/pass/reference.h"
 #include "core/scene/scene_load.h"
-#include "experiments/commands.h"
+#include "experiments/cli/commands.h"
 
 #include <fmt/format.h>
 

@@ -18,8 +18,8 @@
 #include "core/results/results_check.h"
 #include "core/scene/scene_load.h"
 #include "core/sim/frame_loop.h"
-#include "experiments/commands.h"
-#include "experiments/context.h"
+#include "experiments/cli/commands.h"
+#include "experiments/cli/context.h"
 
 #include <fmt/format.h>
 #include <tbb/global_control.h>
@@ -139,7 +139,7 @@ ImageRGB8 downscale(const ImageRGB8& img, int max_width) {
 }  // namespace
 
 // Runs the report script (Debian's python3 with matplotlib) on a results folder (also used by
-// 'dhrbench merge', experiments/cmd_merge.cpp).
+// 'dhrbench merge', experiments/cli/cmd_merge.cpp).
 int write_report(const std::string& dir) {
   const std::string script = std::string(DHR_SOURCE_DIR) + "/experiments/report.py";
   const std::string python = fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";

@@ -2,7 +2,7 @@
 // choices, default, doc and flags: what an experiment's "run" object, --set and live mode's
 // --config accept.
 #include "core/config/run_config.h"
-#include "experiments/commands.h"
+#include "experiments/cli/commands.h"
 
 #include <fmt/format.h>
 

@@ -1,6 +1,6 @@
 // dhrbench: the command-line entry point. Subcommands live in cmd_*.cpp.
 #include "core/base/error.h"
-#include "experiments/commands.h"
+#include "experiments/cli/commands.h"
 
 #include <cstdio>
 #include <exception>

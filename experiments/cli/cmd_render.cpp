@@ -11,7 +11,7 @@
 #include "core/scene/scene_load.h"
 #include "core/trace/rt_scene.h"
 #include "core/trace/trace.h"
-#include "experiments/commands.h"
+#include "experiments/cli/commands.h"
 
 #include <fmt/format.h>
 #include <tbb/global_control.h>

@@ -5,7 +5,7 @@
 #include "core/metrics/flip.h"
 #include "core/metrics/metrics.h"
 #include "core/results/results.h"
-#include "experiments/commands.h"
+#include "experiments/cli/commands.h"
 
 #include <fmt/format.h>
 

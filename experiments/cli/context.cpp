@@ -1,6 +1,6 @@
 // The context block of results.json: what a reviewer needs to know to trust and reproduce a
 // result (after Google Benchmark's context): the code, the build, the machine, the libraries.
-#include "experiments/context.h"
+#include "experiments/cli/context.h"
 
 #include "core/base/process.h"
 #include "core/trace/rt_scene.h"

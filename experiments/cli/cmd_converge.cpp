@@ -13,7 +13,7 @@
 #include "core/results/results.h"
 #include "core/scene/scene_load.h"
 #include "core/trace/rt_scene.h"
-#include "experiments/commands.h"
+#include "experiments/cli/commands.h"
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
