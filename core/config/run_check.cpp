@@ -21,6 +21,18 @@ int remote_depth_bits(const SimConfig& c, const Registries& r) {
   return r.predictors.create(p.name, p.params)->depth_bits();
 }
 
+nlohmann::json effective_backend(const RunSetting& s, const nlohmann::json& value, const Registries& r) {
+  const std::string name = value.at("name").get<std::string>();
+  Params p;
+  if (s.kind == "codec")
+    r.codecs.create(name, value.at("params"), &p);
+  else if (s.kind == "denoiser")
+    r.denoisers.create(name, value.at("params"), &p);
+  else
+    r.predictors.create(name, value.at("params"), &p);
+  return {{"name", name}, {"params", p.effective()}};
+}
+
 std::string warmup_problem(const SimConfig& c) {
   // A datagram's latency when sent at virtual time t.
   auto latency_at = [](const LinkConfig& l, double t_ms) {

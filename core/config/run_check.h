@@ -7,6 +7,8 @@
 #include "core/config/run_config.h"
 #include "core/scene/scene.h"
 
+#include <nlohmann/json.hpp>
+
 #include <string>
 
 namespace dhr {
@@ -24,5 +26,10 @@ std::string warmup_problem(const SimConfig& config);
 // The bits of the depth pass the server of this run sends with its colour (0: none): remote mode
 // with a colour predictor that reads depth (Predictor::depth_bits).
 int remote_depth_bits(const SimConfig& config, const Registries& registries);
+
+// A backend setting's value (`{"name", "params"}`, RunSetting::get of a SettingType::Backend
+// setting) with its effective parameters: the defaults the backend fills in, as results.json's
+// "backends" and live mode's offer record them. Throws dhr::Error as the registry does.
+nlohmann::json effective_backend(const RunSetting& setting, const nlohmann::json& value, const Registries& registries);
 
 }  // namespace dhr

@@ -30,17 +30,7 @@ nlohmann::json session_offer(const SimConfig& c, const Registries& r, const std:
   for (const RunSetting& s : run_settings()) {
     if (!s.has(kInLiveOffer)) continue;
     nlohmann::json value = s.get(c);
-    if (s.type == SettingType::Backend) {
-      const std::string name = value.at("name").get<std::string>();
-      Params p;
-      if (s.kind == "codec")
-        r.codecs.create(name, value.at("params"), &p);
-      else if (s.kind == "denoiser")
-        r.denoisers.create(name, value.at("params"), &p);
-      else
-        r.predictors.create(name, value.at("params"), &p);
-      value = {{"name", name}, {"params", p.effective()}};
-    }
+    if (s.type == SettingType::Backend) value = effective_backend(s, value, r);
     const std::string key = s.v1_key.empty() ? s.key : s.v1_key;
     nlohmann::json* node = &offer;
     size_t start = 0;

@@ -283,17 +283,7 @@ Runner add_run_command(CLI::App& app) {
         const Registries& reg = registries();
         record["backends"] = nlohmann::json::object();
         for (const RunSetting& s : run_settings()) {
-          if (s.type != SettingType::Backend) continue;
-          const nlohmann::json v = s.get(config);
-          const std::string name = v.at("name").get<std::string>();
-          Params p;
-          if (s.kind == "codec")
-            reg.codecs.create(name, v.at("params"), &p);
-          else if (s.kind == "denoiser")
-            reg.denoisers.create(name, v.at("params"), &p);
-          else
-            reg.predictors.create(name, v.at("params"), &p);
-          record["backends"][s.key] = {{"name", name}, {"params", p.effective()}};
+          if (s.type == SettingType::Backend) record["backends"][s.key] = effective_backend(s, s.get(config), reg);
         }
         record["metrics"] = r.metrics();
         record["server_time_model"] =
