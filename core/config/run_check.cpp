@@ -85,23 +85,13 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
   } catch (const Error& e) {
     problems.push_back(e.what());
   }
-  auto backend = [&](const auto& registry, const BackendChoice& b, const char* role) {
-    try {
-      registry.create(b.name, b.params);
-    } catch (const Error& e) {
-      problems.push_back(fmt::format("{}: {}", role, e.what()));
-    }
-  };
   for (const RunSetting& s : run_settings()) {
     if (s.type != SettingType::Backend) continue;
-    const nlohmann::json v = s.get(c);
-    const BackendChoice b{v.at("name").get<std::string>(), v.at("params")};
-    if (s.kind == "codec")
-      backend(r.codecs, b, s.key.c_str());
-    else if (s.kind == "denoiser")
-      backend(r.denoisers, b, s.key.c_str());
-    else
-      backend(r.predictors, b, s.key.c_str());
+    try {
+      effective_backend(s, s.get(c), r);
+    } catch (const Error& e) {
+      problems.push_back(fmt::format("{}: {}", s.key, e.what()));
+    }
   }
   if (problems.empty()) {
     // A lossy codec must not be asked to carry a bitmask.

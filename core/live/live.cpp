@@ -1,19 +1,8 @@
 // Live mode: the session offer both sides compare (core/live/live.h).
 #include "core/live/live.h"
 #include "core/base/json_io.h"
-#include "core/base/rng.h"
-#include "core/buffers/image_io.h"
 #include "core/config/run_check.h"
 #include "core/live/live_detail.h"
-#include "core/metrics/metrics.h"
-#include "core/net/assembler.h"
-#include "core/pass/composite.h"
-#include "core/pipeline/pass_receiver.h"
-#include "core/pipeline/pipeline.h"
-#include "core/raster/raster.h"
-#include "core/results/results.h"
-#include "core/trace/rt_scene.h"
-#include "core/trace/trace.h"
 
 namespace dhr {
 

@@ -1,6 +1,4 @@
 // dhrbench client: the live client (core/live/live.h).
-#include "core/base/json_io.h"
-#include "core/base/rng.h"
 #include "core/buffers/image_io.h"
 #include "core/config/run_check.h"
 #include "core/live/live.h"
@@ -8,15 +6,12 @@
 #include "core/live/live_stats.h"
 #include "core/metrics/metrics.h"
 #include "core/net/assembler.h"
-#include "core/pass/composite.h"
 #include "core/pass/passes.h"
 #include "core/pipeline/pass_receiver.h"
 #include "core/pipeline/pipeline.h"
 #include "core/raster/raster.h"
 #include "core/results/results.h"
-#include "core/results/results.h"
 #include "core/trace/rt_scene.h"
-#include "core/trace/trace.h"
 
 #include <cmath>
 

@@ -8,6 +8,7 @@ script or doc cites exists. Run with --stats to print the structure's figures (i
 layer, sources that see Embree, what the live relay includes).
 """
 
+import functools
 import os
 import re
 import subprocess
@@ -20,7 +21,9 @@ SYSTEM_INCLUDE = re.compile(r"^\s*#\s*include\s+<([^>]+)>", re.M)
 SOURCE_EXT = (".h", ".cpp")
 
 
+@functools.lru_cache(maxsize=None)
 def read(path):
+    """A file of the tree, read once per process (the checks below read most files twice)."""
     with open(os.path.join(ROOT, path), encoding="utf-8") as f:
         return f.read()
 
