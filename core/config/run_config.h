@@ -1,7 +1,7 @@
 // The settings of one run (one simulation, or one live session): what the experiment files'
 // "run" object holds. Every setting is declared once, in run_settings() (core/config/run_config.cpp):
 // its key, type, range or choices, default (SimConfig's), doc and flags; the JSON reader and
-// writer, validate_sim_config's ranges, the trace and ground-truth cache keys, live mode's
+// writer, plan_run's ranges, the trace and ground-truth cache keys, live mode's
 // offer and `dhrbench settings` are all driven by that table.
 #pragma once
 
@@ -140,7 +140,7 @@ struct RunSetting {
   std::string range_text() const;
   // Why `value`, found at `at` ("run.width"), is not valid for this setting, as messages that
   // name `at` (several lines for a Backend), or nothing. A Backend's shape is checked here, its
-  // name and parameters by validate_sim_config (with the registries).
+  // name and parameters by plan_run (with the registries).
   std::optional<std::string> check_value(const nlohmann::json& value, const std::string& at) const;
 };
 

@@ -1,7 +1,7 @@
 // Live mode: the session offer both sides compare (core/live/live.h).
 #include "core/live/live.h"
 #include "core/base/json_io.h"
-#include "core/config/run_check.h"
+#include "core/config/run_plan.h"
 #include "core/live/live_detail.h"
 
 namespace dhr {

@@ -1,6 +1,6 @@
 // dhrbench client: the live client (core/live/live.h).
 #include "core/buffers/image_io.h"
-#include "core/config/run_check.h"
+#include "core/config/run_plan.h"
 #include "core/live/live.h"
 #include "core/live/live_detail.h"
 #include "core/live/live_stats.h"
@@ -25,21 +25,21 @@ namespace {
 
 class LiveClient {
  public:
-  LiveClient(const SimConfig& c, const Registries& r, const LiveScene& s, const ClientOptions& o)
-      : c_(c),
+  LiveClient(const RunPlan& plan, const Registries& r, const LiveScene& s, const ClientOptions& o)
+      : plan_(plan),
+        c_(plan.config),
         registries_(r),
         scene_(s),
         o_(o),
-        offer_(session_offer(c, r, s.name, s.key)),
-        plan_(plan_passes(*s.scene, c.trace)),
+        offer_(session_offer(c_, r, s.name, s.key)),
         socket_(any_endpoint_like(o.server)),
         mac_(load_key(o.key_file)),
-        client_(c, *s.scene, r) {
-    if (c.mode != "hybrid") fail("live mode is hybrid rendering only (mode '{}' given)", c.mode);
+        client_(plan, r) {
+    if (plan.remote()) fail("live mode is hybrid rendering only (mode '{}' given)", c_.mode);
     if (o.frames < 1) fail("client: --frames must be at least 1 (got {})", o.frames);
     for (size_t i = 0; i < client_.passes().size(); ++i) pass_of_slot_[stream_slot(client_.passes()[i])] = int(i);
     AssemblerConfig ac;
-    ac.max_payload_bytes = c.max_payload_bytes;
+    ac.max_payload_bytes = c_.max_payload_bytes;
     ac.timeout_ms = 500;
     assembler_ = Assembler(ac);
   }
@@ -386,8 +386,8 @@ class LiveClient {
     say(o_.quiet, "client", "scoring {} frames against the local reference ...",
         std::count_if(rows_.begin(), rows_.end(), [](const Row& r) { return r.scored; }));
     RtScene rt(*scene_.scene);
-    const TraceFn trace = direct_tracer(rt, c_);
-    LocalReference local(c_, *scene_.scene, registries_);
+    const TraceFn trace = direct_tracer(rt, plan_);
+    LocalReference local(plan_, registries_);
     std::map<int, Row*> scored;
     for (Row& row : rows_)
       if (row.scored) scored[row.frame] = &row;
@@ -548,12 +548,12 @@ class LiveClient {
     uint64_t datagrams = 0, bytes = 0, session_datagrams = 0, session_bytes = 0;
   };
 
-  const SimConfig& c_;
+  const RunPlan& plan_;
+  const SimConfig& c_;  // plan_.config
   const Registries& registries_;
   LiveScene scene_;
   ClientOptions o_;
   nlohmann::json offer_;
-  PassPlan plan_;
   UdpSocket socket_;
   std::optional<DatagramMac> mac_;
   uint32_t session_ = 0;
@@ -598,8 +598,8 @@ class LiveClient {
 
 int run_live_client(const SimConfig& config, const Registries& registries, const LiveScene& scene,
                     const ClientOptions& options, const std::atomic<bool>& stop) {
-  validate_sim_config(config, *scene.scene, registries);
-  LiveClient client(config, registries, scene, options);
+  const RunPlan plan = plan_run(config, *scene.scene, registries);
+  LiveClient client(plan, registries, scene, options);
   return client.run(stop);
 }
 

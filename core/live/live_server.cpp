@@ -1,5 +1,5 @@
 // dhrbench serve: the live server (core/live/live.h).
-#include "core/config/run_check.h"
+#include "core/config/run_plan.h"
 #include "core/live/live.h"
 #include "core/live/live_detail.h"
 #include "core/live/live_stats.h"
@@ -16,22 +16,22 @@ namespace {
 
 class LiveServer {
  public:
-  LiveServer(const SimConfig& c, const Registries& r, const LiveScene& s, const ServeOptions& o)
-      : c_(c),
+  LiveServer(const RunPlan& plan, const Registries& r, const LiveScene& s, const ServeOptions& o)
+      : plan_(plan),
+        c_(plan.config),
         registries_(r),
         scene_(s),
         o_(o),
-        offer_(session_offer(c, r, s.name, s.key)),
-        plan_(plan_passes(*s.scene, c.trace)),
+        offer_(session_offer(c_, r, s.name, s.key)),
         socket_(o.bind),
         mac_(load_key(o.key_file)) {
-    if (c.mode != "hybrid") fail("live mode serves hybrid rendering only (mode '{}' given)", c.mode);
+    if (plan.remote()) fail("live mode serves hybrid rendering only (mode '{}' given)", c_.mode);
     rt_ = std::make_unique<RtScene>(*s.scene);
     write_port_file(o.port_file, socket_.local());
     std::string passes;
-    for (const PlannedPass& p : traced_passes(plan_, c.width, c.height)) passes += " " + p.name;
+    for (const PlannedPass& p : plan_.traced) passes += " " + p.name;
     say(o_.quiet, "serve", "listening on UDP {} (scene {}, {}x{} at {} Hz, passes:{}; {})", socket_.local().to_string(),
-        s.name, c.width, c.height, c.display_hz, passes,
+        s.name, c_.width, c_.height, c_.display_hz, passes,
         mac_ ? "every datagram authenticated (HMAC-SHA256)" : "no key: sessions bound by address and token");
   }
 
@@ -187,8 +187,7 @@ class LiveServer {
     s->nonce = nonce;
     s->peer = from;
     for (int slot = 0; slot < pass_slot_count(); ++slot) s->first_sequence[slot] = os_random_u32();
-    s->pipeline =
-        std::make_unique<ServerPipeline>(c_, *scene_.scene, registries_, direct_tracer(*rt_, c_), stream_of(s->id));
+    s->pipeline = std::make_unique<ServerPipeline>(plan_, registries_, direct_tracer(*rt_, plan_), stream_of(s->id));
     for (size_t i = 0; i < s->pipeline->passes().size(); ++i)
       s->pipeline->set_next_sequence(i, s->first_sequence[stream_slot(s->pipeline->passes()[i])]);
     s->started = s->last_heard = Clock::now();
@@ -319,12 +318,12 @@ class LiveServer {
     session_.reset();
   }
 
-  const SimConfig& c_;
+  const RunPlan& plan_;
+  const SimConfig& c_;  // plan_.config
   const Registries& registries_;
   LiveScene scene_;
   ServeOptions o_;
   nlohmann::json offer_;
-  PassPlan plan_;
   UdpSocket socket_;
   std::optional<DatagramMac> mac_;
   std::unique_ptr<RtScene> rt_;
@@ -340,8 +339,8 @@ class LiveServer {
 
 int run_live_server(const SimConfig& config, const Registries& registries, const LiveScene& scene,
                     const ServeOptions& options, const std::atomic<bool>& stop) {
-  validate_sim_config(config, *scene.scene, registries);
-  LiveServer server(config, registries, scene, options);
+  const RunPlan plan = plan_run(config, *scene.scene, registries);
+  LiveServer server(plan, registries, scene, options);
   return server.run(stop);
 }
 

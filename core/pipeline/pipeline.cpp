@@ -28,9 +28,9 @@ double ms_since(Clock::time_point start) {
 
 }  // namespace
 
-TraceFn direct_tracer(RtScene& rt, const SimConfig& config) {
-  return [&rt, &config, plan = plan_passes(rt.scene(), config.trace)](uint32_t frame, const GBuffer& gbuf) {
-    TraceResult r = trace_passes(rt, gbuf, plan, config.trace_for_frame(frame));
+TraceFn direct_tracer(RtScene& rt, const RunPlan& plan) {
+  return [&rt, &plan](uint32_t frame, const GBuffer& gbuf) {
+    TraceResult r = trace_passes(rt, gbuf, plan.passes, plan.config.trace_for_frame(frame));
     return std::make_shared<const TracedPasses>(std::move(static_cast<TracedPasses&>(r)));
   };
 }
@@ -62,12 +62,12 @@ PassBuffer upsampled(const PassBuffer& buffer, const GBuffer& gbuf, UpsampleFilt
 
 // ---- denoising
 
-DenoiseStage::DenoiseStage(const SimConfig& c, const std::vector<PlannedPass>& traced, const Registries& r) {
-  for (const PlannedPass& p : traced) {
+DenoiseStage::DenoiseStage(const RunPlan& plan, const Registries& r) {
+  for (const PlannedPass& p : plan.traced) {
     planes_.emplace_back();
     names_.push_back(p.name);
     if (p.layout() != PassLayout::Planes8) continue;
-    const BackendChoice denoiser = c.pass(p.name).denoiser;
+    const BackendChoice& denoiser = plan.choice(p).denoiser;
     for (int plane = 0; plane < p.desc.channels; ++plane)
       planes_.back().push_back(r.denoisers.create(denoiser.name, denoiser.params));
   }
@@ -227,29 +227,25 @@ Rastered rasterize_now(const RasterFrame& frame) {
   return {std::move(g), ms_since(t0)};
 }
 
-ServerPipeline::ServerPipeline(const SimConfig& c, const Scene& scene, const Registries& r, TraceFn trace,
-                               uint16_t stream_id, RasterFn raster)
-    : c_(c),
-      scene_(scene),
-      plan_(plan_passes(scene, c.trace)),
-      traced_(traced_passes(plan_, c.width, c.height)),
-      sent_(sent_passes(plan_, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)),
+ServerPipeline::ServerPipeline(const RunPlan& plan, const Registries& r, TraceFn trace, uint16_t stream_id,
+                               RasterFn raster)
+    : plan_(plan),
+      c_(plan.config),
       trace_(std::move(trace)),
       raster_(raster ? std::move(raster) : RasterFn(rasterize_now)),
       stream_id_(stream_id),
-      denoise_(c, traced_, r) {
-  for (const PlannedPass& p : sent_) {
-    const BackendChoice codec = c.pass(p.name).codec;
+      denoise_(plan, r) {
+  for (const PlannedPass& p : plan_.sent) {
+    const BackendChoice& codec = plan_.choice(p).codec;
     codecs_.push_back(r.codecs.create(codec.name, codec.params));
     codec_ids_.push_back(codec_id(codec.name));
     sequence_.push_back(0);
     gbuffers_kept_ = std::max(gbuffers_kept_, codecs_.back()->gbuffers_referenced());
   }
-  dumps_.resize(sent_.size());
-  depth_pass_ = find_pass(sent_, PassMeaning::Depth);
-  for (const auto& codec : codecs_) budgeted_.push_back(c.stream_kbps > 0.0 && codec->takes_target_kbps());
-  if (c.stream_kbps > 0.0 && std::find(budgeted_.begin(), budgeted_.end(), true) == budgeted_.end())
-    fail("stream_kbps {}: no pass's codec takes a target bitrate (h264 with rate_control bitrate does)", c.stream_kbps);
+  dumps_.resize(plan_.sent.size());
+  depth_pass_ = find_pass(plan_.sent, PassMeaning::Depth);
+  // (plan_run made sure one takes the budget when there is one.)
+  for (const auto& codec : codecs_) budgeted_.push_back(c_.stream_kbps > 0.0 && codec->takes_target_kbps());
 }
 
 // The bit budget's share of each budgeted pass (kbit/s): the budget per frame at display_hz,
@@ -259,7 +255,7 @@ double ServerPipeline::budget_share_kbps() const {
   const double frame_bytes = c_.stream_kbps * 1000.0 / 8.0 / c_.display_hz;
   double others = 0.0;
   int shares = 0;
-  for (size_t i = 0; i < sent_.size(); ++i) shares += budgeted_[i] ? 1 : 0;
+  for (size_t i = 0; i < plan_.sent.size(); ++i) shares += budgeted_[i] ? 1 : 0;
   for (const std::vector<size_t>& frame : wire_history_)
     for (size_t i = 0; i < frame.size(); ++i) others += double(frame[i]);
   if (!wire_history_.empty()) others /= double(wire_history_.size());
@@ -278,8 +274,8 @@ void ServerPipeline::dump(size_t pass, const PassDesc& desc, uint32_t frame, std
     if (ec) fail("--dump-streams: cannot create {}: {}", c_.dump_streams_dir, ec.message());
     const int height = desc.layout() == PassLayout::Planes8 ? desc.height * desc.channels : desc.height;
     dumps_[pass] = std::make_unique<StreamDump>(
-        (std::filesystem::path(c_.dump_streams_dir) / (sent_[pass].name + "." + format)).string(), format, desc.width,
-        height, int(std::lround(c_.display_hz)));
+        (std::filesystem::path(c_.dump_streams_dir) / (plan_.sent[pass].name + "." + format)).string(), format,
+        desc.width, height, int(std::lround(c_.display_hz)));
   }
   dumps_[pass]->append(encoded, frame);
 }
@@ -293,7 +289,7 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     out.compute_ms += ms;
   };
 
-  const RasterFrame raster{&scene_, camera, time_s, has_prev_ ? prev_camera_ : camera,
+  const RasterFrame raster{plan_.scene, camera, time_s, has_prev_ ? prev_camera_ : camera,
                            has_prev_ ? prev_time_s_ : time_s};
   Rastered rastered = raster_(raster);
   std::shared_ptr<const GBuffer> kept = std::move(rastered.gbuf);
@@ -309,25 +305,26 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
 
   double denoise_ms = 0.0;
   std::vector<std::optional<PassBuffer>> buffers =
-      denoised(denoise_, traced_, *traced, raster, gbuf, frame, denoise_ms);
-  if (!traced_.empty()) stage("denoise", denoise_ms);
+      denoised(denoise_, plan_.traced, *traced, raster, gbuf, frame, denoise_ms);
+  if (!plan_.traced.empty()) stage("denoise", denoise_ms);
 
+  // Remote: the denoised passes become the colour pass (and the depth pass beside it).
   auto t0 = Clock::now();
-  if (c_.mode == "remote") {
+  if (plan_.server_does(ServerStage::Composite)) {
     const ImageRGB8 img =
-        composite_traced(gbuf, scene_, traced_, std::move(buffers), upsample_filter_of(c_.ao_upsample));
+        composite_traced(gbuf, *plan_.scene, plan_.traced, std::move(buffers), upsample_filter_of(c_.ao_upsample));
     PassBuffer colour;
-    colour.desc = sent_[0].desc;
+    colour.desc = plan_.sent[0].desc;
     colour.bytes.resize(colour.desc.byte_size());
     std::memcpy(colour.bytes.data(), img.data(), colour.bytes.size());
     buffers.assign(1, std::move(colour));
     stage("server_composite", ms_since(t0));
-    if (depth_pass_ >= 0) {  // for a client that reprojects with depth
-      t0 = Clock::now();
-      buffers.resize(sent_.size());
-      buffers[size_t(depth_pass_)] = pack_depth(gbuf.depth, camera, sent_[size_t(depth_pass_)].desc.full_scale);
-      stage("pack_depth", ms_since(t0));
-    }
+  }
+  if (plan_.server_does(ServerStage::PackDepth)) {  // for a client that reprojects with depth
+    t0 = Clock::now();
+    buffers.resize(plan_.sent.size());
+    buffers[size_t(depth_pass_)] = pack_depth(gbuf.depth, camera, plan_.sent[size_t(depth_pass_)].desc.full_scale);
+    stage("pack_depth", ms_since(t0));
   }
 
   EncodeOptions options;
@@ -338,8 +335,8 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
                        return nullptr;
                      }};
   const double share_kbps = c_.stream_kbps > 0.0 ? budget_share_kbps() : 0.0;
-  std::vector<size_t> wire(sent_.size(), 0);  // this frame's: other passes whole, budgeted passes' overhead
-  for (size_t i = 0; i < sent_.size(); ++i) {
+  std::vector<size_t> wire(plan_.sent.size(), 0);  // this frame's: other passes whole, budgeted passes' overhead
+  for (size_t i = 0; i < plan_.sent.size(); ++i) {
     if (!buffers[i]) continue;
     const PassBuffer& buf = *buffers[i];
     std::vector<uint8_t> encoded;
@@ -355,10 +352,10 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
     meta.frame_id = frame;
     meta.codec_id = codec_ids_[i];
     meta.first_sequence = sequence_[i];
-    const PassChoice& choice = c_.pass(sent_[i].name);
+    const PassChoice& choice = plan_.choice(plan_.sent[i]);
     const int parity = fec_parity_count(int(packet_count(encoded.size(), c_.max_payload_bytes)), choice.fec_parity,
                                         choice.fec_min_parity);
-    SentPass sent{sent_[i].name, buf.desc, encoded.size(), packetize(meta, encoded, c_.max_payload_bytes, parity)};
+    SentPass sent{plan_.sent[i].name, buf.desc, encoded.size(), packetize(meta, encoded, c_.max_payload_bytes, parity)};
     sequence_[i] += uint32_t(sent.packets.size());
     for (const auto& packet : sent.packets) wire[i] += packet.size() + kIpUdpOverheadBytes;
     if (budgeted_[i]) wire[i] -= sent.encoded_bytes;
@@ -377,29 +374,21 @@ ServerFrame ServerPipeline::run(uint32_t frame, const Camera& camera, double tim
 
 // ---- client
 
-ClientPipeline::ClientPipeline(const SimConfig& c, const Scene& scene, const Registries& r)
-    : c_(c),
-      scene_(scene),
-      remote_(c.mode == "remote"),
-      filter_(upsample_filter_of(c.ao_upsample)),
-      passes_(sent_passes(plan_passes(scene, c.trace), remote_, remote_depth_bits(c, r), c.width, c.height)) {
-  depth_pass_ = find_pass(passes_, PassMeaning::Depth);
-  upsampled_.assign(passes_.size(), {-1, PassBuffer{}});
-  for (const PlannedPass& p : passes_) {
-    const PassChoice choice = c.pass(p.name);
+ClientPipeline::ClientPipeline(const RunPlan& plan, const Registries& r)
+    : plan_(plan), c_(plan.config), filter_(upsample_filter_of(c_.ao_upsample)) {
+  depth_pass_ = find_pass(plan_.sent, PassMeaning::Depth);
+  upsampled_.assign(plan_.sent.size(), {-1, PassBuffer{}});
+  for (const PlannedPass& p : plan_.sent) {
+    const PassChoice& choice = plan_.choice(p);
     receivers_.emplace_back();
     receivers_.back().codec = r.codecs.create(choice.codec.name, choice.codec.params);
     predictors_.push_back(r.predictors.create(choice.predictor.name, choice.predictor.params));
   }
 }
 
-bool ClientPipeline::upsamples() const {
-  for (const PlannedPass& p : passes_)
-    if (p.desc.width != c_.width || p.desc.height != c_.height) return true;
-  return false;
-}
+bool ClientPipeline::upsamples() const { return plan_.client_does(ClientStage::Upsample); }
 
-int ClientPipeline::pass_of(PassKind kind) const { return find_pass(passes_, pass_meaning(kind)); }
+int ClientPipeline::pass_of(PassKind kind) const { return find_pass(plan_.sent, pass_meaning(kind)); }
 
 PassReceiver::Outcome ClientPipeline::receive(int pass, AssembledFrame& frame) {
   const FrameContext context{frame.meta.frame_id, gbuffer(int(frame.meta.frame_id)),
@@ -407,7 +396,7 @@ PassReceiver::Outcome ClientPipeline::receive(int pass, AssembledFrame& frame) {
   PassReceiver& r = receivers_[size_t(pass)];
   // A frame of another layout than the pass's plan (a damaged or foreign sender) is refused
   // before it reaches the decoder: the stages after it rely on the planned size.
-  const PassDesc& planned = passes_[size_t(pass)].desc;
+  const PassDesc& planned = plan_.sent[size_t(pass)].desc;
   const PassDesc& got = frame.meta.desc;
   if (got.kind != planned.kind || got.width != planned.width || got.height != planned.height ||
       got.channels != planned.channels) {
@@ -438,12 +427,13 @@ const GBuffer* ClientPipeline::gbuffer(int frame) const {
 
 ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::function<Camera(int)>& camera_of) {
   ClientFrame out;
-  out.source_frame.assign(passes_.size(), -1);
-  out.disoccluded.assign(passes_.size(), 0);
-  out.without_data.assign(passes_.size(), false);
+  const size_t passes = plan_.sent.size();
+  out.source_frame.assign(passes, -1);
+  out.disoccluded.assign(passes, 0);
+  out.without_data.assign(passes, false);
   auto t0 = Clock::now();
-  if (remote_) {
-    out.image = ImageRGB8(c_.width, c_.height);  // nothing received yet: black
+  if (!plan_.client_does(ClientStage::Composite)) {  // remote: the colour frame, warped
+    out.image = ImageRGB8(c_.width, c_.height);      // nothing received yet: black
     const PassReceiver& r = receivers_[0];
     if (r.frame >= 0) {
       // The remote client knows cameras only (and the depth it received).
@@ -469,10 +459,10 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
     out.predict_ms = ms_since(t0);
     return out;
   }
-  std::vector<std::optional<PassBuffer>> predicted(passes_.size());
-  std::vector<const PassBuffer*> to_predict(passes_.size(), nullptr);  // and the G-buffer it was made for:
-  std::vector<const GBuffer*> sources(passes_.size(), nullptr);
-  for (size_t i = 0; i < passes_.size(); ++i) {
+  std::vector<std::optional<PassBuffer>> predicted(passes);
+  std::vector<const PassBuffer*> to_predict(passes, nullptr);  // and the G-buffer it was made for:
+  std::vector<const GBuffer*> sources(passes, nullptr);
+  for (size_t i = 0; i < passes; ++i) {
     const PassReceiver& r = receivers_[i];
     const GBuffer* src = r.frame >= 0 ? gbuffer(r.frame) : nullptr;
     if (!src) {
@@ -505,13 +495,13 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
   }
   // Passes received for the same frame whose predictors have the same settings and predict
   // together (Predictor::predicts_passes_together) go through one call: the shared work once.
-  for (size_t i = 0; i < passes_.size(); ++i) {
+  for (size_t i = 0; i < passes; ++i) {
     if (!to_predict[i]) continue;
-    const BackendChoice& choice = c_.pass(passes_[i].name).predictor;
+    const BackendChoice& choice = plan_.choice(plan_.sent[i]).predictor;
     const bool together = predictors_[i]->predicts_passes_together();
     std::vector<size_t> group{i};
-    for (size_t k = i + 1; k < passes_.size() && together; ++k) {
-      const BackendChoice& other = c_.pass(passes_[k].name).predictor;
+    for (size_t k = i + 1; k < passes && together; ++k) {
+      const BackendChoice& other = plan_.choice(plan_.sent[k]).predictor;
       if (to_predict[k] && receivers_[k].frame == receivers_[i].frame && other.name == choice.name &&
           other.params == choice.params)
         group.push_back(k);
@@ -528,7 +518,7 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
   }
   out.predict_ms = ms_since(t0) - out.upsample_ms;
   t0 = Clock::now();
-  out.image = composite(gbuf, scene_, composite_inputs(passes_, predicted));
+  out.image = composite(gbuf, *plan_.scene, composite_inputs(plan_.sent, predicted));
   out.composite_ms = ms_since(t0);
   out.composited = true;
   return out;
@@ -536,18 +526,15 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
 
 // ---- local reference
 
-LocalReference::LocalReference(const SimConfig& c, const Scene& scene, const Registries& r)
-    : scene_(scene),
-      traced_(traced_passes(plan_passes(scene, c.trace), c.width, c.height)),
-      denoise_(c, traced_, r),
-      filter_(upsample_filter_of(c.ao_upsample)) {}
+LocalReference::LocalReference(const RunPlan& plan, const Registries& r)
+    : plan_(plan), denoise_(plan, r), filter_(upsample_filter_of(plan.config.ao_upsample)) {}
 
 std::optional<ImageRGB8> LocalReference::frame(uint32_t frame, const RasterFrame& raster, const GBuffer& gbuf,
                                                const TracedPasses& traced, bool want_image) {
   double ms = 0.0;
-  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, traced_, traced, raster, gbuf, frame, ms);
+  std::vector<std::optional<PassBuffer>> buffers = denoised(denoise_, plan_.traced, traced, raster, gbuf, frame, ms);
   if (!want_image) return std::nullopt;
-  return composite_traced(gbuf, scene_, traced_, std::move(buffers), filter_);
+  return composite_traced(gbuf, *plan_.scene, plan_.traced, std::move(buffers), filter_);
 }
 
 }  // namespace dhr

@@ -20,7 +20,7 @@
 #include "core/buffers/gbuffer.h"
 #include "core/buffers/image.h"
 #include "core/buffers/upsample.h"
-#include "core/config/run_check.h"
+#include "core/config/run_plan.h"
 #include "core/config/run_config.h"
 #include "core/net/assembler.h"
 #include "core/pass/passes.h"
@@ -44,7 +44,7 @@ class RtScene;
 // The traced passes of frame `frame` for G-buffer `gbuf` (a cache lookup, or a trace).
 using TraceFn = std::function<std::shared_ptr<const TracedPasses>(uint32_t frame, const GBuffer& gbuf)>;
 // Traces with `rt` and no cache.
-TraceFn direct_tracer(RtScene& rt, const SimConfig& config);
+TraceFn direct_tracer(RtScene& rt, const RunPlan& plan);
 
 // The server's G-buffer of a frame and the wall time its rasterization took: rasterized now,
 // or one the simulator's client already rasterized for the same RasterFrame (then `ms` is that
@@ -96,12 +96,12 @@ struct DenoiseSharing {
   TraceFn trace;
 };
 
-// The denoisers of one side: each 8-bit plane of a traced pass through its pass's denoiser
-// (AO: one; soft visibility: one per light, each with its own history). Bitmasks are never
-// denoised.
+// The denoisers of one side: each 8-bit plane of a traced pass (plan.traced) through its pass's
+// denoiser (AO: one; soft visibility: one per light, each with its own history). Bitmasks are
+// never denoised.
 class DenoiseStage {
  public:
-  DenoiseStage(const SimConfig& config, const std::vector<PlannedPass>& traced, const Registries& registries);
+  DenoiseStage(const RunPlan& plan, const Registries& registries);
   // Shares the temporal denoisers' outputs through `sharing.memo` from now on (before the first
   // frame).
   void share(DenoiseSharing sharing);
@@ -159,10 +159,10 @@ class ServerPipeline {
  public:
   // `stream_id` goes into every packet header (the simulator: 0; live mode: the session's).
   // `raster`: where the server's G-buffers come from (null: rasterize_now).
-  ServerPipeline(const SimConfig& config, const Scene& scene, const Registries& registries, TraceFn trace,
-                 uint16_t stream_id, RasterFn raster = nullptr);
-  const std::vector<PlannedPass>& passes() const { return sent_; }
-  const PassPlan& plan() const { return plan_; }
+  // `plan` must outlive the pipeline.
+  ServerPipeline(const RunPlan& plan, const Registries& registries, TraceFn trace, uint16_t stream_id,
+                 RasterFn raster = nullptr);
+  const std::vector<PlannedPass>& passes() const { return plan_.sent; }
   // The sequence number of the next packet of pass `pass` (0 at the start; live mode starts
   // each session's streams at random numbers).
   void set_next_sequence(size_t pass, uint32_t sequence) { sequence_.at(pass) = sequence; }
@@ -180,10 +180,8 @@ class ServerPipeline {
 
  private:
   void dump(size_t pass, const PassDesc& desc, uint32_t frame, std::span<const uint8_t> encoded);
-  const SimConfig& c_;
-  const Scene& scene_;
-  PassPlan plan_;
-  std::vector<PlannedPass> traced_, sent_;
+  const RunPlan& plan_;
+  const SimConfig& c_;  // plan_.config
   TraceFn trace_;
   RasterFn raster_;
   uint16_t stream_id_;
@@ -198,7 +196,7 @@ class ServerPipeline {
   // (Codec::gbuffers_referenced; 0: none kept).
   int gbuffers_kept_ = 0;
   std::deque<std::pair<uint32_t, std::shared_ptr<const GBuffer>>> gbuffers_;
-  int depth_pass_ = -1;  // remote mode: the depth pass's index in sent_, when one is sent
+  int depth_pass_ = -1;  // remote mode: the depth pass's index in plan_.sent, when one is sent
   // stream_kbps: per sent pass, whether its codec takes the budget's share; the wire bytes of
   // every sent pass over the last second of frames.
   std::vector<bool> budgeted_;
@@ -221,9 +219,9 @@ struct ClientFrame {
 
 class ClientPipeline {
  public:
-  ClientPipeline(const SimConfig& config, const Scene& scene, const Registries& registries);
-  const std::vector<PlannedPass>& passes() const { return passes_; }
-  bool remote() const { return remote_; }
+  // `plan` must outlive the pipeline.
+  ClientPipeline(const RunPlan& plan, const Registries& registries);
+  const std::vector<PlannedPass>& passes() const { return plan_.sent; }
   // Whether a pass comes at reduced resolution (then display upsamples it: ClientFrame::upsample_ms).
   bool upsamples() const;
   // The pass a received frame of `kind` belongs to (-1: none of this run's).
@@ -243,11 +241,9 @@ class ClientPipeline {
   ClientFrame display(int frame, const GBuffer& gbuf, const std::function<Camera(int)>& camera_of);
 
  private:
-  const SimConfig& c_;
-  const Scene& scene_;
-  bool remote_;
+  const RunPlan& plan_;
+  const SimConfig& c_;  // plan_.config
   UpsampleFilter filter_;
-  std::vector<PlannedPass> passes_;
   std::vector<PassReceiver> receivers_;
   std::vector<std::unique_ptr<Predictor>> predictors_;
   std::deque<std::pair<int, std::shared_ptr<const GBuffer>>> history_;
@@ -264,7 +260,8 @@ class ClientPipeline {
 // The local reference: what the client would show with zero latency and lossless passes.
 class LocalReference {
  public:
-  LocalReference(const SimConfig& config, const Scene& scene, const Registries& registries);
+  // `plan` must outlive it.
+  LocalReference(const RunPlan& plan, const Registries& registries);
   // Whether frame `frame` must be fed although its image is not wanted (a temporal denoiser).
   bool needs_every_frame() const { return denoise_.keeps_history(); }
   // Denoises frame `frame`'s traced passes in sequence (`gbuf` rasterized for `raster`); returns
@@ -275,8 +272,7 @@ class LocalReference {
   void share_denoised(DenoiseSharing sharing) { denoise_.share(std::move(sharing)); }
 
  private:
-  const Scene& scene_;
-  std::vector<PlannedPass> traced_;
+  const RunPlan& plan_;
   DenoiseStage denoise_;
   UpsampleFilter filter_;
 };

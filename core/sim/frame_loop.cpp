@@ -460,44 +460,41 @@ namespace {
 
 class Simulation {
  public:
-  Simulation(const SimConfig& c, const Scene& scene, const std::string& scene_key, TraceCache& cache,
-             const Registries& registries)
-      : c_(c),
-        scene_(scene),
+  Simulation(const RunPlan& plan, const std::string& scene_key, TraceCache& cache, const Registries& registries)
+      : plan_(plan),
+        c_(plan.config),
+        scene_(*plan.scene),
         scene_key_(scene_key),
-        key_c_(keyed_config(c, scene)),
+        key_c_(keyed_config(c_, scene_)),
         cache_(cache),
-        remote_(c.mode == "remote"),
-        uplink_(c.uplink, c.seed, 0),
-        downlink_(c.downlink, c.seed, 1),
+        uplink_(c_.uplink, c_.seed, 0),
+        downlink_(c_.downlink, c_.seed, 1),
         server_(
-            c, scene, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0,
+            plan, registries, [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }, 0,
             [this](const RasterFrame& f) { return server_raster(f); }),
-        client_(c, scene, registries),
-        local_(c, scene, registries) {
-    plan_ = plan_passes(scene, c.trace);
-    traced_list_ = traced_passes(plan_, c.width, c.height);
+        client_(plan, registries),
+        local_(plan, registries) {
     // The server and the local reference share their temporal denoisers' outputs with the
     // other runs of the sweep (DenoiseStage::share).
     std::vector<std::string> denoise_keys;
-    for (const PlannedPass& p : traced_list_) denoise_keys.push_back(denoise_chain_key(scene_key_, key_c_, p.name));
+    for (const PlannedPass& p : plan_.traced) denoise_keys.push_back(denoise_chain_key(scene_key_, key_c_, p.name));
     server_.share_denoised(&memo_, denoise_keys);
     local_.share_denoised({&memo_, denoise_keys, [this](const RasterFrame& f) { return server_raster(f); },
                            [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }});
     AssemblerConfig ac;
-    ac.max_payload_bytes = c.max_payload_bytes;
+    ac.max_payload_bytes = c_.max_payload_bytes;
     ac.timeout_ms = 500;
     assembler_ = Assembler(ac);
     // Hybrid runs report both pass streams, planned or not (zero traffic when not planned);
     // remote runs the colour stream and, when sent, the depth stream.
-    if (remote_)
+    if (plan_.remote())
       for (const PlannedPass& p : server_.passes()) traffic_.push_back({p.name});
     else
       for (const PassType& t : pass_types()) traffic_.push_back({t.name});
     for (const PlannedPass& p : server_.passes()) traffic_index_.push_back(traffic_of(p.name));
     client_holds_.assign(server_.passes().size(), -1);
-    result_.config = c.to_json();
-    result_.plan = server_.plan();
+    result_.config = c_.to_json();
+    result_.plan = plan_.passes;
   }
 
   RunResult run(const ProgressFn& progress) {
@@ -559,12 +556,12 @@ class Simulation {
     if (joined_.first == a) return joined_.second;
     const TraceSettings settings = c_.trace_for_frame(uint32_t(a));
     std::vector<std::shared_ptr<const TraceCache::Entry>> parts;
-    for (const PlannedPass& p : traced_list_) {
+    for (const PlannedPass& p : plan_.traced) {
       const std::string key = pass_trace_key(scene_key_, key_c_, a, p.name);
       std::shared_ptr<const TraceCache::Entry> part = cache_.find(key);
       if (!part) {
         part = std::make_shared<const TraceCache::Entry>(
-            static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, plan_, settings, p.name)));
+            static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, plan_.passes, settings, p.name)));
         cache_.insert(key, part);
       }
       parts.push_back(std::move(part));
@@ -622,7 +619,8 @@ class Simulation {
     cache_.keep_raster(scene_key_, f, r, raster_history());
     return r;
   }
-  size_t raster_history() const { return remote_ ? 8 : size_t(c_.history_frames); }
+  // (A client that predicts with its G-buffers keeps history_frames; one that does not, a few.)
+  size_t raster_history() const { return plan_.client_does(ClientStage::Rasterize) ? size_t(c_.history_frames) : 8; }
   // Keeps the client's last G-buffers for server_raster: as many as the hybrid client keeps for
   // prediction (shared with those: no more memory), a few in remote mode (which keeps none).
   void remember_raster(const RasterFrame& f, const Rastered& r) {
@@ -747,11 +745,13 @@ class Simulation {
     const double raster_ms = rastered.ms;
     remember_raster(raster_frame, rastered);
     // The hybrid client keeps its G-buffers for predicting later frames (this one included:
-    // with zero latency the server's frame for this very camera may arrive now).
-    if (!remote_) client_.keep(a, rastered.gbuf);
+    // with zero latency the server's frame for this very camera may arrive now). The remote
+    // client does not rasterize: this G-buffer only scores it.
+    const bool rasterizes = plan_.client_does(ClientStage::Rasterize);
+    if (rasterizes) client_.keep(a, rastered.gbuf);
     const GBuffer& gbuf = *rastered.gbuf;
     stage("rasterize", raster_ms, count);
-    if (!remote_) client_ms += raster_ms;  // the remote client does not rasterize
+    if (rasterizes) client_ms += raster_ms;
 
     // Uplink: this frame's camera (and a keyframe request after a loss).
     const Delivery up = uplink_.send(kCameraMessageBytes + kIpUdpOverheadBytes, now);
@@ -829,8 +829,9 @@ class Simulation {
     if (count) result_.frames.push_back(rec);
   }
 
-  const SimConfig& c_;
-  const Scene& scene_;
+  const RunPlan& plan_;
+  const SimConfig& c_;  // plan_.config
+  const Scene& scene_;  // *plan_.scene
   std::string scene_key_;
   SimConfig key_c_;                                               // c_ as the cache keys see it (keyed_config)
   std::optional<ImageRGB8> prev_local_, prev_shown_;              // the last scored frame's reference and image
@@ -845,11 +846,8 @@ class Simulation {
     }
     TraceCache& cache;
   } memo_{cache_};
-  bool remote_;
   Link uplink_, downlink_;
   std::unique_ptr<RtScene> rt_;
-  PassPlan plan_;                         // the run's plan, made once (plan_passes)
-  std::vector<PlannedPass> traced_list_;  // the passes the run's settings trace (traced())
   std::pair<int, std::shared_ptr<const TraceCache::Entry>> joined_{-1, nullptr};  // traced()'s last join
   struct RasterMemo {
     RasterFrame frame;
@@ -880,11 +878,15 @@ class Simulation {
 
 }  // namespace
 
+RunResult run_simulation(const RunPlan& plan, const std::string& scene_key, TraceCache& cache,
+                         const Registries& registries, const ProgressFn& progress) {
+  Simulation sim(plan, scene_key, cache, registries);
+  return sim.run(progress);
+}
+
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key, TraceCache& cache,
                          const Registries& registries, const ProgressFn& progress) {
-  validate_sim_config(config, scene, registries);
-  Simulation sim(config, scene, scene_key, cache, registries);
-  return sim.run(progress);
+  return run_simulation(plan_run(config, scene, registries), scene_key, cache, registries, progress);
 }
 
 }  // namespace dhr

@@ -30,6 +30,7 @@
 #include "core/backend/backend.h"
 #include "core/buffers/gbuffer.h"
 #include "core/config/run_config.h"
+#include "core/config/run_plan.h"
 #include "core/metrics/flip.h"
 #include "core/net/network.h"
 #include "core/pipeline/pipeline.h"
@@ -133,8 +134,11 @@ class TraceCache {
 // Progress callback: (frame index among warm-up + scored, total).
 using ProgressFn = std::function<void(int, int)>;
 
-// Validates the configuration against the scene and the registry (every problem at once),
-// then runs. `scene_key` identifies the scene's content for the cache (e.g. a hash of its file).
+// Runs the planned run (plan_run: validated, core/config/run_plan.h). `scene_key` identifies the
+// scene's content for the cache (e.g. a hash of its file).
+RunResult run_simulation(const RunPlan& plan, const std::string& scene_key, TraceCache& cache,
+                         const Registries& registries, const ProgressFn& progress = {});
+// Plans the run (plan_run throws dhr::Error listing every problem), then runs it.
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key, TraceCache& cache,
                          const Registries& registries, const ProgressFn& progress = {});
 

@@ -7,7 +7,7 @@
 #include "core/base/json_io.h"
 #include "core/base/process.h"
 #include "core/buffers/image_io.h"
-#include "core/config/run_check.h"
+#include "core/config/run_plan.h"
 #include "core/experiment/experiment.h"
 #include "core/experiment/shard.h"
 #include "core/metrics/flip.h"
@@ -67,7 +67,7 @@ LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& s
     auto it = loaded.scenes.find(run.scene);
     if (it == loaded.scenes.end()) continue;
     try {
-      validate_sim_config(run.config, it->second, registries());
+      plan_run(run.config, it->second, registries());
       if (std::string why = warmup_problem(run.config); !why.empty()) throw Error(why);
     } catch (const Error& err) {
       std::string what = err.what();
@@ -275,16 +275,13 @@ Runner add_run_command(CLI::App& app) {
         config.keep_images = true;
         if (!o->dump_streams.empty()) config.dump_streams_dir = (fs::path(o->dump_streams) / spec.id).string();
         const Scene& scene = loaded.scenes.at(spec.scene);
-        RunResult r = run_simulation(config, scene, loaded.keys.at(spec.scene), cache, registries(),
+        const RunPlan plan = plan_run(config, scene, registries());
+        RunResult r = run_simulation(plan, loaded.keys.at(spec.scene), cache, registries(),
                                      [&](int f, int total) { progress.update(i, spec.label, f, total); });
         record["config"] = r.config;
         // Effective backend parameters (defaults filled in), one entry per backend setting of
         // core/config/run_config.cpp, under its key ("passes.ao.codec").
-        const Registries& reg = registries();
-        record["backends"] = nlohmann::json::object();
-        for (const RunSetting& s : run_settings()) {
-          if (s.type == SettingType::Backend) record["backends"][s.key] = effective_backend(s, s.get(config), reg);
-        }
+        record["backends"] = plan.backends;
         record["metrics"] = r.metrics();
         record["server_time_model"] =
             config.server_timing == SimConfig::ServerTiming::Fixed

@@ -109,7 +109,7 @@ TEST(RunSettings, AnOutOfRangeValueIsRejectedNamingTheKey) {
       EXPECT_NE(problems.front().find("run." + s.key), std::string::npos) << s.key << joined(problems);
       EXPECT_EQ(s.get(c), s.default_value()) << s.key << ": a rejected value must not be set";
     }
-    // validate_sim_config's ranges (for a value set from C++) come from the same table.
+    // plan_run's ranges (for a value set from C++) come from the same table.
     if (s.type == SettingType::Integer || s.type == SettingType::Number) {
       SimConfig c;
       s.set(c, nlohmann::json(int64_t(s.hi) + 1));

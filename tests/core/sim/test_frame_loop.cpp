@@ -411,8 +411,9 @@ TEST(DenoiseSharing, SkippedFramesAreFedAgainWhenTheSequenceDiverges) {
   c.pass("visibility").denoiser = {"svgf_ao"};
   const Scene& room = scene("room");
   RtScene rt(room);
-  const TraceFn trace = direct_tracer(rt, c);
-  const std::vector<PlannedPass> traced = traced_passes(plan_passes(room, c.trace), c.width, c.height);
+  const RunPlan plan = plan_run(c, room, registries());
+  const TraceFn trace = direct_tracer(rt, plan);
+  const std::vector<PlannedPass>& traced = plan.traced;
   ASSERT_EQ(traced.size(), 2u);
   int rasters = 0;
   auto raster_of = [&](int f, int prev) {
@@ -422,7 +423,7 @@ TEST(DenoiseSharing, SkippedFramesAreFedAgainWhenTheSequenceDiverges) {
   // Each pass's denoised bytes, frame after frame.
   // `odd`: the step whose G-buffer takes its motion from two frames back, not the one before.
   auto run = [&](const std::vector<int>& frames, CountingMemo* memo, size_t odd = 0) {
-    DenoiseStage stage(c, traced, registries());
+    DenoiseStage stage(plan, registries());
     if (memo)
       stage.share({memo,
                    {"ao-key", "visibility-key"},

@@ -1,4 +1,4 @@
-#include "core/config/run_check.h"
+#include "core/config/run_plan.h"
 
 #include "core/base/error.h"
 #include "core/net/network.h"
@@ -7,6 +7,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <optional>
@@ -15,10 +16,35 @@
 
 namespace dhr {
 
-int remote_depth_bits(const SimConfig& c, const Registries& r) {
-  if (c.mode != "remote") return 0;
-  const BackendChoice& p = c.pass(kColourPassName).predictor;
-  return r.predictors.create(p.name, p.params)->depth_bits();
+const char* stage_name(ServerStage s) {
+  switch (s) {
+    case ServerStage::Rasterize: return "rasterize";
+    case ServerStage::Trace: return "trace";
+    case ServerStage::Denoise: return "denoise";
+    case ServerStage::Composite: return "composite";
+    case ServerStage::PackDepth: return "pack_depth";
+    case ServerStage::Encode: return "encode";
+  }
+  return "?";
+}
+
+const char* stage_name(ClientStage s) {
+  switch (s) {
+    case ClientStage::Rasterize: return "rasterize";
+    case ClientStage::Decode: return "decode";
+    case ClientStage::Upsample: return "upsample";
+    case ClientStage::Predict: return "predict";
+    case ClientStage::Composite: return "composite";
+  }
+  return "?";
+}
+
+bool RunPlan::server_does(ServerStage stage) const {
+  return std::find(server_stages.begin(), server_stages.end(), stage) != server_stages.end();
+}
+
+bool RunPlan::client_does(ClientStage stage) const {
+  return std::find(client_stages.begin(), client_stages.end(), stage) != client_stages.end();
 }
 
 nlohmann::json effective_backend(const RunSetting& s, const nlohmann::json& value, const Registries& r) {
@@ -41,7 +67,7 @@ std::string warmup_problem(const SimConfig& c) {
       case LinkConfig::Latency::Normal: return std::max(l.latency_floor_ms, l.latency_ms + 3.0 * l.jitter_ms);
       case LinkConfig::Latency::Trace: try { return load_latency_trace(l.trace_file).at(t_ms + l.trace_offset_ms);
         } catch (const Error&) {
-          return 0.0;  // validate_sim_config reports the trace
+          return 0.0;  // plan_run reports the trace
         }
     }
     return 0.0;
@@ -61,7 +87,11 @@ std::string warmup_problem(const SimConfig& c) {
       c.warmup_frames, warmup_ms, first_ms, up_ms, server_ms, down_ms, need);
 }
 
-void validate_sim_config(const SimConfig& c, const Scene& scene, const Registries& r) {
+RunPlan plan_run(const SimConfig& c, const Scene& scene, const Registries& r) {
+  RunPlan run;
+  run.config = c;
+  run.scene = &scene;
+  run.mode = c.mode == "remote" ? RunMode::Remote : RunMode::Hybrid;
   std::vector<std::string> problems;
   auto check = [&](bool ok, std::string what) {
     if (!ok) problems.push_back(std::move(what));
@@ -88,16 +118,38 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
   for (const RunSetting& s : run_settings()) {
     if (s.type != SettingType::Backend) continue;
     try {
-      effective_backend(s, s.get(c), r);
+      run.backends[s.key] = effective_backend(s, s.get(c), r);
     } catch (const Error& e) {
       problems.push_back(fmt::format("{}: {}", s.key, e.what()));
     }
   }
   if (problems.empty()) {
+    run.passes = std::move(*plan);
+    run.traced = traced_passes(run.passes, c.width, c.height);
+    if (run.remote()) {
+      // The colour predictor says whether it reprojects with depth the server sends beside it.
+      const BackendChoice& p = c.pass(kColourPassName).predictor;
+      run.depth_bits = r.predictors.create(p.name, p.params)->depth_bits();
+    }
+    run.sent = sent_passes(run.passes, run.remote(), run.depth_bits, c.width, c.height);
+    run.server_stages = {ServerStage::Rasterize, ServerStage::Trace, ServerStage::Denoise};
+    if (run.remote()) {
+      run.server_stages.push_back(ServerStage::Composite);
+      if (run.depth_bits > 0) run.server_stages.push_back(ServerStage::PackDepth);
+      run.client_stages = {ClientStage::Decode, ClientStage::Predict};
+    } else {
+      const bool reduced = std::any_of(run.sent.begin(), run.sent.end(), [&](const PlannedPass& p) {
+        return p.desc.width != c.width || p.desc.height != c.height;
+      });
+      run.client_stages = {ClientStage::Rasterize, ClientStage::Decode};
+      if (reduced) run.client_stages.push_back(ClientStage::Upsample);
+      run.client_stages.insert(run.client_stages.end(), {ClientStage::Predict, ClientStage::Composite});
+    }
+    run.server_stages.push_back(ServerStage::Encode);
     // A lossy codec must not be asked to carry a bitmask.
     std::string sent;
     bool budgeted = false;
-    for (const PlannedPass& p : sent_passes(*plan, c.mode == "remote", remote_depth_bits(c, r), c.width, c.height)) {
+    for (const PlannedPass& p : run.sent) {
       const BackendChoice codec = c.pass(p.name).codec;
       const std::unique_ptr<Codec> made = r.codecs.create(codec.name, codec.params);
       if (std::string why = made->refuses(p.desc); !why.empty())
@@ -117,6 +169,7 @@ void validate_sim_config(const SimConfig& c, const Scene& scene, const Registrie
     for (size_t i = 1; i < problems.size(); ++i) msg += "\n" + problems[i];
     throw Error(msg);
   }
+  return run;
 }
 
 }  // namespace dhr
