@@ -161,10 +161,14 @@ double DenoiseStage::run(const RasterFrame& raster, const GBuffer& gbuf, uint32_
   if (chain) {
     chain->append(frame, raster);
     key = chain->key();
-    if (const std::shared_ptr<const DenoisedPass> hit = sharing_.memo->find(key)) {
-      out = hit->buffer;
-      chain->skipped.push_back({frame, raster});
-      return hit->ms;
+    std::shared_ptr<void> claim;
+    for (int look = 0; look < 2; ++look) {  // again once this caller holds the key
+      if (const std::shared_ptr<const DenoisedPass> hit = sharing_.memo->find(key)) {
+        out = hit->buffer;
+        chain->skipped.push_back({frame, raster});
+        return hit->ms;
+      }
+      if (look == 0) claim = sharing_.memo->claim(key);
     }
     catch_up(pass);
   }

@@ -82,6 +82,9 @@ class DenoiseMemo {
   virtual ~DenoiseMemo() = default;
   virtual std::shared_ptr<const DenoisedPass> find(const std::string& key) = 0;
   virtual void insert(const std::string& key, std::shared_ptr<const DenoisedPass> value) = 0;
+  // Holds `key` for this caller while the handle lives, so that runs side by side compute it
+  // once (TraceCache::Claim); null: the memo has no other users.
+  virtual std::shared_ptr<void> claim(const std::string& key) = 0;
 };
 
 // How a DenoiseStage shares its outputs through a memo.

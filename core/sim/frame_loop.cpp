@@ -318,6 +318,20 @@ std::shared_ptr<const TraceCache::Entry> TraceCache::read_disk(const std::string
   return pos == in.size() ? e : nullptr;
 }
 
+TraceCache::Claim::Claim(TraceCache& cache, std::string key) : cache_(cache), key_(std::move(key)) {
+  std::unique_lock lock(cache_.mutex_);
+  cache_.claim_released_.wait(lock, [&] { return !cache_.claimed_.count(key_); });
+  cache_.claimed_.insert(key_);
+}
+
+TraceCache::Claim::~Claim() {
+  {
+    std::lock_guard lock(cache_.mutex_);
+    cache_.claimed_.erase(key_);
+  }
+  cache_.claim_released_.notify_all();
+}
+
 std::shared_ptr<const ImageRGB8> TraceCache::find_image(const std::string& key) {
   std::lock_guard lock(mutex_);
   return lookup(images_, key, tick_);
@@ -560,9 +574,13 @@ class Simulation {
       const std::string key = pass_trace_key(scene_key_, key_c_, a, p.name);
       std::shared_ptr<const TraceCache::Entry> part = cache_.find(key);
       if (!part) {
-        part = std::make_shared<const TraceCache::Entry>(
-            static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, plan_.passes, settings, p.name)));
-        cache_.insert(key, part);
+        const TraceCache::Claim claim(cache_, key);
+        part = cache_.find(key);
+        if (!part) {
+          part = std::make_shared<const TraceCache::Entry>(
+              static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, plan_.passes, settings, p.name)));
+          cache_.insert(key, part);
+        }
       }
       parts.push_back(std::move(part));
     }
@@ -577,6 +595,8 @@ class Simulation {
   // cached on disk there and in memory here).
   std::shared_ptr<const ImageRGB8> ground_truth(int a, const GBuffer& gbuf) {
     const std::string key = truth_key(scene_key_, key_c_, a);
+    if (auto hit = cache_.find_image(key)) return hit;
+    const TraceCache::Claim claim(cache_, key);
     if (auto hit = cache_.find_image(key)) return hit;
     ReferenceSettings rs;
     rs.ao_rays = c_.ground_truth_ao_rays;
@@ -843,6 +863,9 @@ class Simulation {
     std::shared_ptr<const DenoisedPass> find(const std::string& key) override { return cache.find_denoised(key); }
     void insert(const std::string& key, std::shared_ptr<const DenoisedPass> value) override {
       cache.insert_denoised(key, std::move(value));
+    }
+    std::shared_ptr<void> claim(const std::string& key) override {
+      return std::make_shared<TraceCache::Claim>(cache, key);
     }
     TraceCache& cache;
   } memo_{cache_};

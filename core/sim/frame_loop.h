@@ -43,7 +43,9 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <condition_variable>
 #include <mutex>
+#include <set>
 #include <optional>
 #include <string>
 #include <vector>
@@ -92,6 +94,23 @@ class TraceCache {
   void insert_denoised(const std::string& key, std::shared_ptr<const DenoisedPass> pass);
   size_t bytes() const { return bytes_; }
 
+  // One computation per key among runs side by side (`dhrbench run --jobs`): a Claim on a key
+  // waits while another thread holds one on it, then holds it until destroyed. A run takes one
+  // around computing what it missed and looks again once it holds it: what the other run
+  // inserted meanwhile is found, not computed twice. Claims nest only from a denoised pass's
+  // to a trace's (a trace and a ground truth claim nothing while held), so they cannot deadlock.
+  class Claim {
+   public:
+    Claim(TraceCache& cache, std::string key);
+    ~Claim();
+    Claim(const Claim&) = delete;
+    Claim& operator=(const Claim&) = delete;
+
+   private:
+    TraceCache& cache_;
+    std::string key_;
+  };
+
   // The client's G-buffers of one scene and camera path, for the runs after the one that
   // rasterized them (docs/performance.md, "Computed once per sweep"): the runs of a sweep
   // display the same frames.
@@ -112,6 +131,8 @@ class TraceCache {
   std::string disk_dir_;
   std::string disk_tag_;  // "|" + embree_tracer(), appended to every disk key
   mutable std::mutex mutex_;
+  std::condition_variable claim_released_;
+  std::set<std::string> claimed_;  // keys under a Claim
   size_t max_bytes_;
   size_t bytes_ = 0;
   uint64_t tick_ = 0;

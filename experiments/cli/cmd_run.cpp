@@ -25,7 +25,9 @@
 #include <tbb/global_control.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -33,7 +35,10 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
+#include <sstream>
+#include <thread>
 
 namespace dhr::cli {
 
@@ -87,8 +92,13 @@ LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& s
 class Progress {
  public:
   explicit Progress(size_t runs) : runs_(runs), tty_(isatty(fileno(stderr))) {}
+  // Run `run` (of those in flight) is at frame `frame` of `total`. Thread-safe.
   void update(size_t run, const std::string& label, int frame, int total) {
-    const double done = (double(run) + double(frame) / std::max(total, 1)) / double(runs_);
+    std::lock_guard lock(mutex_);
+    in_flight_[run] = double(frame) / std::max(total, 1);
+    double done = double(finished_);
+    for (const auto& [r, fraction] : in_flight_) done += fraction;
+    done /= double(runs_);
     const double elapsed = std::chrono::duration<double>(Clock::now() - start_).count();
     const double eta = done > 0 ? elapsed / done - elapsed : 0;
     if (tty_) {
@@ -102,6 +112,11 @@ class Progress {
                    label.c_str(), frame, total, elapsed, eta_text(eta).c_str());
     }
   }
+  void run_done(size_t run) {
+    std::lock_guard lock(mutex_);
+    in_flight_.erase(run);
+    ++finished_;
+  }
   void finish() {
     if (tty_) std::fprintf(stderr, "\n");
   }
@@ -114,7 +129,30 @@ class Progress {
   size_t runs_;
   bool tty_;
   Clock::time_point start_ = Clock::now();
+  std::mutex mutex_;
+  std::map<size_t, double> in_flight_;  // run -> fraction done
+  size_t finished_ = 0;
 };
+
+// The memory one run may add beside the others (bytes), an upper estimate: the client's
+// G-buffers (history_frames of them, 76 bytes per pixel; runs on one scene often share them
+// through the cache, so this overestimates) and its images, pipelines and denoisers (about
+// 300 bytes per pixel).
+double run_memory_estimate(const SimConfig& c) {
+  const double pixels = double(c.width) * double(c.height);
+  const int kept = std::min(c.history_frames, c.warmup_frames + c.frames);
+  return pixels * (76.0 * kept + 300.0);
+}
+
+// This process's resident memory (bytes), from /proc/self/statm; 0 where it cannot be read.
+double resident_bytes() {
+  std::ifstream statm("/proc/self/statm");
+  double size = 0, resident = 0;
+  if (!(statm >> size >> resident)) return 0.0;
+  return resident * double(sysconf(_SC_PAGESIZE));
+}
+
+double physical_memory_bytes() { return double(sysconf(_SC_PHYS_PAGES)) * double(sysconf(_SC_PAGESIZE)); }
 
 ImageRGB8 downscale(const ImageRGB8& img, int max_width) {
   if (img.width() <= max_width) return img;
@@ -191,7 +229,8 @@ Runner add_run_command(CLI::App& app) {
   struct Options {
     std::string experiment, out;
     std::vector<std::string> sets, scene_path;
-    int threads = 0;
+    int threads = 0, jobs = 1;
+    double memory_limit_gb = 0.0;
     bool no_report = false, no_disk_cache = false;
     std::string shard;
     std::optional<ShardRun> shard_run;
@@ -205,7 +244,8 @@ Runner add_run_command(CLI::App& app) {
       "(one row per displayed frame), DIR/images/ and DIR/report.md with plots. A configuration that fails\n"
       "is recorded with its error and the sweep goes on. Examples:\n"
       "  dhrbench run experiments/quick.json\n"
-      "  dhrbench run experiments/paper.json --out out/paper --set run.frames=30 --threads 2");
+      "  dhrbench run experiments/paper.json --out out/paper --set run.frames=30 --threads 2\n"
+      "  dhrbench run experiments/hybrid_vs_remote_720p.json --jobs 2");
   cmd->add_option("experiment", o->experiment, "Experiment file (JSON, version 1 or 2)")
       ->required()
       ->check(CLI::ExistingFile);
@@ -215,6 +255,17 @@ Runner add_run_command(CLI::App& app) {
                   "e.g. --set run.frames=10 --set 'scenes=[\"room\"]'");
   cmd->add_option("--scene-path", o->scene_path, "Folder to look for scene assets in (repeatable)");
   cmd->add_option("--threads", o->threads, "Threads (0 = all cores)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--jobs", o->jobs,
+                  "Runs side by side (default 1), sharing the caches; each stage still uses every thread. The\n"
+                  "results are the same bytes and figures at any number of jobs (wall times aside); records keep\n"
+                  "the order of the runs. A run starts beside others only while the process stays within\n"
+                  "--memory-limit")
+      ->check(CLI::Range(1, 64));
+  cmd->add_option("--memory-limit", o->memory_limit_gb,
+                  "GB the process may hold before --jobs stops starting runs side by side (default: 75 % of "
+                  "physical memory). A run estimates what it adds: its client's G-buffers and about 300 bytes per "
+                  "pixel")
+      ->check(CLI::PositiveNumber);
   cmd->add_flag("--no-disk-cache", o->no_disk_cache,
                 "Keep traced buffers in memory only (default: also in $DHR_CACHE_DIR or cache/ under trace/, so that "
                 "later runs never trace the same frame twice)");
@@ -242,6 +293,7 @@ Runner add_run_command(CLI::App& app) {
     nlohmann::json results;
     results["context"] = run_context(DHR_BUILD_TYPE);
     results["context"]["threads"] = o->threads;
+    results["context"]["jobs"] = o->jobs;
     results["context"]["command"] = "dhrbench run " + o->experiment;
     for (const auto& s : o->sets)
       results["context"]["command"] = results["context"]["command"].get<std::string>() + " --set " + s;
@@ -262,11 +314,18 @@ Runner add_run_command(CLI::App& app) {
            flip_reference_keys(loaded.keys.at(spec.scene), spec.config, loaded.scenes.at(spec.scene)))
         cache.expect_flip_reads(key, 1);
     Progress progress(e.runs.size());
-    int failed = 0;
-    for (size_t i = 0; i < e.runs.size(); ++i) {
+    // One run: its record and its rows of frames.csv. A run that fails is recorded with its error.
+    struct RunOutput {
+      nlohmann::json record;
+      std::string csv;
+      bool failed = false;
+    };
+    auto run_one = [&](size_t i) {
+      RunOutput out;
+      nlohmann::json& record = out.record;
+      std::ostringstream csv_rows;
       const RunSpec& spec = e.runs[i];
-      nlohmann::json record = {
-          {"id", spec.id}, {"scene", spec.scene}, {"label", spec.label}, {"settings", spec.settings}};
+      record = {{"id", spec.id}, {"scene", spec.scene}, {"label", spec.label}, {"settings", spec.settings}};
       if (!spec.configuration.empty()) record["configuration"] = spec.configuration;
       if (!spec.family.empty()) record["family"] = spec.family;
       const auto run_start = Clock::now();
@@ -288,7 +347,7 @@ Runner add_run_command(CLI::App& app) {
                 ? fmt::format("fixed {} ms per server frame (virtual)", config.server_fixed_ms)
                 : std::string("measured wall time of the server's stages");
         for (const auto& f : r.frames)
-          csv << frames_csv_row({spec.id, csv_quote(spec.scene), csv_quote(spec.label)}, f, pass_names);
+          csv_rows << frames_csv_row({spec.id, csv_quote(spec.scene), csv_quote(spec.label)}, f, pass_names);
         // Images of the last scored frame (downscaled): what was shown, the local reference,
         // the ground truth when scored, and the error against the best reference available.
         if (!r.images.empty()) {
@@ -318,14 +377,86 @@ Runner add_run_command(CLI::App& app) {
         }
       } catch (const std::exception& err) {
         record["error"] = err.what();
-        ++failed;
+        out.failed = true;
         fmt::print(stderr, "\n{} ({} on {}) failed: {}\n", spec.id, spec.label, spec.scene, err.what());
       }
       record["wall_s"] = std::chrono::duration<double>(Clock::now() - run_start).count();
-      results["runs"].push_back(record);
-      // Written after every run, so that nothing is lost if a later run crashes the process.
-      std::ofstream(fs::path(dir) / "results.json") << results.dump(1) << '\n';
+      out.csv = csv_rows.str();
+      progress.run_done(i);
+      return out;
+    };
+    // Records and rows go out in the order of the runs, whichever finishes first; results.json
+    // is written after each, so that nothing is lost if a later run crashes the process.
+    std::vector<std::optional<RunOutput>> outputs(e.runs.size());
+    size_t written = 0;
+    int failed = 0;
+    auto write_ready = [&] {
+      for (; written < outputs.size() && outputs[written]; ++written) {
+        RunOutput& r = *outputs[written];
+        failed += r.failed ? 1 : 0;
+        csv << r.csv;
+        csv.flush();
+        results["runs"].push_back(std::move(r.record));
+        std::ofstream(fs::path(dir) / "results.json") << results.dump(1) << '\n';
+        outputs[written].reset();
+      }
+    };
+    // --jobs: independent runs side by side, sharing the cache. A run starts beside others only
+    // while this process's resident memory plus its estimate (run_memory_estimate) stays within
+    // the limit; else it waits for one to finish.
+    const double limit_bytes = o->memory_limit_gb > 0 ? o->memory_limit_gb * 1e9 : 0.75 * physical_memory_bytes();
+    std::mutex mutex;
+    std::condition_variable finished;
+    size_t next = 0, running = 0;
+    bool told_wait = false;
+    std::exception_ptr error;
+    auto worker = [&] {
+      std::unique_lock lock(mutex);
+      while (next < e.runs.size() && !error) {
+        const double need = run_memory_estimate(e.runs[next].config);
+        if (running > 0 && resident_bytes() + need > limit_bytes) {
+          if (!told_wait)
+            fmt::print(stderr,
+                       "\n--jobs {}: {} waits: resident {:.1f} GB + {:.1f} GB for the run would pass "
+                       "--memory-limit {:.1f} GB\n",
+                       o->jobs, e.runs[next].id, resident_bytes() / 1e9, need / 1e9, limit_bytes / 1e9);
+          told_wait = true;
+          finished.wait(lock);
+          continue;
+        }
+        const size_t i = next++;
+        ++running;
+        lock.unlock();
+        std::optional<RunOutput> out;
+        try {
+          out = run_one(i);
+        } catch (...) {
+          lock.lock();
+          if (!error) error = std::current_exception();
+          --running;
+          finished.notify_all();
+          return;
+        }
+        lock.lock();
+        --running;
+        outputs[i] = std::move(out);
+        try {
+          write_ready();
+        } catch (...) {
+          if (!error) error = std::current_exception();
+        }
+        finished.notify_all();
+      }
+    };
+    const int jobs = std::max(1, std::min(o->jobs, int(e.runs.size())));
+    if (jobs == 1) {
+      worker();
+    } else {
+      std::vector<std::thread> threads;
+      for (int j = 0; j < jobs; ++j) threads.emplace_back(worker);
+      for (std::thread& t : threads) t.join();
     }
+    if (error) std::rethrow_exception(error);
     progress.finish();
     csv.close();
     results["wall_s"] = std::chrono::duration<double>(Clock::now() - wall_start).count();

@@ -5,6 +5,7 @@
 #include "core/sim/frame_loop.h"
 #include "tests/support.h"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <sys/wait.h>
@@ -114,6 +115,37 @@ TEST(Runner, TinyExperimentEndToEnd) {
   ASSERT_EQ(run("report " + out.string(), &log), 0) << log;
   EXPECT_TRUE(fs::exists(out / "report.md"));
   fs::remove_all(out);
+}
+
+// Runs side by side (--jobs) share the caches (traces, temporal denoisers' outputs, local
+// references, ground truths) and must give what one job gives: every non-timing figure and
+// frames.csv row the same (scripts/check_figures.py --compare), the records in the runs' order.
+TEST(Runner, JobsGiveTheResultsOfOneJob) {
+  const fs::path base = fs::temp_directory_path() / ("dhr_runner_jobs." + std::to_string(getpid()));
+  fs::remove_all(base);
+  const std::string exp = std::string(DHR_SOURCE_DIR) + "/tests/data/jobs_experiment.json";
+  std::string log;
+  for (const char* jobs : {"1", "3"}) {
+    const fs::path out = base / jobs;
+    ASSERT_EQ(run("run " + exp + " --no-report --no-disk-cache --jobs " + jobs + " --out " + out.string(), &log), 0)
+        << log;
+    std::ifstream in(out / "results.json");
+    const nlohmann::json r = nlohmann::json::parse(in);
+    ASSERT_EQ(r.at("runs").size(), 12u);
+    for (size_t i = 0; i < r.at("runs").size(); ++i) {
+      EXPECT_EQ(r.at("runs")[i].at("id"), fmt::format("r{:03d}", i));
+      EXPECT_FALSE(r.at("runs")[i].contains("error")) << r.at("runs")[i].dump();
+    }
+    EXPECT_EQ(r.at("context").at("jobs"), std::stoi(jobs));
+  }
+  const std::string compare = "/usr/bin/python3 " + std::string(DHR_SOURCE_DIR) +
+                              "/scripts/check_figures.py --compare " + (base / "3").string() + " " +
+                              (base / "1").string();
+  EXPECT_EQ(std::system(compare.c_str()), 0) << compare;
+  // Out of range: a clear error, nothing run.
+  ASSERT_NE(run("run " + exp + " --jobs 0 --out " + (base / "0").string(), &log), 0);
+  EXPECT_NE(log.find("--jobs"), std::string::npos) << log;
+  fs::remove_all(base);
 }
 
 // Rate-quality curves (experiments/rate_quality.py): families of configurations become curves per

@@ -11,11 +11,14 @@
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <map>
 #include <set>
+#include <thread>
 #include <tuple>
 
 #include <unistd.h>
@@ -47,6 +50,27 @@ SimConfig small_config(int frames) {
   c.trace.ao_rays = 4;
   c.server_fixed_ms = 0.0;
   return c;
+}
+
+// Runs side by side compute a key once: a claim waits while another holds the same key, and
+// only that key.
+TEST(TraceCache, AClaimWaitsWhileAnotherHoldsTheKey) {
+  TraceCache cache;
+  std::atomic<int> released{0};
+  int seen = -1;
+  auto first = std::make_unique<TraceCache::Claim>(cache, "k");
+  std::thread other([&] {
+    const TraceCache::Claim claim(cache, "k");
+    seen = released.load();
+  });
+  {
+    const TraceCache::Claim unrelated(cache, "other key");  // not held up by "k"
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  released = 1;
+  first.reset();
+  other.join();
+  EXPECT_EQ(seen, 1);
 }
 
 TEST(FrameLoop, ZeroLatencyLosslessEqualsLocalReferenceBitForBit) {
@@ -397,13 +421,18 @@ TEST(FrameLoop, GroundTruthDoesNotDependOnTheRunsAoSettingsOrSeed) {
 TEST(DenoiseSharing, SkippedFramesAreFedAgainWhenTheSequenceDiverges) {
   struct CountingMemo final : DenoiseMemo {
     std::map<std::string, std::shared_ptr<const DenoisedPass>> map;
-    int hits = 0, misses = 0;
+    int hits = 0, misses = 0;  // misses: the keys claimed (a stage claims each key it did not find)
     std::shared_ptr<const DenoisedPass> find(const std::string& key) override {
       auto it = map.find(key);
-      ++(it == map.end() ? misses : hits);
-      return it == map.end() ? nullptr : it->second;
+      if (it == map.end()) return nullptr;
+      ++hits;
+      return it->second;
     }
     void insert(const std::string& key, std::shared_ptr<const DenoisedPass> value) override { map[key] = value; }
+    std::shared_ptr<void> claim(const std::string&) override {
+      ++misses;
+      return nullptr;
+    }
   };
   SimConfig c = small_config(1);
   c.pass("ao").denoiser = {"svgf_ao"};
