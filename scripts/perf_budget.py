@@ -26,7 +26,7 @@ STAGES = [
     ("metrics: SSIM, PSNR, temporal", r"ssim|Ssim|psnr|temporal_scores|step_terms|dhr::luma|luma_pixels|difference_sums"),
     ("rasterize (client and server)", r"dhr::rasterize|resolve|cover|setup_triangles|sample_bilinear|Texture|raster|pixel_bounds|alpha_cutout"),
     ("composite and tone mapping", r"composite|shade_lambert|shade_row|gbuffer_row|tonemap|srgb8"),
-    ("predict (reprojection)", r"Reprojection|reproject|plan_x16|write_x16|Predictor|warp"),
+    ("predict (reprojection, colour warps)", r"Reprojection|reproject|plan_x16|write_x16|Predictor|[Ww]arp"),
     ("codecs", r"^liblz4|^libzstd|^libx26|^libav|^libsw|^libaom|^libdav1d|LZ4|ZSTD|Codec"),
     ("packets, network, assembler", r"packet|Packet|assembl|Assembl|crc32|update_hardware|Link::|network"),
     ("report (report.py, plots) and image files", r"^python|^_multiarray|^_imaging|^_image|^_backend|^libz\.|^libpng|^libjpeg|^libOpenImageIO|write_png|downscale|png"),
