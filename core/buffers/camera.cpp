@@ -3,7 +3,9 @@
 #include "core/base/error.h"
 
 #include <glm/gtc/matrix_transform.hpp>
+#include <glm/gtc/quaternion.hpp>
 
+#include <algorithm>
 #include <cmath>
 
 namespace dhr {
@@ -57,6 +59,33 @@ glm::vec3 Camera::project(const glm::vec3& world) const {
   const float sx = glm::dot(d, right()) / (z * tan_half * aspect());
   const float sy = glm::dot(d, up) / (z * tan_half);
   return {(sx + 1.0f) * 0.5f * float(width), (1.0f - sy) * 0.5f * float(height), z};
+}
+
+Camera extrapolate_pose(const Camera& a, double ta, const Camera& b, double tb, double t) {
+  if (!(tb > ta) || t == tb) return b;
+  const double s = (t - tb) / (tb - ta);
+  Camera out = b;
+  out.position = glm::vec3(glm::dvec3(b.position) + (glm::dvec3(b.position) - glm::dvec3(a.position)) * s);
+  // The orientations as rotations of the camera's frame (right, up, -forward); the step a -> b
+  // as a quaternion, its angle scaled by s.
+  auto frame_of = [](const Camera& c) {
+    const glm::dvec3 f(c.forward), u(c.up);
+    return glm::dmat3(glm::normalize(glm::cross(f, u)), u, -f);
+  };
+  const glm::dquat qa = glm::quat_cast(frame_of(a)), qb = glm::quat_cast(frame_of(b));
+  glm::dquat step = qb * glm::conjugate(qa);
+  if (step.w < 0.0) step = -step;  // the short way round
+  const double angle = 2.0 * std::acos(std::clamp(step.w, -1.0, 1.0));
+  const glm::dvec3 v(step.x, step.y, step.z);
+  const double len = glm::length(v);
+  if (angle > 0.0 && len > 0.0) {
+    const glm::dquat ahead = glm::angleAxis(angle * s, v / len);
+    out.forward = glm::vec3(glm::normalize(ahead * glm::dvec3(b.forward)));
+    const glm::dvec3 up = ahead * glm::dvec3(b.up);
+    // Orthogonal to forward again (rounding).
+    out.up = glm::vec3(glm::normalize(up - glm::dot(up, glm::dvec3(out.forward)) * glm::dvec3(out.forward)));
+  }
+  return out;
 }
 
 }  // namespace dhr

@@ -41,4 +41,11 @@ struct Camera {
   glm::vec3 project(const glm::vec3& world) const;
 };
 
+// Server-side pose prediction (the server renders for where the head will be, as CloudXR
+// does): the pose at time `t` extrapolated from two received poses, `a` at `ta` and `b` at `tb`
+// (ta < tb), at their constant velocity: the position along a straight line, the orientation by
+// the rotation from a to b about its axis, scaled by (t - tb) / (tb - ta). Field of view, clip
+// planes and size are b's. Returns b when t == tb, or when tb <= ta (nothing to extrapolate from).
+Camera extrapolate_pose(const Camera& a, double ta, const Camera& b, double tb, double t);
+
 }  // namespace dhr

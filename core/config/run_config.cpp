@@ -257,6 +257,21 @@ std::vector<RunSetting> make_settings() {
                "server_fixed_ms", SettingType::Number, 0, 1e5, "server_timing fixed: its compute time per frame (ms)",
                [](auto& c) -> auto& { return c.server_fixed_ms; }),
            0, "the server takes the time it takes"));
+  RunSetting pose = field(
+      "server_pose_prediction", SettingType::Choice,
+      "remote: server-side pose prediction, as CloudXR does: the server renders for the newest "
+      "camera it received extrapolated ahead at its velocity, and the client warps from that "
+      "camera. off: the camera as received; delay: ahead by the expected delay from camera to "
+      "display (uplink + server_fixed_ms + downlink latency, their means, rounded up to whole "
+      "display intervals); lead: ahead by server_pose_lead_ms",
+      [](auto& c) -> auto& { return c.server_pose_prediction; });
+  pose.choices = {"off", "delay", "lead"};
+  v.push_back(with(pose, 0, "live mode is hybrid only"));
+  v.push_back(with(ranged(
+                       "server_pose_lead_ms", SettingType::Number, 0, 1000,
+                       "server_pose_prediction lead: how far ahead the server renders (ms)",
+                       [](auto& c) -> auto& { return c.server_pose_lead_ms; }),
+                   0, "live mode is hybrid only"));
   v.push_back(
       with(link(
                "uplink", "the client-to-server link (core/net/network.h)", [](auto& c) -> auto& { return c.uplink; }),

@@ -53,6 +53,12 @@ struct SimConfig {
   enum class ServerTiming { Fixed, Measured };
   ServerTiming server_timing = ServerTiming::Fixed;
   double server_fixed_ms = 10.0;  // Fixed: the server's compute time per frame (virtual)
+  // Remote: server-side pose prediction. The server renders for the newest camera it received
+  // extrapolated ahead (extrapolate_pose, core/buffers/camera.h), and the client warps from that
+  // camera. "off": the camera as received; "delay": ahead by the expected camera-to-display
+  // delay; "lead": by server_pose_lead_ms.
+  std::string server_pose_prediction = "off";
+  double server_pose_lead_ms = 0.0;
 
   LinkConfig uplink, downlink;
   size_t max_payload_bytes = 1200;

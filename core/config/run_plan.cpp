@@ -109,6 +109,13 @@ RunPlan plan_run(const SimConfig& c, const Scene& scene, const Registries& r) {
       problems.push_back(fmt::format("{}: {}", link == &c.uplink ? "uplink" : "downlink", e.what()));
     }
   }
+  check(c.server_pose_prediction == "off" || c.mode == "remote",
+        fmt::format("server_pose_prediction '{}': pose prediction is for remote rendering (mode remote); a hybrid "
+                    "client predicts from its own G-buffers, which the server's would no longer match",
+                    c.server_pose_prediction));
+  check(c.server_pose_prediction != "delay" || c.server_timing == SimConfig::ServerTiming::Fixed,
+        "server_pose_prediction 'delay' needs server_timing fixed (the delay counts server_fixed_ms); use 'lead' "
+        "with server_pose_lead_ms");
   std::optional<PassPlan> plan;
   try {
     plan = plan_passes(scene, c.trace);

@@ -429,7 +429,8 @@ const GBuffer* ClientPipeline::gbuffer(int frame) const {
   return nullptr;
 }
 
-ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::function<Camera(int)>& camera_of) {
+ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf,
+                                    const std::function<Camera(int)>& source_camera_of) {
   ClientFrame out;
   const size_t passes = plan_.sent.size();
   out.source_frame.assign(passes, -1);
@@ -443,14 +444,14 @@ ClientFrame ClientPipeline::display(int frame, const GBuffer& gbuf, const std::f
       // The remote client knows cameras only (and the depth it received).
       const bool has_depth = depth_pass_ >= 0 && receivers_[size_t(depth_pass_)].frame == r.frame;
       if (r.frame != remote_src_frame_ || has_depth != remote_src_has_depth_) {
-        remote_src_.camera = camera_of(r.frame);
+        remote_src_.camera = source_camera_of(r.frame);
         remote_src_.depth =
             has_depth ? unpack_depth(receivers_[size_t(depth_pass_)].buffer, remote_src_.camera) : ImageF();
         remote_src_frame_ = r.frame;
         remote_src_has_depth_ = has_depth;
       }
       GBuffer dst_cams;
-      dst_cams.camera = camera_of(frame);
+      dst_cams.camera = gbuf.camera;
       PassBuffer predicted;
       predictors_[0]->predict({r.buffer, remote_src_, dst_cams}, predicted);
       std::memcpy(out.image.data(), predicted.bytes.data(),

@@ -238,10 +238,11 @@ class ClientPipeline {
   void keep(int frame, std::shared_ptr<const GBuffer> gbuf);
   const GBuffer* gbuffer(int frame) const;
   // The displayed image of client frame `frame` with G-buffer `gbuf`: every pass's newest
-  // buffer predicted to it, composited (remote: the colour frame predicted with the cameras
-  // `camera_of` gives, nothing received yet: black). A pass with nothing usable (none received,
-  // or its G-buffer no longer kept) takes its local fallback: fully lit, AO 1.
-  ClientFrame display(int frame, const GBuffer& gbuf, const std::function<Camera(int)>& camera_of);
+  // buffer predicted to it, composited (remote: the colour frame warped from the camera the
+  // server rendered it for, `source_camera_of(its frame)`, to gbuf.camera; nothing received
+  // yet: black). A pass with nothing usable (none received, or its G-buffer no longer kept)
+  // takes its local fallback: fully lit, AO 1.
+  ClientFrame display(int frame, const GBuffer& gbuf, const std::function<Camera(int)>& source_camera_of);
 
  private:
   const RunPlan& plan_;

@@ -492,7 +492,12 @@ class Simulation {
     // other runs of the sweep (DenoiseStage::share).
     std::vector<std::string> denoise_keys;
     for (const PlannedPass& p : plan_.traced) denoise_keys.push_back(denoise_chain_key(scene_key_, key_c_, p.name));
-    server_.share_denoised(&memo_, denoise_keys);
+    // (Under pose prediction the server's frames are not the path's: its denoisers see a
+    // sequence of their own, shared with no other run.)
+    if (!predicts_pose()) server_.share_denoised(&memo_, denoise_keys);
+    if (c_.uplink.latency_model == LinkConfig::Latency::Trace) up_trace_ = load_latency_trace(c_.uplink.trace_file);
+    if (c_.downlink.latency_model == LinkConfig::Latency::Trace)
+      down_trace_ = load_latency_trace(c_.downlink.trace_file);
     local_.share_denoised({&memo_, denoise_keys, [this](const RasterFrame& f) { return server_raster(f); },
                            [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }});
     AssemblerConfig ac;
@@ -566,12 +571,15 @@ class Simulation {
   // that differ in one pass's settings trace the other once (trace_passes with `only`, joined:
   // the same bits as tracing them together). The server and the local reference both ask for a
   // frame: the last join is kept, so a frame's buffers are copied into one entry once.
+  // A G-buffer for another camera than the path's at frame a (the server's, under pose
+  // prediction) is keyed by that camera too.
   std::shared_ptr<const TraceCache::Entry> traced(int a, const GBuffer& gbuf) {
-    if (joined_.first == a) return joined_.second;
+    const std::string pose = pose_key(a, gbuf.camera);
+    if (joined_.first == a && joined_pose_ == pose) return joined_.second;
     const TraceSettings settings = c_.trace_for_frame(uint32_t(a));
     std::vector<std::shared_ptr<const TraceCache::Entry>> parts;
     for (const PlannedPass& p : plan_.traced) {
-      const std::string key = pass_trace_key(scene_key_, key_c_, a, p.name);
+      const std::string key = pass_trace_key(scene_key_, key_c_, a, p.name) + pose;
       std::shared_ptr<const TraceCache::Entry> part = cache_.find(key);
       if (!part) {
         const TraceCache::Claim claim(cache_, key);
@@ -588,7 +596,53 @@ class Simulation {
     std::vector<const TracedPasses*> list;
     for (const auto& part : parts) list.push_back(part.get());
     joined_ = {a, std::make_shared<const TraceCache::Entry>(join_traced(list, gbuf))};
+    joined_pose_ = pose;
     return joined_.second;
+  }
+
+  // Empty for the path's camera at frame a; else "|pose=" and the camera's floats, exactly.
+  std::string pose_key(int a, const Camera& cam) const {
+    const Camera path = camera(a);
+    if (cam.position == path.position && cam.forward == path.forward && cam.up == path.up) return {};
+    std::string key = "|pose=";
+    for (const glm::vec3* v : {&cam.position, &cam.forward, &cam.up})
+      for (int i = 0; i < 3; ++i) key += fmt::format("{:a},", (*v)[i]);
+    return key;
+  }
+
+  // The camera the server renders frame j for: the path's (as received), or under pose
+  // prediction that camera extrapolated from the one received before it by the lead.
+  Camera server_camera(int j) {
+    const Camera received = camera(j);
+    if (!predicts_pose()) return received;
+    Camera rendered = received;
+    if (last_received_ >= 0 && last_received_ < j)
+      rendered = extrapolate_pose(camera(last_received_), frame_ms(last_received_), received, frame_ms(j),
+                                  frame_ms(j) + pose_lead_ms(j));
+    last_received_ = j;
+    rendered_cameras_[j] = rendered;
+    while (rendered_cameras_.size() > 256) rendered_cameras_.erase(rendered_cameras_.begin());
+    return rendered;
+  }
+  bool predicts_pose() const { return c_.server_pose_prediction != "off"; }
+  // How far ahead the server renders client frame j's camera: server_pose_lead_ms, or the
+  // expected delay until the frame is shown: the links' mean latencies (a trace's value when
+  // the camera and the frame leave) and the server's fixed time, rounded up to whole display
+  // intervals (the frame waits for the next one).
+  double pose_lead_ms(int j) const {
+    if (c_.server_pose_prediction == "lead") return c_.server_pose_lead_ms;
+    auto latency = [&](const LinkConfig& l, const std::optional<SampleTrace>& trace, double t_ms) {
+      return trace ? trace->at(t_ms + l.trace_offset_ms) : l.latency_ms;
+    };
+    const double sent = frame_ms(j), up = latency(c_.uplink, up_trace_, sent);
+    const double down = latency(c_.downlink, down_trace_, sent + up + c_.server_fixed_ms);
+    const double interval = 1000.0 / c_.display_hz;
+    return std::ceil((up + c_.server_fixed_ms + down) / interval - 1e-9) * interval;
+  }
+  // The camera the client warps frame j from: the one the server rendered it for.
+  Camera source_camera(int j) const {
+    auto it = rendered_cameras_.find(j);
+    return it != rendered_cameras_.end() ? it->second : camera(j);
   }
 
   // Ground truth: converged visibility and AO (no denoiser), composited (core/pass/reference.h,
@@ -675,7 +729,7 @@ class Simulation {
 
   void server_job(int j, double start_ms, bool keyframe, const std::vector<int>& holds) {
     const bool count = scored(j);
-    ServerFrame f = server_.run(uint32_t(j), camera(j), frame_time_s(j), keyframe, holds);
+    ServerFrame f = server_.run(uint32_t(j), server_camera(j), frame_time_s(j), keyframe, holds);
     for (const StageTime& s : f.stages) stage(s.name, s.ms, count);
     if (count) {
       result_.trace_stats.add(f.trace);
@@ -800,7 +854,7 @@ class Simulation {
     }
 
     // Predict each pass and composite.
-    ClientFrame shown = client_.display(a, gbuf, [this](int frame) { return camera(frame); });
+    ClientFrame shown = client_.display(a, gbuf, [this](int frame) { return source_camera(frame); });
     if (client_.upsamples()) {
       stage("upsample", shown.upsample_ms, count);
       client_ms += shown.upsample_ms;
@@ -872,6 +926,11 @@ class Simulation {
   Link uplink_, downlink_;
   std::unique_ptr<RtScene> rt_;
   std::pair<int, std::shared_ptr<const TraceCache::Entry>> joined_{-1, nullptr};  // traced()'s last join
+  std::string joined_pose_;                                                       // and its pose_key
+  // Pose prediction: the newest camera frame the server received, and the cameras it rendered.
+  int last_received_ = -1;
+  std::map<int, Camera> rendered_cameras_;
+  std::optional<SampleTrace> up_trace_, down_trace_;  // the links' latency traces, for pose_lead_ms
   struct RasterMemo {
     RasterFrame frame;
     Rastered rastered;

@@ -98,6 +98,17 @@ TEST(RunPlan, ListsEveryProblemAtOnce) {
   EXPECT_NE(m.find("passes.ao.codec"), std::string::npos) << m;
   EXPECT_NE(m.find("no-such-codec"), std::string::npos) << m;
 
+  // Pose prediction is remote rendering's: a hybrid client's G-buffers would not match.
+  SimConfig lead = small();
+  lead.server_pose_prediction = "delay";
+  const std::string hybrid = test::error_of([&] { plan_run(lead, room(), registries()); });
+  EXPECT_NE(hybrid.find("server_pose_prediction 'delay'"), std::string::npos) << hybrid;
+  lead.mode = "remote";
+  EXPECT_NO_THROW(plan_run(lead, room(), registries()));
+  lead.server_timing = SimConfig::ServerTiming::Measured;
+  EXPECT_NE(test::error_of([&] { plan_run(lead, room(), registries()); }).find("needs server_timing fixed"),
+            std::string::npos);
+
   // A lossy codec cannot carry the bitmask (checked once the passes are planned).
   SimConfig lossy = small();
   lossy.pass("visibility").codec = {"h264"};
