@@ -8,7 +8,8 @@
 # experiment file of its own: it is regenerated only when named, with the experiment and --set
 # overrides its results.json records (scripts/check_figures.py --print-run-args NAME).
 # Needs a Release build of this commit in ./build (bash scripts/build.sh build).
-# Environment: DHR_CACHE_DIR (default: a fresh folder under /tmp, removed first).
+# Environment: DHR_CACHE_DIR (default: a fresh folder under /tmp, removed first); DHR_JOBS (runs
+# side by side, `dhrbench run --jobs`; default 1: the same figures either way, the wall time differs).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
@@ -40,7 +41,7 @@ for n in "${names[@]}"; do
   else
     mapfile -t run_args < <(python3 scripts/check_figures.py --print-run-args "$n")
     [ ${#run_args[@]} -gt 0 ] || { echo "regenerate_reports: no run arguments for $n" >&2; exit 1; }
-    "$exe" run "${run_args[@]}" --out "$tmp" >/dev/null
+    "$exe" run "${run_args[@]}" --jobs "${DHR_JOBS:-1}" --out "$tmp" >/dev/null
   fi
   echo "regenerate_reports: $n took $(( $(date +%s) - start )) s"
 done
