@@ -312,6 +312,20 @@ Experiment load_experiment(const std::string& path, const std::vector<std::strin
           problems.push_back(fmt::format("{}.curves.vary: {} is not a key of \"sweep\" or of a configuration's \"set\"",
                                          path, json_excerpt(k)));
       }
+      // A key that only some configurations set and that is not in "vary" makes the runs that set
+      // it a condition of their own: the report would never compare their curves with the others'
+      // (the regime map would find no pair and the answer fall back to the Pareto fronts).
+      std::map<std::string, size_t> set_by;
+      for (const auto& c : configs)
+        for (const auto& [k, v] : c.set.items()) ++set_by[k];
+      const auto& vary = cv.at("vary");
+      for (const auto& [k, n] : set_by)
+        if (k != "network" && n < configs.size() && std::find(vary.begin(), vary.end(), k) == vary.end())
+          problems.push_back(fmt::format(
+              "{}.curves.vary: '{}' is set by {} of the {} configurations but not in \"vary\": the runs that set it "
+              "would form a condition of their own, their curves compared with no other; add it to \"vary\" (or set "
+              "it in every configuration)",
+              path, text_excerpt(k), n, configs.size()));
     }
     if (r.has("anchor")) {
       // One family, or a list of families (the report tabulates BD-rate against each).

@@ -317,6 +317,20 @@ TEST(Experiment, BadFilesAreErrors) {
       load_experiment(write("badnet.json", R"({"version": 1, "scenes": ["room"], "sweep": {"network": ["x"]}})")),
       Error);
   EXPECT_THROW(load_experiment((dir / "missing.json").string()), Error);
+  // A key only some configurations set, outside curves.vary, would split their curves from the
+  // others' (the remote families' server_pose_prediction): refused, naming it; in "vary", valid.
+  const char* split = R"({"version": 2, "name": "split", "scenes": ["room"],
+    "configurations": [
+      {"name": "h 1", "family": "hybrid", "set": {"passes.ao.codec": {"name": "h264", "params": {"crf": 20}}}},
+      {"name": "r 1", "family": "remote", "set": {"mode": "remote", "server_pose_prediction": "delay"}}],
+    "curves": {"vary": ["passes.ao.codec", "mode"VARY]}})";
+  std::string text = split;
+  text.replace(text.find("VARY"), 4, "");
+  const std::string m = test::error_of([&] { load_experiment(write("split.json", text.c_str())); });
+  EXPECT_NE(m.find("'server_pose_prediction' is set by 1 of the 2 configurations"), std::string::npos) << m;
+  text = split;
+  text.replace(text.find("VARY"), 4, ", \"server_pose_prediction\"");
+  EXPECT_NO_THROW(load_experiment(write("joined.json", text.c_str())));
   fs::remove_all(dir);
 }
 
