@@ -20,6 +20,7 @@
 // Parameters: fill (clamp|black, default clamp).
 // Example: {"name": "rotation_warp", "params": {"fill": "black"}}
 #include "backends/predict/warp.h"
+#include "core/base/vec8.h"
 
 #include <algorithm>
 #include <vector>
@@ -34,6 +35,63 @@ struct Affine {
   double k0 = 0, kx = 0, ky = 0;
   double at(double px, double py) const { return k0 + kx * px + ky * py; }
 };
+
+// What one row of the warp reads: the three coordinates' affine maps, the src projection, the
+// buffers and their layouts.
+struct Warp {
+  Affine ca, cb, cc;
+  double half_ws, half_hs, sx, sy;
+  int ws, hs, wd;
+  predict::Layout8 lin, lout;
+  const uint8_t* src;
+  uint8_t* dst;
+  bool black;
+};
+
+// Row y of the warp; returns how many of its pixels fell outside the source image. Cloned for
+// AVX2 and the baseline (DHR_VEC8_TARGETS, core/base/vec8.h): with AVX2 std::floor is one
+// instruction instead of a library call; neither clone has FMA, so both give the same bits.
+DHR_VEC8_TARGETS uint32_t warp_row(const Warp& w, int y) {
+  uint32_t row_outside = 0;
+  const double py = y + 0.5;
+  for (int x = 0; x < w.wd; ++x) {
+    const double px = x + 0.5;
+    const double a = w.ca.at(px, py), b = w.cb.at(px, py);
+    double c = w.cc.at(px, py);
+    const bool behind = !(c > 0.0);
+    if (behind) c = 1e-12;  // keeps the direction of (a, b): clamping then picks that edge
+    double qx = w.half_ws + w.sx * a / c, qy = w.half_hs - w.sy * b / c;
+    const size_t o = size_t(y) * size_t(w.wd) + size_t(x);
+    if (behind || !(qx >= 0.0 && qx <= w.ws && qy >= 0.0 && qy <= w.hs)) {
+      ++row_outside;
+      if (w.black) {
+        for (int ch = 0; ch < w.lout.planes; ++ch)
+          w.dst[o * w.lout.pixel_stride + size_t(ch) * w.lout.plane_stride] = 0;
+        continue;
+      }
+      qx = std::clamp(qx, 0.0, double(w.ws));
+      qy = std::clamp(qy, 0.0, double(w.hs));
+    }
+    // Bilinear with clamp-to-edge addressing (pixel centres at x + 0.5).
+    const double u = qx - 0.5, v = qy - 0.5;
+    const double x0f = std::floor(u), y0f = std::floor(v);
+    const float fx = float(u - x0f), fy = float(v - y0f);
+    const int x0 = int(x0f), y0 = int(y0f);
+    const int xa = std::clamp(x0, 0, w.ws - 1), xb = std::clamp(x0 + 1, 0, w.ws - 1);
+    const int ya = std::clamp(y0, 0, w.hs - 1), yb = std::clamp(y0 + 1, 0, w.hs - 1);
+    const size_t i00 = (size_t(ya) * size_t(w.ws) + size_t(xa)) * w.lin.pixel_stride;
+    const size_t i10 = (size_t(ya) * size_t(w.ws) + size_t(xb)) * w.lin.pixel_stride;
+    const size_t i01 = (size_t(yb) * size_t(w.ws) + size_t(xa)) * w.lin.pixel_stride;
+    const size_t i11 = (size_t(yb) * size_t(w.ws) + size_t(xb)) * w.lin.pixel_stride;
+    const float w00 = (1 - fx) * (1 - fy), w10 = fx * (1 - fy), w01 = (1 - fx) * fy, w11 = fx * fy;
+    for (int ch = 0; ch < w.lin.planes; ++ch) {
+      const uint8_t* p = w.src + size_t(ch) * w.lin.plane_stride;
+      const float val = w00 * p[i00] + w10 * p[i10] + w01 * p[i01] + w11 * p[i11];
+      w.dst[o * w.lout.pixel_stride + size_t(ch) * w.lout.plane_stride] = predict::round_u8(val);
+    }
+  }
+  return row_outside;
+}
 
 class RotationWarp final : public Predictor {
  public:
@@ -68,57 +126,28 @@ class RotationWarp final : public Predictor {
     const double half_ws = 0.5 * cs.width, half_hs = 0.5 * cs.height;
     const double sx = half_ws / (ts * as), sy = half_hs / ts;
 
-    const int ws = cs.width, hs = cs.height, wd = cd.width, hd = cd.height;
-    const predict::Layout8 lin = predict::layout8(rb.desc), lout = predict::layout8(result.desc);
-    const uint8_t* src = rb.bytes.data();
-    uint8_t* dst = result.bytes.data();
-    const bool black = fill_black_;
+    const int hd = cd.height;
+    const Warp w{ca,
+                 cb,
+                 cc,
+                 half_ws,
+                 half_hs,
+                 sx,
+                 sy,
+                 cs.width,
+                 cs.height,
+                 cd.width,
+                 predict::layout8(rb.desc),
+                 predict::layout8(result.desc),
+                 rb.bytes.data(),
+                 result.bytes.data(),
+                 fill_black_};
     std::vector<uint32_t> outside(size_t(hd), 0);
-
-    predict::parallel_rows(hd, [&](int y) {
-      uint32_t row_outside = 0;
-      const double py = y + 0.5;
-      for (int x = 0; x < wd; ++x) {
-        const double px = x + 0.5;
-        const double a = ca.at(px, py), b = cb.at(px, py);
-        double c = cc.at(px, py);
-        const bool behind = !(c > 0.0);
-        if (behind) c = 1e-12;  // keeps the direction of (a, b): clamping then picks that edge
-        double qx = half_ws + sx * a / c, qy = half_hs - sy * b / c;
-        const size_t o = size_t(y) * size_t(wd) + size_t(x);
-        if (behind || !(qx >= 0.0 && qx <= ws && qy >= 0.0 && qy <= hs)) {
-          ++row_outside;
-          if (black) {
-            for (int ch = 0; ch < lout.planes; ++ch) dst[o * lout.pixel_stride + size_t(ch) * lout.plane_stride] = 0;
-            continue;
-          }
-          qx = std::clamp(qx, 0.0, double(ws));
-          qy = std::clamp(qy, 0.0, double(hs));
-        }
-        // Bilinear with clamp-to-edge addressing (pixel centres at x + 0.5).
-        const double u = qx - 0.5, v = qy - 0.5;
-        const double x0f = std::floor(u), y0f = std::floor(v);
-        const float fx = float(u - x0f), fy = float(v - y0f);
-        const int x0 = int(x0f), y0 = int(y0f);
-        const int xa = std::clamp(x0, 0, ws - 1), xb = std::clamp(x0 + 1, 0, ws - 1);
-        const int ya = std::clamp(y0, 0, hs - 1), yb = std::clamp(y0 + 1, 0, hs - 1);
-        const size_t i00 = (size_t(ya) * size_t(ws) + size_t(xa)) * lin.pixel_stride;
-        const size_t i10 = (size_t(ya) * size_t(ws) + size_t(xb)) * lin.pixel_stride;
-        const size_t i01 = (size_t(yb) * size_t(ws) + size_t(xa)) * lin.pixel_stride;
-        const size_t i11 = (size_t(yb) * size_t(ws) + size_t(xb)) * lin.pixel_stride;
-        const float w00 = (1 - fx) * (1 - fy), w10 = fx * (1 - fy), w01 = (1 - fx) * fy, w11 = fx * fy;
-        for (int ch = 0; ch < lin.planes; ++ch) {
-          const uint8_t* p = src + size_t(ch) * lin.plane_stride;
-          const float val = w00 * p[i00] + w10 * p[i10] + w01 * p[i01] + w11 * p[i11];
-          dst[o * lout.pixel_stride + size_t(ch) * lout.plane_stride] = predict::round_u8(val);
-        }
-      }
-      outside[size_t(y)] = row_outside;
-    });
+    predict::parallel_rows(hd, [&](int y) { outside[size_t(y)] = warp_row(w, y); });
 
     if (&result == &temp) out = std::move(temp);
     PredictStats stats;
-    stats.pixels = uint64_t(wd) * uint64_t(hd);
+    stats.pixels = uint64_t(cd.width) * uint64_t(hd);
     for (uint32_t v : outside) stats.disoccluded += v;
     return stats;
   }
