@@ -199,7 +199,7 @@ TEST(Runner, RateQualityCurvesAndBdRate) {
   EXPECT_NE(run("validate " + bad.string(), &log), 0);
   EXPECT_NE(log.find("must be a family's name or a non-empty list of them"), std::string::npos) << log;
   // The report's answer: a cost it does not know, a group without "along", a key nothing sets.
-  e["curves"] = {{"vary", {"passes.ao.codec"}}};
+  e["curves"] = {{"vary", {"mode", "passes.colour.codec", "passes.ao.codec", "passes.ao.denoiser"}}};
   e["answer"] = {{"cost", "joules"}, {"group", "trace.ao_rays"}};
   std::ofstream(bad) << e.dump();
   EXPECT_NE(run("validate " + bad.string(), &log), 0);
