@@ -16,29 +16,6 @@
 
 namespace dhr {
 
-const char* stage_name(ServerStage s) {
-  switch (s) {
-    case ServerStage::Rasterize: return "rasterize";
-    case ServerStage::Trace: return "trace";
-    case ServerStage::Denoise: return "denoise";
-    case ServerStage::Composite: return "composite";
-    case ServerStage::PackDepth: return "pack_depth";
-    case ServerStage::Encode: return "encode";
-  }
-  return "?";
-}
-
-const char* stage_name(ClientStage s) {
-  switch (s) {
-    case ClientStage::Rasterize: return "rasterize";
-    case ClientStage::Decode: return "decode";
-    case ClientStage::Upsample: return "upsample";
-    case ClientStage::Predict: return "predict";
-    case ClientStage::Composite: return "composite";
-  }
-  return "?";
-}
-
 bool RunPlan::server_does(ServerStage stage) const {
   return std::find(server_stages.begin(), server_stages.end(), stage) != server_stages.end();
 }

@@ -36,8 +36,6 @@ enum class ClientStage : uint8_t {
   Predict,    // each sent pass's newest buffer to the displayed frame (remote: the colour warped)
   Composite,  // the predicted passes into the image (hybrid)
 };
-const char* stage_name(ServerStage stage);
-const char* stage_name(ClientStage stage);
 
 enum class RunMode : uint8_t { Hybrid, Remote };
 

@@ -161,14 +161,16 @@ double DenoiseStage::run(const RasterFrame& raster, const GBuffer& gbuf, uint32_
   if (chain) {
     chain->append(frame, raster);
     key = chain->key();
+    std::shared_ptr<const DenoisedPass> hit = sharing_.memo->find(key);
     std::shared_ptr<void> claim;
-    for (int look = 0; look < 2; ++look) {  // again once this caller holds the key
-      if (const std::shared_ptr<const DenoisedPass> hit = sharing_.memo->find(key)) {
-        out = hit->buffer;
-        chain->skipped.push_back({frame, raster});
-        return hit->ms;
-      }
-      if (look == 0) claim = sharing_.memo->claim(key);
+    if (!hit) {  // a run beside this one may be making it: look again once this caller holds the key
+      claim = sharing_.memo->claim(key);
+      hit = sharing_.memo->find(key);
+    }
+    if (hit) {
+      out = hit->buffer;
+      chain->skipped.push_back({frame, raster});
+      return hit->ms;
     }
     catch_up(pass);
   }

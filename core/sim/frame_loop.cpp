@@ -495,9 +495,11 @@ class Simulation {
     // (Under pose prediction the server's frames are not the path's: its denoisers see a
     // sequence of their own, shared with no other run.)
     if (!predicts_pose()) server_.share_denoised(&memo_, denoise_keys);
-    if (c_.uplink.latency_model == LinkConfig::Latency::Trace) up_trace_ = load_latency_trace(c_.uplink.trace_file);
-    if (c_.downlink.latency_model == LinkConfig::Latency::Trace)
-      down_trace_ = load_latency_trace(c_.downlink.trace_file);
+    if (c_.server_pose_prediction == "delay") {  // pose_lead_ms reads the links' latency traces
+      if (c_.uplink.latency_model == LinkConfig::Latency::Trace) up_trace_ = load_latency_trace(c_.uplink.trace_file);
+      if (c_.downlink.latency_model == LinkConfig::Latency::Trace)
+        down_trace_ = load_latency_trace(c_.downlink.trace_file);
+    }
     local_.share_denoised({&memo_, denoise_keys, [this](const RasterFrame& f) { return server_raster(f); },
                            [this](uint32_t frame, const GBuffer& g) { return traced(int(frame), g); }});
     AssemblerConfig ac;
@@ -580,17 +582,14 @@ class Simulation {
     std::vector<std::shared_ptr<const TraceCache::Entry>> parts;
     for (const PlannedPass& p : plan_.traced) {
       const std::string key = pass_trace_key(scene_key_, key_c_, a, p.name) + pose;
-      std::shared_ptr<const TraceCache::Entry> part = cache_.find(key);
-      if (!part) {
-        const TraceCache::Claim claim(cache_, key);
-        part = cache_.find(key);
-        if (!part) {
-          part = std::make_shared<const TraceCache::Entry>(
-              static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, plan_.passes, settings, p.name)));
-          cache_.insert(key, part);
-        }
-      }
-      parts.push_back(std::move(part));
+      parts.push_back(cache_.find_or_make(
+          key, [&] { return cache_.find(key); },
+          [&] {
+            auto made = std::make_shared<const TraceCache::Entry>(
+                static_cast<TracedPasses&&>(trace_passes(rt(), gbuf, plan_.passes, settings, p.name)));
+            cache_.insert(key, made);
+            return made;
+          }));
     }
     if (parts.size() == 1) return parts.front();
     std::vector<const TracedPasses*> list;
@@ -620,8 +619,7 @@ class Simulation {
       rendered = extrapolate_pose(camera(last_received_), frame_ms(last_received_), received, frame_ms(j),
                                   frame_ms(j) + pose_lead_ms(j));
     last_received_ = j;
-    rendered_cameras_[j] = rendered;
-    while (rendered_cameras_.size() > 256) rendered_cameras_.erase(rendered_cameras_.begin());
+    rendered_cameras_[j] = rendered;  // one per server frame of the run: the client may show any of them
     return rendered;
   }
   bool predicts_pose() const { return c_.server_pose_prediction != "off"; }
@@ -649,17 +647,18 @@ class Simulation {
   // cached on disk there and in memory here).
   std::shared_ptr<const ImageRGB8> ground_truth(int a, const GBuffer& gbuf) {
     const std::string key = truth_key(scene_key_, key_c_, a);
-    if (auto hit = cache_.find_image(key)) return hit;
-    const TraceCache::Claim claim(cache_, key);
-    if (auto hit = cache_.find_image(key)) return hit;
-    ReferenceSettings rs;
-    rs.ao_rays = c_.ground_truth_ao_rays;
-    rs.samples_per_light = c_.ground_truth_samples_per_light;
-    rs.lattice = is_lattice(c_.ground_truth_sampling);
-    rs.cache_dir = c_.cache_dir;
-    auto img = std::make_shared<ImageRGB8>(dhr::ground_truth(rt(), gbuf, rs).image);
-    cache_.insert_image(key, img);
-    return img;
+    return cache_.find_or_make(
+        key, [&] { return cache_.find_image(key); },
+        [&] {
+          ReferenceSettings rs;
+          rs.ao_rays = c_.ground_truth_ao_rays;
+          rs.samples_per_light = c_.ground_truth_samples_per_light;
+          rs.lattice = is_lattice(c_.ground_truth_sampling);
+          rs.cache_dir = c_.cache_dir;
+          auto img = std::make_shared<const ImageRGB8>(dhr::ground_truth(rt(), gbuf, rs).image);
+          cache_.insert_image(key, img);
+          return img;
+        });
   }
 
   // FLIP's half of the work on the reference image under `key` (a local reference's or a ground

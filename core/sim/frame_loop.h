@@ -42,11 +42,11 @@
 
 #include <functional>
 #include <map>
-#include <memory>
 #include <condition_variable>
+#include <memory>
 #include <mutex>
-#include <set>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -110,6 +110,15 @@ class TraceCache {
     TraceCache& cache_;
     std::string key_;
   };
+  // `find()`, or on a miss `make()` (which inserts what it makes) under a Claim on `key`, after
+  // looking once more: what a run beside this one made meanwhile is taken, not made again.
+  template <class Find, class Make>
+  auto find_or_make(const std::string& key, Find find, Make make) {
+    if (auto hit = find()) return hit;
+    const Claim claim(*this, key);
+    if (auto hit = find()) return hit;
+    return make();
+  }
 
   // The client's G-buffers of one scene and camera path, for the runs after the one that
   // rasterized them (docs/performance.md, "Computed once per sweep"): the runs of a sweep

@@ -25,7 +25,6 @@
 #include <tbb/global_control.h>
 #include <unistd.h>
 
-#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cmath>
@@ -50,10 +49,11 @@ using Clock = std::chrono::steady_clock;
 struct LoadedScenes {
   std::map<std::string, Scene> scenes;
   std::map<std::string, std::string> keys;  // content hash per scene
+  std::vector<RunPlan> plans;               // per run of the experiment, in its order (plan_run)
 };
 
-// Loads every scene of the experiment and validates every run against it. Throws one
-// dhr::Error listing every problem.
+// Loads every scene of the experiment and plans every run on it (the plans, one per run, are
+// what the runs then take). Throws one dhr::Error listing every problem.
 LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& scene_path) {
   LoadedScenes loaded;
   std::vector<std::string> problems;
@@ -72,7 +72,7 @@ LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& s
     auto it = loaded.scenes.find(run.scene);
     if (it == loaded.scenes.end()) continue;
     try {
-      plan_run(run.config, it->second, registries());
+      loaded.plans.push_back(plan_run(run.config, it->second, registries()));
       if (std::string why = warmup_problem(run.config); !why.empty()) throw Error(why);
     } catch (const Error& err) {
       std::string what = err.what();
@@ -85,6 +85,7 @@ LoadedScenes validate_all(const Experiment& e, const std::vector<std::string>& s
     for (const auto& p : problems) msg += "\n  " + p;
     throw Error(msg);
   }
+  if (loaded.plans.size() != e.runs.size()) fail("internal: {} plans for {} runs", loaded.plans.size(), e.runs.size());
   return loaded;
 }
 
@@ -330,11 +331,10 @@ Runner add_run_command(CLI::App& app) {
       if (!spec.family.empty()) record["family"] = spec.family;
       const auto run_start = Clock::now();
       try {
-        SimConfig config = spec.config;
+        RunPlan& plan = loaded.plans[i];  // planned by validate_all; these two settings plan nothing
+        SimConfig& config = plan.config;
         config.keep_images = true;
         if (!o->dump_streams.empty()) config.dump_streams_dir = (fs::path(o->dump_streams) / spec.id).string();
-        const Scene& scene = loaded.scenes.at(spec.scene);
-        const RunPlan plan = plan_run(config, scene, registries());
         RunResult r = run_simulation(plan, loaded.keys.at(spec.scene), cache, registries(),
                                      [&](int f, int total) { progress.update(i, spec.label, f, total); });
         record["config"] = r.config;
