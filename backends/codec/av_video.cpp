@@ -29,7 +29,7 @@ class AvVideoCodec final : public Codec {
     if (!encoder_) fail("{}: this libavcodec has no {} encoder ({})", f_.name, f_.encoder, f_.install_hint);
     decoder_ = avcodec_find_decoder_by_name(f_.decoder.c_str());
     if (!decoder_) fail("{}: this libavcodec has no {} decoder ({})", f_.name, f_.decoder, f_.install_hint);
-    gray_ = av_encoder_takes(f_.encoder.c_str(), AV_PIX_FMT_GRAY8);
+    gray_ = f_.gray_allowed && av_encoder_takes(f_.encoder.c_str(), AV_PIX_FMT_GRAY8);
     packet_ = av_packet_alloc();
     if (!packet_) fail("{}: out of memory", f_.name);
   }
@@ -42,6 +42,7 @@ class AvVideoCodec final : public Codec {
 
   bool lossless() const override { return s_.rate_control == AvRateControl::Lossless; }
   bool stateful() const override { return true; }  // P-frames reference earlier frames
+  bool heals_after_loss() const override { return s_.intra_refresh; }
   bool takes_target_kbps() const override { return s_.rate_control == AvRateControl::Bitrate && f_.retargets_bitrate; }
   std::string stream_format() const override { return f_.stream_format; }
 
@@ -251,8 +252,14 @@ class AvVideoCodec final : public Codec {
     if (!dec_ || !dec_frame_ || !extra_frame_) fail("{}: out of memory", f_.name);
     dec_->thread_count = 1;  // frame threads would delay output by a frame per thread
     dec_->flags |= AV_CODEC_FLAG_LOW_DELAY;
-    // Fail on damaged slices instead of concealing them, so corruption is reported.
-    dec_->err_recognition = AV_EF_EXPLODE | AV_EF_CAREFUL | AV_EF_BITSTREAM | AV_EF_BUFFER;
+    // Fail on damaged slices instead of concealing them, so corruption is reported; except
+    // under intra refresh, where a picture predicted from a lost frame is concealed and shown
+    // (the stream heals by itself; damaged bytes are still caught by each frame's checksum).
+    dec_->err_recognition = s_.intra_refresh ? 0 : AV_EF_EXPLODE | AV_EF_CAREFUL | AV_EF_BITSTREAM | AV_EF_BUFFER;
+    if (s_.intra_refresh) {
+      dec_->flags |= AV_CODEC_FLAG_OUTPUT_CORRUPT;
+      dec_->flags2 |= AV_CODEC_FLAG2_SHOW_ALL;
+    }
     for (const auto& [key, value] : f_.decoder_options)
       if (int r = av_opt_set(dec_->priv_data, key.c_str(), value.c_str(), 0); r < 0)
         fail("{}: the {} decoder rejects option {}={}: {}", f_.name, f_.decoder, key, value, av_error_text(r));
@@ -323,7 +330,7 @@ class AvVideoCodec final : public Codec {
                       g.padded_width, g.padded_height, desc.width, desc.height, pass_kind_name(desc.kind));
       return false;
     }
-    if ((f->flags & AV_FRAME_FLAG_CORRUPT) || f->decode_error_flags) {
+    if (((f->flags & AV_FRAME_FLAG_CORRUPT) || f->decode_error_flags) && !s_.intra_refresh) {
       error = f_.name + ": the decoder reports a damaged picture";
       return false;
     }
@@ -418,6 +425,14 @@ std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf
                         "colour pictures' chroma: 4:2:0 (half-resolution chroma, what streaming ships) or 4:4:4")};
 }
 
+ParamSpec intra_refresh_param(const std::string& encoder_label) {
+  return ParamSpec::boolean("intra_refresh", false,
+                            encoder_label +
+                                " periodic intra refresh: a column of intra blocks sweeps the picture every gop "
+                                "frames instead of keyframes; after a loss the decoder goes on and the picture "
+                                "heals within one sweep (no keyframe request)");
+}
+
 ParamSpec x26x_preset_param(const std::string& encoder_label) {
   return ParamSpec::choice(
       "preset", "ultrafast",
@@ -439,6 +454,7 @@ AvVideoSettings av_video_settings(const Params& p) {
   s.chroma444 = p.get_string("chroma") == "444";
   s.vbv_buffer_ms = p.get_int("vbv_buffer_ms");
   s.max_kbps = p.get_int("max_kbps");
+  s.intra_refresh = p.effective().contains("intra_refresh") && p.get_bool("intra_refresh");
   return s;
 }
 

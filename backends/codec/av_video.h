@@ -57,6 +57,10 @@ struct AvVideoSettings {
   // max_kbps, a capped CRF; 0: uncapped) bounds how far one frame may pass the average.
   int vbv_buffer_ms = 1000;
   int max_kbps = 0;
+  // Periodic intra refresh instead of keyframes (h264, hevc): a column of intra blocks sweeps
+  // the picture once every `gop` frames; the decoder goes on after a loss and the picture heals
+  // within one sweep (Codec::heals_after_loss). Keyframes come only when forced.
+  bool intra_refresh = false;
 };
 
 // rate_control, crf (0..crf_max, default crf_default), bitrate_kbps, fps, gop, threads, chroma,
@@ -65,6 +69,9 @@ struct AvVideoSettings {
 std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
                                        const std::string& lossless_note, const std::string& threads_note);
 AvVideoSettings av_video_settings(const Params& p);
+// "intra_refresh": periodic intra refresh (h264, hevc: the encoder's option is set by the codec
+// file's configure_encoder).
+ParamSpec intra_refresh_param(const std::string& encoder_label);
 // "preset": the speed presets x264 and x265 share, ultrafast..veryslow (default ultrafast).
 ParamSpec x26x_preset_param(const std::string& encoder_label);
 
@@ -93,6 +100,9 @@ struct AvVideoFormat {
   // threads, colour description and (bitrate mode) rates are set; the crf option is set by
   // the layer in crf mode. Lossless mode must be switched on here.
   std::function<void(const AvVideoSettings&, AvOptions&)> configure_encoder;
+  // The encoder may take GRAY8 pictures (where it lists them) for AO and soft visibility; false:
+  // they go as 4:2:0 with constant chroma.
+  bool gray_allowed = true;
   // Decoder private options (name, value), e.g. dav1d's frame delay.
   std::vector<std::pair<std::string, std::string>> decoder_options;
 };

@@ -10,7 +10,7 @@
 // keyframes are predictable), forced keyframes are IDR pictures, SPS/PPS precede every IDR.
 //
 // Notes measured on this build (libavcodec 59.37, x264 0.164; tests/backends/test_codecs.cpp):
-// - libx264 takes GRAY8 here, so AO goes as true 4:0:0; rate_control=lossless (qp 0, which
+// - libx264 takes GRAY8 here, so AO goes as true 4:0:0 (4:2:0 with intra refresh, see below); rate_control=lossless (qp 0, which
 //   x264 codes in the High 4:4:4 Predictive profile) returns AO and soft visibility
 //   bit-exactly. Colour is refused in lossless mode: 4:2:0 cannot return RGB exactly.
 // - slice_max_size_bytes=1100 costs bytes: on a 720p smooth-AO pan at crf 23, 8.2 KB per
@@ -29,6 +29,9 @@
 //   chroma                420 | 444                  colour pictures' chroma            default 420
 //   fps                   1..1000                    frame rate the bitrate refers to   default 60
 //   gop                   1..100000                  keyframe (IDR) interval in frames  default 60
+//   intra_refresh         true | false               periodic intra refresh over gop frames
+//                                                    instead of IDR keyframes; the decoder
+//                                                    goes on after a loss     default false
 //   threads               1..16                      x264 threads (1: deterministic)    default 1
 //   preset                ultrafast..veryslow        x264 preset                        default ultrafast
 //   slice_max_size_bytes  0..100000                  x264 slice-max-size: each slice NAL at most this
@@ -42,6 +45,7 @@ namespace dhr {
 CodecEntry make_h264_codec() {
   std::vector<ParamSpec> params = av_video_params("x264", 23, 51, "qp 0", "1 gives deterministic output");
   params.push_back(x26x_preset_param("x264"));
+  params.push_back(intra_refresh_param("x264"));
   params.push_back(ParamSpec::integer("slice_max_size_bytes", 1100, 0, 100000,
                                       "largest slice NAL in bytes (fits a 1200-byte packet payload); 0 = no limit"));
   return {"h264",
@@ -53,7 +57,12 @@ CodecEntry make_h264_codec() {
             f.decoder = "h264";
             f.install_hint = "install libavcodec with x264 support";
             f.stream_format = "h264";
-            f.retargets_bitrate = true;  // libavcodec's libx264 wrapper reconfigures x264 when bit_rate changes
+            f.retargets_bitrate = true;
+            // x264 0.164 crashes (x264_8_trellis_coefn) on 4:0:0 pictures with intra refresh, even at
+            // ultrafast (`ffmpeg -f lavfi -i testsrc -pix_fmt gray -c:v libx264 -intra-refresh 1`): those
+            // go as 4:2:0 with constant chroma.
+            f.gray_allowed =
+                !p.get_bool("intra_refresh");  // libavcodec's libx264 wrapper reconfigures x264 when bit_rate changes
             f.configure_encoder = [preset = p.get_string("preset"), slice_max = p.get_int("slice_max_size_bytes")](
                                       const AvVideoSettings& s, AvOptions& o) {
               std::string x264_params = "scenecut=0:log=1";
@@ -61,6 +70,7 @@ CodecEntry make_h264_codec() {
               o.set("preset", preset);
               o.set("tune", "zerolatency");
               o.set("forced-idr", "1");
+              if (s.intra_refresh) o.set("intra-refresh", "1");
               if (s.rate_control == AvRateControl::Lossless) o.set("qp", "0");
               o.set("x264-params", x264_params);
             };

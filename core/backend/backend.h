@@ -86,6 +86,10 @@ class Codec {
   // none, or no such codec). After a loss the receiver does not reset such a decoder; it reports
   // this frame and the encoder predicts from it (EncodeOptions::client_holds).
   virtual int holds() const { return -1; }
+  // A stateful decoder that goes on after a lost frame, showing the error until the stream
+  // heals by itself (periodic intra refresh): the receiver neither resets it nor asks for a
+  // keyframe after a gap (it still does after a failed decode).
+  virtual bool heals_after_loss() const { return false; }
   virtual void reset() {}
   // The standard stream that this codec's encode() outputs make, one after the other, as a file
   // extension: "h264" or "hevc" (Annex B byte streams), "ivf" (AV1 temporal units, each behind

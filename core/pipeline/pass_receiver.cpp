@@ -16,8 +16,12 @@ PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f, const FrameConte
     if (o.holds < 0) codec->reset();
   };
   if (gap && codec->stateful() && frame >= 0) {
-    request();
-    o.gap_reset = true;
+    if (codec->heals_after_loss()) {
+      o.gap_continued = true;
+    } else {
+      request();
+      o.gap_reset = true;
+    }
   }
   PassBuffer out;
   std::string error;
@@ -26,9 +30,15 @@ PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f, const FrameConte
   o.decode_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   if (!ok) {
     o.decode_error = true;
-    if (codec->stateful()) request();
+    // A decoder that heals by itself may drop a picture around a gap (libavcodec's H.264 holds
+    // back one whose order count the lost frame disturbed) and go on: it asks for a keyframe
+    // only when it has decoded nothing yet (the stream's headers came with a lost frame) or
+    // fails twice in a row.
+    ++failed_in_row;
+    if (codec->stateful() && (!codec->heals_after_loss() || frame < 0 || failed_in_row >= 2)) request();
     return o;
   }
+  failed_in_row = 0;
   o.decoded = true;
   if (int(f.meta.frame_id) > frame) {
     frame = int(f.meta.frame_id);

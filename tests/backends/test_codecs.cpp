@@ -67,6 +67,7 @@ const std::multimap<std::string, json>& extra_params() {
       {"zstd", {{"level", 9}}},
       {"zstd", {{"layout", "interleaved"}}},
       {"delta", {{"inner", "lz4"}, {"keyframe_interval", 2}}},
+      {"h264", {{"intra_refresh", true}, {"gop", 4}}},
   };
   return m;
 }
@@ -981,6 +982,57 @@ TEST(VideoCodecs, HevcAndAv1BytesDoNotDependOnThreads) {
 // --dump-streams writes a video pass with core/base/stream_dump.h; the ffmpeg command-line tool must
 // decode such a file to the pictures our decoder gives: gray AO (values as coded: full scale
 // 255, so no mapping) over 8 frames of a pan with a forced keyframe, bit for bit.
+// Periodic intra refresh (h264): no keyframe after the first; a decoder that missed a frame goes
+// on (heals_after_loss: the receiver asks for nothing) and, by the end of the first refresh sweep
+// (gop frames) that starts after the loss, decodes exactly what a decoder that lost nothing
+// decodes. Measured (160x96 AO pan, gop 8, frame 5 lost): PSNR to the clean decode 21.7 dB at
+// frame 6 rising to 45.2 at 14, identical from 15. (x265 3.5's intra-refresh=1 was tried for
+// hevc and did not heal: 8-11 dB to the clean decode 18 frames after the loss.)
+TEST(VideoCodecs, IntraRefreshHealsALossWithoutAKeyframe) {
+  constexpr int kGop = 8, kLost = 5, kFrames = 24;
+  for (const char* name : {"h264"}) {
+    if (!has_codec(name)) continue;
+    const json params = {{"intra_refresh", true}, {"gop", kGop}, {"preset", "fast"}};
+    auto enc = registries().codecs.create(name, params);
+    auto lossy_dec = registries().codecs.create(name, params);
+    auto clean_dec = registries().codecs.create(name, params);
+    EXPECT_TRUE(lossy_dec->heals_after_loss()) << name;
+    EXPECT_FALSE(registries().codecs.create(name, json::object())->heals_after_loss()) << name;
+    int differing_after_loss = 0, healed_from = -1;
+    size_t first_bytes = 0, largest_later = 0;
+    for (int f = 0; f < kFrames; ++f) {
+      const SyntheticView view{160, 96, 2.0 * f, 0.75 * f, uint32_t(f)};
+      const PassBuffer in = test::make_smooth_ao(view);
+      std::vector<uint8_t> bytes;
+      enc->encode(in, {}, bytes);
+      (f == 0 ? first_bytes : largest_later) = std::max(f == 0 ? first_bytes : largest_later, bytes.size());
+      const PassBuffer clean = decode_or_fail(*clean_dec, bytes, in.desc);
+      if (f == kLost) continue;
+      PassBuffer out;
+      std::string error;
+      ASSERT_TRUE(lossy_dec->decode(bytes, in.desc, out, error))
+          << name << " frame " << f << " after the loss: " << error;
+      if (f < kLost) {
+        EXPECT_EQ(out.bytes, clean.bytes) << name << " frame " << f;
+      } else if (out.bytes != clean.bytes) {
+        ++differing_after_loss;
+        healed_from = -1;
+      } else if (healed_from < 0) {
+        healed_from = f;
+      }
+    }
+    std::printf(
+        "%s intra refresh (gop %d): first frame %zu bytes, largest later %zu; after losing frame %d, %d "
+        "frames differed, identical from frame %d\n",
+        name, kGop, first_bytes, largest_later, kLost, differing_after_loss, healed_from);
+    EXPECT_GT(differing_after_loss, 0) << name << ": losing a frame changed nothing (was it lost?)";
+    ASSERT_GE(healed_from, 0) << name << ": never healed";
+    EXPECT_LE(healed_from, (kLost / kGop + 2) * kGop - 1) << name << ": not healed by the end of the next sweep";
+    // No keyframe after the first: every later frame is smaller than a keyframe would be.
+    EXPECT_LT(largest_later, first_bytes) << name;
+  }
+}
+
 TEST(VideoCodecs, DumpedStreamsDecodeWithFfmpegToOurPictures) {
   if (std::system("command -v ffmpeg >/dev/null 2>&1") != 0)
     GTEST_SKIP() << "the ffmpeg command-line tool is not installed (scripts/setup.sh installs it)";
