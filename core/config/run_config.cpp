@@ -292,6 +292,35 @@ std::vector<RunSetting> make_settings() {
                        "passes used over the last second",
                        [](auto& c) -> auto& { return c.stream_kbps; }),
                    kInLiveOffer));
+  RunSetting abr = field(
+      "abr", SettingType::Choice,
+      "adaptive bitrate (core/net/rate_controller.h): off, or latency: the server moves the "
+      "stream budget (stream_kbps, its start) from the client's reports of each frame's delivery "
+      "delay and loss: down to 0.85 of the received rate when the link's queue passes "
+      "abr_target_queue_ms, down by half the loss above 10 % loss, else up 8 % per second",
+      [](auto& c) -> auto& { return c.abr; });
+  abr.choices = {"off", "latency"};
+  const char* no_live_abr = "live mode has no adaptive bitrate yet";
+  v.push_back(with(abr, 0, no_live_abr));
+  v.push_back(with(ranged(
+                       "abr_min_kbps", SettingType::Number, 1, 1e7, "abr: the lowest stream budget (kbit/s)",
+                       [](auto& c) -> auto& { return c.abr_min_kbps; }),
+                   0, no_live_abr));
+  v.push_back(
+      with(ranged(
+               "abr_max_kbps", SettingType::Number, 0, 1e7, "abr: the highest stream budget (kbit/s; 0: stream_kbps)",
+               [](auto& c) -> auto& { return c.abr_max_kbps; }),
+           0, no_live_abr));
+  v.push_back(with(ranged(
+                       "abr_target_queue_ms", SettingType::Number, 0, 1e4,
+                       "abr: the queueing delay (delivery delay above the smallest seen) that makes it back off (ms)",
+                       [](auto& c) -> auto& { return c.abr_target_queue_ms; }),
+                   0, no_live_abr));
+  v.push_back(with(ranged(
+                       "abr_interval_ms", SettingType::Number, 1, 1e5,
+                       "abr: the shortest time between two changes of the budget (ms of server time)",
+                       [](auto& c) -> auto& { return c.abr_interval_ms; }),
+                   0, no_live_abr));
   v.push_back(ranged(
       "history_frames", SettingType::Integer, 1, 1024, "client G-buffers kept for prediction",
       [](auto& c) -> auto& { return c.history_frames; }));

@@ -66,6 +66,14 @@ struct SimConfig {
   // a target bitrate (Codec::takes_target_kbps: h264 in bitrate mode) share, frame by frame, what
   // the other passes used over the last second (core/pipeline/pipeline.h, ServerPipeline).
   double stream_kbps = 0.0;
+  // Adaptive bitrate (core/net/rate_controller.h): "off", or "latency": the server moves the
+  // stream budget, starting at stream_kbps, within [abr_min_kbps, abr_max_kbps (0: stream_kbps)]
+  // from the client's reports of each frame's delivery and loss.
+  std::string abr = "off";
+  double abr_min_kbps = 300.0;
+  double abr_max_kbps = 0.0;
+  double abr_target_queue_ms = 10.0;
+  double abr_interval_ms = 100.0;
   int history_frames = 64;  // client G-buffers kept for prediction
   // A pass is stalled while its newest data stays the same for more than this many display
   // intervals (the stall metrics of core/results/results.h).

@@ -142,6 +142,15 @@ RunPlan plan_run(const SimConfig& c, const Scene& scene, const Registries& r) {
       budgeted = budgeted || made->takes_target_kbps();
       sent += fmt::format("{}passes.{}.codec '{}'", sent.empty() ? "" : ", ", p.name, codec.name);
     }
+    if (c.abr != "off" && c.stream_kbps <= 0.0)
+      problems.push_back(
+          fmt::format("abr '{}' moves the stream budget: set stream_kbps (its start) and give one "
+                      "pass h264 with rate_control bitrate",
+                      c.abr));
+    const double abr_max = c.abr_max_kbps > 0.0 ? c.abr_max_kbps : c.stream_kbps;
+    if (c.abr != "off" && c.stream_kbps > 0.0 && !(c.abr_min_kbps <= c.stream_kbps && c.stream_kbps <= abr_max))
+      problems.push_back(fmt::format("abr: stream_kbps {} (the start) is not within abr_min_kbps {} .. abr_max_kbps {}",
+                                     c.stream_kbps, c.abr_min_kbps, abr_max));
     if (c.stream_kbps > 0.0 && !budgeted)
       problems.push_back(
           fmt::format("stream_kbps {}: no pass's codec takes a target bitrate ({}); give one pass "

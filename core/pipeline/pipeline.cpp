@@ -252,13 +252,14 @@ ServerPipeline::ServerPipeline(const RunPlan& plan, const Registries& r, TraceFn
   depth_pass_ = find_pass(plan_.sent, PassMeaning::Depth);
   // (plan_run made sure one takes the budget when there is one.)
   for (const auto& codec : codecs_) budgeted_.push_back(c_.stream_kbps > 0.0 && codec->takes_target_kbps());
+  stream_kbps_ = c_.stream_kbps;
 }
 
 // The bit budget's share of each budgeted pass (kbit/s): the budget per frame at display_hz,
 // less what the other passes used per frame over the last second and the budgeted passes' own
 // packet overhead, split evenly; at least 1 % of the budget.
 double ServerPipeline::budget_share_kbps() const {
-  const double frame_bytes = c_.stream_kbps * 1000.0 / 8.0 / c_.display_hz;
+  const double frame_bytes = stream_kbps_ * 1000.0 / 8.0 / c_.display_hz;
   double others = 0.0;
   int shares = 0;
   for (size_t i = 0; i < plan_.sent.size(); ++i) shares += budgeted_[i] ? 1 : 0;
@@ -266,7 +267,7 @@ double ServerPipeline::budget_share_kbps() const {
     for (size_t i = 0; i < frame.size(); ++i) others += double(frame[i]);
   if (!wire_history_.empty()) others /= double(wire_history_.size());
   const double share_bytes = (frame_bytes - others) / double(std::max(shares, 1));
-  return std::max(0.01 * c_.stream_kbps, share_bytes * 8.0 * c_.display_hz / 1000.0);
+  return std::max(0.01 * stream_kbps_, share_bytes * 8.0 * c_.display_hz / 1000.0);
 }
 
 // --dump-streams: the pass's encoded frames as <dir>/<pass>.<format>, for a codec whose frames

@@ -175,6 +175,9 @@ class ServerPipeline {
   // still holds when that pass reported the loss (-1: not reported; empty: none).
   ServerFrame run(uint32_t frame, const Camera& camera, double time_s, bool keyframe,
                   std::span<const int> client_holds = {});
+  // The stream's bit budget from the next frame on (kbit/s; the adaptive bitrate controller's
+  // rate): replaces stream_kbps, which it must be set with (plan_run checks that).
+  void set_stream_kbps(double kbps) { stream_kbps_ = kbps; }
   // Shares its denoisers' outputs through `memo` (DenoiseStage::share; `pass_keys` per traced
   // pass), feeding skipped frames again through its own raster and trace functions.
   void share_denoised(DenoiseMemo* memo, std::vector<std::string> pass_keys) {
@@ -203,6 +206,7 @@ class ServerPipeline {
   // stream_kbps: per sent pass, whether its codec takes the budget's share; the wire bytes of
   // every sent pass over the last second of frames.
   std::vector<bool> budgeted_;
+  double stream_kbps_ = 0.0;  // stream_kbps, or the rate set_stream_kbps gave
   std::deque<std::vector<size_t>> wire_history_;
   double budget_share_kbps() const;
 };

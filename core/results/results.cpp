@@ -337,6 +337,16 @@ const std::vector<RunMetric>& run_metrics() {
        [](R r) -> nlohmann::json { return r.cameras_dropped; }},
       {"cameras_lost", "cameras", "camera messages lost on the uplink", false,
        [](R r) -> nlohmann::json { return r.cameras_lost; }},
+      {"abr_updates", "updates", "abr: the times the controller changed the stream budget", false,
+       [](R r) -> nlohmann::json { return r.abr_updates; }},
+      {"abr_reports_dropped", "reports",
+       "abr: client frame reports dropped (of frames never sent or already reported, or with an impossible delay)",
+       false, [](R r) -> nlohmann::json { return r.abr_reports_dropped; }},
+      {"abr_kbps_lowest", "kbit/s",
+       "abr: the lowest stream budget the controller set for a scored frame (null: abr off)", false,
+       [](R r) -> nlohmann::json {
+         return std::isnan(r.abr_kbps_lowest) ? nlohmann::json() : nlohmann::json(r.abr_kbps_lowest);
+       }},
       {"frames_without_data", "frames", "displayed frames with at least one pass shown with its local fallback", false,
        [](R r) -> nlohmann::json { return r.frames_without_data; }},
       {"receiver_packets_lost", "packets", "found by the receiver from sequence-number gaps", false,

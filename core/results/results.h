@@ -22,6 +22,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
+#include <limits>
 #include <map>
 #include <string>
 #include <vector>
@@ -140,7 +141,11 @@ struct RunResult {
   uint64_t frames_without_data = 0;    // displayed frames with at least one pass shown with its local fallback
   uint64_t receiver_packets_lost = 0;  // found by the receiver from sequence-number gaps
   TraceStats trace_stats;              // rays of the server frames
-  double duration_ms = 0.0;            // virtual time of the scored frames
+  // abr: the budget updates, the client reports dropped (forged, repeated or of unknown
+  // frames) and the lowest budget the controller set for a scored frame (NaN: abr off).
+  uint64_t abr_updates = 0, abr_reports_dropped = 0;
+  double abr_kbps_lowest = std::numeric_limits<double>::quiet_NaN();
+  double duration_ms = 0.0;  // virtual time of the scored frames
   // keep_images: the displayed image, local reference and ground truth of one frame (the last
   // scored against the ground truth, or the last scored when there is no ground truth).
   std::vector<ImageRGB8> images, local_images, ground_truth_images;

@@ -6,6 +6,7 @@
 #include "core/net/assembler.h"
 #include "core/net/fec.h"
 #include "core/net/packet.h"
+#include "core/net/rate_controller.h"
 #include "core/pass/composite.h"
 #include "core/pass/reference.h"
 #include "core/pipeline/pipeline.h"
@@ -37,8 +38,11 @@ struct CameraMessage {
   int frame = 0;
   double arrival_ms = 0.0;
   bool keyframe_request = false;
-  std::vector<int> holds;  // per pass: the newest frame its decoder holds, after a loss (-1: none)
+  std::vector<int> holds;            // per pass: the newest frame its decoder holds, after a loss (-1: none)
+  std::vector<FrameReport> reports;  // abr: the pass frames completed or lost since the last message
 };
+// abr: what one frame report adds to a camera message (frame, pass, flags, arrival time).
+constexpr uint64_t kFrameReportBytes = 8;
 
 struct Datagram {
   double arrival_ms = 0.0;
@@ -514,6 +518,16 @@ class Simulation {
       for (const PassType& t : pass_types()) traffic_.push_back({t.name});
     for (const PlannedPass& p : server_.passes()) traffic_index_.push_back(traffic_of(p.name));
     client_holds_.assign(server_.passes().size(), -1);
+    if (c_.abr != "off") {
+      RateControlSettings rs;
+      rs.start_kbps = c_.stream_kbps;
+      rs.min_kbps = c_.abr_min_kbps;
+      rs.max_kbps = c_.abr_max_kbps > 0.0 ? c_.abr_max_kbps : c_.stream_kbps;
+      rs.target_queue_ms = c_.abr_target_queue_ms;
+      rs.interval_ms = c_.abr_interval_ms;
+      abr_.emplace(rs);
+      result_.abr_kbps_lowest = abr_->rate_kbps();
+    }
     result_.config = c_.to_json();
     result_.plan = plan_.passes;
   }
@@ -528,6 +542,10 @@ class Simulation {
     result_.duration_ms = double(c_.frames) * 1000.0 / c_.display_hz;
     result_.traffic = traffic_;
     result_.receiver_packets_lost = assembler_.stats().packets_lost;
+    if (abr_) {
+      result_.abr_updates = abr_->updates();
+      result_.abr_reports_dropped = abr_->reports_dropped();
+    }
     for (auto& [name, s] : stages_) result_.stages[name] = s;
     return std::move(result_);
   }
@@ -721,6 +739,13 @@ class Simulation {
       for (const auto& m : inbox_)
         if (m.arrival_ms <= start && m.frame > server_last_frame_ && m.frame < newest && scored(newest))
           ++result_.cameras_dropped;
+      if (abr_) {  // the reports every message that arrived carries, then the budget from now on
+        for (const auto& m : inbox_)
+          if (m.arrival_ms <= start)
+            for (const FrameReport& r : m.reports) abr_->on_report(r);
+        server_.set_stream_kbps(abr_->update(start));
+        if (scored(newest)) result_.abr_kbps_lowest = std::min(result_.abr_kbps_lowest, abr_->rate_kbps());
+      }
       std::erase_if(inbox_, [&](const CameraMessage& m) { return m.arrival_ms <= start && m.frame <= newest; });
       server_job(newest, start, keyframe, holds);
     }
@@ -748,6 +773,7 @@ class Simulation {
     // All packets leave when the server finishes.
     for (size_t i = 0; i < f.passes.size(); ++i) {
       PassTraffic& t = traffic_[traffic_index_[i]];
+      if (abr_) abr_->on_sent(uint32_t(j), int(i), wire_bytes_of_packets(f.passes[i].packets), finish);
       std::vector<bool> arrived;
       for (auto& packet : f.passes[i].packets) {
         const uint64_t wire = packet.size() + kIpUdpOverheadBytes;
@@ -785,6 +811,7 @@ class Simulation {
     AssemblerEvents events = assembler_.poll(int64_t(std::floor(now_ms)));
     for (const LostFrame& lost : events.lost) {
       const int pass = client_.pass_of(lost.meta.desc.kind);
+      if (pass >= 0 && abr_) reports_.push_back({lost.meta.frame_id, pass, true, 0.0});
       if (pass >= 0 && count) ++traffic_[traffic_index_[size_t(pass)]].frames_given_up;
     }
     for (AssembledFrame& f : events.completed) {
@@ -792,6 +819,7 @@ class Simulation {
       if (pass < 0) continue;
       PassTraffic& t = traffic_[traffic_index_[size_t(pass)]];
       if (count) ++t.frames_completed;
+      if (abr_) reports_.push_back({f.meta.frame_id, pass, false, double(f.completed_ms)});
       const PassReceiver::Outcome o = client_.receive(pass, f);
       client_decode_ms_ += o.decode_ms;
       keyframe_request_ = keyframe_request_ || o.keyframe_request;
@@ -827,14 +855,16 @@ class Simulation {
     if (rasterizes) client_ms += raster_ms;
 
     // Uplink: this frame's camera (and a keyframe request after a loss).
-    const Delivery up = uplink_.send(kCameraMessageBytes + kIpUdpOverheadBytes, now);
+    const Delivery up =
+        uplink_.send(kCameraMessageBytes + kFrameReportBytes * reports_.size() + kIpUdpOverheadBytes, now);
     if (up.delivered) {
-      inbox_.push_back({a, up.arrival_ms, keyframe_request_, client_holds_});
+      inbox_.push_back({a, up.arrival_ms, keyframe_request_, client_holds_, std::move(reports_)});
       keyframe_request_ = false;
       std::fill(client_holds_.begin(), client_holds_.end(), -1);
     } else if (count) {
       ++result_.cameras_lost;
     }
+    reports_.clear();  // sent with this camera, or lost with it
 
     server_advance(now);
     client_decode_ms_ = 0;
@@ -955,6 +985,9 @@ class Simulation {
   bool keyframe_request_ = false;
   std::vector<int> client_holds_;  // per pass, sent with the next camera (CameraMessage::holds)
   double client_decode_ms_ = 0.0;
+  std::vector<FrameReport> reports_;  // abr: for the next camera message
+
+  std::optional<RateController> abr_;  // abr on: the server's bitrate controller
 };
 
 }  // namespace

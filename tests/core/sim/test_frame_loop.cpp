@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <set>
 #include <thread>
@@ -760,6 +761,89 @@ TEST(FrameLoop, LocalReferenceOfAReducedPassIsKeptPerUpsamplingFilter) {
     RunResult r = run_simulation(c, scene("room"), "room", shared, registries());
     for (const FrameRecord& f : r.frames) EXPECT_EQ(f.score("ssim"), 1.0) << filter << " frame " << f.frame;
   }
+}
+
+// Remote H.264 under 5 % loss: with intra refresh the client goes on after each lost frame and
+// asks for nothing (no keyframe requests, no IDR after the first); without it every loss costs
+// a request and a keyframe. Both keep showing frames.
+TEST(FrameLoop, IntraRefreshRecoversFromLossWithoutKeyframeRequests) {
+  std::map<bool, nlohmann::json> colour;
+  for (bool refresh : {false, true}) {
+    SimConfig c = small_config(90);
+    c.width = 160;
+    c.height = 90;
+    c.mode = "remote";
+    c.uplink.latency_ms = 5;
+    c.downlink.latency_ms = 5;
+    c.downlink.loss_model = LinkConfig::Loss::Independent;
+    c.downlink.loss_rate = 0.05;
+    c.seed = 3;
+    c.pass("colour").codec = {"h264", {{"intra_refresh", refresh}, {"gop", 12}}};
+    const nlohmann::json m = run_simulation(c, scene("room"), "room", cache(), registries()).metrics();
+    colour[refresh] = m["passes"][0];
+    std::printf("remote h264%s, 5 %% loss: frames lost %llu, keyframe requests %llu, decode errors %llu, SSIM %.4f\n",
+                refresh ? " intra refresh" : "", (unsigned long long)colour[refresh]["frames_lost"].get<uint64_t>(),
+                (unsigned long long)colour[refresh]["keyframe_requests"].get<uint64_t>(),
+                (unsigned long long)colour[refresh]["decode_errors"].get<uint64_t>(),
+                m["ssim_local_mean"].get<double>());
+    EXPECT_GT(m["ssim_local_mean"].get<double>(), 0.5) << refresh;
+  }
+  EXPECT_GT(colour[false]["frames_lost"].get<uint64_t>(), 0u);
+  EXPECT_GT(colour[false]["keyframe_requests"].get<uint64_t>(), 0u);
+  EXPECT_GT(colour[true]["frames_lost"].get<uint64_t>(), 0u);
+  EXPECT_EQ(colour[true]["keyframe_requests"].get<uint64_t>(), 0u);
+  // A picture libavcodec holds back after a gap is at most one per lost frame.
+  EXPECT_LE(colour[true]["decode_errors"].get<uint64_t>(), colour[true]["frames_lost"].get<uint64_t>());
+  EXPECT_GT(colour[true]["frames_completed"].get<uint64_t>(), colour[true]["server_frames"].get<uint64_t>() / 2);
+}
+
+// Adaptive bitrate on a link whose capacity drops from 3 to 0.6 Mb/s for a second: remote H.264
+// in bitrate mode at a 2,400 kbit/s budget overflows the link's queue and loses frames; with
+// abr latency the server follows the client's reports down near the capacity and loses fewer.
+TEST(FrameLoop, AdaptiveBitrateFollowsACapacityDrop) {
+  const auto dir = std::filesystem::temp_directory_path() / fmt::format("dhr_test_abr_{}", getpid());
+  std::filesystem::create_directories(dir);
+  const std::string trace = (dir / "drop.txt").string();
+  {
+    std::ofstream out(trace);
+    out << "interval_ms: 100\n";
+    for (int k = 0; k < 30; ++k) out << (k >= 10 && k < 20 ? "0.6\n" : "3\n");
+  }
+  std::map<std::string, nlohmann::json> m;
+  for (const char* abr : {"off", "latency"}) {
+    SimConfig c = small_config(150);
+    c.width = 320;
+    c.height = 180;
+    c.warmup_frames = 10;
+    c.mode = "remote";
+    c.uplink.latency_ms = 10;
+    c.downlink.latency_ms = 10;
+    c.downlink.capacity_trace_file = trace;
+    c.downlink.queue_limit_bytes = 60000;
+    c.stream_kbps = 2400;
+    c.abr = abr;
+    c.pass("colour").codec = {"h264", {{"rate_control", "bitrate"}, {"vbv_buffer_ms", 100}}};
+    m[abr] = run_simulation(c, scene("room"), "room", cache(), registries()).metrics();
+    std::printf(
+        "abr %-7s: %.2f Mb/s, colour frames lost %llu of %llu, stalls %llu (%.0f ms), lowest budget %s kbit/s, "
+        "%llu updates, SSIM %.4f\n",
+        abr, m[abr]["bandwidth_mbps"].get<double>(),
+        (unsigned long long)m[abr]["passes"][0]["frames_lost"].get<uint64_t>(),
+        (unsigned long long)m[abr]["passes"][0]["server_frames"].get<uint64_t>(),
+        (unsigned long long)m[abr]["stalls"].get<uint64_t>(), m[abr]["stall_ms_total"].get<double>(),
+        m[abr]["abr_kbps_lowest"].dump().c_str(), (unsigned long long)m[abr]["abr_updates"].get<uint64_t>(),
+        m[abr]["ssim_local_mean"].get<double>());
+  }
+  std::filesystem::remove_all(dir);
+  EXPECT_TRUE(m["off"]["abr_kbps_lowest"].is_null());
+  EXPECT_EQ(m["off"]["abr_updates"].get<uint64_t>(), 0u);
+  EXPECT_GT(m["latency"]["abr_updates"].get<uint64_t>(), 5u);
+  EXPECT_EQ(m["latency"]["abr_reports_dropped"].get<uint64_t>(), 0u);
+  EXPECT_LT(m["latency"]["abr_kbps_lowest"].get<double>(), 0.6 * 1000 * 1.2);
+  EXPECT_GT(m["off"]["passes"][0]["frames_lost"].get<uint64_t>(), 0u);
+  EXPECT_LT(m["latency"]["passes"][0]["frames_lost"].get<uint64_t>(),
+            m["off"]["passes"][0]["frames_lost"].get<uint64_t>());
+  EXPECT_LT(m["latency"]["stall_ms_total"].get<double>(), m["off"]["stall_ms_total"].get<double>());
 }
 
 // A bit budget for the stream (stream_kbps): remote H.264 in bitrate mode follows it, and in

@@ -1,0 +1,65 @@
+#include "core/net/rate_controller.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace dhr {
+
+namespace {
+// Sent frames whose reports never came (the uplink lost them) are forgotten past this many.
+constexpr size_t kMaxUnreported = 4096;
+}  // namespace
+
+RateController::RateController(const RateControlSettings& s)
+    : s_(s), rate_(std::clamp(s.start_kbps, s.min_kbps, s.max_kbps)) {}
+
+void RateController::on_sent(uint32_t frame, int pass, uint64_t wire_bytes, double sent_ms) {
+  sent_[{frame, pass}] = {wire_bytes, sent_ms};
+  while (sent_.size() > kMaxUnreported) sent_.erase(sent_.begin());
+}
+
+void RateController::on_report(const FrameReport& r) {
+  auto it = sent_.find({r.frame, r.pass});
+  if (it == sent_.end()) {  // never sent, already reported, or forgotten
+    ++dropped_;
+    return;
+  }
+  const Sent sent = it->second;
+  sent_.erase(it);
+  if (r.lost) {
+    ++lost_;
+    return;
+  }
+  const double delay = r.arrival_ms - sent.sent_ms;
+  if (!std::isfinite(delay) || delay < 0.0) {
+    ++dropped_;
+    return;
+  }
+  min_delay_ms_ = min_delay_ms_ < 0.0 ? delay : std::min(min_delay_ms_, delay);
+  queue_sum_ms_ += delay - min_delay_ms_;
+  ++delivered_;
+  delivered_bits_ += sent.wire_bytes * 8;
+}
+
+double RateController::update(double now_ms) {
+  if (last_update_ms_ < 0.0) last_update_ms_ = now_ms;
+  const double elapsed_ms = now_ms - last_update_ms_;
+  if (elapsed_ms < s_.interval_ms || delivered_ + lost_ == 0) return rate_;
+  const double loss = double(lost_) / double(delivered_ + lost_);
+  const double queue_ms = delivered_ > 0 ? queue_sum_ms_ / double(delivered_) : 0.0;
+  const double received_kbps = double(delivered_bits_) / elapsed_ms;  // bits per ms = kbit/s
+  if (delivered_ > 0 && queue_ms > s_.target_queue_ms)
+    rate_ = s_.beta * received_kbps;
+  else if (loss > 0.10)
+    rate_ *= 1.0 - loss / 2.0;
+  else if (loss < 0.02)
+    rate_ *= std::pow(1.0 + s_.increase_per_s, elapsed_ms / 1000.0);
+  rate_ = std::clamp(rate_, s_.min_kbps, s_.max_kbps);
+  last_update_ms_ = now_ms;
+  queue_sum_ms_ = 0.0;
+  delivered_ = lost_ = delivered_bits_ = 0;
+  ++updates_;
+  return rate_;
+}
+
+}  // namespace dhr

@@ -1,0 +1,99 @@
+// The adaptive bitrate controller's rule (core/net/rate_controller.h), each branch on reports
+// whose answer is known, and the reports it must drop.
+#include "core/net/rate_controller.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+namespace dhr {
+namespace {
+
+RateControlSettings settings() {
+  RateControlSettings s;
+  s.start_kbps = 4000;
+  s.min_kbps = 500;
+  s.max_kbps = 8000;
+  s.target_queue_ms = 10;
+  s.interval_ms = 100;
+  return s;
+}
+
+// Sends frame f (wire_bytes, at f * 16 ms) and reports it delivered after delay_ms, or lost.
+void frame(RateController& c, uint32_t f, uint64_t wire_bytes, double delay_ms, bool lost = false) {
+  const double sent = f * 16.0;
+  c.on_sent(f, 0, wire_bytes, sent);
+  c.on_report({f, 0, lost, sent + delay_ms});
+}
+
+TEST(RateController, RisesEightPercentPerSecondWhileTheQueueStaysEmpty) {
+  RateController c(settings());
+  EXPECT_EQ(c.update(0), 4000);
+  for (uint32_t f = 0; f < 7; ++f) frame(c, f, 1000, 20.0);
+  EXPECT_NEAR(c.update(112), 4000 * std::pow(1.08, 0.112), 1e-9);
+  EXPECT_EQ(c.updates(), 1u);
+  EXPECT_EQ(c.update(150), c.rate_kbps());  // within the interval: no change
+  EXPECT_EQ(c.updates(), 1u);
+  // Up to the bound, not past it.
+  double t = 112;
+  for (uint32_t f = 7; f < 20000; ++f) {
+    frame(c, f, 1000, 20.0);
+    t += 16;
+    c.update(t);
+  }
+  EXPECT_EQ(c.rate_kbps(), 8000);
+}
+
+TEST(RateController, AQueueAboveTheTargetCutsToBetaOfTheReceivedRate) {
+  RateController c(settings());
+  c.update(0);
+  frame(c, 0, 1000, 20.0);  // the smallest delay: the base
+  // 24 ms more than the base on average: the link's queue holds 24 ms.
+  for (uint32_t f = 1; f < 7; ++f) frame(c, f, 2000, 20.0 + 28.0);
+  // Received: (1000 + 6 * 2000) bytes * 8 bits over 100 ms = 1040 kbit/s.
+  EXPECT_NEAR(c.update(100), 0.85 * 1040.0, 1e-9);
+}
+
+TEST(RateController, LossAboveTenPercentCutsByHalfTheLoss) {
+  RateController c(settings());
+  c.update(0);
+  for (uint32_t f = 0; f < 10; ++f) frame(c, f, 1000, 20.0, f < 3);  // 30 % lost
+  EXPECT_NEAR(c.update(100), 4000 * (1 - 0.15), 1e-9);
+  // 5 % loss: holds.
+  for (uint32_t f = 10; f < 30; ++f) frame(c, f, 1000, 20.0, f == 10);
+  EXPECT_NEAR(c.update(200), 3400, 1e-9);
+  // Never below the floor.
+  for (int k = 0; k < 50; ++k) {
+    for (uint32_t f = 0; f < 10; ++f) frame(c, 100 + k * 10 + f, 1000, 20.0, true);
+    c.update(300 + k * 100.0);
+  }
+  EXPECT_EQ(c.rate_kbps(), 500);
+}
+
+TEST(RateController, ForgedRepeatedAndImpossibleReportsAreDroppedAndCounted) {
+  RateController c(settings());
+  c.update(0);
+  c.on_report({99, 0, false, 50.0});  // never sent
+  c.on_sent(1, 0, 1000, 16.0);
+  c.on_report({1, 1, false, 30.0});  // another pass
+  c.on_report({1, 0, false, 30.0});
+  c.on_report({1, 0, false, 31.0});  // again
+  c.on_sent(2, 0, 1000, 32.0);
+  c.on_report({2, 0, false, 10.0});  // before it was sent
+  c.on_sent(3, 0, 1000, 48.0);
+  c.on_report({3, 0, false, std::numeric_limits<double>::quiet_NaN()});
+  EXPECT_EQ(c.reports_dropped(), 5u);
+  EXPECT_NEAR(c.update(100), 4000 * std::pow(1.08, 0.1), 1e-9);  // one good report, no queue
+}
+
+TEST(RateController, NoReportsNoChange) {
+  RateController c(settings());
+  c.update(0);
+  c.on_sent(0, 0, 1000, 0.0);
+  EXPECT_EQ(c.update(1000), 4000);
+  EXPECT_EQ(c.updates(), 0u);
+}
+
+}  // namespace
+}  // namespace dhr
