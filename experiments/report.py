@@ -917,6 +917,40 @@ def stages_section(ok):
     return out
 
 
+LATENCY_PARTS = [("uplink", "uplink"), ("server_wait", "server wait"), ("server", "server"),
+                 ("downlink", "downlink (queue, FEC)"), ("display_wait", "display wait")]
+
+
+def latency_section(ok):
+    """Motion to photon: each displayed buffer's age as its stages (results' latency_breakdown_ms_PASS,
+    each the median over a run's displayed frames), for the first pass sent (remote: colour), as the
+    mean over the scenes per configuration and network. Empty for results written before it."""
+    rows = {}
+    for r in ok:
+        m = r["metrics"]
+        sent = [p["pass"] for p in m["passes"] if p["server_frames"]]
+        parts = m.get(f"latency_breakdown_ms_{sent[0]}") if sent else None
+        if not parts:
+            continue
+        key = (r.get("configuration", r["label"]), r.get("settings", {}).get("network", ""))
+        rows.setdefault(key, []).append([parts[k] for k, _ in LATENCY_PARTS])
+    if not rows:
+        return []
+    out = ["## Motion to photon (virtual ms)\n",
+           "Each displayed buffer's age from the camera leaving the client to the display, as the stages it went "
+           "through (the median over a run's displayed frames, then the mean over the scenes), for the first pass "
+           "sent (hybrid: visibility; remote: colour). The stages add up to the buffer age; the client's own "
+           "stages (rasterize, decode, predict, composite) are wall time, in the stage table.\n",
+           "| configuration | network | " + " | ".join(label for _, label in LATENCY_PARTS) + " | total |",
+           "|---|---|" + "---|" * (len(LATENCY_PARTS) + 1)]
+    for (config, network), values in rows.items():
+        means = [sum(v[k] for v in values) / len(values) for k in range(len(LATENCY_PARTS))]
+        out.append(f"| {config} | {network or '–'} | " + " | ".join(f"{x:.1f}" for x in means) +
+                   f" | {sum(means):.1f} |")
+    out.append("")
+    return out
+
+
 def frame_size_plot(plot, ok, path):
     """Frame size against delivered frame rate (the paper's Fig. 10): per run, the bytes of one
     server frame (all passes) against the frames per second that arrived complete (the slowest
@@ -1083,6 +1117,7 @@ def write_report(d):
     sections = [header,
                 context_section(res["context"]),
                 results_section(ok, failed, metrics, loaded.frames),
+                latency_section(ok),
                 stages_section(ok),
                 plots_section(plot, d, ok, loaded.frames, headline, lead_metric(metrics)),
                 rate_quality_section(plot, d, exp, ok, metrics),

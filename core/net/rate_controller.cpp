@@ -26,10 +26,8 @@ void RateController::on_report(const FrameReport& r) {
   }
   const Sent sent = it->second;
   sent_.erase(it);
-  if (r.lost) {
-    ++lost_;
-    return;
-  }
+  ++reported_;
+  if (r.lost) return;  // (the loss rule reads the datagram counts)
   const double delay = r.arrival_ms - sent.sent_ms;
   if (!std::isfinite(delay) || delay < 0.0) {
     ++dropped_;
@@ -41,11 +39,18 @@ void RateController::on_report(const FrameReport& r) {
   delivered_bits_ += sent.wire_bytes * 8;
 }
 
+void RateController::on_counts(uint64_t received, uint64_t lost) {
+  // The counts only grow: lower ones come from an older message overtaken on the way.
+  new_received_ = std::max(new_received_, received);
+  new_lost_ = std::max(new_lost_, lost);
+}
+
 double RateController::update(double now_ms) {
   if (last_update_ms_ < 0.0) last_update_ms_ = now_ms;
   const double elapsed_ms = now_ms - last_update_ms_;
-  if (elapsed_ms < s_.interval_ms || delivered_ + lost_ == 0) return rate_;
-  const double loss = double(lost_) / double(delivered_ + lost_);
+  if (elapsed_ms < s_.interval_ms || reported_ == 0) return rate_;
+  const uint64_t got = new_received_ - received_, missed = new_lost_ - lost_;
+  const double loss = got + missed > 0 ? double(missed) / double(got + missed) : 0.0;
   const double queue_ms = delivered_ > 0 ? queue_sum_ms_ / double(delivered_) : 0.0;
   const double received_kbps = double(delivered_bits_) / elapsed_ms;  // bits per ms = kbit/s
   if (delivered_ > 0 && queue_ms > s_.target_queue_ms)
@@ -57,7 +62,9 @@ double RateController::update(double now_ms) {
   rate_ = std::clamp(rate_, s_.min_kbps, s_.max_kbps);
   last_update_ms_ = now_ms;
   queue_sum_ms_ = 0.0;
-  delivered_ = lost_ = delivered_bits_ = 0;
+  delivered_ = reported_ = delivered_bits_ = 0;
+  received_ = new_received_;
+  lost_ = new_lost_;
   ++updates_;
   return rate_;
 }

@@ -1,8 +1,9 @@
 // The adaptive bitrate controller of a stream: the server moves the stream's bit budget
 // (stream_kbps: every pass whose codec takes a target bitrate shares it; in remote mode the
-// colour stream) from what the client reports over the uplink about each frame: when its last
-// packet arrived, or that it was lost. The same controller serves hybrid (one budget over all
-// passes) and remote colour.
+// colour stream) from what the client reports over the uplink: when each frame's last packet
+// arrived (or that it was lost), and its running counts of datagrams received and lost (as an
+// RTCP receiver report). The same controller serves hybrid (one budget over all passes) and
+// remote colour.
 //
 // The rule, at most once per interval_ms of server time, from the reports that reached the
 // server since the last update (after Google Congestion Control, draft-ietf-rmcat-gcc-02:
@@ -12,14 +13,15 @@
 //   queue  = mean over the reported frames of (delivery delay - the smallest delivery delay seen
 //            in the session): the delay the link's queue adds (the propagation and a frame's
 //            serialization at full rate are in the smallest one; no clock sync is needed)
-//   loss   = lost / (lost + delivered) frames
+//   loss   = datagrams lost / (lost + received), from the growth of the client's counts
 //   received = wire bits of the delivered frames / the time between the update before and this one
 //   queue > target_queue_ms:    rate = beta * received          (the link is full: drain its queue)
 //   else loss > 10 %:           rate = rate * (1 - loss / 2)
 //   else loss < 2 %:            rate = rate * (1 + increase_per_s)^(elapsed s)
 //   (2..10 % loss: the rate holds); then the rate is clamped to [min_kbps, max_kbps].
 // Reports of frames the server never sent, sent twice, or with a delay that is not finite or
-// negative are dropped and counted, as every other untrusted datagram is.
+// negative, are dropped and counted, as every other untrusted datagram is; counts lower than
+// the newest are an older message overtaken on the way and change nothing.
 #pragma once
 
 #include <cstdint>
@@ -53,6 +55,8 @@ class RateController {
   void on_sent(uint32_t frame, int pass, uint64_t wire_bytes, double sent_ms);
   // A client report that reached the server.
   void on_report(const FrameReport& r);
+  // The client's running counts of datagrams received and lost (by sequence gaps).
+  void on_counts(uint64_t received, uint64_t lost);
   // Updates the rate if interval_ms has passed since the last update; returns the rate (kbit/s).
   double update(double now_ms);
   double rate_kbps() const { return rate_; }
@@ -71,7 +75,9 @@ class RateController {
   double last_update_ms_ = -1.0;
   // Since the last update:
   double queue_sum_ms_ = 0.0;
-  uint64_t delivered_ = 0, lost_ = 0, delivered_bits_ = 0;
+  uint64_t delivered_ = 0, reported_ = 0, delivered_bits_ = 0;
+  uint64_t received_ = 0, lost_ = 0;          // the counts at the last update
+  uint64_t new_received_ = 0, new_lost_ = 0;  // the newest counts
   uint64_t dropped_ = 0, updates_ = 0;
 };
 

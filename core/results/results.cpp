@@ -9,6 +9,7 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <optional>
 
@@ -405,6 +406,30 @@ const std::vector<RunMetric>& run_metrics() {
          return out;
        },
        true},
+      {"latency_breakdown_ms", "ms",
+       "per pass: the displayed buffer's age (motion to photon, virtual) as its stages, each the median over the "
+       "displayed frames: uplink, server_wait (for the busy server), server, downlink (queue, transmission, "
+       "propagation, FEC), display_wait (from completion at the client to the display)",
+       false,
+       [](R r) -> nlohmann::json {
+         std::map<std::string, std::array<StageStats, 5>> parts;  // per pass name
+         for (const auto& f : r.frames)
+           for (const auto& p : f.passes) {
+             if (p.source_frame < 0 || std::isnan(p.uplink_ms)) continue;
+             auto& a = parts[p.pass];
+             const double v[5] = {p.uplink_ms, p.server_wait_ms, p.server_ms, p.downlink_ms, p.display_wait_ms};
+             for (size_t k = 0; k < 5; ++k) a[k].samples_ms.push_back(v[k]);
+           }
+         nlohmann::json out = nlohmann::json::object();
+         for (const auto& [pass, a] : parts)
+           out[pass] = {{"uplink", a[0].median()},
+                        {"server_wait", a[1].median()},
+                        {"server", a[2].median()},
+                        {"downlink", a[3].median()},
+                        {"display_wait", a[4].median()}};
+         return out;
+       },
+       true},
       {"stages_wall", "ms", "per stage: median, p95 and count of its wall time", true,
        [](R r) -> nlohmann::json {
          nlohmann::json st = nlohmann::json::object();
@@ -499,7 +524,9 @@ std::string frames_csv_header(const std::vector<std::string>& leading, const std
   cols.push_back("scored_ground_truth");
   for (const ImageMetric& m : image_metrics()) cols.push_back(m.column(Against::GroundTruth));
   for (const std::string& p : passes)
-    for (const char* c : {"source_frame", "age_ms", "disoccluded"}) cols.push_back(fmt::format("{}_{}", p, c));
+    for (const char* c : {"source_frame", "age_ms", "disoccluded", "uplink_ms", "server_wait_ms", "server_ms",
+                          "downlink_ms", "display_wait_ms"})
+      cols.push_back(fmt::format("{}_{}", p, c));
   cols.push_back("client_wall_ms");
   return fmt::format("{}\n", fmt::join(cols, ","));
 }
@@ -518,12 +545,14 @@ std::string frames_csv_row(const std::vector<std::string>& leading, const FrameR
     const auto it =
         std::find_if(f.passes.begin(), f.passes.end(), [&](const PassFrameRecord& p) { return p.pass == name; });
     if (it == f.passes.end()) {
-      cells.insert(cells.end(), {"", "", ""});  // the run has no such pass
+      cells.insert(cells.end(), 8, "");  // the run has no such pass
       continue;
     }
     cells.push_back(std::to_string(it->source_frame));
     cells.push_back(csv_number(it->age_ms));
     cells.push_back(std::to_string(it->disoccluded));
+    for (double v : {it->uplink_ms, it->server_wait_ms, it->server_ms, it->downlink_ms, it->display_wait_ms})
+      cells.push_back(std::isnan(v) ? "" : csv_number(v));
   }
   cells.push_back(csv_number(f.client_wall_ms));
   return fmt::format("{}\n", fmt::join(cells, ","));

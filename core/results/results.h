@@ -74,6 +74,15 @@ struct PassFrameRecord {
   int source_frame = -1;  // the client frame whose server buffer was displayed (-1: none)
   double age_ms = 0.0;    // its age at composite (virtual)
   uint64_t disoccluded = 0;
+  // age_ms as the stages the displayed buffer went through (their sum; NaN: not known): the
+  // camera's way up, its wait for the busy server, the server's time, the way down (queue,
+  // transmission, propagation, and the wait for the packets FEC rebuilds from), and the wait
+  // from its completion at the client to this display.
+  double uplink_ms = std::numeric_limits<double>::quiet_NaN();
+  double server_wait_ms = std::numeric_limits<double>::quiet_NaN();
+  double server_ms = std::numeric_limits<double>::quiet_NaN();
+  double downlink_ms = std::numeric_limits<double>::quiet_NaN();
+  double display_wait_ms = std::numeric_limits<double>::quiet_NaN();
 };
 
 // Per displayed frame (virtual times in ms).

@@ -40,9 +40,11 @@ struct CameraMessage {
   bool keyframe_request = false;
   std::vector<int> holds;            // per pass: the newest frame its decoder holds, after a loss (-1: none)
   std::vector<FrameReport> reports;  // abr: the pass frames completed or lost since the last message
+  uint64_t datagrams_received = 0, datagrams_lost = 0;  // abr: the client's running counts
 };
 // abr: what one frame report adds to a camera message (frame, pass, flags, arrival time).
 constexpr uint64_t kFrameReportBytes = 8;
+constexpr uint64_t kCountsBytes = 16;  // abr: the datagrams received and lost, 8 bytes each
 
 struct Datagram {
   double arrival_ms = 0.0;
@@ -741,12 +743,18 @@ class Simulation {
           ++result_.cameras_dropped;
       if (abr_) {  // the reports every message that arrived carries, then the budget from now on
         for (const auto& m : inbox_)
-          if (m.arrival_ms <= start)
+          if (m.arrival_ms <= start) {
             for (const FrameReport& r : m.reports) abr_->on_report(r);
+            abr_->on_counts(m.datagrams_received, m.datagrams_lost);
+          }
         server_.set_stream_kbps(abr_->update(start));
         if (scored(newest)) result_.abr_kbps_lowest = std::min(result_.abr_kbps_lowest, abr_->rate_kbps());
       }
+      double camera_arrival = start;
+      for (const auto& m : inbox_)
+        if (m.frame == newest) camera_arrival = m.arrival_ms;
       std::erase_if(inbox_, [&](const CameraMessage& m) { return m.arrival_ms <= start && m.frame <= newest; });
+      server_times_[newest] = {camera_arrival, start, 0.0};
       server_job(newest, start, keyframe, holds);
     }
   }
@@ -796,8 +804,25 @@ class Simulation {
       }
     }
     server_free_ms_ = finish;
+    server_times_[j].finish_ms = finish;
+    while (server_times_.size() > kLatencyMemory) server_times_.erase(server_times_.begin());
     server_last_frame_ = j;
     if (count) ++result_.server_frames;
+  }
+
+  // The stages of a displayed buffer's age (PassFrameRecord), from the times this run recorded
+  // for its server frame and its completion at the client; left NaN when they are gone.
+  void break_down_age(PassFrameRecord& p, int pass, double now) const {
+    const auto st = server_times_.find(p.source_frame);
+    const auto done = completed_.find({p.source_frame, pass});
+    if (st == server_times_.end() || done == completed_.end()) return;
+    const ServerTimes& t = st->second;
+    p.uplink_ms = t.camera_arrival_ms - frame_ms(p.source_frame);
+    p.server_wait_ms = t.start_ms - t.camera_arrival_ms;
+    p.server_ms = t.finish_ms - t.start_ms;
+    // (The assembler stamps a completion with the arrival's whole millisecond.)
+    p.downlink_ms = done->second - t.finish_ms;
+    p.display_wait_ms = now - done->second;
   }
 
   // ---- client: the clock and the links (the stages are core/pipeline/pipeline.h's ClientPipeline)
@@ -820,6 +845,8 @@ class Simulation {
       PassTraffic& t = traffic_[traffic_index_[size_t(pass)]];
       if (count) ++t.frames_completed;
       if (abr_) reports_.push_back({f.meta.frame_id, pass, false, double(f.completed_ms)});
+      completed_[{int(f.meta.frame_id), pass}] = double(f.completed_ms);
+      while (completed_.size() > kLatencyMemory) completed_.erase(completed_.begin());
       const PassReceiver::Outcome o = client_.receive(pass, f);
       client_decode_ms_ += o.decode_ms;
       keyframe_request_ = keyframe_request_ || o.keyframe_request;
@@ -855,10 +882,12 @@ class Simulation {
     if (rasterizes) client_ms += raster_ms;
 
     // Uplink: this frame's camera (and a keyframe request after a loss).
-    const Delivery up =
-        uplink_.send(kCameraMessageBytes + kFrameReportBytes * reports_.size() + kIpUdpOverheadBytes, now);
+    const Delivery up = uplink_.send(
+        kCameraMessageBytes + (abr_ ? kCountsBytes + kFrameReportBytes * reports_.size() : 0) + kIpUdpOverheadBytes,
+        now);
     if (up.delivered) {
-      inbox_.push_back({a, up.arrival_ms, keyframe_request_, client_holds_, std::move(reports_)});
+      inbox_.push_back({a, up.arrival_ms, keyframe_request_, client_holds_, std::move(reports_),
+                        assembler_.stats().datagrams, assembler_.stats().packets_lost});
       keyframe_request_ = false;
       std::fill(client_holds_.begin(), client_holds_.end(), -1);
     } else if (count) {
@@ -901,7 +930,10 @@ class Simulation {
     }
     for (size_t i = 0; i < client_.passes().size(); ++i) {
       PassFrameRecord p{client_.passes()[i].name, shown.source_frame[i], 0.0, shown.disoccluded[i]};
-      if (p.source_frame >= 0) p.age_ms = now - frame_ms(p.source_frame);
+      if (p.source_frame >= 0) {
+        p.age_ms = now - frame_ms(p.source_frame);
+        break_down_age(p, int(i), now);
+      }
       rec.passes.push_back(std::move(p));
     }
     rec.client_wall_ms = client_ms;
@@ -988,6 +1020,14 @@ class Simulation {
   std::vector<FrameReport> reports_;  // abr: for the next camera message
 
   std::optional<RateController> abr_;  // abr on: the server's bitrate controller
+
+  // The times behind each displayed buffer's age (break_down_age), for the last frames.
+  static constexpr size_t kLatencyMemory = 4096;
+  struct ServerTimes {
+    double camera_arrival_ms = 0.0, start_ms = 0.0, finish_ms = 0.0;
+  };
+  std::map<int, ServerTimes> server_times_;          // per server frame
+  std::map<std::pair<int, int>, double> completed_;  // (server frame, pass) -> completed at the client
 };
 
 }  // namespace

@@ -6,6 +6,8 @@
 
 #include <cmath>
 #include <limits>
+#include <map>
+#include <utility>
 
 namespace dhr {
 namespace {
@@ -20,14 +22,22 @@ RateControlSettings settings() {
   return s;
 }
 
-// Sends frame f (wire_bytes, at f * 16 ms) and reports it delivered after delay_ms, or lost.
+// The client's datagram counts (received, lost) per controller of the running test.
+std::map<const RateController*, std::pair<uint64_t, uint64_t>> counts;
+
+// Sends frame f (wire_bytes, at f * 16 ms) and reports it delivered after delay_ms, or lost;
+// the client's datagram counts grow by 10 a frame (all 10 lost with a lost frame).
 void frame(RateController& c, uint32_t f, uint64_t wire_bytes, double delay_ms, bool lost = false) {
+  auto& [received, lost_datagrams] = counts[&c];
   const double sent = f * 16.0;
   c.on_sent(f, 0, wire_bytes, sent);
   c.on_report({f, 0, lost, sent + delay_ms});
+  (lost ? lost_datagrams : received) += 10;
+  c.on_counts(received, lost_datagrams);
 }
 
 TEST(RateController, RisesEightPercentPerSecondWhileTheQueueStaysEmpty) {
+  counts.clear();
   RateController c(settings());
   EXPECT_EQ(c.update(0), 4000);
   for (uint32_t f = 0; f < 7; ++f) frame(c, f, 1000, 20.0);
@@ -46,6 +56,7 @@ TEST(RateController, RisesEightPercentPerSecondWhileTheQueueStaysEmpty) {
 }
 
 TEST(RateController, AQueueAboveTheTargetCutsToBetaOfTheReceivedRate) {
+  counts.clear();
   RateController c(settings());
   c.update(0);
   frame(c, 0, 1000, 20.0);  // the smallest delay: the base
@@ -55,7 +66,10 @@ TEST(RateController, AQueueAboveTheTargetCutsToBetaOfTheReceivedRate) {
   EXPECT_NEAR(c.update(100), 0.85 * 1040.0, 1e-9);
 }
 
+// The loss rule reads the growth of the datagram counts, not the frames (one lost datagram
+// loses a whole frame of many).
 TEST(RateController, LossAboveTenPercentCutsByHalfTheLoss) {
+  counts.clear();
   RateController c(settings());
   c.update(0);
   for (uint32_t f = 0; f < 10; ++f) frame(c, f, 1000, 20.0, f < 3);  // 30 % lost
@@ -71,7 +85,26 @@ TEST(RateController, LossAboveTenPercentCutsByHalfTheLoss) {
   EXPECT_EQ(c.rate_kbps(), 500);
 }
 
+TEST(RateController, DatagramLossNotFrameLossDrivesTheLossRule) {
+  counts.clear();
+  RateController c(settings());
+  c.update(0);
+  // Every third frame lost (33 % of frames), but 1 datagram of its 30: 1.1 % of the datagrams.
+  uint64_t received = 0, lost = 0;
+  for (uint32_t f = 0; f < 9; ++f) {
+    c.on_sent(f, 0, 1000, f * 10.0);
+    c.on_report({f, 0, f % 3 == 0, f * 10.0 + 20.0});
+    received += f % 3 == 0 ? 29 : 30;
+    lost += f % 3 == 0 ? 1 : 0;
+    c.on_counts(received, lost);
+  }
+  c.on_counts(received - 5, lost);                               // an older message, overtaken: changes nothing
+  EXPECT_NEAR(c.update(100), 4000 * std::pow(1.08, 0.1), 1e-9);  // under 2 %: up
+  EXPECT_EQ(c.reports_dropped(), 0u);
+}
+
 TEST(RateController, ForgedRepeatedAndImpossibleReportsAreDroppedAndCounted) {
+  counts.clear();
   RateController c(settings());
   c.update(0);
   c.on_report({99, 0, false, 50.0});  // never sent
@@ -88,6 +121,7 @@ TEST(RateController, ForgedRepeatedAndImpossibleReportsAreDroppedAndCounted) {
 }
 
 TEST(RateController, NoReportsNoChange) {
+  counts.clear();
   RateController c(settings());
   c.update(0);
   c.on_sent(0, 0, 1000, 0.0);

@@ -846,6 +846,37 @@ TEST(FrameLoop, AdaptiveBitrateFollowsACapacityDrop) {
   EXPECT_LT(m["latency"]["stall_ms_total"].get<double>(), m["off"]["stall_ms_total"].get<double>());
 }
 
+// Each displayed buffer's age is the sum of its stages: the camera's way up, the wait for the
+// server, the server's fixed time, the way down and the wait for the display; on constant links
+// without a bandwidth cap the way up is the uplink's latency, and the way down its latency plus
+// at most the millisecond the assembler rounds a completion to.
+TEST(FrameLoop, AgeBreaksDownIntoItsStages) {
+  SimConfig c = small_config(30);
+  c.uplink.latency_ms = 7;
+  c.downlink.latency_ms = 11;
+  c.server_fixed_ms = 16;
+  c.warmup_frames = 4;
+  const RunResult r = run_simulation(c, scene("room"), "room", cache(), registries());
+  int checked = 0;
+  for (const FrameRecord& f : r.frames)
+    for (const PassFrameRecord& p : f.passes) {
+      if (p.source_frame < 0) continue;
+      ASSERT_FALSE(std::isnan(p.uplink_ms)) << "frame " << f.frame << " " << p.pass;
+      EXPECT_NEAR(p.uplink_ms + p.server_wait_ms + p.server_ms + p.downlink_ms + p.display_wait_ms, p.age_ms, 1e-9);
+      EXPECT_NEAR(p.uplink_ms, 7.0, 1e-9);
+      EXPECT_NEAR(p.server_ms, 16.0, 1e-9);
+      EXPECT_GE(p.server_wait_ms, 0.0);
+      EXPECT_GE(p.downlink_ms, 10.0);
+      EXPECT_LE(p.downlink_ms, 11.0);
+      EXPECT_GE(p.display_wait_ms, 0.0);
+      ++checked;
+    }
+  EXPECT_GT(checked, 40);
+  const nlohmann::json m = r.metrics();
+  EXPECT_NEAR(m["latency_breakdown_ms_ao"]["uplink"].get<double>(), 7.0, 1e-9);
+  EXPECT_NEAR(m["latency_breakdown_ms_ao"]["server"].get<double>(), 16.0, 1e-9);
+}
+
 // A bit budget for the stream (stream_kbps): remote H.264 in bitrate mode follows it, and in
 // hybrid mode the AO pass takes what the lossless visibility pass leaves. x264's rate control
 // over 2 s lands within 30 % of the target here (measured: 6-19 %); a larger budget buys quality.
