@@ -525,6 +525,8 @@ class LiveClient {
          {{"received", received_packets},
           {"fates", fates},
           {"lost", as.packets_lost},
+          {"recovered", as.packets_recovered},
+          {"frames_recovered", as.frames_recovered},
           {"loss_rate", received_packets + as.packets_lost
                             ? double(as.packets_lost) / double(received_packets + as.packets_lost)
                             : 0.0},

@@ -569,6 +569,36 @@ Process start_relay(const fs::path& dir, int server_port, const std::string& dow
       (dir / "relay.log").string());
 }
 
+// FEC in live mode: server and client agree on the passes' parity (a kInLiveOffer setting), and
+// through a relay that loses 5 % of the downlink's datagrams the client rebuilds frames from
+// their parity packets.
+TEST(LiveMode, ThroughALossyRelayFecRebuildsFrames) {
+  const fs::path dir = fresh_dir("relay_fec");
+  const std::vector<std::string> fec{"--set", "passes.visibility.fec_parity=0.5", "--set", "passes.ao.fec_parity=0.5"};
+  Process server = start_server(dir, with({"--out", (dir / "server").string(), "--idle-timeout", "20"}, fec));
+  ASSERT_GT(server.pid, 0);
+  const int server_port = wait_port(dir / "server.port", server);
+  ASSERT_GT(server_port, 0);
+  Process relay = start_relay(dir, server_port, R"({"latency_ms": 10, "loss": "independent", "loss_rate": 0.05})",
+                              R"({"latency_ms": 10})", {"--seed", "9"});
+  const int relay_port = wait_port(dir / "relay.port", relay);
+  ASSERT_GT(relay_port, 0);
+  Process client = start_client(dir, relay_port, with({"--frames", "90", "--out", (dir / "client").string()}, fec));
+  ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
+  ASSERT_TRUE(server.wait(30)) << server.output();
+  ASSERT_TRUE(relay.wait(30)) << relay.output();
+  EXPECT_EQ(client.exit_code, 0) << client.output();
+  const json c = read_json(dir / "client" / "live.json");
+  const json r = read_json(dir / "relay.json");
+  EXPECT_GT(r["server_to_client"]["dropped_loss"].get<uint64_t>(), 0u) << r.dump(2);
+  EXPECT_GT(c["packets"]["frames_recovered"].get<uint64_t>(), 0u) << c["packets"].dump(2);
+  EXPECT_GT(c["packets"]["recovered"].get<uint64_t>(), 0u) << c["packets"].dump(2);
+  std::printf("live, FEC 50 %%, 5 %% loss: %llu datagrams dropped by the relay, %llu frames rebuilt (%llu packets)\n",
+              (unsigned long long)r["server_to_client"]["dropped_loss"].get<uint64_t>(),
+              (unsigned long long)c["packets"]["frames_recovered"].get<uint64_t>(),
+              (unsigned long long)c["packets"]["recovered"].get<uint64_t>());
+}
+
 TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
   const fs::path dir = fresh_dir("relay");
   Process server = start_server(dir, {"--out", (dir / "server").string(), "--idle-timeout", "20"});
