@@ -2,6 +2,7 @@
 
 #include "core/base/checksum.h"
 #include "core/base/error.h"
+#include "core/config/cache_keys.h"
 #include "core/metrics/metrics.h"
 #include "core/net/assembler.h"
 #include "core/net/fec.h"
@@ -55,91 +56,11 @@ struct Datagram {
   }
 };
 
-// Bump when tracing, rasterizing or the cache file format changes: disk entries written by an
-// older version are then never read (the key is stored in the file and compared).
-// 2: ray offsets scaled by the hit triangle's own error. 3: scenes with moving objects
-// in Embree's two-level layout (RtSceneOptions::static_child).
-constexpr int kTraceCacheVersion = 3;
-
-// The cache keys: the settings flagged in core/config/run_config.cpp as changing the traced buffers
-// (kInTraceKey) or the ground truth (kInTruthKey), plus the scene and the frame.
-std::string trace_key(const std::string& scene_key, const SimConfig& c, int frame) {
-  return fmt::format("trace{}|{}|f{}|{}", kTraceCacheVersion, scene_key, frame, settings_key(c, kInTraceKey));
-}
-
-// The cache key of one traced pass of one frame: the settings of every pass and its own
-// (pass_settings_key), so runs that differ in another pass's settings share it.
-std::string pass_trace_key(const std::string& scene_key, const SimConfig& c, int frame, std::string_view pass) {
-  return fmt::format("trace{}|{}|f{}|pass={}|{}", kTraceCacheVersion, scene_key, frame, pass,
-                     pass_settings_key(c, pass));
-}
-
 }  // namespace
 
-SimConfig keyed_config(const SimConfig& config, const Scene& scene) {
-  SimConfig k = config;
-  // The AO rays and radius plan_passes resolves (the AO pass on, so that a run that switches it
-  // off is keyed the same way).
-  TraceSettings with_ao = config.trace;
-  with_ao.ao_pass = true;
-  if (const PassPlan plan = plan_passes(scene, with_ao); plan.ao) {
-    k.trace.ao_rays = plan.ao_rays;
-    k.trace.ao_radius_m = plan.ao_radius_m;
-  }
-  return k;
-}
-
-// The local reference of client frame a depends on nothing but the traced passes of frames 0..a
-// (the scene, the camera path and the trace settings: the trace key), the denoisers and, for a
-// pass traced at reduced resolution, the upsampling filter (core/pipeline/pipeline.h, LocalReference), so
-// the runs of a sweep that share those share it: the first computes it, the others take it from
-// the cache.
-std::string local_reference_key(const std::string& scene_key, const SimConfig& c, int frame) {
-  std::string denoisers;
-  for (const PassType& t : pass_types()) {
-    const BackendChoice& d = c.pass(t.name).denoiser;
-    denoisers += fmt::format("|{}={}:{}", t.name, d.name, d.params.dump());
-  }
-  const std::string upsample = c.trace.ao_scale > 1 ? "|upsample=" + c.ao_upsample : "";
-  return fmt::format("local|{}{}{}", trace_key(scene_key, c, frame), denoisers, upsample);
-}
-
-namespace {
-
-// What a traced pass's denoised buffers depend on besides the frames fed (DenoiseSharing): the
-// pass's trace key without the frame, and its denoiser.
-std::string denoise_chain_key(const std::string& scene_key, const SimConfig& c, std::string_view pass) {
-  const BackendChoice& d = c.pass(pass).denoiser;
-  return fmt::format("denoise{}|{}|pass={}|{}|denoiser={}:{}", kTraceCacheVersion, scene_key, pass,
-                     pass_settings_key(c, pass), d.name, d.params.dump());
-}
-
-std::string truth_key(const std::string& scene_key, const SimConfig& c, int frame) {
-  return fmt::format("truth|{}|f{}|{}", scene_key, frame, settings_key(c, kInTruthKey));
-}
-
-// Which displayed frames (0 = the first after warm-up) a run scores against the local
-// reference, and which of those also against the ground truth.
-bool scores_frame(const SimConfig& c, int frame) { return frame % c.score_every == 0; }
-bool scores_ground_truth(const SimConfig& c, int frame) {
-  return scores_frame(c, frame) && c.ground_truth_every > 0 && frame % c.ground_truth_every == 0;
-}
-
-}  // namespace
-
-// The reads Simulation::client_frame makes (flip_features_of), frame by frame.
 std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config,
                                              const Scene& scene) {
-  std::vector<std::string> keys;
-  if (config.score_every <= 0) return keys;         // not validated yet
-  const SimConfig c = keyed_config(config, scene);  // as the run keys them
-  for (int a = c.warmup_frames; a < c.warmup_frames + c.frames; ++a) {
-    const int frame = a - c.warmup_frames;
-    if (!scores_frame(c, frame)) continue;
-    keys.push_back(local_reference_key(scene_key, c, a));
-    if (scores_ground_truth(c, frame)) keys.push_back(truth_key(scene_key, c, a));
-  }
-  return keys;
+  return CacheKeys::of(config, scene, scene_key).flip_references();
 }
 
 // ---- small pieces ---------------------------------------------------------------------------
@@ -485,7 +406,7 @@ class Simulation {
         c_(plan.config),
         scene_(*plan.scene),
         scene_key_(scene_key),
-        key_c_(keyed_config(c_, scene_)),
+        keys_(CacheKeys::of(plan, scene_key)),
         cache_(cache),
         uplink_(c_.uplink, c_.seed, 0),
         downlink_(c_.downlink, c_.seed, 1),
@@ -497,7 +418,7 @@ class Simulation {
     // The server and the local reference share their temporal denoisers' outputs with the
     // other runs of the sweep (DenoiseStage::share).
     std::vector<std::string> denoise_keys;
-    for (const PlannedPass& p : plan_.traced) denoise_keys.push_back(denoise_chain_key(scene_key_, key_c_, p.name));
+    for (const PlannedPass& p : plan_.traced) denoise_keys.push_back(keys_.denoise_chain(p.name));
     // (Under pose prediction the server's frames are not the path's: its denoisers see a
     // sequence of their own, shared with no other run.)
     if (!predicts_pose()) server_.share_denoised(&memo_, denoise_keys);
@@ -571,7 +492,7 @@ class Simulation {
     return *rt_;
   }
 
-  std::string local_key(int a) const { return local_reference_key(scene_key_, key_c_, a); }
+  std::string local_key(int a) const { return keys_.local_reference(a); }
 
   // When the cache holds the local reference of every frame this run scores, the run takes them
   // all from there and never runs its own (a temporal denoiser must see every frame from the
@@ -601,7 +522,7 @@ class Simulation {
     const TraceSettings settings = c_.trace_for_frame(uint32_t(a));
     std::vector<std::shared_ptr<const TraceCache::Entry>> parts;
     for (const PlannedPass& p : plan_.traced) {
-      const std::string key = pass_trace_key(scene_key_, key_c_, a, p.name) + pose;
+      const std::string key = keys_.pass_trace(a, p.name) + pose;
       parts.push_back(cache_.find_or_make(
           key, [&] { return cache_.find(key); },
           [&] {
@@ -666,7 +587,7 @@ class Simulation {
   // Ground truth: converged visibility and AO (no denoiser), composited (core/pass/reference.h,
   // cached on disk there and in memory here).
   std::shared_ptr<const ImageRGB8> ground_truth(int a, const GBuffer& gbuf) {
-    const std::string key = truth_key(scene_key_, key_c_, a);
+    const std::string key = keys_.truth(a);
     return cache_.find_or_make(
         key, [&] { return cache_.find_image(key); },
         [&] {
@@ -949,7 +870,7 @@ class Simulation {
       if (scores_ground_truth(c_, rec.frame)) {
         auto truth = ground_truth(a, gbuf);
         rec.scored_ground_truth = true;
-        const auto truth_flip = flip_features_of(truth_key(scene_key_, key_c_, a), *truth);
+        const auto truth_flip = flip_features_of(keys_.truth(a), *truth);
         rec.ground_truth = score_frame(ScoreReference{*truth, truth_flip.get()}, image);
         if (c_.keep_images) result_.ground_truth_images = {*truth};
       }
@@ -968,7 +889,7 @@ class Simulation {
   const SimConfig& c_;  // plan_.config
   const Scene& scene_;  // *plan_.scene
   std::string scene_key_;
-  SimConfig key_c_;                                               // c_ as the cache keys see it (keyed_config)
+  CacheKeys keys_;                                                // what names its cached values
   std::optional<ImageRGB8> prev_local_, prev_shown_;              // the last scored frame's reference and image
   std::map<int, std::shared_ptr<const ImageRGB8>> local_cached_;  // the local references taken from the cache
   TraceCache& cache_;

@@ -29,6 +29,7 @@
 
 #include "core/backend/backend.h"
 #include "core/buffers/gbuffer.h"
+#include "core/config/cache_keys.h"
 #include "core/config/run_config.h"
 #include "core/config/run_plan.h"
 #include "core/metrics/flip.h"
@@ -172,23 +173,9 @@ RunResult run_simulation(const RunPlan& plan, const std::string& scene_key, Trac
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key, TraceCache& cache,
                          const Registries& registries, const ProgressFn& progress = {});
 
-// The run's settings as its cache keys see them: what the run leaves to the scene
-// (trace.ao_rays and trace.ao_radius_m 0: the scene's ao block) set to the scene's values, as
-// plan_passes resolves them. A run that names the scene's own values (paper's "F3 AO radius 2 m"
-// on temple, whose ao.radius_m is 2) then shares the traces, denoised passes and references of
-// one that leaves them to the scene: the same plan, so the same bits. run_simulation keys
-// everything by it; the keys below take it (keyed_config(config, scene)) to name a run's entries.
-SimConfig keyed_config(const SimConfig& config, const Scene& scene);
-
-// The cache key of the local reference of client frame `frame` (TraceCache::find_image): the
-// trace key (scene, camera path, trace settings, frame) and every traced pass's denoiser, all it
-// depends on. A run finding the key of every frame it scores takes them instead of computing its
-// own (docs/performance.md, "Computed once per sweep").
-std::string local_reference_key(const std::string& scene_key, const SimConfig& config, int frame);
-
 // One key per FLIP score the run will compute, in order: the local reference of every scored
 // frame and the ground truth of every frame scored against it (TraceCache::expect_flip_reads),
-// keyed as run_simulation keys them (keyed_config).
+// keyed as run_simulation keys them (CacheKeys::flip_references, core/config/cache_keys.h).
 std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config, const Scene& scene);
 
 }  // namespace dhr

@@ -219,7 +219,7 @@ TEST(FrameLoop, SharedLocalReferenceScoresAsItsOwn) {
     TraceCache cache;
     for (int f = c.warmup_frames; f < c.warmup_frames + c.frames; ++f)
       if ((f - c.warmup_frames) % c.score_every == 0 && f != skip)
-        cache.insert_image(local_reference_key("room", keyed_config(c, scene("room")), f),
+        cache.insert_image(CacheKeys::of(c, scene("room"), "room").local_reference(f),
                            std::make_shared<const ImageRGB8>(c.width, c.height));
     return scores(c, cache);
   };
@@ -341,15 +341,14 @@ TEST(FrameLoop, SharedFlipFeaturesScoreAsTheirOwn) {
   TraceCache shared;
   (void)both_scores(a, shared);
   for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
-    EXPECT_NE(shared.find_flip(local_reference_key("room", keyed_config(a, scene("room")), f)), nullptr)
-        << "frame " << f;
+    EXPECT_NE(shared.find_flip(CacheKeys::of(a, scene("room"), "room").local_reference(f)), nullptr) << "frame " << f;
   TraceCache fresh;
   const std::string own = both_scores(late, fresh);
   EXPECT_EQ(both_scores(late, shared), own);
 
   TraceCache planted;
   for (int f = a.warmup_frames; f < a.warmup_frames + a.frames; f += a.score_every)
-    planted.insert_flip(local_reference_key("room", keyed_config(late, scene("room")), f),
+    planted.insert_flip(CacheKeys::of(late, scene("room"), "room").local_reference(f),
                         std::make_shared<const FlipFeatures>(flip_features(ImageRGB8(late.width, late.height))));
   EXPECT_NE(both_scores(late, planted), own);
 }
