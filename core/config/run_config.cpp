@@ -300,27 +300,26 @@ std::vector<RunSetting> make_settings() {
       "abr_target_queue_ms, down by half the loss above 10 % loss, else up 8 % per second",
       [](auto& c) -> auto& { return c.abr; });
   abr.choices = {"off", "latency"};
-  const char* no_live_abr = "live mode has no adaptive bitrate yet";
-  v.push_back(with(abr, 0, no_live_abr));
+  v.push_back(with(abr, kInLiveOffer));
   v.push_back(with(ranged(
                        "abr_min_kbps", SettingType::Number, 1, 1e7, "abr: the lowest stream budget (kbit/s)",
                        [](auto& c) -> auto& { return c.abr_min_kbps; }),
-                   0, no_live_abr));
+                   kInLiveOffer));
   v.push_back(
       with(ranged(
                "abr_max_kbps", SettingType::Number, 0, 1e7, "abr: the highest stream budget (kbit/s; 0: stream_kbps)",
                [](auto& c) -> auto& { return c.abr_max_kbps; }),
-           0, no_live_abr));
+           kInLiveOffer));
   v.push_back(with(ranged(
                        "abr_target_queue_ms", SettingType::Number, 0, 1e4,
                        "abr: the queueing delay (delivery delay above the smallest seen) that makes it back off (ms)",
                        [](auto& c) -> auto& { return c.abr_target_queue_ms; }),
-                   0, no_live_abr));
+                   kInLiveOffer));
   v.push_back(with(ranged(
                        "abr_interval_ms", SettingType::Number, 1, 1e5,
                        "abr: the shortest time between two changes of the budget (ms of server time)",
                        [](auto& c) -> auto& { return c.abr_interval_ms; }),
-                   0, no_live_abr));
+                   kInLiveOffer));
   v.push_back(ranged(
       "history_frames", SettingType::Integer, 1, 1024, "client G-buffers kept for prediction",
       [](auto& c) -> auto& { return c.history_frames; }));

@@ -293,12 +293,20 @@ class LiveClient {
     return true;
   }
 
+  // Keeps the newest kMaxFrameReports reports for the next camera (a camera the socket could not
+  // send loses them, as a lost datagram would).
+  void report(const FrameReport& r) {
+    if (reports_.size() == kMaxFrameReports) reports_.erase(reports_.begin());
+    reports_.push_back(r);
+  }
+
   void count_lost(const AssemblerEvents& events) {
     for (const LostFrame& l : events.lost) {
       const int slot = slot_of(l.meta.desc.kind);
       if (slot < 0) continue;
       ++frames_lost_[slot];
       socket_bytes_.erase({slot, l.meta.frame_id});
+      if (c_.abr != "off") report({l.meta.frame_id, slot, true, 0.0});
     }
   }
 
@@ -312,6 +320,13 @@ class LiveClient {
     cu.frame = uint32_t(a);
     cu.keyframe_request = keyframe_request_;
     cu.holds = holds_;
+    if (c_.abr != "off") {  // the reports for the server's bitrate controller
+      cu.has_reports = true;
+      cu.datagrams_received = assembler_.stats().datagrams;
+      cu.datagrams_lost = assembler_.stats().packets_lost;
+      cu.reports = std::move(reports_);
+      reports_.clear();
+    }
     cu.scene_time_s = frame_time_s(a);
     cu.camera = camera(a);
     gate_.camera_sent(cu.frame);
@@ -341,6 +356,7 @@ class LiveClient {
       if (slot < 0 || pass_of_slot_[slot] < 0) continue;
       ++frames_completed_[slot];
       const uint32_t frame_id = f.meta.frame_id;
+      if (c_.abr != "off") report({frame_id, slot, false, double(f.completed_ms)});
       if (frame_id < send_ms_.size() && send_ms_[frame_id] >= 0)
         round_trip_ms_[slot].push_back(double(f.completed_ms) - send_ms_[frame_id]);
       const PassReceiver::Outcome out = client_.receive(pass_of_slot_[slot], f);
@@ -573,6 +589,7 @@ class LiveClient {
   std::array<int, kPassSlots> pass_of_slot_ = filled<int>(-1);  // per stream: its pass in client_, -1: none
   bool keyframe_request_ = false;
   std::array<int32_t, kPassSlots> holds_ = filled<int32_t>(-1);  // per stream, with the next camera
+  std::vector<FrameReport> reports_;                             // abr: with the next camera
   bool has_prev_ = false;
   Camera prev_camera_;
   double prev_time_s_ = 0;

@@ -71,11 +71,53 @@ std::vector<uint8_t> camera_body(const CameraUpdate& c) {
     put32(p, h < 0 ? 0xffffffffu : uint32_t(h));
     p += 4;
   }
+  if (!c.has_reports) return b;
+  const size_t n = std::min(c.reports.size(), kMaxFrameReports);
+  b.resize(kCameraBodyBytes + kReportsHeadBytes + n * kFrameReportWireBytes, 0);
+  p = b.data() + kCameraBodyBytes;
+  put64(p, c.datagrams_received);
+  put64(p + 8, c.datagrams_lost);
+  put16(p + 16, uint32_t(n));
+  p += kReportsHeadBytes;
+  for (size_t i = c.reports.size() - n; i < c.reports.size(); ++i) {  // the newest n
+    const FrameReport& r = c.reports[i];
+    put32(p, r.frame);
+    p[4] = uint8_t(r.pass);
+    p[5] = r.lost ? 1 : 0;
+    put64(p + 8, std::bit_cast<uint64_t>(r.arrival_ms));
+    p += kFrameReportWireBytes;
+  }
   return b;
 }
 
+// The reports after a Camera's fixed body (CameraUpdate::has_reports); false on any bad field.
+bool parse_reports(std::span<const uint8_t> b, CameraUpdate& c) {
+  c.has_reports = false;
+  c.reports.clear();
+  if (b.empty()) return true;
+  if (b.size() < kReportsHeadBytes) return false;
+  const uint8_t* p = b.data();
+  c.datagrams_received = get64(p);
+  c.datagrams_lost = get64(p + 8);
+  const size_t n = get16(p + 16);
+  if (n > kMaxFrameReports || b.size() != kReportsHeadBytes + n * kFrameReportWireBytes) return false;
+  p += kReportsHeadBytes;
+  for (size_t i = 0; i < n; ++i, p += kFrameReportWireBytes) {
+    FrameReport r;
+    r.frame = get32(p);
+    if (p[4] >= kPassSlots || p[5] > 1 || p[6] || p[7]) return false;
+    r.pass = p[4];
+    r.lost = p[5] == 1;
+    r.arrival_ms = std::bit_cast<double>(get64(p + 8));
+    if (!std::isfinite(r.arrival_ms)) return false;
+    c.reports.push_back(r);
+  }
+  c.has_reports = true;
+  return true;
+}
+
 bool parse_camera(std::span<const uint8_t> b, CameraUpdate& c) {
-  if (b.size() != kCameraBodyBytes) return false;
+  if (b.size() < kCameraBodyBytes || !parse_reports(b.subspan(kCameraBodyBytes), c)) return false;
   const uint8_t* p = b.data();
   c.frame = get32(p);
   if (p[4] > 1 || p[5] || p[6] || p[7]) return false;

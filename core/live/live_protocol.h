@@ -31,6 +31,7 @@
 
 #include "core/buffers/camera.h"
 #include "core/net/packet.h"
+#include "core/net/rate_controller.h"
 
 #include <nlohmann/json.hpp>
 
@@ -76,8 +77,19 @@ struct CameraUpdate {
   // server may predict from instead of sending a keyframe (Codec::holds; -1: none). On the
   // wire 0xffffffff; any other value must be older than `frame`.
   std::array<int32_t, kPassSlots> holds = filled<int32_t>(-1);
+  // Adaptive bitrate (the session's abr setting, core/net/rate_controller.h): the client's running
+  // counts of datagrams received and lost, and its reports of the pass frames completed or lost
+  // since the last camera (FrameReport::pass is the stream slot; arrival_ms the client's clock).
+  // On the wire after the fixed body: u64 received, u64 lost, u16 count, then per report u32
+  // frame, u8 slot, u8 lost (0 or 1), u16 reserved 0, f64 arrival_ms (finite); at most
+  // kMaxFrameReports. Absent (a body of kCameraBodyBytes) when has_reports is false.
+  bool has_reports = false;
+  uint64_t datagrams_received = 0, datagrams_lost = 0;
+  std::vector<FrameReport> reports;
 };
 constexpr size_t kCameraBodyBytes = 4 + 4 + 8 + 12 * 4 + 2 * 2 + 4 * kPassSlots;
+constexpr size_t kMaxFrameReports = 64;
+constexpr size_t kReportsHeadBytes = 8 + 8 + 2, kFrameReportWireBytes = 16;
 
 struct ControlMessage {
   ControlType type = ControlType::Hello;

@@ -68,8 +68,10 @@ class LiveServer {
     uint64_t cameras = 0, cameras_superseded = 0, cameras_stale = 0, frames_served = 0;
     uint64_t frames_after_held_report = 0;  // served with a frame the client reported holding
     uint64_t datagrams_sent = 0, bytes_sent = 0, send_dropped = 0;
-    std::vector<double> compute_ms;  // the first kMaxSamples frames (for percentiles)
-    std::ofstream log;               // server_frames.csv, written as frames are sent
+    std::vector<double> compute_ms;     // the first kMaxSamples frames (for percentiles)
+    std::ofstream log;                  // server_frames.csv, written as frames are sent
+    std::optional<RateController> abr;  // abr on: the stream budget from the client's reports
+    double abr_kbps_lowest = 0.0;
   };
   static constexpr size_t kMaxSamples = 100000;
 
@@ -188,6 +190,16 @@ class LiveServer {
     s->peer = from;
     for (int slot = 0; slot < pass_slot_count(); ++slot) s->first_sequence[slot] = os_random_u32();
     s->pipeline = std::make_unique<ServerPipeline>(plan_, registries_, direct_tracer(*rt_, plan_), stream_of(s->id));
+    if (c_.abr != "off") {  // the simulator's controller (core/sim/frame_loop.cpp), on this server's clock
+      RateControlSettings rs;
+      rs.start_kbps = c_.stream_kbps;
+      rs.min_kbps = c_.abr_min_kbps;
+      rs.max_kbps = c_.abr_max_kbps > 0.0 ? c_.abr_max_kbps : c_.stream_kbps;
+      rs.target_queue_ms = c_.abr_target_queue_ms;
+      rs.interval_ms = c_.abr_interval_ms;
+      s->abr.emplace(rs);
+      s->abr_kbps_lowest = s->abr->rate_kbps();
+    }
     for (size_t i = 0; i < s->pipeline->passes().size(); ++i)
       s->pipeline->set_next_sequence(i, s->first_sequence[stream_slot(s->pipeline->passes()[i])]);
     s->started = s->last_heard = Clock::now();
@@ -226,6 +238,12 @@ class LiveServer {
     }
     s.last_heard = Clock::now();
     ++s.cameras;
+    // The reports ride on every camera, a stale one too (the counts only grow; a frame reported
+    // twice is dropped by the controller).
+    if (s.abr && m.camera.has_reports) {
+      for (const FrameReport& r : m.camera.reports) s.abr->on_report(r);
+      s.abr->on_counts(m.camera.datagrams_received, m.camera.datagrams_lost);
+    }
     if (int64_t(m.camera.frame) <= s.last_frame || (s.pending && m.camera.frame <= s.pending->frame)) {
       ++s.cameras_stale;  // reordered or duplicated: a newer camera was seen already
       return;
@@ -248,6 +266,10 @@ class LiveServer {
     if (std::any_of(holds.begin(), holds.end(), [](int h) { return h >= 0; })) ++s.frames_after_held_report;
     s.holds = filled<int32_t>(-1);
     const auto t0 = Clock::now();
+    if (s.abr) {
+      s.pipeline->set_stream_kbps(s.abr->update(ms_between(s.started, t0)));
+      s.abr_kbps_lowest = std::min(s.abr_kbps_lowest, s.abr->rate_kbps());
+    }
     // The same stages, seed and frame index as the simulator: the same camera gives the same
     // passes and the same bytes.
     ServerFrame f = s.pipeline->run(cam.frame, cam.camera, cam.scene_time_s, keyframe, holds);
@@ -256,6 +278,12 @@ class LiveServer {
         s.log << fmt::format("{:08x},{},{},{},{},{}\n", s.id, cam.frame, p.name, p.encoded_bytes, p.packets.size(),
                              wire_bytes_of_packets(p.packets, mac_bytes()));
     if (s.compute_ms.size() < kMaxSamples) s.compute_ms.push_back(ms_between(t0, Clock::now()));
+    if (s.abr) {  // sent now, by stream slot (the client reports slots)
+      const double sent_ms = ms_between(s.started, Clock::now());
+      for (size_t i = 0; i < f.passes.size(); ++i)
+        s.abr->on_sent(cam.frame, stream_slot(s.pipeline->passes()[i]),
+                       wire_bytes_of_packets(f.passes[i].packets, mac_bytes()), sent_ms);
+    }
     for (SentPass& pass : f.passes)
       for (auto& p : pass.packets) {
         const size_t bytes = p.size() + mac_bytes();
@@ -290,6 +318,11 @@ class LiveServer {
            {"cameras_stale", s.cameras_stale},
            {"frames_served", s.frames_served},
            {"frames_after_held_report", s.frames_after_held_report},
+           {"abr", s.abr ? nlohmann::json{{"updates", s.abr->updates()},
+                                          {"reports_dropped", s.abr->reports_dropped()},
+                                          {"kbps_lowest", s.abr_kbps_lowest},
+                                          {"kbps_last", s.abr->rate_kbps()}}
+                         : nlohmann::json()},
            {"datagrams_sent", s.datagrams_sent},
            {"bytes_sent", s.bytes_sent},
            {"wire_bytes_sent", on_the_wire(s.bytes_sent, s.datagrams_sent)},

@@ -8,6 +8,8 @@ namespace dhr {
 namespace {
 // Sent frames whose reports never came (the uplink lost them) are forgotten past this many.
 constexpr size_t kMaxUnreported = 4096;
+// A report whose arrival is this far from the frame's sending is not from a real clock.
+constexpr double kMaxDelayMs = 1e9;
 }  // namespace
 
 RateController::RateController(const RateControlSettings& s)
@@ -28,8 +30,10 @@ void RateController::on_report(const FrameReport& r) {
   sent_.erase(it);
   ++reported_;
   if (r.lost) return;  // (the loss rule reads the datagram counts)
+  // (Live mode: the client's clock and the server's differ by a constant, which the smallest
+  // delay takes out; a delay may then be negative, but not beyond any real clock's range.)
   const double delay = r.arrival_ms - sent.sent_ms;
-  if (!std::isfinite(delay) || delay < 0.0) {
+  if (!std::isfinite(delay) || std::fabs(delay) > kMaxDelayMs) {
     ++dropped_;
     return;
   }

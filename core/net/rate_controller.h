@@ -20,7 +20,8 @@
 //   else loss < 2 %:            rate = rate * (1 + increase_per_s)^(elapsed s)
 //   (2..10 % loss: the rate holds); then the rate is clamped to [min_kbps, max_kbps].
 // Reports of frames the server never sent, sent twice, or with a delay that is not finite or
-// negative, are dropped and counted, as every other untrusted datagram is; counts lower than
+// beyond 1e9 ms either way (the client's clock may differ from the server's by a constant: the
+// smallest delay takes it out), are dropped and counted, as every other untrusted datagram is; counts lower than
 // the newest are an older message overtaken on the way and change nothing.
 #pragma once
 

@@ -24,6 +24,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -201,6 +202,56 @@ std::string with_field(const std::string& dotted, const json& value) {
   else
     (*at)[rest] = value;
   return o.dump();
+}
+
+// The reports for adaptive bitrate after a Camera's fixed body: they round-trip bit for bit,
+// at most kMaxFrameReports go (the newest), and a bad field refuses the whole camera.
+TEST(LiveProtocol, CameraReportsRoundTripAndBadOnesAreRefused) {
+  ControlMessage m;
+  m.type = ControlType::Camera;
+  m.session = 9;
+  m.camera = sample_camera();
+  m.camera.has_reports = true;
+  m.camera.datagrams_received = 123456789012ull;
+  m.camera.datagrams_lost = 77;
+  for (uint32_t f = 0; f < 70; ++f) m.camera.reports.push_back({f, int(f % 2), f % 5 == 0, 1000.25 + f});
+  ControlMessage back;
+  ASSERT_EQ(parse_control(encode_control(m), back), ControlParse::Ok);
+  ASSERT_TRUE(back.camera.has_reports);
+  EXPECT_EQ(back.camera.datagrams_received, 123456789012ull);
+  EXPECT_EQ(back.camera.datagrams_lost, 77u);
+  ASSERT_EQ(back.camera.reports.size(), kMaxFrameReports);
+  for (size_t i = 0; i < kMaxFrameReports; ++i) {
+    const FrameReport& want = m.camera.reports[70 - kMaxFrameReports + i];
+    EXPECT_EQ(back.camera.reports[i].frame, want.frame);
+    EXPECT_EQ(back.camera.reports[i].pass, want.pass);
+    EXPECT_EQ(back.camera.reports[i].lost, want.lost);
+    EXPECT_EQ(back.camera.reports[i].arrival_ms, want.arrival_ms);
+  }
+  // Without reports the body is the fixed one.
+  ControlMessage plain = m;
+  plain.camera.has_reports = false;
+  ASSERT_EQ(parse_control(encode_control(plain), back), ControlParse::Ok);
+  EXPECT_FALSE(back.camera.has_reports);
+  EXPECT_TRUE(back.camera.reports.empty());
+  // Bad fields: a slot past the streams, a lost flag of 2, a non-finite time, a reserved byte,
+  // a count that disagrees with the length.
+  m.camera.reports.resize(3);
+  const std::vector<uint8_t> good = encode_control(m);
+  const size_t first = kControlHeaderBytes + kCameraBodyBytes + kReportsHeadBytes;
+  for (int bad = 0; bad < 5; ++bad) {
+    std::vector<uint8_t> d = good;
+    if (bad == 0) d[first + 4] = kPassSlots;
+    if (bad == 1) d[first + 5] = 2;
+    if (bad == 2) {
+      const uint64_t nan = std::bit_cast<uint64_t>(std::numeric_limits<double>::quiet_NaN());
+      for (int k = 0; k < 8; ++k) d[first + 8 + size_t(k)] = uint8_t(nan >> (8 * k));
+    }
+    if (bad == 3) d[first + 6] = 1;
+    if (bad == 4) d[kControlHeaderBytes + kCameraBodyBytes + 16] = 4;  // count 4, three reports
+    seal_control(d);
+    EXPECT_EQ(parse_control(d, back), ControlParse::BadBody) << bad;
+  }
 }
 
 TEST(LiveTrust, EveryMalformedControlMessageClassIsRefusedWithItsReason) {
@@ -597,6 +648,41 @@ TEST(LiveMode, ThroughALossyRelayFecRebuildsFrames) {
               (unsigned long long)r["server_to_client"]["dropped_loss"].get<uint64_t>(),
               (unsigned long long)c["packets"]["frames_recovered"].get<uint64_t>(),
               (unsigned long long)c["packets"]["recovered"].get<uint64_t>());
+}
+
+// Adaptive bitrate in live mode: the client's reports ride on its cameras, and the server's
+// controller lowers the stream budget when a relay's 0.4 Mb/s link queues what a 1.5 Mb/s
+// budget sends.
+TEST(LiveMode, TheServerFollowsTheClientsReportsDownToTheLink) {
+  const fs::path dir = fresh_dir("relay_abr");
+  const std::vector<std::string> abr{"--set", "abr=latency",
+                                     "--set", "stream_kbps=1500",
+                                     "--set", R"(passes.ao.codec={"name":"h264","params":{"rate_control":"bitrate"}})"};
+  Process server = start_server(dir, with({"--out", (dir / "server").string(), "--idle-timeout", "20"}, abr));
+  ASSERT_GT(server.pid, 0);
+  const int server_port = wait_port(dir / "server.port", server);
+  ASSERT_GT(server_port, 0);
+  Process relay =
+      start_relay(dir, server_port, R"({"latency_ms": 10, "bandwidth_mbps": 0.4, "queue_limit_bytes": 30000})",
+                  R"({"latency_ms": 10})", {"--seed", "3"});
+  const int relay_port = wait_port(dir / "relay.port", relay);
+  ASSERT_GT(relay_port, 0);
+  Process client = start_client(dir, relay_port, with({"--frames", "120", "--out", (dir / "client").string()}, abr));
+  ASSERT_TRUE(client.wait(120)) << "the client hung:\n" << client.output();
+  ASSERT_TRUE(server.wait(30)) << server.output();
+  ASSERT_TRUE(relay.wait(30)) << relay.output();
+  EXPECT_EQ(client.exit_code, 0) << client.output();
+  EXPECT_EQ(server.exit_code, 0) << server.output();
+  const json s = read_json(dir / "server" / "server.json");
+  ASSERT_EQ(s["sessions"].size(), 1u);
+  const json a = s["sessions"][0]["abr"];
+  ASSERT_TRUE(a.is_object()) << s.dump(2);
+  std::printf("live abr: %llu updates, %llu reports dropped, budget lowest %.0f kbit/s, last %.0f kbit/s\n",
+              (unsigned long long)a["updates"].get<uint64_t>(),
+              (unsigned long long)a["reports_dropped"].get<uint64_t>(), a["kbps_lowest"].get<double>(),
+              a["kbps_last"].get<double>());
+  EXPECT_GT(a["updates"].get<uint64_t>(), 3u);
+  EXPECT_LT(a["kbps_lowest"].get<double>(), 0.8 * 1500);
 }
 
 TEST(LiveMode, ThroughALossyRelayTheSocketBytesMatchTheSimulator) {
