@@ -917,6 +917,55 @@ def stages_section(ok):
     return out
 
 
+def condition_table_section(exp, ok, metrics):
+    """For an experiment that compares groups along a condition (answer.group, answer.along): the
+    lead metric against the ground truth (else the local reference) and the stall time, one row
+    per group and one column per value of the condition, each the mean over the scenes; the best
+    cell of each column in bold."""
+    spec = exp.get("answer") if isinstance(exp.get("answer"), dict) else {}
+    group, along = spec.get("group"), spec.get("along")
+    if not group or not along or not ok or not metrics:
+        return []
+    im = lead_metric(metrics)
+    higher = im.get("higher_is_better", True)
+    cells, cols, rows = {}, [], []
+    for r in ok:
+        st = dict(r.get("settings", {}), configuration=r.get("configuration"))
+        if st.get(group) is None or along not in st:
+            continue
+        g, a = str(st[group]), str(st[along])
+        rows += [g] if g not in rows else []
+        cols += [a] if a not in cols else []
+        m = r["metrics"]
+        v = m.get(im["aggregates"]["ground_truth"]["mean"])
+        ref = "ground truth"
+        if v is None:
+            v, ref = m.get(im["aggregates"]["local"]["mean"]), "local reference"
+        cells.setdefault((g, a), []).append((v, m.get("stall_ms_total")))
+    if not cells:
+        return []
+    out = [f"## {group.capitalize()} by {along}\n",
+           f"{im['name'].upper()} against the {ref} ({'higher' if higher else 'lower'} is better) and the stall time in "
+           f"ms (in brackets), each the mean over the scenes; the best {im['name'].upper()} of each column in bold.\n",
+           f"| {group} | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
+    mean = lambda xs: sum(xs) / len(xs) if xs else None  # noqa: E731
+    table = {k: (mean([x[0] for x in v if x[0] is not None]), mean([x[1] for x in v if x[1] is not None]))
+             for k, v in cells.items()}
+    best = {}
+    for a in cols:
+        vals = [table[(g, a)][0] for g in rows if (g, a) in table and table[(g, a)][0] is not None]
+        best[a] = (max if higher else min)(vals) if vals else None
+    for g in rows:
+        out_cells = []
+        for a in cols:
+            v, stall = table.get((g, a), (None, None))
+            text = "–" if v is None else f"{v:.4f}" + (f" ({stall:.0f})" if stall is not None else "")
+            out_cells.append(f"**{text}**" if v is not None and v == best[a] else text)
+        out.append(f"| {g} | " + " | ".join(out_cells) + " |")
+    out.append("")
+    return out
+
+
 LATENCY_PARTS = [("uplink", "uplink"), ("server_wait", "server wait"), ("server", "server"),
                  ("downlink", "downlink (queue, FEC)"), ("display_wait", "display wait")]
 
@@ -1117,6 +1166,7 @@ def write_report(d):
     sections = [header,
                 context_section(res["context"]),
                 results_section(ok, failed, metrics, loaded.frames),
+                condition_table_section(exp, ok, metrics),
                 latency_section(ok),
                 stages_section(ok),
                 plots_section(plot, d, ok, loaded.frames, headline, lead_metric(metrics)),
