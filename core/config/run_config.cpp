@@ -297,7 +297,7 @@ std::vector<RunSetting> make_settings() {
       "adaptive bitrate (core/net/rate_controller.h): off, or latency: the server moves the "
       "stream budget (stream_kbps, its start) from the client's reports of each frame's delivery "
       "delay and loss: down to 0.85 of the received rate when the link's queue passes "
-      "abr_target_queue_ms, down by half the loss above 10 % loss, else up 8 % per second",
+      "abr_target_queue_ms, down by half the datagram loss above 10 % loss, up 8 % per second below 2 %",
       [](auto& c) -> auto& { return c.abr; });
   abr.choices = {"off", "latency"};
   v.push_back(with(abr, kInLiveOffer));
