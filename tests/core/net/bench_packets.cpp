@@ -3,13 +3,15 @@
 // (core/net/fec.h: 20 % parity on 1200-byte shards) against ISA-L's own calls on the same buffers
 // with tables made once (the floor; "of_isal" = its time over ours). Each case reports bytes/s and, as "of_memcpy", its rate
 // as a fraction of memcpy over the same bytes measured in the same run (the ceiling: the
-// packet layer copies every byte at least once on each side).
+// packet layer copies every byte at least once on each side). Last, the adaptive bitrate
+// controller's work per frame beside a 1 KB CRC.
 //   build-packet/tests/bench_packets --benchmark_min_time=0.2
 #include "core/base/checksum.h"
 #include "core/base/rng.h"
 #include "core/net/assembler.h"
 #include "core/net/fec.h"
 #include "core/net/packet.h"
+#include "core/net/rate_controller.h"
 
 #include <benchmark/benchmark.h>
 #include <isa-l/erasure_code.h>
@@ -263,6 +265,36 @@ void BM_FecDecode(benchmark::State& state) {
   check_rebuilt(state, c, out);
 }
 BENCHMARK(BM_FecDecode);
+
+// The adaptive bitrate controller's work per server frame of a hybrid stream (two passes sent,
+// two reported, one update), against the frame's CRC-32C of its smallest pass (1 KB): the
+// controller must cost nothing beside the packet layer. "of_crc_1kb" = its time over the CRC's.
+void BM_RateControllerPerFrame(benchmark::State& state) {
+  const std::vector<uint8_t> kb(1024, 7);
+  const auto crc_start = Clock::now();
+  constexpr int kCrcs = 100000;
+  uint32_t sink = 0;
+  for (int i = 0; i < kCrcs; ++i) sink += crc32c(kb, uint32_t(i));
+  benchmark::DoNotOptimize(sink);
+  const double crc_s = std::chrono::duration<double>(Clock::now() - crc_start).count() / kCrcs;
+  RateController c(RateControlSettings{});
+  uint32_t f = 0;
+  uint64_t received = 0;
+  const auto start = Clock::now();
+  for (auto _ : state) {
+    const double t = f * 16.7;
+    for (int pass = 0; pass < 2; ++pass) c.on_sent(f, pass, 6000, t);
+    for (int pass = 0; pass < 2; ++pass) c.on_report({f, pass, false, t + 20.0 + (f % 7)});
+    received += 10;
+    c.on_counts(received, 0);
+    benchmark::DoNotOptimize(c.update(t));
+    ++f;
+  }
+  const double s = std::chrono::duration<double>(Clock::now() - start).count() / double(state.iterations());
+  state.counters["of_crc_1kb"] = s / crc_s;
+  state.counters["ns_per_frame"] = s * 1e9;
+}
+BENCHMARK(BM_RateControllerPerFrame);
 
 }  // namespace
 }  // namespace dhr
