@@ -2,16 +2,55 @@
 #include "core/base/error.h"
 #include "experiments/cli/commands.h"
 
+extern "C" {
+#include <libavutil/log.h>
+}
+
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <exception>
 #include <vector>
+
+namespace {
+
+// libavcodec's own messages (a decoder's "non-existing PPS" after every loss, x265's notes) fill
+// a long run's log; the codecs report their failures themselves (decode_errors, error messages).
+// DHR_AV_LOG=error|warning|info|debug shows them again.
+bool set_av_log_level() {
+  const char* want = std::getenv("DHR_AV_LOG");
+  int level = AV_LOG_FATAL;
+  if (want && *want) {
+    const std::pair<const char*, int> levels[] = {{"quiet", AV_LOG_QUIET}, {"fatal", AV_LOG_FATAL},
+                                                  {"error", AV_LOG_ERROR}, {"warning", AV_LOG_WARNING},
+                                                  {"info", AV_LOG_INFO},   {"debug", AV_LOG_DEBUG}};
+    bool known = false;
+    for (const auto& [name, value] : levels)
+      if (std::strcmp(want, name) == 0) {
+        level = value;
+        known = true;
+      }
+    if (!known) {
+      std::fprintf(stderr, "dhrbench: error: DHR_AV_LOG '%s' is not one of quiet, fatal, error, warning, info, debug\n",
+                   want);
+      return false;
+    }
+  }
+  av_log_set_level(level);
+  return true;
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{
       "dhrbench: a benchmark for distributed hybrid rendering (DHR).\n"
       "A server ray-traces shadow visibility and ambient occlusion, denoises, compresses and\n"
       "streams them; a thin client rasterizes the scene, predicts around late or lost data and\n"
-      "composites. Every stage is a backend chosen by name ('dhrbench list' shows them)."};
+      "composites. Every stage is a backend chosen by name ('dhrbench list' shows them).\n"
+      "Environment: DHR_CACHE_DIR (the trace cache), DHR_SCENE_PATH (where scenes are found),\n"
+      "DHR_AV_LOG=error|warning|info|debug (libavcodec's own messages; default: fatal only)."};
+  if (!set_av_log_level()) return 2;
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "Print help for every subcommand");
 

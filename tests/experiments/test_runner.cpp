@@ -76,6 +76,18 @@ TEST(Runner, EveryCommittedExperimentValidates) {
   EXPECT_GE(validated, 1);
 }
 
+// A bad DHR_AV_LOG is an error naming the value and the valid ones, before anything runs.
+TEST(Runner, ABadAvLogLevelIsRefused) {
+  const std::string log = (fs::temp_directory_path() / ("dhr_avlog." + std::to_string(getpid()) + ".log")).string();
+  const int rc = std::system(fmt::format("DHR_AV_LOG=loud '{}' list >'{}' 2>&1", DHR_CLI, log).c_str());
+  std::ifstream in(log);
+  const std::string output((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(rc, 0);
+  EXPECT_NE(output.find("DHR_AV_LOG 'loud' is not one of quiet, fatal, error, warning, info, debug"), std::string::npos)
+      << output;
+  EXPECT_EQ(std::system(fmt::format("DHR_AV_LOG=warning '{}' list >'{}' 2>&1", DHR_CLI, log).c_str()), 0);
+}
+
 TEST(Runner, TinyExperimentEndToEnd) {
   const fs::path out = fs::temp_directory_path() / "dhr_runner_tiny";
   fs::remove_all(out);
