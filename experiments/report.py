@@ -498,6 +498,15 @@ def front_answer(ok, metrics, spec, checks):
     return Answer(out, f"Best {name} against {against} per scene: " + "; ".join(short) + ".")
 
 
+def group_and_condition(run, group, along):
+    """The run's value of answer.group (a setting or "configuration") and of answer.along, as
+    strings; None when the run has either not."""
+    st = dict(run.get("settings", {}), configuration=run.get("configuration"))
+    if st.get(group) is None or along not in st:
+        return None
+    return str(st[group]), str(st[along])
+
+
 def range_answer(ok, metrics, spec, checks):
     """The answer of a report that compares groups (answer.group, e.g. the predictor) along a
     condition (answer.along, e.g. the network): per scene and group, the lead metric at the best and
@@ -512,9 +521,8 @@ def range_answer(ok, metrics, spec, checks):
         vals, ref = scene_values(ok, scene, im)
         groups = {}
         for r, v in vals:
-            st = dict(r.get("settings", {}), configuration=r.get("configuration"))
-            if st.get(group) is not None and along in st:
-                groups.setdefault(str(st[group]), []).append((str(st[along]), v))
+            if ga := group_and_condition(r, group, along):
+                groups.setdefault(ga[0], []).append((ga[1], v))
         if not groups:
             continue
         refs.add(ref)
@@ -928,20 +936,16 @@ def condition_table_section(exp, ok, metrics):
         return []
     im = lead_metric(metrics)
     higher = im.get("higher_is_better", True)
+    runs = [(r, ga) for r in ok if (ga := group_and_condition(r, group, along))]
+    # Against the ground truth where every run has it, else the local reference.
+    truth = all(r["metrics"].get(im["aggregates"]["ground_truth"]["mean"]) is not None for r, _ in runs)
+    ref = "ground truth" if truth else "local reference"
+    key = im["aggregates"]["ground_truth" if truth else "local"]["mean"]
     cells, cols, rows = {}, [], []
-    for r in ok:
-        st = dict(r.get("settings", {}), configuration=r.get("configuration"))
-        if st.get(group) is None or along not in st:
-            continue
-        g, a = str(st[group]), str(st[along])
+    for r, (g, a) in runs:
         rows += [g] if g not in rows else []
         cols += [a] if a not in cols else []
-        m = r["metrics"]
-        v = m.get(im["aggregates"]["ground_truth"]["mean"])
-        ref = "ground truth"
-        if v is None:
-            v, ref = m.get(im["aggregates"]["local"]["mean"]), "local reference"
-        cells.setdefault((g, a), []).append((v, m.get("stall_ms_total")))
+        cells.setdefault((g, a), []).append((r["metrics"].get(key), r["metrics"].get("stall_ms_total")))
     if not cells:
         return []
     out = [f"## {group.capitalize()} by {along}\n",

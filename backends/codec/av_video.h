@@ -57,7 +57,7 @@ struct AvVideoSettings {
   // max_kbps, a capped CRF; 0: uncapped) bounds how far one frame may pass the average.
   int vbv_buffer_ms = 1000;
   int max_kbps = 0;
-  // Periodic intra refresh instead of keyframes (h264, hevc): a column of intra blocks sweeps
+  // Periodic intra refresh instead of keyframes (h264; x265's did not heal): a column of intra blocks sweeps
   // the picture once every `gop` frames; the decoder goes on after a loss and the picture heals
   // within one sweep (Codec::heals_after_loss). Keyframes come only when forced.
   bool intra_refresh = false;
@@ -69,8 +69,7 @@ struct AvVideoSettings {
 std::vector<ParamSpec> av_video_params(const std::string& encoder_label, int crf_default, int crf_max,
                                        const std::string& lossless_note, const std::string& threads_note);
 AvVideoSettings av_video_settings(const Params& p);
-// "intra_refresh": periodic intra refresh (h264, hevc: the encoder's option is set by the codec
-// file's configure_encoder).
+// "intra_refresh": periodic intra refresh (h264: its configure_encoder sets the encoder's option).
 ParamSpec intra_refresh_param(const std::string& encoder_label);
 // "preset": the speed presets x264 and x265 share, ultrafast..veryslow (default ultrafast).
 ParamSpec x26x_preset_param(const std::string& encoder_label);

@@ -13,9 +13,9 @@
 // level does not change the bytes (checked with one thread: identical streams at log 0 and 1).
 //
 // Notes measured on this build (libavcodec 59.37, x264 0.164; tests/backends/test_codecs.cpp):
-// - libx264 takes GRAY8 here, so AO goes as true 4:0:0 (4:2:0 with intra refresh, see below); rate_control=lossless (qp 0, which
-//   x264 codes in the High 4:4:4 Predictive profile) returns AO and soft visibility
-//   bit-exactly. Colour is refused in lossless mode: 4:2:0 cannot return RGB exactly.
+// - libx264 takes GRAY8 here, so AO goes as true 4:0:0 (4:2:0 with intra refresh: x264 crashes
+//   on 4:0:0 with it); rate_control=lossless (qp 0, which x264 codes in the High 4:4:4
+//   Predictive profile) returns AO and soft visibility bit-exactly. Colour is refused in lossless mode: 4:2:0 cannot return RGB exactly.
 // - slice_max_size_bytes=1100 costs bytes: on a 720p smooth-AO pan at crf 23, 8.2 KB per
 //   frame against 5.0 KB with one slice per picture (colour: 14.5 KB against 12.9 KB).
 // - libavcodec's decoder warns "Possibly too many slices (n >= 32)" on pictures with more
@@ -60,12 +60,11 @@ CodecEntry make_h264_codec() {
             f.decoder = "h264";
             f.install_hint = "install libavcodec with x264 support";
             f.stream_format = "h264";
-            f.retargets_bitrate = true;
-            // x264 0.164 crashes (x264_8_trellis_coefn) on 4:0:0 pictures with intra refresh, even at
-            // ultrafast (`ffmpeg -f lavfi -i testsrc -pix_fmt gray -c:v libx264 -intra-refresh 1`): those
-            // go as 4:2:0 with constant chroma.
-            f.gray_allowed =
-                !p.get_bool("intra_refresh");  // libavcodec's libx264 wrapper reconfigures x264 when bit_rate changes
+            f.retargets_bitrate = true;  // libavcodec's libx264 wrapper reconfigures x264 when bit_rate changes
+            // x264 0.164 crashes (x264_8_trellis_coefn) on 4:0:0 pictures with intra refresh, at ultrafast
+            // and fast (`ffmpeg -f lavfi -i testsrc -pix_fmt gray -c:v libx264 -intra-refresh 1`): those go
+            // as 4:2:0 with constant chroma.
+            f.gray_allowed = !p.get_bool("intra_refresh");
             f.configure_encoder = [preset = p.get_string("preset"), slice_max = p.get_int("slice_max_size_bytes")](
                                       const AvVideoSettings& s, AvOptions& o) {
               std::string x264_params = "scenecut=0:log=0";

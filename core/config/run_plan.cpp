@@ -16,6 +16,17 @@
 
 namespace dhr {
 
+std::optional<RateControlSettings> RunPlan::abr_settings(const SimConfig& c) {
+  if (c.abr == "off") return std::nullopt;
+  RateControlSettings rs;
+  rs.start_kbps = c.stream_kbps;
+  rs.min_kbps = c.abr_min_kbps;
+  rs.max_kbps = c.abr_max_kbps > 0.0 ? c.abr_max_kbps : c.stream_kbps;
+  rs.target_queue_ms = c.abr_target_queue_ms;
+  rs.interval_ms = c.abr_interval_ms;
+  return rs;
+}
+
 bool RunPlan::server_does(ServerStage stage) const {
   return std::find(server_stages.begin(), server_stages.end(), stage) != server_stages.end();
 }
@@ -147,10 +158,10 @@ RunPlan plan_run(const SimConfig& c, const Scene& scene, const Registries& r) {
           fmt::format("abr '{}' moves the stream budget: set stream_kbps (its start) and give one "
                       "pass h264 with rate_control bitrate",
                       c.abr));
-    const double abr_max = c.abr_max_kbps > 0.0 ? c.abr_max_kbps : c.stream_kbps;
-    if (c.abr != "off" && c.stream_kbps > 0.0 && !(c.abr_min_kbps <= c.stream_kbps && c.stream_kbps <= abr_max))
+    if (const auto rs = RunPlan::abr_settings(c);
+        rs && c.stream_kbps > 0.0 && !(rs->min_kbps <= rs->start_kbps && rs->start_kbps <= rs->max_kbps))
       problems.push_back(fmt::format("abr: stream_kbps {} (the start) is not within abr_min_kbps {} .. abr_max_kbps {}",
-                                     c.stream_kbps, c.abr_min_kbps, abr_max));
+                                     rs->start_kbps, rs->min_kbps, rs->max_kbps));
     if (c.stream_kbps > 0.0 && !budgeted)
       problems.push_back(
           fmt::format("stream_kbps {}: no pass's codec takes a target bitrate ({}); give one pass "

@@ -9,11 +9,13 @@
 
 #include "core/backend/backend.h"
 #include "core/config/run_config.h"
+#include "core/net/rate_controller.h"
 #include "core/pass/passes.h"
 #include "core/scene/scene.h"
 
 #include <nlohmann/json.hpp>
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -59,6 +61,9 @@ struct RunPlan {
   bool client_does(ClientStage stage) const;
   // The backends of a planned pass (config.pass(name)).
   const PassChoice& choice(const PlannedPass& pass) const { return config.pass(pass.name); }
+  // The adaptive bitrate controller's settings (abr_*, stream_kbps its start); none when abr is off.
+  std::optional<RateControlSettings> abr() const { return abr_settings(config); }
+  static std::optional<RateControlSettings> abr_settings(const SimConfig& config);
 };
 
 // Plans `config` on `scene` with the backends of `registries` (each created once, to check it):

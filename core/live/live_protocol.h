@@ -89,7 +89,6 @@ struct CameraUpdate {
 };
 constexpr size_t kCameraBodyBytes = 4 + 4 + 8 + 12 * 4 + 2 * 2 + 4 * kPassSlots;
 constexpr size_t kMaxFrameReports = 64;
-constexpr size_t kReportsHeadBytes = 8 + 8 + 2, kFrameReportWireBytes = 16;
 
 struct ControlMessage {
   ControlType type = ControlType::Hello;

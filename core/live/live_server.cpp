@@ -190,14 +190,8 @@ class LiveServer {
     s->peer = from;
     for (int slot = 0; slot < pass_slot_count(); ++slot) s->first_sequence[slot] = os_random_u32();
     s->pipeline = std::make_unique<ServerPipeline>(plan_, registries_, direct_tracer(*rt_, plan_), stream_of(s->id));
-    if (c_.abr != "off") {  // the simulator's controller (core/sim/frame_loop.cpp), on this server's clock
-      RateControlSettings rs;
-      rs.start_kbps = c_.stream_kbps;
-      rs.min_kbps = c_.abr_min_kbps;
-      rs.max_kbps = c_.abr_max_kbps > 0.0 ? c_.abr_max_kbps : c_.stream_kbps;
-      rs.target_queue_ms = c_.abr_target_queue_ms;
-      rs.interval_ms = c_.abr_interval_ms;
-      s->abr.emplace(rs);
+    if (const auto rs = plan_.abr()) {  // the simulator's controller, on this server's clock
+      s->abr.emplace(*rs);
       s->abr_kbps_lowest = s->abr->rate_kbps();
     }
     for (size_t i = 0; i < s->pipeline->passes().size(); ++i)

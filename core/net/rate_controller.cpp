@@ -37,7 +37,7 @@ void RateController::on_report(const FrameReport& r) {
     ++dropped_;
     return;
   }
-  min_delay_ms_ = min_delay_ms_ < 0.0 ? delay : std::min(min_delay_ms_, delay);
+  min_delay_ms_ = std::min(min_delay_ms_, delay);
   queue_sum_ms_ += delay - min_delay_ms_;
   ++delivered_;
   delivered_bits_ += sent.wire_bytes * 8;

@@ -25,7 +25,9 @@
 // the newest are an older message overtaken on the way and change nothing.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <map>
 #include <utility>
 
@@ -40,6 +42,11 @@ struct RateControlSettings {
   double increase_per_s = 0.08;  // GCC's multiplicative increase
   double beta = 0.85;            // GCC's delay-based decrease
 };
+
+// What the reports add to the client's camera message (live mode's wire format,
+// core/live/live_protocol.h; the simulator counts the same on its uplink): the datagram counts
+// and the report count, then each report (frame, slot, lost flag, reserved, arrival time).
+constexpr size_t kReportsHeadBytes = 8 + 8 + 2, kFrameReportWireBytes = 16;
 
 // One frame as the client reports it.
 struct FrameReport {
@@ -71,8 +78,8 @@ class RateController {
   };
   RateControlSettings s_;
   double rate_;
-  std::map<std::pair<uint32_t, int>, Sent> sent_;  // sent, not yet reported
-  double min_delay_ms_ = -1.0;                     // the smallest delivery delay seen (-1: none yet)
+  std::map<std::pair<uint32_t, int>, Sent> sent_;                  // sent, not yet reported
+  double min_delay_ms_ = std::numeric_limits<double>::infinity();  // the smallest delivery delay seen
   double last_update_ms_ = -1.0;
   // Since the last update:
   double queue_sum_ms_ = 0.0;

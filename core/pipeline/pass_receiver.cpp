@@ -15,13 +15,9 @@ PassReceiver::Outcome PassReceiver::on_frame(AssembledFrame& f, const FrameConte
     o.holds = codec->holds();
     if (o.holds < 0) codec->reset();
   };
-  if (gap && codec->stateful() && frame >= 0) {
-    if (codec->heals_after_loss()) {
-      o.gap_continued = true;
-    } else {
-      request();
-      o.gap_reset = true;
-    }
+  if (gap && codec->stateful() && frame >= 0 && !codec->heals_after_loss()) {
+    request();
+    o.gap_reset = true;
   }
   PassBuffer out;
   std::string error;

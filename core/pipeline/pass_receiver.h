@@ -33,8 +33,6 @@ struct PassReceiver {
     bool decode_error = false;
     bool gap_reset = false;         // a lost frame before this one: the decoder was reset, or
                                     // (one that keeps references) asked to recover
-    bool gap_continued = false;     // a lost frame before this one, and a decoder that heals by
-                                    // itself went on (no reset, no request)
     bool keyframe_request = false;  // the decoder needs a keyframe (it was reset after a gap or
                                     // an error), or a frame predicted from `holds`
     int holds = -1;                 // with keyframe_request: the newest frame the decoder holds

@@ -43,9 +43,6 @@ struct CameraMessage {
   std::vector<FrameReport> reports;  // abr: the pass frames completed or lost since the last message
   uint64_t datagrams_received = 0, datagrams_lost = 0;  // abr: the client's running counts
 };
-// abr: what one frame report adds to a camera message (frame, pass, flags, arrival time).
-constexpr uint64_t kFrameReportBytes = 8;
-constexpr uint64_t kCountsBytes = 16;  // abr: the datagrams received and lost, 8 bytes each
 
 struct Datagram {
   double arrival_ms = 0.0;
@@ -57,11 +54,6 @@ struct Datagram {
 };
 
 }  // namespace
-
-std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config,
-                                             const Scene& scene) {
-  return CacheKeys::of(config, scene, scene_key).flip_references();
-}
 
 // ---- small pieces ---------------------------------------------------------------------------
 
@@ -441,14 +433,8 @@ class Simulation {
       for (const PassType& t : pass_types()) traffic_.push_back({t.name});
     for (const PlannedPass& p : server_.passes()) traffic_index_.push_back(traffic_of(p.name));
     client_holds_.assign(server_.passes().size(), -1);
-    if (c_.abr != "off") {
-      RateControlSettings rs;
-      rs.start_kbps = c_.stream_kbps;
-      rs.min_kbps = c_.abr_min_kbps;
-      rs.max_kbps = c_.abr_max_kbps > 0.0 ? c_.abr_max_kbps : c_.stream_kbps;
-      rs.target_queue_ms = c_.abr_target_queue_ms;
-      rs.interval_ms = c_.abr_interval_ms;
-      abr_.emplace(rs);
+    if (const auto rs = plan_.abr()) {
+      abr_.emplace(*rs);
       result_.abr_kbps_lowest = abr_->rate_kbps();
     }
     result_.config = c_.to_json();
@@ -651,11 +637,15 @@ class Simulation {
       const double start = std::max(server_free_ms_, earliest);
       if (start > until_ms) return;
       int newest = -1;
+      double camera_arrival = start;  // the newest camera's (PassFrameRecord::uplink_ms)
       bool keyframe = false;
       std::vector<int> holds(client_holds_.size(), -1);
       for (const auto& m : inbox_)
         if (m.arrival_ms <= start && m.frame > server_last_frame_) {
-          newest = std::max(newest, m.frame);
+          if (m.frame > newest) {
+            newest = m.frame;
+            camera_arrival = m.arrival_ms;
+          }
           keyframe = keyframe || m.keyframe_request;
           for (size_t i = 0; i < m.holds.size() && i < holds.size(); ++i) holds[i] = std::max(holds[i], m.holds[i]);
         }
@@ -671,9 +661,6 @@ class Simulation {
         server_.set_stream_kbps(abr_->update(start));
         if (scored(newest)) result_.abr_kbps_lowest = std::min(result_.abr_kbps_lowest, abr_->rate_kbps());
       }
-      double camera_arrival = start;
-      for (const auto& m : inbox_)
-        if (m.frame == newest) camera_arrival = m.arrival_ms;
       std::erase_if(inbox_, [&](const CameraMessage& m) { return m.arrival_ms <= start && m.frame <= newest; });
       server_times_[newest] = {camera_arrival, start, 0.0};
       server_job(newest, start, keyframe, holds);
@@ -803,9 +790,10 @@ class Simulation {
     if (rasterizes) client_ms += raster_ms;
 
     // Uplink: this frame's camera (and a keyframe request after a loss).
-    const Delivery up = uplink_.send(
-        kCameraMessageBytes + (abr_ ? kCountsBytes + kFrameReportBytes * reports_.size() : 0) + kIpUdpOverheadBytes,
-        now);
+    const Delivery up =
+        uplink_.send(kCameraMessageBytes + (abr_ ? kReportsHeadBytes + kFrameReportWireBytes * reports_.size() : 0) +
+                         kIpUdpOverheadBytes,
+                     now);
     if (up.delivered) {
       inbox_.push_back({a, up.arrival_ms, keyframe_request_, client_holds_, std::move(reports_),
                         assembler_.stats().datagrams, assembler_.stats().packets_lost});

@@ -76,7 +76,7 @@ class TraceCache {
   // FLIP's half of the work on a reference image (flip_features), under the image's key: the
   // runs that score against the same local reference or ground truth compute it once.
   // Each find_flip counts as one read of its key. Once reads are announced (expect_flip_reads, by
-  // the runner, from flip_reference_keys of the runs to come), a key is kept only while announced
+  // the runner, from CacheKeys::flip_references of the runs to come), a key is kept only while announced
   // reads of it remain: insert_flip keeps nothing else (a key never announced included), and the
   // last read drops it. A cache with no announcement keeps every key, under the byte bound. The
   // features are the same either way (a dropped key is computed again if read after all):
@@ -172,10 +172,5 @@ RunResult run_simulation(const RunPlan& plan, const std::string& scene_key, Trac
 // Plans the run (plan_run throws dhr::Error listing every problem), then runs it.
 RunResult run_simulation(const SimConfig& config, const Scene& scene, const std::string& scene_key, TraceCache& cache,
                          const Registries& registries, const ProgressFn& progress = {});
-
-// One key per FLIP score the run will compute, in order: the local reference of every scored
-// frame and the ground truth of every frame scored against it (TraceCache::expect_flip_reads),
-// keyed as run_simulation keys them (CacheKeys::flip_references, core/config/cache_keys.h).
-std::vector<std::string> flip_reference_keys(const std::string& scene_key, const SimConfig& config, const Scene& scene);
 
 }  // namespace dhr

@@ -7,6 +7,7 @@
 #include "core/base/json_io.h"
 #include "core/base/process.h"
 #include "core/buffers/image_io.h"
+#include "core/config/cache_keys.h"
 #include "core/config/run_plan.h"
 #include "core/experiment/experiment.h"
 #include "core/experiment/shard.h"
@@ -310,9 +311,8 @@ Runner add_run_command(CLI::App& app) {
     if (!o->no_disk_cache) cache.set_disk_dir((fs::path(default_cache_dir()) / "trace").string());
     // Every FLIP score the sweep will compute, so that the cache keeps a reference's features
     // only while a later score needs them (a reference one run scores is never kept).
-    for (const RunSpec& spec : e.runs)
-      for (const std::string& key :
-           flip_reference_keys(loaded.keys.at(spec.scene), spec.config, loaded.scenes.at(spec.scene)))
+    for (size_t i = 0; i < e.runs.size(); ++i)
+      for (const std::string& key : CacheKeys::of(loaded.plans[i], loaded.keys.at(e.runs[i].scene)).flip_references())
         cache.expect_flip_reads(key, 1);
     Progress progress(e.runs.size());
     // One run: its record and its rows of frames.csv. A run that fails is recorded with its error.

@@ -10,6 +10,7 @@ extern "C" {
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <string>
 #include <vector>
 
 namespace {
@@ -25,14 +26,16 @@ bool set_av_log_level() {
                                                   {"error", AV_LOG_ERROR}, {"warning", AV_LOG_WARNING},
                                                   {"info", AV_LOG_INFO},   {"debug", AV_LOG_DEBUG}};
     bool known = false;
-    for (const auto& [name, value] : levels)
+    std::string valid;
+    for (const auto& [name, value] : levels) {
+      valid += (valid.empty() ? "" : ", ") + std::string(name);
       if (std::strcmp(want, name) == 0) {
         level = value;
         known = true;
       }
+    }
     if (!known) {
-      std::fprintf(stderr, "dhrbench: error: DHR_AV_LOG '%s' is not one of quiet, fatal, error, warning, info, debug\n",
-                   want);
+      std::fprintf(stderr, "dhrbench: error: DHR_AV_LOG '%s' is not one of %s\n", want, valid.c_str());
       return false;
     }
   }

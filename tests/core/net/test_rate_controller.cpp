@@ -120,6 +120,24 @@ TEST(RateController, ForgedRepeatedAndImpossibleReportsAreDroppedAndCounted) {
   EXPECT_NEAR(c.update(100), 4000 * std::pow(1.08, 0.1), 1e-9);  // one good report, no queue
 }
 
+// Live mode: the client's clock may run behind the server's, so every delay is negative; the
+// smallest one still takes the offset out (a queue of 24 ms on average is over the target).
+TEST(RateController, AClockOffsetDropsOutEvenWhenDelaysAreNegative) {
+  counts.clear();
+  RateController c(settings());
+  c.update(0);
+  constexpr double kOffset = -5000.0;
+  c.on_sent(0, 0, 1000, 0.0);
+  c.on_report({0, 0, false, kOffset + 20.0});
+  for (uint32_t f = 1; f < 7; ++f) {
+    c.on_sent(f, 0, 2000, f * 16.0);
+    c.on_report({f, 0, false, f * 16.0 + kOffset + 48.0});
+  }
+  c.on_counts(70, 0);
+  EXPECT_NEAR(c.update(100), 0.85 * 1040.0, 1e-9);
+  EXPECT_EQ(c.reports_dropped(), 0u);
+}
+
 TEST(RateController, NoReportsNoChange) {
   counts.clear();
   RateController c(settings());

@@ -599,7 +599,7 @@ TEST(FrameLoop, SharedClientGBuffersScoreAsTheirOwn) {
   EXPECT_EQ(shared.raster_hits(), 0u);
 }
 
-// The runner announces every FLIP score of a sweep (flip_reference_keys): the cache keeps a
+// The runner announces every FLIP score of a sweep (CacheKeys::flip_references): the cache keeps a
 // reference's features only while a later score reads them, every announced read is made, and
 // the scores are those of a cache that keeps everything.
 TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
@@ -622,7 +622,7 @@ TEST(FrameLoop, AnnouncedFlipReadsKeepFeaturesOnlyWhileNeeded) {
   TraceCache announced;
   size_t pending = 0;
   for (const SimConfig* c : runs) {
-    keys.push_back(flip_reference_keys("room", *c, scene("room")));
+    keys.push_back(CacheKeys::of(*c, scene("room"), "room").flip_references());
     for (const std::string& k : keys.back()) announced.expect_flip_reads(k, 1);
     pending += keys.back().size();
   }
